@@ -1,0 +1,60 @@
+//! Camera model and feature observations.
+//!
+//! Pixel `(u, v)` has its origin at the top-left pixel centre, u to the right, v down; the camera
+//! frame `c` has x right, y down, z forward (optical axis). The normalized plane is `z = 1`.
+
+/// A feature observation: a tracked point in raw (distorted) pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FeatureObs {
+    /// Track (landmark) identifier, stable across frames.
+    pub id: u64,
+    /// Column, px.
+    pub u_px: f64,
+    /// Row, px.
+    pub v_px: f64,
+}
+
+/// Lens distortion model of a [`PinholeCamera`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Distortion {
+    /// No distortion.
+    None,
+    /// Radial-tangential (plumb bob / Kalibr `radtan`).
+    RadTan {
+        /// Radial coefficient r^2.
+        k1: f64,
+        /// Radial coefficient r^4.
+        k2: f64,
+        /// Tangential coefficient.
+        p1: f64,
+        /// Tangential coefficient.
+        p2: f64,
+    },
+    /// Equidistant fisheye (Kalibr `equidistant`, OpenCV fisheye).
+    Equidistant {
+        /// Coefficients of theta^3, theta^5, theta^7, theta^9.
+        k: [f64; 4],
+    },
+}
+
+/// Pinhole camera intrinsics with distortion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PinholeCamera {
+    /// Image width, px.
+    pub width: u32,
+    /// Image height, px.
+    pub height: u32,
+    /// Focal length along u, px.
+    pub fx: f64,
+    /// Focal length along v, px.
+    pub fy: f64,
+    /// Principal point u, px.
+    pub cx: f64,
+    /// Principal point v, px.
+    pub cy: f64,
+    /// Distortion model.
+    pub distortion: Distortion,
+}

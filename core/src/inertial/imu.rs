@@ -1,0 +1,68 @@
+//! IMU samples and the IMU noise model.
+
+use crate::math::Vec3;
+
+/// One IMU sample in the body (IMU) frame `b`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuSample {
+    /// Sample time, integer nanoseconds on the sensor clock.
+    pub t_ns: i64,
+    /// Angular rate of `b` relative to inertial space, in `b`, rad/s.
+    pub gyro_rps: Vec3,
+    /// Specific force in `b`, m/s^2 (at rest: `+g` along the body's up axis).
+    pub accel_mps2: Vec3,
+}
+
+impl ImuSample {
+    /// True when every component is finite.
+    pub fn is_finite(&self) -> bool {
+        self.gyro_rps
+            .iter()
+            .chain(self.accel_mps2.iter())
+            .all(|x| x.is_finite())
+    }
+}
+
+/// Continuous-time IMU noise model (datasheet / Kalibr `sensor.yaml` units).
+///
+/// Biases follow a random walk, or a first-order Gauss-Markov process when
+/// `bias_corr_time_s` is set (LE-VINS): `db/dt = -b/T + w`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ImuNoise {
+    /// Gyro white-noise density, rad/s/sqrt(Hz).
+    pub gyro_noise_density: f64,
+    /// Accelerometer white-noise density, m/s^2/sqrt(Hz).
+    pub accel_noise_density: f64,
+    /// Gyro bias random-walk density, rad/s^2/sqrt(Hz).
+    pub gyro_bias_rw: f64,
+    /// Accelerometer bias random-walk density, m/s^3/sqrt(Hz).
+    pub accel_bias_rw: f64,
+    /// Gauss-Markov correlation time of both biases, s; `None` = pure random walk.
+    pub bias_corr_time_s: Option<f64>,
+}
+
+impl ImuNoise {
+    /// EuRoC ADIS16448 values from its `sensor.yaml`.
+    pub const EUROC_ADIS16448: ImuNoise = ImuNoise {
+        gyro_noise_density: 1.6968e-4,
+        accel_noise_density: 2.0e-3,
+        gyro_bias_rw: 1.9393e-5,
+        accel_bias_rw: 3.0e-3,
+        bias_corr_time_s: None,
+    };
+
+    /// True when every density is finite and non-negative and the correlation time (if any) positive.
+    pub fn is_valid(&self) -> bool {
+        let d = [
+            self.gyro_noise_density,
+            self.accel_noise_density,
+            self.gyro_bias_rw,
+            self.accel_bias_rw,
+        ];
+        d.iter().all(|x| x.is_finite() && *x >= 0.0)
+            && self
+                .bias_corr_time_s
+                .is_none_or(|t| t.is_finite() && t > 0.0)
+    }
+}

@@ -1,0 +1,13 @@
+//! Small geometry kernel shared by every layer: SO(3) maps and their Jacobians, all on `f64` with
+//! `libm` transcendental functions (bit-identical across targets).
+
+pub mod so3;
+
+pub use so3::{exp_so3, jr_inv_so3, jr_so3, log_so3, quat_exp, skew};
+
+/// 3-vector of `f64`.
+pub type Vec3 = nalgebra::Vector3<f64>;
+/// 3x3 matrix of `f64`.
+pub type Mat3 = nalgebra::Matrix3<f64>;
+/// Unit quaternion of `f64` (Hamilton).
+pub type Quat = nalgebra::UnitQuaternion<f64>;

@@ -1,0 +1,9 @@
+//! # povins-platform
+//!
+//! The std side of povins for Linux (x86-64 and aarch64): dataset readers and writers (EuRoC ASL
+//! folders, MCAP with ROS 2 CDR messages, TUM trajectories), the in-memory [`dataset::Dataset`]
+//! they all produce, and the runtime pieces around the `no_std` core.
+
+pub mod dataset;
+
+pub use dataset::Dataset;
