@@ -1,4 +1,7 @@
 //! # povins-host-tools
 //!
-//! Library behind the `povins` command: inertial reports, and (as the issues land) dataset
-//! replay, simulation, evaluation and plots.
+//! Library behind the `povins` command: dataset replay, simulation, evaluation and plots. Each
+//! subcommand lives in [`cmd`]; the reusable pieces (evaluation math, simulator, plotting) in
+//! their own modules so tests and benches can call them directly.
+
+pub mod cmd;

@@ -1,6 +1,7 @@
 //! The `povins` command.
 
 use clap::{Parser, Subcommand};
+use povins_host_tools::cmd;
 
 #[derive(Parser)]
 #[command(
@@ -15,14 +16,18 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Placeholder until the first command lands.
-    Version,
+    /// Simulate a camera + IMU + LiDAR sequence with ground truth.
+    Simulate(cmd::simulate::Args),
+    /// Evaluate an estimated trajectory against ground truth (ATE, RTE).
+    Eval(cmd::eval::Args),
+    /// Plot an estimate against ground truth (SVG or PNG).
+    Plot(cmd::plot::Args),
 }
 
 fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
-    match cli.cmd {
-        Cmd::Version => println!("povins {}", env!("CARGO_PKG_VERSION")),
+    match Cli::parse().cmd {
+        Cmd::Simulate(a) => cmd::simulate::run(a),
+        Cmd::Eval(a) => cmd::eval::run(a),
+        Cmd::Plot(a) => cmd::plot::run(a),
     }
-    Ok(())
 }

@@ -5,5 +5,10 @@
 //! they all produce, and the runtime pieces around the `no_std` core.
 
 pub mod dataset;
+pub mod error;
+pub mod euroc;
+pub mod mcap_io;
+pub mod trajectory;
 
 pub use dataset::Dataset;
+pub use error::IoError;

@@ -1,0 +1,5 @@
+//! One module per `povins` subcommand: its clap `Args` and its `run`.
+
+pub mod eval;
+pub mod plot;
+pub mod simulate;
