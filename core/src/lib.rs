@@ -23,8 +23,11 @@ pub mod log;
 
 pub mod camera;
 pub mod error;
+pub mod factors;
 pub mod inertial;
+pub mod landmarks;
 pub mod lidar;
 pub mod math;
+pub mod solver;
 
 pub use error::Error;

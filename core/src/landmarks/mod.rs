@@ -1,0 +1,1 @@
+//! Landmark geometry: pose-only depth and its analytic uncertainty, landmark bookkeeping.
