@@ -24,6 +24,7 @@ pub mod log;
 pub mod camera;
 pub mod error;
 pub mod factors;
+pub mod frontend;
 pub mod inertial;
 pub mod landmarks;
 pub mod lidar;
