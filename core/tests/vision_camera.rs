@@ -145,7 +145,11 @@ fn distortion_jacobian_matches_numerical() {
             let jn: SMatrix<f64, 2, 2> =
                 num_jac::<2, 2>(1e-6, |d| cam.distort(&(x + Vec2::new(d[0], d[1]))));
             let err = (j - jn).amax();
-            assert!(err < 1e-5, "{:?} at {x:?}: {err:e}\n{j}\n{jn}", cam.distortion);
+            assert!(
+                err < 1e-5,
+                "{:?} at {x:?}: {err:e}\n{j}\n{jn}",
+                cam.distortion
+            );
         }
     }
 }

@@ -49,8 +49,9 @@ fn depth_is_exact_on_synthetic_geometry() {
             (rng.range(-0.6, 0.6), rng.range(-0.4, 0.4)),
         );
         let d = pose_only_depth(&sc.x_s, &sc.x_e, &sc.r_es, &sc.t_es, DEFAULT_MIN_THETA).unwrap();
+        assert_eq!(sc.depth, depth);
         assert!(
-            ((d.d_s - depth) / depth).abs() < 1e-12,
+            ((d.d_s - sc.depth) / sc.depth).abs() < 1e-12,
             "{} vs {depth}",
             d.d_s
         );
@@ -129,8 +130,16 @@ fn depth_jacobians_match_numerical_and_math_notes_form() {
                 - depth_of(&x_s, &(x_e - d), &sc.r_es, &sc.t_es))
                 / (2.0 * h);
             let scale = js.amax().max(je.amax());
-            assert!((js[k] - ns).abs() < 1e-6 * scale, "dd/dx_s[{k}] {} {ns}", js[k]);
-            assert!((je[k] - ne).abs() < 1e-6 * scale, "dd/dx_e[{k}] {} {ne}", je[k]);
+            assert!(
+                (js[k] - ns).abs() < 1e-6 * scale,
+                "dd/dx_s[{k}] {} {ns}",
+                js[k]
+            );
+            assert!(
+                (je[k] - ne).abs() < 1e-6 * scale,
+                "dd/dx_e[{k}] {} {ne}",
+                je[k]
+            );
         }
         if noise == 0.0 {
             // Math notes sec. 2 (magnitude form) at consistent geometry.
@@ -179,12 +188,24 @@ fn monte_carlo_depth_std_matches_analytic() {
     let n = 40_000;
     for (depth, baseline) in [(4.0, 0.5), (8.0, 1.0), (3.0, 0.2)] {
         let sc = scene(depth, baseline, (0.15, -0.1));
-        let analytic =
-            depth_std(&TwoView::new(&sc.x_s, &sc.x_e, &sc.r_es, &sc.t_es), sigma_px, &F).unwrap();
+        let analytic = depth_std(
+            &TwoView::new(&sc.x_s, &sc.x_e, &sc.r_es, &sc.t_es),
+            sigma_px,
+            &F,
+        )
+        .unwrap();
         let (mut sum, mut sum2) = (0.0, 0.0);
         for _ in 0..n {
-            let ns = Vec3::new(rng.normal() * sigma_px / F.x, rng.normal() * sigma_px / F.y, 0.0);
-            let ne = Vec3::new(rng.normal() * sigma_px / F.x, rng.normal() * sigma_px / F.y, 0.0);
+            let ns = Vec3::new(
+                rng.normal() * sigma_px / F.x,
+                rng.normal() * sigma_px / F.y,
+                0.0,
+            );
+            let ne = Vec3::new(
+                rng.normal() * sigma_px / F.x,
+                rng.normal() * sigma_px / F.y,
+                0.0,
+            );
             let d = depth_of(&(sc.x_s + ns), &(sc.x_e + ne), &sc.r_es, &sc.t_es);
             sum += d;
             sum2 += d * d;

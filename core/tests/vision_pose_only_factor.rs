@@ -3,7 +3,7 @@
 
 mod vision_common;
 
-use nalgebra::{Matrix2x6, SMatrix, Vector1};
+use nalgebra::{Matrix2x6, SMatrix};
 use povins_core::camera::{CameraExtrinsic, Vec2};
 use povins_core::factors::pose_only_visual::PoseOnlyVisualFactor;
 use povins_core::factors::{sqrt_info_from_pixels, KeyframePose, TimedObs};
@@ -32,7 +32,11 @@ fn setup(rng: &mut Rng) -> Setup {
         e: random_pose(rng, -0.002),
         j: random_pose(rng, 0.001),
         ext: euroc_extrinsic(),
-        p_w: Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(5.0, 9.0)),
+        p_w: Vec3::new(
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+            rng.range(5.0, 9.0),
+        ),
     }
 }
 
@@ -111,7 +115,8 @@ fn scale_free_form_equals_explicit_depth_form() {
         let (r_js, t_js) = cj.relative_from(&cs);
         let d = pose_only_depth(&x_s, &x_e, &r_es, &t_es, 0.0).unwrap();
         let p_j = r_js * x_s * d.d_s + t_js;
-        let explicit = (Vec2::new(p_j.x / p_j.z, p_j.y / p_j.z) - x_j.xy()).component_mul(&sqrt_info());
+        let explicit =
+            (Vec2::new(p_j.x / p_j.z, p_j.y / p_j.z) - x_j.xy()).component_mul(&sqrt_info());
         assert!((r - explicit).amax() < 1e-9, "{r} vs {explicit}");
         assert!(r.amax() > 0.1, "noise should give a visible residual: {r}");
     }
@@ -119,7 +124,10 @@ fn scale_free_form_equals_explicit_depth_form() {
 
 fn check(name: &str, a: &Matrix2x6<f64>, n: &Matrix2x6<f64>) {
     let err = rel_err(a, n);
-    assert!(err < 1e-6, "{name}: rel err {err:e}\nanalytic {a}\nnumerical {n}");
+    assert!(
+        err < 1e-6,
+        "{name}: rel err {err:e}\nanalytic {a}\nnumerical {n}"
+    );
 }
 
 fn check_jacobians(j_is_e: bool, seed: u64) {
@@ -165,9 +173,11 @@ fn check_jacobians(j_is_e: bool, seed: u64) {
             let a: SMatrix<f64, 2, 1> = jac.d_td[k];
             let err = rel_err(&a, &n);
             assert!(err < 1e-6, "td {k}: {a} vs {n}");
-            assert!(a.amax() > 1e-3, "td {k} Jacobian should be non-trivial: {a}");
+            assert!(
+                a.amax() > 1e-3,
+                "td {k} Jacobian should be non-trivial: {a}"
+            );
         }
-        let _ = Vector1::new(0.0);
     }
 }
 
@@ -197,14 +207,20 @@ fn anchor_misuse_and_degenerate_geometry_are_errors() {
         Err(Error::Degenerate)
     );
     // e at the same place as s: no baseline, the depth is zero/undefined.
-    let e_at_s = KeyframePose { td: st.e.td, ..st.s };
+    let e_at_s = KeyframePose {
+        td: st.e.td,
+        ..st.s
+    };
     assert_eq!(
         f.residual(&st.s, &e_at_s, &st.j, &st.ext),
         Err(Error::Degenerate)
     );
     let mut nan = st.j;
     nan.p_wb.x = f64::NAN;
-    assert_eq!(f.residual(&st.s, &st.e, &nan, &st.ext), Err(Error::NonFinite));
+    assert_eq!(
+        f.residual(&st.s, &st.e, &nan, &st.ext),
+        Err(Error::NonFinite)
+    );
     let zero_info = PoseOnlyVisualFactor {
         sqrt_info: Vec2::zeros(),
         ..f

@@ -173,7 +173,7 @@ fn undistort_equidistant(x_d: &Vec2, k: &[f64; 4]) -> Result<Vec2, Error> {
             converged = true;
             break;
         }
-        if !(df > 0.0) {
+        if !(df > 0.0 && df.is_finite()) {
             // The model folds over here: no unique inverse.
             return Err(Error::Degenerate);
         }

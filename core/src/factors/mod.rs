@@ -1,4 +1,6 @@
-//! Residual factors: IMU preintegration, pose-only visual reprojection, inverse-depth reprojection (baseline), time-delay random walk.
+//! Residual factors: pose-only visual reprojection, inverse-depth reprojection (BA baseline and
+//! building block of the MSC LiDAR-depth measurement), LiDAR depth, Huber kernel, time-delay
+//! random walk. (The IMU preintegration factor lives in `inertial::preintegration`.)
 //!
 //! Shared conventions of the visual factors:
 //! - A keyframe enters as [`KeyframePose`]: the body pose in the world and its camera time delay.
@@ -69,7 +71,11 @@ impl TimedObs {
     }
 
     fn is_finite(&self) -> bool {
-        self.x_n.iter().chain(self.vel.iter()).all(|v| v.is_finite()) && self.td0.is_finite()
+        self.x_n
+            .iter()
+            .chain(self.vel.iter())
+            .all(|v| v.is_finite())
+            && self.td0.is_finite()
     }
 }
 
@@ -77,7 +83,8 @@ impl TimedObs {
 ///
 /// Errors: [`Error::InvalidConfig`] unless the focal lengths and `sigma_px` are positive.
 pub fn sqrt_info_from_pixels(focal: &Vec2, sigma_px: f64) -> Result<Vec2, Error> {
-    if !(focal.x > 0.0 && focal.y > 0.0 && sigma_px > 0.0) || !(focal.x + focal.y).is_finite() {
+    let valid = focal.x > 0.0 && focal.y > 0.0 && sigma_px > 0.0 && (focal.x + focal.y).is_finite();
+    if !valid {
         return Err(Error::InvalidConfig);
     }
     Ok(focal / sigma_px)

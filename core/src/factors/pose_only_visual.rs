@@ -28,7 +28,7 @@ use super::{
 };
 use crate::camera::{CameraExtrinsic, Vec2};
 use crate::landmarks::TwoView;
-use crate::math::{skew, Mat3};
+use crate::math::{skew, Mat3, Vec3};
 use crate::Error;
 use nalgebra::{Matrix2x6, SMatrix};
 
@@ -74,10 +74,10 @@ struct Eval {
     r_ew: Mat3,
     r_jw: Mat3,
     r_js: Mat3,
-    t_js: nalgebra::Vector3<f64>,
-    u_j: nalgebra::Vector3<f64>,
-    p: nalgebra::Vector3<f64>,
-    x_j: nalgebra::Vector3<f64>,
+    t_js: Vec3,
+    u_j: Vec3,
+    p: Vec3,
+    x_j: Vec3,
 }
 
 impl PoseOnlyVisualFactor {
@@ -127,7 +127,8 @@ impl PoseOnlyVisualFactor {
         let alpha = two.a.norm_squared();
         let dd = -two.a.dot(&two.b);
         // dd = alpha * d_s: the landmark must be in front of camera s.
-        if !(alpha > 0.0) || !(dd > 0.0) {
+        let in_front_of_s = alpha > 0.0 && dd > 0.0;
+        if !in_front_of_s {
             return Err(Error::Degenerate);
         }
         let u_j = r_js * x_s;
@@ -135,7 +136,7 @@ impl PoseOnlyVisualFactor {
         if !p.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
         }
-        if !(p.z > MIN_Z_REL * p.norm()) {
+        if p.z <= MIN_Z_REL * p.norm() {
             return Err(Error::Degenerate);
         }
         Ok((

@@ -162,7 +162,8 @@ pub fn pose_only_depth(
         return Err(Error::NonFinite);
     }
     // `!(x > y)` also rejects NaN (a zero parallax gives 0/0).
-    if !(theta >= min_theta) || !(d_s > 0.0) || !d_s.is_finite() {
+    let usable = theta >= min_theta && d_s > 0.0 && d_s.is_finite();
+    if !usable {
         return Err(Error::Degenerate);
     }
     Ok(PoseOnlyDepth { d_s, theta })
@@ -178,7 +179,7 @@ pub fn depth_std(g: &TwoView, sigma_px: f64, focal: &Vec2) -> Result<f64, Error>
     if !(focal.x > 0.0 && focal.y > 0.0 && sigma_px >= 0.0) {
         return Err(Error::InvalidConfig);
     }
-    if !(g.a.norm_squared() > 0.0) {
+    if g.a.norm_squared() == 0.0 {
         return Err(Error::Degenerate);
     }
     let (j_s, j_e) = g.depth_jacobians();
