@@ -2,6 +2,22 @@
 //!
 //! Pixel `(u, v)` has its origin at the top-left pixel centre, u to the right, v down; the camera
 //! frame `c` has x right, y down, z forward (optical axis). The normalized plane is `z = 1`.
+//!
+//! A point `P_c` maps to the normalized plane `x_n = (P_x/P_z, P_y/P_z)`, then through the lens
+//! model to distorted normalized coordinates `x_d` ([`distortion`]), then to pixels
+//! `u = fx x_d + cx`, `v = fy y_d + cy` ([`pinhole`]). [`PinholeCamera::undistort`] inverts the
+//! lens model iteratively.
+
+pub mod distortion;
+pub mod extrinsic;
+pub mod pinhole;
+
+pub use extrinsic::{CameraExtrinsic, CameraPose};
+
+/// 2-vector of `f64` (normalized-plane or pixel coordinates).
+pub type Vec2 = nalgebra::Vector2<f64>;
+/// 2x2 matrix of `f64`.
+pub type Mat2 = nalgebra::Matrix2<f64>;
 
 /// A feature observation: a tracked point in raw (distorted) pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]

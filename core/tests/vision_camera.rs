@@ -1,0 +1,208 @@
+//! Camera model: projection, distortion Jacobians, undistortion round trips (EuRoC radtan over the
+//! whole image, equidistant fisheye), and the real EuRoC calibration file.
+
+mod vision_common;
+
+use nalgebra::SMatrix;
+use povins_core::camera::{Distortion, PinholeCamera, Vec2};
+use povins_core::math::Vec3;
+use povins_core::Error;
+use vision_common::{data_dir, num_jac, Rng};
+
+fn euroc_cam0() -> PinholeCamera {
+    PinholeCamera {
+        width: 752,
+        height: 480,
+        fx: 458.654,
+        fy: 457.296,
+        cx: 367.215,
+        cy: 248.375,
+        distortion: Distortion::RadTan {
+            k1: -0.28340811,
+            k2: 0.07395907,
+            p1: 0.00019359,
+            p2: 1.76187114e-05,
+        },
+    }
+}
+
+/// TUM-VI cam0 (512x512, Kalibr equidistant): a real fisheye calibration.
+fn tumvi_cam0() -> PinholeCamera {
+    PinholeCamera {
+        width: 512,
+        height: 512,
+        fx: 190.97847715128717,
+        fy: 190.9733070521226,
+        cx: 254.93170605935475,
+        cy: 256.8974428996504,
+        distortion: Distortion::Equidistant {
+            k: [
+                0.0034823894022493434,
+                0.0007150348452162257,
+                -0.0020532361418706202,
+                0.00020293673591811182,
+            ],
+        },
+    }
+}
+
+/// Max pixel round-trip error `distort(undistort(px)) - px` over a 1-px grid of the image
+/// (every pixel centre), and the number of pixels that failed to undistort.
+fn round_trip_whole_image(cam: &PinholeCamera, skip_radius_px: f64) -> (f64, usize, usize) {
+    let (mut worst, mut failed, mut tested) = (0.0f64, 0usize, 0usize);
+    for v in 0..cam.height {
+        for u in 0..cam.width {
+            let (u, v) = (u as f64, v as f64);
+            let r = libm::hypot(u - cam.cx, v - cam.cy);
+            if r > skip_radius_px {
+                continue;
+            }
+            tested += 1;
+            match cam.undistort(u, v) {
+                Ok(x) => {
+                    assert_eq!(x.z, 1.0);
+                    let back = cam.distort(&Vec2::new(x.x, x.y));
+                    worst = worst.max((back - Vec2::new(u, v)).norm());
+                }
+                Err(_) => failed += 1,
+            }
+        }
+    }
+    (worst, failed, tested)
+}
+
+#[test]
+fn euroc_radtan_round_trip_every_pixel() {
+    let cam = euroc_cam0();
+    let (worst, failed, tested) = round_trip_whole_image(&cam, f64::INFINITY);
+    assert_eq!(tested, 752 * 480);
+    assert_eq!(failed, 0, "undistortion failed on {failed} pixels");
+    assert!(worst < 1e-6, "worst round trip {worst:e} px");
+    println!("EuRoC radtan: worst pixel round trip {worst:e} px over {tested} pixels");
+}
+
+#[test]
+fn euroc_radtan_corner_is_strongly_distorted() {
+    // The corner ray is far from the distorted one: proves the test above exercises the model.
+    let cam = euroc_cam0();
+    let x = cam.undistort(0.0, 0.0).unwrap();
+    let naive = Vec2::new(-cam.cx / cam.fx, -cam.cy / cam.fy);
+    let shift_px = (Vec2::new(x.x, x.y) - naive).norm() * cam.fx;
+    assert!(shift_px > 100.0, "corner shift only {shift_px} px");
+    // Principal point maps to the optical axis (up to the tangential terms, here ~0).
+    let c = cam.undistort(cam.cx, cam.cy).unwrap();
+    assert!(c.x.abs() < 1e-15 && c.y.abs() < 1e-15);
+}
+
+#[test]
+fn equidistant_round_trip_inside_the_image_circle() {
+    let cam = tumvi_cam0();
+    // Rays up to ~80 deg from the axis (theta_d ~ 1.4 rad): 1.4 * 191 px.
+    let (worst, failed, tested) = round_trip_whole_image(&cam, 1.4 * cam.fx);
+    assert!(tested > 150_000, "tested {tested}");
+    assert_eq!(failed, 0);
+    assert!(worst < 1e-6, "worst round trip {worst:e} px");
+    println!("TUM-VI equidistant: worst pixel round trip {worst:e} px over {tested} pixels");
+}
+
+#[test]
+fn equidistant_rejects_rays_beyond_ninety_degrees() {
+    let cam = tumvi_cam0();
+    // The image corner is > 90 deg off-axis for this 195-deg lens: not on the z = 1 plane.
+    assert_eq!(cam.undistort(0.0, 0.0), Err(Error::Degenerate));
+}
+
+#[test]
+fn normalized_to_pixel_to_normalized_round_trip() {
+    let mut rng = Rng::new(7);
+    for cam in [euroc_cam0(), tumvi_cam0()] {
+        for _ in 0..2000 {
+            let x = Vec2::new(rng.range(-0.8, 0.8), rng.range(-0.5, 0.5));
+            let px = cam.distort(&x);
+            let back = cam.undistort(px.x, px.y).unwrap();
+            assert!(
+                (Vec2::new(back.x, back.y) - x).norm() < 1e-11,
+                "{x:?} -> {back:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn distortion_jacobian_matches_numerical() {
+    let mut rng = Rng::new(11);
+    let undistorted = PinholeCamera {
+        distortion: Distortion::None,
+        ..euroc_cam0()
+    };
+    for cam in [euroc_cam0(), tumvi_cam0(), undistorted] {
+        let mut pts = vec![Vec2::zeros(), Vec2::new(1e-9, -2e-9), Vec2::new(0.9, -0.6)];
+        for _ in 0..50 {
+            pts.push(Vec2::new(rng.range(-1.0, 1.0), rng.range(-0.7, 0.7)));
+        }
+        for x in pts {
+            let (_, j) = cam.distort_with_jacobian(&x);
+            let jn: SMatrix<f64, 2, 2> =
+                num_jac::<2, 2>(1e-6, |d| cam.distort(&(x + Vec2::new(d[0], d[1]))));
+            let err = (j - jn).amax();
+            assert!(
+                err < 1e-5,
+                "{:?} at {x:?}: {err:e}\n{j}\n{jn}",
+                cam.distortion
+            );
+        }
+    }
+}
+
+#[test]
+fn project_rejects_points_behind_and_non_finite() {
+    let cam = euroc_cam0();
+    assert!(cam.project(&Vec3::new(0.1, 0.1, -1.0)).is_none());
+    assert!(cam.project(&Vec3::new(0.1, 0.1, 0.0)).is_none());
+    assert!(cam.project(&Vec3::new(f64::NAN, 0.1, 1.0)).is_none());
+    assert!(cam.project(&Vec3::new(0.0, 0.0, f64::INFINITY)).is_none());
+    let p = cam.project(&Vec3::new(0.2, -0.1, 2.0)).unwrap();
+    assert_eq!(p, cam.distort(&Vec2::new(0.1, -0.05)));
+    // The principal ray lands on the principal point.
+    let c = cam.project(&Vec3::new(0.0, 0.0, 3.0)).unwrap();
+    assert_eq!(c, Vec2::new(cam.cx, cam.cy));
+    assert_eq!(cam.undistort(f64::NAN, 1.0), Err(Error::NonFinite));
+}
+
+#[test]
+fn in_image_bounds() {
+    let cam = euroc_cam0();
+    assert!(cam.in_image(0.0, 0.0));
+    assert!(cam.in_image(751.0, 479.0));
+    assert!(!cam.in_image(751.01, 100.0));
+    assert!(!cam.in_image(-0.01, 100.0));
+    assert!(!cam.in_image(100.0, 479.5));
+    assert!(!cam.in_image(f64::NAN, 100.0));
+    assert_eq!(cam.focal(), Vec2::new(458.654, 457.296));
+}
+
+/// The calibration in the real dataset matches the constants above, and its tracks (stored as
+/// radtan-distorted pixels) undistort back into the image's field of view.
+#[test]
+fn euroc_real_tracks_undistort() {
+    let dir = data_dir().join("euroc-v101-30s-features/mav0");
+    let yaml = std::fs::read_to_string(dir.join("cam0/sensor.yaml")).unwrap();
+    assert!(yaml.contains("intrinsics: [458.654, 457.296, 367.215, 248.375]"));
+    assert!(yaml.contains("[-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]"));
+    let cam = euroc_cam0();
+    let csv = std::fs::read_to_string(dir.join("features0/data.csv")).unwrap();
+    let mut n = 0;
+    let mut worst = 0.0f64;
+    for line in csv.lines().filter(|l| !l.starts_with('#')) {
+        let f: Vec<f64> = line.split(',').map(|s| s.trim().parse().unwrap()).collect();
+        let (u, v) = (f[2], f[3]);
+        let x = cam.undistort(u, v).unwrap();
+        let back = cam.distort(&Vec2::new(x.x, x.y));
+        worst = worst.max((back - Vec2::new(u, v)).norm());
+        // Undistorted rays of this ~100-deg lens stay within ~1.6 on the normalized plane.
+        assert!(x.x.abs() < 1.6 && x.y.abs() < 1.2, "{u} {v} -> {x:?}");
+        n += 1;
+    }
+    assert_eq!(n, 13316);
+    assert!(worst < 1e-6);
+}
