@@ -1,0 +1,166 @@
+//! Estimator configuration: every threshold of the pipeline, with the paper's / LE-VINS'
+//! values as defaults.
+
+use crate::camera::{CameraExtrinsic, PinholeCamera};
+use crate::frontend::KeyframeConfig;
+use crate::inertial::init::StaticInitConfig;
+use crate::inertial::preintegration::PreintConfig;
+use crate::inertial::ImuNoise;
+use crate::solver::LmConfig;
+use crate::Error;
+
+/// How visual landmarks enter the optimization.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum VisualMode {
+    /// PO-VINS: landmarks are not states; pose-only reprojection measurements.
+    PoseOnly,
+    /// LE-VINS-WO baseline: inverse depth per landmark as a state, eliminated by Schur complement.
+    InverseDepth,
+}
+
+/// Standard deviations of the prior put on the first keyframe (it fixes the gauge until the
+/// first marginalization folds it into the marginalization prior).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FirstStatePrior {
+    /// Position, m.
+    pub p_m: f64,
+    /// Attitude (each axis), rad.
+    pub theta_rad: f64,
+    /// Velocity, m/s.
+    pub v_mps: f64,
+    /// Gyro bias, rad/s.
+    pub bg_rps: f64,
+    /// Accelerometer bias, m/s^2.
+    pub ba_mps2: f64,
+}
+
+/// Everything the estimator needs to know before the first sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EstimatorConfig {
+    /// Camera intrinsics and distortion.
+    pub camera: PinholeCamera,
+    /// Camera-IMU extrinsic `T_bc` (initial value when estimated).
+    pub extrinsic: CameraExtrinsic,
+    /// Initial camera-IMU time delay, s (`t_imu = t_cam + td_s`).
+    pub td_s: f64,
+    /// IMU noise model.
+    pub imu_noise: ImuNoise,
+    /// Gravity magnitude, m/s^2.
+    pub gravity_mps2: f64,
+    /// Largest IMU sample spacing before the estimator resets, s.
+    pub max_imu_dt_s: f64,
+    /// Visual measurement model.
+    pub mode: VisualMode,
+    /// Keyframe thresholds.
+    pub keyframe: KeyframeConfig,
+    /// Static initialization thresholds.
+    pub static_init: StaticInitConfig,
+    /// Preintegration (re-integration thresholds).
+    pub preint: PreintConfig,
+    /// Prior of the first keyframe.
+    pub first_prior: FirstStatePrior,
+    /// Feature noise, px (paper: 1.5).
+    pub sigma_px: f64,
+    /// Huber threshold on the whitened visual residual norm.
+    pub huber_delta: f64,
+    /// Smallest parallax `|x_e x R_es x_s|` (rad-like) for a landmark to enter the optimization.
+    pub min_parallax: f64,
+    /// Valid landmark depth range, m (LE-VINS: 1-200 m).
+    pub depth_range_m: (f64, f64),
+    /// Chi-square threshold (2 dof, 95%) of the cull between the two LM passes.
+    pub chi2_threshold: f64,
+    /// Drop a landmark whose mean reprojection error exceeds this after the solve, px.
+    pub cull_mean_px: f64,
+    /// Drop a single observation whose reprojection error exceeds this, px.
+    pub cull_obs_px: f64,
+    /// Levenberg-Marquardt settings of the first pass.
+    pub lm_first: LmConfig,
+    /// Levenberg-Marquardt settings of the second pass (after the chi-square cull).
+    pub lm_second: LmConfig,
+    /// Estimate the camera-IMU time delay (random walk between keyframes).
+    pub estimate_td: bool,
+    /// Random-walk density of the time delay, s/sqrt(s).
+    pub td_rw_s_per_sqrt_s: f64,
+    /// Prior standard deviation of the first time delay, s.
+    pub td_prior_s: f64,
+    /// Estimate the camera-IMU extrinsic.
+    pub estimate_extrinsic: bool,
+    /// Prior standard deviations of the extrinsic: translation m, rotation rad.
+    pub extrinsic_prior: (f64, f64),
+    /// Monotonic clock for the timing statistics, nanoseconds (none: timings are zero).
+    pub clock: Option<fn() -> u64>,
+}
+
+impl EstimatorConfig {
+    /// Defaults for a camera and IMU: LE-VINS keyframe rules, sigma_p = 1.5 px, Huber 1 sigma.
+    pub fn new(camera: PinholeCamera, extrinsic: CameraExtrinsic, imu_noise: ImuNoise) -> Self {
+        let lm = LmConfig { max_iterations: 6, ..LmConfig::DEFAULT };
+        EstimatorConfig {
+            camera,
+            extrinsic,
+            td_s: 0.0,
+            imu_noise,
+            gravity_mps2: 9.81,
+            max_imu_dt_s: 0.05,
+            mode: VisualMode::PoseOnly,
+            keyframe: KeyframeConfig::default(),
+            static_init: StaticInitConfig::DEFAULT,
+            preint: PreintConfig::DEFAULT,
+            first_prior: FirstStatePrior {
+                p_m: 1e-3,
+                theta_rad: 0.02,
+                v_mps: 0.05,
+                bg_rps: 5e-3,
+                ba_mps2: 0.1,
+            },
+            sigma_px: 1.5,
+            huber_delta: 1.0,
+            min_parallax: 0.01,
+            depth_range_m: (0.1, 200.0),
+            chi2_threshold: 5.991,
+            cull_mean_px: 4.5,
+            cull_obs_px: 4.5,
+            lm_first: lm,
+            lm_second: lm,
+            estimate_td: false,
+            td_rw_s_per_sqrt_s: 1e-4,
+            td_prior_s: 5e-3,
+            estimate_extrinsic: false,
+            extrinsic_prior: (0.02, 0.02),
+            clock: None,
+        }
+    }
+
+    /// Checks ranges: positive noise and thresholds, a valid depth range.
+    pub fn validate(&self) -> Result<(), Error> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        let p = &self.first_prior;
+        let ok = pos(self.gravity_mps2)
+            && pos(self.max_imu_dt_s)
+            && pos(self.sigma_px)
+            && pos(self.huber_delta)
+            && self.min_parallax.is_finite()
+            && self.min_parallax >= 0.0
+            && pos(self.depth_range_m.0)
+            && self.depth_range_m.1 > self.depth_range_m.0
+            && pos(self.chi2_threshold)
+            && pos(self.cull_mean_px)
+            && pos(self.cull_obs_px)
+            && pos(self.td_rw_s_per_sqrt_s)
+            && pos(self.td_prior_s)
+            && pos(self.extrinsic_prior.0)
+            && pos(self.extrinsic_prior.1)
+            && [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2].iter().all(|v| pos(*v))
+            && self.td_s.is_finite()
+            && self.imu_noise.is_valid()
+            && pos(self.camera.fx)
+            && pos(self.camera.fy);
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::InvalidConfig)
+        }
+    }
+}

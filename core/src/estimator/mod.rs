@@ -1,0 +1,820 @@
+//! The estimator: the only module that knows the order of the steps.
+//!
+//! Per IMU sample: INS mechanization (the INS-centric design), preintegration into the open
+//! keyframe interval. Per camera frame (processed when the IMU reaches its time
+//! `t_cam + td`): track validation and undistortion, keyframe decision from the INS-predicted
+//! motion. Per keyframe:
+//! 1. marginalize the oldest keyframe if the window is full (Schur complement into the
+//!    square-root prior, at the last optimized state);
+//! 2. append the keyframe (INS state at the image time, the closed preintegration) and its
+//!    observations to the landmark manager;
+//! 3. prepare landmarks: anchor `e` of largest parallax, pose-only depth, parallax and depth gates
+//!    (inverse-depth mode: initialize the inverse depth);
+//! 4. LM pass 1, chi-square cull of observations, LM pass 2;
+//! 5. outlier culling by reprojection (paper V.E);
+//! 6. restart the INS from the newest optimized keyframe.
+//!
+//! Capacities are const generics: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state
+//! dimensions (15 per keyframe, 6 extrinsic, 1 delay per keyframe). The struct holds every
+//! buffer (about 1.5 MB for `N = 10`, `L = 200`): put it in a `Box` or a `static`.
+
+pub mod config;
+pub mod prior;
+pub mod problem;
+pub mod report;
+pub mod window;
+
+pub use config::{EstimatorConfig, FirstStatePrior, VisualMode};
+pub use report::{Counters, KeyframeReport};
+
+use crate::camera::{CameraExtrinsic, FeatureObs};
+use crate::factors::pose_only_visual::PoseOnlyVisualFactor;
+use crate::factors::{KeyframePose, TimedObs};
+use crate::frontend::{KeyframeDecision, KeyframeSelector, NormalizedObs, TrackTable};
+use crate::inertial::init::StaticInitializer;
+use crate::inertial::ins::{Ins, InsConfig};
+use crate::inertial::{ImuSample, NavState};
+use crate::landmarks::pose_only_depth;
+use crate::math::{log_so3, Vec3};
+use crate::solver::{
+    schur_complement_in_place, sqrt_prior, LandmarkSchur, Ldlt, LmWorkspace, NormalEquations,
+    PivotFloor,
+};
+use crate::Error;
+use heapless::Vec as HVec;
+use prior::{LinPoint, MargPrior};
+use problem::{FactorSet, InitialPriors, Landmarks, Problem, Saved, SCHUR_COLS};
+use window::{Block, Keyframe, Layout, Preint, Window, MAX_INTERVAL_SAMPLES};
+
+/// Most feature observations per camera frame.
+pub const MAX_FEATURES: usize = 512;
+/// IMU samples the static initializer can hold (must cover `min_static_s` at the IMU rate).
+pub const INIT_SAMPLES: usize = 1024;
+
+/// The PO-VINS configuration of the paper: 10 keyframes, 200 landmarks.
+pub type PoVins = Estimator<10, 200, 166>;
+
+/// Lifecycle of the estimator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Status {
+    /// Waiting for a static period (or an explicit initial state).
+    WaitingForInit,
+    /// INS running; keyframes are being added.
+    Running,
+}
+
+/// What one IMU sample produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuOutput {
+    /// The IMU-rate navigation state (INS propagated from the newest optimized keyframe), once
+    /// initialized.
+    pub nav: Option<NavState>,
+    /// The report of a keyframe processed at this sample.
+    pub keyframe: Option<KeyframeReport>,
+}
+
+struct PendingFrame {
+    t_cam_ns: i64,
+    obs: HVec<FeatureObs, MAX_FEATURES>,
+}
+
+/// The sliding-window estimator (see the module docs for the order of the steps).
+pub struct Estimator<const N: usize, const L: usize, const D: usize> {
+    cfg: EstimatorConfig,
+    selector: KeyframeSelector,
+    status: Status,
+    static_init: StaticInitializer<INIT_SAMPLES>,
+    ins: Option<Ins>,
+    last_imu: Option<ImuSample>,
+    tracks: TrackTable<MAX_FEATURES>,
+    frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
+    pending: Option<PendingFrame>,
+    window: Window<N>,
+    open: Option<Preint>,
+    lms: Landmarks<N, L>,
+    ext: CameraExtrinsic,
+    prior: MargPrior<D, N>,
+    initial: Option<InitialPriors>,
+    lm: LmWorkspace<D>,
+    marg_ne: NormalEquations<D>,
+    marg_ldlt: Ldlt<D>,
+    schur: [LandmarkSchur<SCHUR_COLS>; L],
+    saved: Saved<N, L>,
+    counters: Counters,
+}
+
+fn now(cfg: &EstimatorConfig) -> u64 {
+    cfg.clock.map_or(0, |c| c())
+}
+
+impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+    const LAYOUT_OK: () = assert!(D == 16 * N + 6 && N >= 2 && N < 128 && 7 * N + 6 <= SCHUR_COLS);
+
+    /// A new estimator ([`Error::InvalidConfig`] for an invalid configuration).
+    ///
+    /// The returned value is large; on a small stack construct it inside a `Box` or a `static`.
+    pub fn new(cfg: EstimatorConfig) -> Result<Self, Error> {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::LAYOUT_OK;
+        cfg.validate()?;
+        let selector = KeyframeSelector::new(cfg.keyframe)?;
+        let static_init = StaticInitializer::new(cfg.static_init)?;
+        if L > problem::LANDMARK_INDEX || L > u16::MAX as usize {
+            return Err(Error::InvalidConfig);
+        }
+        Ok(Estimator {
+            selector,
+            status: Status::WaitingForInit,
+            static_init,
+            ins: None,
+            last_imu: None,
+            tracks: TrackTable::new(0.5),
+            frame_obs: HVec::new(),
+            pending: None,
+            window: Window::new(),
+            open: None,
+            lms: Landmarks::new(),
+            ext: cfg.extrinsic,
+            prior: MargPrior::new(),
+            initial: None,
+            lm: LmWorkspace::new(),
+            marg_ne: NormalEquations::new(),
+            marg_ldlt: Ldlt::new(),
+            schur: core::array::from_fn(|_| LandmarkSchur::new()),
+            saved: Saved::new(),
+            counters: Counters::default(),
+            cfg,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &EstimatorConfig {
+        &self.cfg
+    }
+
+    /// Current lifecycle state.
+    pub fn status(&self) -> Status {
+        self.status
+    }
+
+    /// Running counters.
+    pub fn counters(&self) -> Counters {
+        let mut c = self.counters;
+        c.landmarks_refused_capacity = self.lms.stats.refused_capacity;
+        c
+    }
+
+    /// Keyframes in the window (oldest first).
+    pub fn keyframes(&self) -> impl Iterator<Item = &Keyframe> + '_ {
+        (0..self.window.len()).filter_map(|k| self.window.get(k))
+    }
+
+    /// Landmarks currently managed.
+    pub fn landmarks(&self) -> &Landmarks<N, L> {
+        &self.lms
+    }
+
+    /// Current camera-IMU extrinsic estimate.
+    pub fn extrinsic(&self) -> &CameraExtrinsic {
+        &self.ext
+    }
+
+    /// Starts from a known full state (e.g. ground truth in evaluation) instead of waiting for a
+    /// static period. Its time should be that of the next IMU sample or earlier.
+    pub fn initialize(&mut self, state: NavState) -> Result<(), Error> {
+        let cfg = self.ins_config();
+        let ins = Ins::new(cfg, state)?;
+        self.reset_window();
+        self.ins = Some(ins);
+        self.status = Status::Running;
+        Ok(())
+    }
+
+    fn ins_config(&self) -> InsConfig {
+        InsConfig { gravity_mps2: self.cfg.gravity_mps2, max_dt_s: self.cfg.max_imu_dt_s }
+    }
+
+    fn reset_window(&mut self) {
+        self.window.clear();
+        self.lms.clear();
+        self.prior.clear();
+        self.initial = None;
+        self.open = None;
+        self.pending = None;
+        self.tracks.clear();
+        self.ext = self.cfg.extrinsic;
+    }
+
+    /// Drops everything and waits for a new initialization (counted).
+    pub fn reset(&mut self) {
+        self.reset_window();
+        self.ins = None;
+        self.status = Status::WaitingForInit;
+        self.counters.resets += 1;
+        // A fresh detector: the samples before the reset must not count as static time.
+        if let Ok(s) = StaticInitializer::new(self.cfg.static_init) {
+            self.static_init = s;
+        }
+    }
+
+    /// Offers a camera frame of tracked features (raw pixels) at camera time `t_cam_ns`. It is
+    /// processed when the IMU reaches `t_cam + td`.
+    pub fn push_frame(&mut self, t_cam_ns: i64, obs: &[FeatureObs]) -> Result<(), Error> {
+        self.counters.frames += 1;
+        if let Some(p) = &self.pending {
+            if t_cam_ns <= p.t_cam_ns {
+                self.counters.frames_rejected_time += 1;
+                return Err(Error::TimeNotIncreasing);
+            }
+            self.counters.frames_dropped_no_imu += 1;
+        }
+        let mut pf = PendingFrame { t_cam_ns, obs: HVec::new() };
+        let take = obs.len().min(MAX_FEATURES);
+        for o in obs.iter().take(take) {
+            let _ = pf.obs.push(*o);
+        }
+        self.counters.features_rejected += (obs.len() - take) as u64;
+        self.counters.features_received += (obs.len() - take) as u64;
+        self.pending = Some(pf);
+        Ok(())
+    }
+
+    fn current_td(&self) -> f64 {
+        self.window.last().map_or(self.cfg.td_s, |k| k.td_s)
+    }
+
+    /// Feeds one IMU sample: propagates the INS, and processes a pending frame whose time the
+    /// IMU has reached. Rejected samples change nothing ([`Error::NonFinite`],
+    /// [`Error::TimeNotIncreasing`]); a gap above `max_imu_dt_s` resets the estimator.
+    pub fn push_imu(&mut self, s: &ImuSample) -> Result<ImuOutput, Error> {
+        if !s.is_finite() {
+            self.counters.imu_rejected_nonfinite += 1;
+            return Err(Error::NonFinite);
+        }
+        if let Some(last) = self.last_imu {
+            if s.t_ns <= last.t_ns {
+                self.counters.imu_rejected_time += 1;
+                return Err(Error::TimeNotIncreasing);
+            }
+            if (s.t_ns - last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s && self.status == Status::Running {
+                self.reset();
+            }
+        }
+        self.counters.imu_samples += 1;
+        let mut out = ImuOutput { nav: None, keyframe: None };
+        if self.status == Status::WaitingForInit {
+            match self.static_init.push(s) {
+                Ok(Some(state)) => {
+                    let ins = Ins::new(self.ins_config(), state)?;
+                    self.ins = Some(ins);
+                    if let Some(ins) = self.ins.as_mut() {
+                        ins.propagate(s)?;
+                    }
+                    self.status = Status::Running;
+                }
+                Ok(None) => {}
+                Err(Error::CapacityExceeded) => return Err(Error::InvalidConfig),
+                Err(e) => return Err(e),
+            }
+            // Frames before initialization only feed the track velocities.
+            if let Some(p) = self.pending.take() {
+                self.counters.frames_before_init += 1;
+                let _ = self.tracks.process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs);
+            }
+            self.last_imu = Some(*s);
+            out.nav = self.ins.as_ref().map(|i| *i.state());
+            return Ok(out);
+        }
+
+        // A pending frame whose IMU time has been reached is processed at exactly that time.
+        let frame_due = self
+            .pending
+            .as_ref()
+            .map(|p| p.t_cam_ns + (self.current_td() * 1e9) as i64)
+            .filter(|t_f| *t_f <= s.t_ns);
+        if let Some(t_f) = frame_due {
+            if let Some(prev) = self.last_imu.filter(|p| p.t_ns < t_f) {
+                let split = interpolate(&prev, s, t_f);
+                self.advance(&split)?;
+            } else if self.ins.as_ref().is_some_and(|i| i.state().t_ns < t_f) {
+                // The frame is later than the last sample but there is no earlier sample (first
+                // sample after initialization): integrate to the sample itself.
+                self.advance(s)?;
+            }
+            if let Some(p) = self.pending.take() {
+                out.keyframe = self.process_frame(&p)?;
+            }
+        }
+        if self.ins.as_ref().is_some_and(|i| i.state().t_ns < s.t_ns) {
+            self.advance(s)?;
+        }
+        self.last_imu = Some(*s);
+        out.nav = self.ins.as_ref().map(|i| *i.state());
+        Ok(out)
+    }
+
+    /// INS propagation and preintegration of one sample (real or interpolated).
+    fn advance(&mut self, s: &ImuSample) -> Result<(), Error> {
+        let Some(ins) = self.ins.as_mut() else { return Err(Error::NotInitialized) };
+        match ins.propagate(s) {
+            Ok(_) => {}
+            Err(Error::TimeGap) => {
+                self.reset();
+                return Ok(());
+            }
+            Err(e) => return Err(e),
+        }
+        if let Some(open) = self.open.as_mut() {
+            match open.push(s) {
+                Ok(()) => {}
+                // The interval cannot be bridged: start over rather than integrate a hole.
+                Err(Error::CapacityExceeded) | Err(Error::TimeGap) => self.reset(),
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
+
+    fn process_frame(&mut self, p: &PendingFrame) -> Result<Option<KeyframeReport>, Error> {
+        let t0 = now(&self.cfg);
+        let st = match self.tracks.process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs) {
+            Ok(st) => st,
+            Err(Error::TimeNotIncreasing) => {
+                self.counters.frames_rejected_time += 1;
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        };
+        self.counters.features_received += u64::from(st.received);
+        self.counters.features_rejected += u64::from(st.received - st.accepted);
+        let Some(ins) = self.ins.as_ref() else { return Ok(None) };
+        let nav = *ins.state();
+
+        let decision = match self.window.last() {
+            None => KeyframeDecision::First,
+            Some(last) => {
+                let dt_s = (nav.t_ns - last.state.t_ns) as f64 * 1e-9;
+                let dp = (nav.p_wb - last.state.p_wb).norm();
+                let dr = log_so3(&(last.state.q_wb.inverse() * nav.q_wb)).norm();
+                let parallax = self.mean_parallax_px();
+                let nearly_full = self.open.as_ref().is_some_and(|o| o.len() + 16 >= MAX_INTERVAL_SAMPLES);
+                match self.selector.decide(dt_s, dp, dr, parallax) {
+                    KeyframeDecision::No if nearly_full && dt_s >= self.cfg.keyframe.min_interval_s => {
+                        KeyframeDecision::Timeout
+                    }
+                    d => d,
+                }
+            }
+        };
+        if !decision.is_keyframe() {
+            return Ok(None);
+        }
+        self.add_keyframe(p.t_cam_ns, nav, decision, t0).map(Some)
+    }
+
+    /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe.
+    fn mean_parallax_px(&self) -> f64 {
+        let pos = match self.window.len().checked_sub(1) {
+            Some(p) => p,
+            None => return 0.0,
+        };
+        let f = 0.5 * (self.cfg.camera.fx + self.cfg.camera.fy);
+        let (mut sum, mut n) = (0.0, 0u32);
+        for o in self.frame_obs.iter() {
+            if let Some(Some(k)) = self.lms.get(o.id).and_then(|lm| lm.obs.get(pos)) {
+                let (dx, dy) = (o.x_n[0] - k.x_n[0], o.x_n[1] - k.x_n[1]);
+                sum += libm::sqrt(dx * dx + dy * dy) * f;
+                n += 1;
+            }
+        }
+        if n == 0 {
+            0.0
+        } else {
+            sum / f64::from(n)
+        }
+    }
+
+    fn add_keyframe(
+        &mut self,
+        t_cam_ns: i64,
+        nav: NavState,
+        decision: KeyframeDecision,
+        t0: u64,
+    ) -> Result<KeyframeReport, Error> {
+        let mut report = KeyframeReport {
+            t_ns: nav.t_ns,
+            t_cam_ns,
+            decision,
+            window_len: 0,
+            landmarks_total: 0,
+            landmarks_used: 0,
+            observations_used: 0,
+            residual_rms_px: 0.0,
+            iterations: 0,
+            cost: (0.0, 0.0),
+            termination: None,
+            culled_chi2: 0,
+            culled_observations: 0,
+            culled_landmarks: 0,
+            disabled_landmarks: 0,
+            solve_ns: 0,
+            marginalization_ns: 0,
+            total_ns: 0,
+        };
+        // 1. Marginalize the oldest keyframe at the last optimized state.
+        if self.window.is_full() {
+            let tm = now(&self.cfg);
+            if self.marginalize_oldest().is_err() {
+                self.counters.marginalization_failures += 1;
+                self.prior.clear();
+                self.initial = None;
+                let _ = self.window.pop_oldest();
+                self.lms.shift_out_oldest();
+            }
+            report.marginalization_ns = now(&self.cfg).saturating_sub(tm);
+        }
+
+        // 2. Append the keyframe with the interval's preintegration, start the next interval.
+        let td = self.current_td();
+        let sample = self.last_sample_at(nav.t_ns);
+        let preint = self.open.take();
+        let kf = Keyframe { t_cam_ns, state: nav, td_s: td, preint };
+        if self.window.push(kf).is_err() {
+            return Err(Error::CapacityExceeded);
+        }
+        if self.window.len() == 1 {
+            self.prior.clear();
+            self.initial = Some(self.initial_priors(&nav, td));
+        }
+        self.open = Some(Preint::new(self.cfg.imu_noise, self.cfg.preint, &sample, nav.bg, nav.ba)?);
+        let pos = self.window.len() - 1;
+        self.lms.add_keyframe_obs(pos, &self.frame_obs, td);
+        self.counters.keyframes += 1;
+
+        // 3-5. Optimize and cull.
+        let ts = now(&self.cfg);
+        if self.window.len() >= 2 {
+            self.optimize(&mut report);
+        }
+        report.solve_ns = now(&self.cfg).saturating_sub(ts);
+
+        // 6. The INS continues from the newest optimized keyframe; the open interval is
+        // re-linearized at its biases (it holds only the keyframe sample so far).
+        if let Some(last) = self.window.last() {
+            let st = last.state;
+            if let Some(ins) = self.ins.as_mut() {
+                ins.set_state(st)?;
+            }
+            if let Some(open) = self.open.as_mut() {
+                open.reset(&sample, st.bg, st.ba)?;
+            }
+        }
+        report.window_len = self.window.len() as u32;
+        report.landmarks_total = self.lms.len() as u32;
+        report.total_ns = now(&self.cfg).saturating_sub(t0);
+        Ok(report)
+    }
+
+    /// The IMU sample at the INS time (the split sample of a frame, or the last real one).
+    fn last_sample_at(&self, t_ns: i64) -> ImuSample {
+        match self.last_imu {
+            Some(s) if s.t_ns == t_ns => s,
+            Some(s) => ImuSample { t_ns, ..s },
+            None => ImuSample { t_ns, gyro_rps: Vec3::zeros(), accel_mps2: Vec3::zeros() },
+        }
+    }
+
+    fn initial_priors(&self, kf0: &NavState, td: f64) -> InitialPriors {
+        let p = &self.cfg.first_prior;
+        InitialPriors {
+            kf0: *kf0,
+            kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
+            td0: (td, self.cfg.td_prior_s),
+            ext: (self.cfg.extrinsic, self.cfg.extrinsic_prior.0, self.cfg.extrinsic_prior.1),
+        }
+    }
+
+    fn kf_pose(&self, pos: usize) -> Option<KeyframePose> {
+        self.window.get(pos).map(|k| KeyframePose { p_wb: k.state.p_wb, q_wb: k.state.q_wb, td: k.td_s })
+    }
+
+    /// Chooses anchors and gates every landmark for the coming solve.
+    fn prepare_landmarks(&mut self) {
+        let count = self.window.len();
+        let ext = self.ext;
+        let mut cams = [crate::camera::CameraPose { p_wc: Vec3::zeros(), q_wc: crate::math::Quat::identity() }; N];
+        for (k, c) in cams.iter_mut().enumerate().take(count) {
+            if let Some(p) = self.kf_pose(k) {
+                *c = ext.camera_pose(&p.p_wb, &p.q_wb);
+            }
+        }
+        let (dmin, dmax) = self.cfg.depth_range_m;
+        let min_par = self.cfg.min_parallax;
+        let mode = self.cfg.mode;
+        for lm in self.lms.landmarks_mut() {
+            lm.usable = false;
+            let s = lm.anchor_s as usize;
+            let (Some(Some(os)), Some(cs)) = (lm.obs.get(s), cams.get(s)) else { continue };
+            let td_s = self.window.get(s).map_or(0.0, |k| k.td_s);
+            let x_s = TimedObs { x_n: crate::camera::Vec2::new(os.x_n[0], os.x_n[1]), vel: crate::camera::Vec2::new(os.vel[0], os.vel[1]), td0: os.td0_s }.corrected(td_s);
+            let mut best: Option<(usize, f64, Vec3)> = None;
+            for (k, ok) in lm.obs.iter().enumerate().take(count) {
+                let (Some(ok), Some(ck)) = (ok, cams.get(k)) else { continue };
+                if k == s {
+                    continue;
+                }
+                let td_k = self.window.get(k).map_or(0.0, |kf| kf.td_s);
+                let x_k = TimedObs { x_n: crate::camera::Vec2::new(ok.x_n[0], ok.x_n[1]), vel: crate::camera::Vec2::new(ok.vel[0], ok.vel[1]), td0: ok.td0_s }.corrected(td_k);
+                let (r_ks, _) = ck.relative_from(cs);
+                let theta = x_k.cross(&(r_ks * x_s)).norm();
+                if theta.is_finite() && best.is_none_or(|(_, t, _)| theta > t) {
+                    best = Some((k, theta, x_k));
+                }
+            }
+            let Some((e, theta, x_e)) = best else {
+                lm.anchor_e = None;
+                continue;
+            };
+            lm.anchor_e = Some(e as u8);
+            if theta < min_par {
+                continue;
+            }
+            let Some(ce) = cams.get(e) else { continue };
+            let (r_es, t_es) = ce.relative_from(cs);
+            let Ok(d) = pose_only_depth(&x_s, &x_e, &r_es, &t_es, min_par) else { continue };
+            if !(d.d_s >= dmin && d.d_s <= dmax) {
+                continue;
+            }
+            lm.usable = true;
+            if mode == VisualMode::InverseDepth && !(lm.inv_depth > 0.0) {
+                lm.inv_depth = 1.0 / d.d_s;
+            }
+        }
+    }
+
+    fn solve_layout(&self) -> Layout<N> {
+        Layout::solve(self.window.len(), self.cfg.estimate_extrinsic, self.cfg.estimate_td)
+    }
+
+    fn run_lm(&mut self, cfg: &crate::solver::LmConfig, report: &mut KeyframeReport) -> bool {
+        let layout = self.solve_layout();
+        let mut problem = Problem {
+            cfg: &self.cfg,
+            window: &mut self.window,
+            lms: &mut self.lms,
+            ext: &mut self.ext,
+            prior: &self.prior,
+            initial: self.initial.as_ref(),
+            layout,
+            set: FactorSet::All,
+            schur: &mut self.schur,
+            saved: &mut self.saved,
+            counts: Default::default(),
+        };
+        let res = self.lm.solve(&mut problem, cfg);
+        report.disabled_landmarks += problem.counts.disabled;
+        report.landmarks_used = problem.counts.landmarks;
+        report.observations_used = problem.counts.observations;
+        match res {
+            Ok(sum) => {
+                if report.iterations == 0 {
+                    report.cost.0 = sum.initial_cost;
+                }
+                report.cost.1 = sum.final_cost;
+                report.iterations += sum.iterations as u32;
+                report.termination = Some(sum.termination);
+                true
+            }
+            Err(_) => {
+                self.counters.solver_failures += 1;
+                false
+            }
+        }
+    }
+
+    fn optimize(&mut self, report: &mut KeyframeReport) {
+        // Re-integrate intervals whose bias estimate moved far from the linearization point.
+        for k in 1..self.window.len() {
+            let (bg, ba) = match self.window.get(k - 1) {
+                Some(a) => (a.state.bg, a.state.ba),
+                None => continue,
+            };
+            if let Some(pre) = self.window.get_mut(k).and_then(|b| b.preint.as_mut()) {
+                if pre.needs_reintegration(&bg, &ba) {
+                    let _ = pre.reintegrate(bg, ba);
+                }
+            }
+        }
+        self.prepare_landmarks();
+        let first = self.cfg.lm_first;
+        if !self.run_lm(&first, report) {
+            return;
+        }
+        report.culled_chi2 = self.chi2_cull();
+        if report.culled_chi2 > 0 {
+            self.prepare_landmarks();
+            let second = self.cfg.lm_second;
+            self.run_lm(&second, report);
+        }
+        let (obs, lms, rms) = self.reprojection_cull();
+        report.culled_observations = obs;
+        report.culled_landmarks = lms;
+        report.residual_rms_px = rms;
+    }
+
+    /// Whitened pose-only residual of observation `j` of landmark `li`, if defined.
+    fn obs_residual(&self, li: usize, j: usize) -> Option<crate::camera::Vec2> {
+        let lm = self.lms.landmarks().get(li)?;
+        let (s, e) = (lm.anchor_s as usize, lm.anchor_e? as usize);
+        let to = |o: &crate::landmarks::KfObs| TimedObs {
+            x_n: crate::camera::Vec2::new(o.x_n[0], o.x_n[1]),
+            vel: crate::camera::Vec2::new(o.vel[0], o.vel[1]),
+            td0: o.td0_s,
+        };
+        let f = PoseOnlyVisualFactor {
+            kf_s: s,
+            kf_e: e,
+            kf_j: j,
+            obs_s: to(lm.obs.get(s)?.as_ref()?),
+            obs_e: to(lm.obs.get(e)?.as_ref()?),
+            obs_j: to(lm.obs.get(j)?.as_ref()?),
+            sqrt_info: crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px,
+        };
+        match self.cfg.mode {
+            VisualMode::PoseOnly => f.residual(&self.kf_pose(s)?, &self.kf_pose(e)?, &self.kf_pose(j)?, &self.ext).ok(),
+            VisualMode::InverseDepth => crate::factors::inverse_depth_visual::InverseDepthVisualFactor {
+                kf_s: s,
+                kf_j: j,
+                obs_s: f.obs_s,
+                obs_j: f.obs_j,
+                sqrt_info: f.sqrt_info,
+            }
+            .residual(&self.kf_pose(s)?, &self.kf_pose(j)?, &self.ext, lm.inv_depth)
+            .ok(),
+        }
+    }
+
+    /// Removes observations whose whitened squared residual exceeds the chi-square threshold.
+    fn chi2_cull(&mut self) -> u32 {
+        let count = self.window.len();
+        let mut culled = 0;
+        for li in 0..self.lms.len() {
+            let usable = self.lms.landmarks().get(li).is_some_and(|l| l.usable);
+            if !usable {
+                continue;
+            }
+            let s = self.lms.landmarks().get(li).map_or(0, |l| l.anchor_s as usize);
+            for j in 0..count {
+                if j == s {
+                    continue;
+                }
+                let bad = self.obs_residual(li, j).is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
+                if bad {
+                    if let Some(o) = self.lms.landmarks_mut().get_mut(li).and_then(|l| l.obs.get_mut(j)) {
+                        *o = None;
+                        culled += 1;
+                    }
+                }
+            }
+        }
+        self.fix_anchors();
+        culled
+    }
+
+    /// After removing observations: re-anchor `s` at the first remaining observation (dropping
+    /// depth state that was expressed in the old anchor) and drop unobserved landmarks.
+    fn fix_anchors(&mut self) {
+        for lm in self.lms.landmarks_mut() {
+            if let Some(s) = lm.first_obs() {
+                if s != lm.anchor_s as usize {
+                    lm.anchor_s = s as u8;
+                    lm.inv_depth = 0.0;
+                    lm.lidar = None;
+                }
+            }
+            if lm.anchor_e.is_some_and(|e| lm.obs.get(e as usize).is_none_or(|o| o.is_none())) {
+                lm.anchor_e = None;
+            }
+        }
+        self.lms.retain(|lm| lm.first_obs().is_some(), true);
+    }
+
+    /// Paper V.E: drop landmarks whose mean reprojection error exceeds `cull_mean_px`, otherwise
+    /// single observations above `cull_obs_px`. Returns (observations, landmarks, rms px).
+    fn reprojection_cull(&mut self) -> (u32, u32, f64) {
+        let count = self.window.len();
+        let sigma = self.cfg.sigma_px;
+        let (mut n_obs, mut n_lm) = (0u32, 0u32);
+        let (mut sq_sum, mut sq_n) = (0.0, 0u32);
+        let mut drop_lm: HVec<u64, L> = HVec::new();
+        for li in 0..self.lms.len() {
+            let Some(lm) = self.lms.landmarks().get(li) else { break };
+            if !lm.usable {
+                continue;
+            }
+            let (id, s) = (lm.id, lm.anchor_s as usize);
+            let mut errs = [0.0f64; N];
+            let (mut sum, mut n) = (0.0, 0u32);
+            for (j, e) in errs.iter_mut().enumerate().take(count) {
+                if j == s {
+                    continue;
+                }
+                if let Some(r) = self.obs_residual(li, j) {
+                    *e = libm::sqrt(r.norm_squared()) * sigma;
+                    sum += *e;
+                    n += 1;
+                    sq_sum += r.norm_squared() * sigma * sigma;
+                    sq_n += 2;
+                }
+            }
+            if n == 0 {
+                continue;
+            }
+            if sum / f64::from(n) > self.cfg.cull_mean_px {
+                let _ = drop_lm.push(id);
+                continue;
+            }
+            if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
+                for (j, e) in errs.iter().enumerate().take(count) {
+                    if j != s && *e > self.cfg.cull_obs_px {
+                        if let Some(o) = lm.obs.get_mut(j) {
+                            *o = None;
+                            n_obs += 1;
+                        }
+                    }
+                }
+            }
+        }
+        if !drop_lm.is_empty() {
+            n_lm = self.lms.retain(|lm| !drop_lm.contains(&lm.id), true) as u32;
+        }
+        self.fix_anchors();
+        let rms = if sq_n > 0 { libm::sqrt(sq_sum / f64::from(sq_n)) } else { 0.0 };
+        (n_obs, n_lm, rms)
+    }
+
+    /// Schur complement of the oldest keyframe (and its delay; in the inverse-depth mode also
+    /// the depths anchored there) into the square-root prior, then removal from the window.
+    fn marginalize_oldest(&mut self) -> Result<(), Error> {
+        let count = self.window.len();
+        let (ext, td) = (self.cfg.estimate_extrinsic, self.cfg.estimate_td);
+        let layout = Layout::marginalize_oldest(count, ext, td);
+        self.prepare_landmarks();
+        self.marg_ne.reset(layout.dim())?;
+        {
+            let mut problem = Problem {
+                cfg: &self.cfg,
+                window: &mut self.window,
+                lms: &mut self.lms,
+                ext: &mut self.ext,
+                prior: &self.prior,
+                initial: self.initial.as_ref(),
+                layout,
+                set: FactorSet::Oldest,
+                schur: &mut self.schur,
+                saved: &mut self.saved,
+                counts: Default::default(),
+            };
+            problem.assemble(Some(&mut self.marg_ne))?;
+        }
+        let m = Layout::<N>::marginalized_dim(td);
+        let floor = PivotFloor { relative: 1e-10, absolute: 1e-12 };
+        schur_complement_in_place(&mut self.marg_ne, m, floor)?;
+        let p = self.marg_ne.dim();
+        // New blocks (positions still pre-shift) with their linearization points.
+        self.prior.blocks.clear();
+        for k in 1..count {
+            let st = self.window.get(k).ok_or(Error::NotEnoughData)?.state;
+            self.prior.blocks.push((Block::Kf(k as u8), LinPoint::Kf(st))).map_err(|_| Error::CapacityExceeded)?;
+        }
+        if ext {
+            self.prior.blocks.push((Block::Ext, LinPoint::Ext(self.ext))).map_err(|_| Error::CapacityExceeded)?;
+        }
+        if td {
+            for k in 1..count {
+                let t = self.window.get(k).ok_or(Error::NotEnoughData)?.td_s;
+                self.prior.blocks.push((Block::Td(k as u8), LinPoint::Td(t))).map_err(|_| Error::CapacityExceeded)?;
+            }
+        }
+        let r0 = self.prior.r0.get_mut(..p).ok_or(Error::CapacityExceeded)?;
+        sqrt_prior(&self.marg_ne, floor, &mut self.marg_ldlt, &mut self.prior.j0, r0)?;
+        self.prior.set_dim(p)?;
+        self.prior.shift_positions()?;
+        self.initial = None;
+        let _ = self.window.pop_oldest();
+        self.lms.shift_out_oldest();
+        Ok(())
+    }
+}
+
+/// Linear interpolation of an IMU sample at `t_ns` between `a` and `b` (`a.t < t <= b.t`).
+fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
+    let span = (b.t_ns - a.t_ns) as f64;
+    let w = if span > 0.0 { (t_ns - a.t_ns) as f64 / span } else { 1.0 };
+    ImuSample {
+        t_ns,
+        gyro_rps: a.gyro_rps + (b.gyro_rps - a.gyro_rps) * w,
+        accel_mps2: a.accel_mps2 + (b.accel_mps2 - a.accel_mps2) * w,
+    }
+}

@@ -1,0 +1,624 @@
+//! The least-squares problem of the sliding window: every factor, assembled into the normal
+//! equations of a [`Layout`], or evaluated for its cost only.
+//!
+//! Factors: the marginalization prior (or, before the first marginalization, diagonal priors on
+//! the first keyframe, its time delay and the extrinsic), IMU preintegration between consecutive
+//! keyframes, the time-delay random walk, and one visual measurement per observation `j != s` of
+//! every usable landmark: pose-only (PO-VINS) or inverse-depth with the depth eliminated by Schur
+//! complement (LE-VINS-WO). Visual residuals go through a Huber kernel (IRLS weights; the cost
+//! uses `rho`, so the LM gain ratio sees the robust cost).
+
+use super::config::{EstimatorConfig, VisualMode};
+use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
+use super::window::{Block, Layout, Window, KF_DIM};
+use crate::camera::{CameraExtrinsic, Vec2};
+use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
+use crate::factors::pose_only_visual::PoseOnlyVisualFactor;
+use crate::factors::robust::Huber;
+use crate::factors::td::TdRandomWalk;
+use crate::factors::{KeyframePose, TimedObs};
+use crate::inertial::preintegration::{Mat15, Vec15};
+use crate::inertial::NavState;
+use crate::landmarks::{KfObs, LandmarkManager};
+use crate::math::{jr_inv_so3, quat_exp, Vec3};
+use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations};
+use crate::Error;
+use heapless::Vec as HVec;
+
+/// Pose columns a landmark can touch in the inverse-depth mode (`7 N + 6` for a window of `N`).
+pub const SCHUR_COLS: usize = 128;
+
+/// Capacity of the landmark id index (power of two, at least `L`).
+pub const LANDMARK_INDEX: usize = 512;
+
+/// Landmark store of the estimator.
+pub type Landmarks<const N: usize, const L: usize> = LandmarkManager<N, L, LANDMARK_INDEX>;
+
+/// Diagonal priors used until the first marginalization.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InitialPriors {
+    /// Linearization point of the first keyframe.
+    pub kf0: NavState,
+    /// Standard deviations `[p, theta, v, bg, ba]` (each for 3 axes).
+    pub kf0_sigma: [f64; 5],
+    /// First time delay and its standard deviation, s.
+    pub td0: (f64, f64),
+    /// Extrinsic prior mean and standard deviations (translation m, rotation rad).
+    pub ext: (CameraExtrinsic, f64, f64),
+}
+
+/// Which factors to visit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FactorSet {
+    /// All factors of the window (the solve).
+    All,
+    /// Only those the oldest keyframe's marginalization needs: priors, the IMU and delay factors
+    /// from position 0 to 1, and the visual factors of landmarks anchored at 0.
+    Oldest,
+}
+
+/// Counts of what one assembly visited.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AssemblyCounts {
+    /// Landmarks that contributed.
+    pub landmarks: u32,
+    /// Visual residuals (2-row observations).
+    pub observations: u32,
+    /// Landmarks disabled because a residual was degenerate at linearization.
+    pub disabled: u32,
+}
+
+/// Saved copy of the optimized variables (for LM trial steps).
+pub struct Saved<const N: usize, const L: usize> {
+    states: [(NavState, f64); N],
+    ext: CameraExtrinsic,
+    inv_depth: [f64; L],
+}
+
+impl<const N: usize, const L: usize> Saved<N, L> {
+    /// Zeroed.
+    pub fn new() -> Self {
+        Saved {
+            states: [(NavState::identity(0), 0.0); N],
+            ext: CameraExtrinsic { p_bc: Vec3::zeros(), q_bc: crate::math::Quat::identity() },
+            inv_depth: [0.0; L],
+        }
+    }
+}
+
+impl<const N: usize, const L: usize> Default for Saved<N, L> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Borrowed view of everything the window's least-squares problem touches.
+pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
+    /// Configuration.
+    pub cfg: &'a EstimatorConfig,
+    /// Keyframes.
+    pub window: &'a mut Window<N>,
+    /// Landmarks.
+    pub lms: &'a mut Landmarks<N, L>,
+    /// Camera-IMU extrinsic (a variable when estimated).
+    pub ext: &'a mut CameraExtrinsic,
+    /// Marginalization prior.
+    pub prior: &'a MargPrior<D, N>,
+    /// Initial priors, until the first marginalization.
+    pub initial: Option<&'a InitialPriors>,
+    /// Column map.
+    pub layout: Layout<N>,
+    /// Which factors.
+    pub set: FactorSet,
+    /// Per-landmark Schur accumulators (inverse-depth mode).
+    pub schur: &'a mut [LandmarkSchur<SCHUR_COLS>],
+    /// Trial-step backup.
+    pub saved: &'a mut Saved<N, L>,
+    /// Counts of the last assembly.
+    pub counts: AssemblyCounts,
+}
+
+fn timed(o: &KfObs) -> TimedObs {
+    TimedObs { x_n: Vec2::new(o.x_n[0], o.x_n[1]), vel: Vec2::new(o.vel[0], o.vel[1]), td0: o.td0_s }
+}
+
+/// Copies a column-major nalgebra matrix into a row-major slice.
+fn row_major<const R: usize, const C: usize>(m: &nalgebra::SMatrix<f64, R, C>, out: &mut [f64]) {
+    for (r, row) in out.chunks_mut(C).take(R).enumerate() {
+        for (c, o) in row.iter_mut().enumerate() {
+            *o = m[(r, c)];
+        }
+    }
+}
+
+/// Accumulates a residual or only its cost.
+fn sink<const D: usize>(
+    ne: &mut Option<&mut NormalEquations<D>>,
+    r: &[f64],
+    blocks: &[JacobianBlock<'_>],
+) -> Result<f64, Error> {
+    let c: f64 = r.iter().map(|x| x * x).sum();
+    if !c.is_finite() {
+        return Err(Error::NonFinite);
+    }
+    if let Some(ne) = ne.as_deref_mut() {
+        ne.add_blocks(r, blocks)?;
+    }
+    Ok(c)
+}
+
+impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
+    fn sqrt_info(&self) -> Vec2 {
+        Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px
+    }
+
+    fn kf_pose(&self, pos: usize) -> Option<KeyframePose> {
+        self.window
+            .get(pos)
+            .map(|k| KeyframePose { p_wb: k.state.p_wb, q_wb: k.state.q_wb, td: k.td_s })
+    }
+
+    fn current(&self, b: Block) -> Option<LinPoint> {
+        match b {
+            Block::Kf(k) => self.window.get(k as usize).map(|kf| LinPoint::Kf(kf.state)),
+            Block::Td(k) => self.window.get(k as usize).map(|kf| LinPoint::Td(kf.td_s)),
+            Block::Ext => Some(LinPoint::Ext(*self.ext)),
+        }
+    }
+
+    /// Visits the factors of `self.set`, adding them to `ne` (or only summing their cost).
+    /// Returns the (robust) cost. With `ne`, landmarks whose residual is degenerate are disabled
+    /// (`usable = false`); without, such a landmark makes the evaluation fail, so an LM trial
+    /// step that breaks a landmark's geometry is rejected instead of shedding its cost.
+    pub fn assemble(&mut self, mut ne: Option<&mut NormalEquations<D>>) -> Result<f64, Error> {
+        self.counts = AssemblyCounts::default();
+        let mut cost = 0.0;
+        let l = self.layout;
+        let count = self.window.len();
+        let est_td = l.col(Block::Td(0)).is_some();
+        let est_ext = l.col(Block::Ext).is_some();
+
+        // Priors.
+        if self.prior.dim() > 0 {
+            let prior = self.prior;
+            cost += prior.add_to(&l, |b| self.current(b), ne.as_deref_mut())?;
+        }
+        if let Some(ip) = self.initial {
+            cost += self.initial_priors(ip, &mut ne, est_td, est_ext)?;
+        }
+
+        // IMU preintegration and delay random walk between consecutive keyframes.
+        let last_pair = if self.set == FactorSet::Oldest { 2.min(count) } else { count };
+        let g = self.cfg.gravity_mps2;
+        let mut r = Vec15::zeros();
+        let mut ji = Mat15::zeros();
+        let mut jj = Mat15::zeros();
+        let mut ji_rm = [0.0; KF_DIM * KF_DIM];
+        let mut jj_rm = [0.0; KF_DIM * KF_DIM];
+        for k in 1..last_pair {
+            let (Some(a), Some(b)) = (self.window.get(k - 1), self.window.get(k)) else {
+                return Err(Error::NotEnoughData);
+            };
+            let pre = b.preint.as_ref().ok_or(Error::NotEnoughData)?;
+            pre.evaluate(&a.state, &b.state, g, &mut r, &mut ji, &mut jj)?;
+            let (ca, cb) = (
+                l.col(Block::Kf((k - 1) as u8)).ok_or(Error::DimensionMismatch)?,
+                l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch)?,
+            );
+            row_major(&ji, &mut ji_rm);
+            row_major(&jj, &mut jj_rm);
+            cost += sink(
+                &mut ne,
+                r.as_slice(),
+                &[JacobianBlock::new(ca, KF_DIM, &ji_rm), JacobianBlock::new(cb, KF_DIM, &jj_rm)],
+            )?;
+            if est_td {
+                let dt = pre.dt_s().max(1e-3);
+                let q = self.cfg.td_rw_s_per_sqrt_s * self.cfg.td_rw_s_per_sqrt_s;
+                let (rt, [da, db]) = TdRandomWalk::new(q, dt)?.evaluate(a.td_s, b.td_s)?;
+                let (ta, tb) = (
+                    l.col(Block::Td((k - 1) as u8)).ok_or(Error::DimensionMismatch)?,
+                    l.col(Block::Td(k as u8)).ok_or(Error::DimensionMismatch)?,
+                );
+                cost += sink(
+                    &mut ne,
+                    &[rt],
+                    &[JacobianBlock::new(ta, 1, &[da]), JacobianBlock::new(tb, 1, &[db])],
+                )?;
+            }
+        }
+
+        cost += match self.cfg.mode {
+            VisualMode::PoseOnly => self.pose_only_visual(&mut ne, est_td, est_ext)?,
+            VisualMode::InverseDepth => self.inverse_depth_visual(&mut ne, est_td, est_ext)?,
+        };
+        if let Some(ne) = ne {
+            // The normal equations summed IRLS-weighted squares; the LM compares robust costs.
+            ne.cost = cost;
+        }
+        Ok(cost)
+    }
+
+    fn initial_priors(
+        &self,
+        ip: &InitialPriors,
+        ne: &mut Option<&mut NormalEquations<D>>,
+        est_td: bool,
+        est_ext: bool,
+    ) -> Result<f64, Error> {
+        let l = &self.layout;
+        let mut cost = 0.0;
+        let kf0 = self.window.get(0).ok_or(Error::NotEnoughData)?;
+        let mut e = [0.0; KF_DIM];
+        kf_minus(&kf0.state, &ip.kf0, &mut e);
+        let th = Vec3::new(e[3], e[4], e[5]);
+        let jr = jr_inv_so3(&th);
+        let mut jac = [0.0; KF_DIM * KF_DIM];
+        for i in 0..KF_DIM {
+            let s = ip.kf0_sigma.get(i / 3).copied().unwrap_or(1.0);
+            if let Some(x) = e.get_mut(i) {
+                *x /= s;
+            }
+            if (3..6).contains(&i) {
+                for c in 3..6 {
+                    if let Some(x) = jac.get_mut(i * KF_DIM + c) {
+                        *x = jr[(i - 3, c - 3)] / s;
+                    }
+                }
+            } else if let Some(x) = jac.get_mut(i * KF_DIM + i) {
+                *x = 1.0 / s;
+            }
+        }
+        let c0 = l.col(Block::Kf(0)).ok_or(Error::DimensionMismatch)?;
+        cost += sink(ne, &e, &[JacobianBlock::new(c0, KF_DIM, &jac)])?;
+        if est_td {
+            let r = (kf0.td_s - ip.td0.0) / ip.td0.1;
+            let c = l.col(Block::Td(0)).ok_or(Error::DimensionMismatch)?;
+            cost += sink(ne, &[r], &[JacobianBlock::new(c, 1, &[1.0 / ip.td0.1])])?;
+        }
+        if est_ext {
+            let (x0, st, sr) = ip.ext;
+            let mut e6 = [0.0; 6];
+            ext_minus(self.ext, &x0, &mut e6);
+            let jr = jr_inv_so3(&Vec3::new(e6[3], e6[4], e6[5]));
+            let mut j6 = [0.0; 36];
+            for i in 0..6 {
+                let s = if i < 3 { st } else { sr };
+                if let Some(x) = e6.get_mut(i) {
+                    *x /= s;
+                }
+                if i < 3 {
+                    if let Some(x) = j6.get_mut(i * 6 + i) {
+                        *x = 1.0 / s;
+                    }
+                } else {
+                    for c in 3..6 {
+                        if let Some(x) = j6.get_mut(i * 6 + c) {
+                            *x = jr[(i - 3, c - 3)] / s;
+                        }
+                    }
+                }
+            }
+            let c = l.col(Block::Ext).ok_or(Error::DimensionMismatch)?;
+            cost += sink(ne, &e6, &[JacobianBlock::new(c, 6, &j6)])?;
+        }
+        Ok(cost)
+    }
+
+    fn pose_only_visual(
+        &mut self,
+        ne: &mut Option<&mut NormalEquations<D>>,
+        est_td: bool,
+        est_ext: bool,
+    ) -> Result<f64, Error> {
+        let huber = Huber::new(self.cfg.huber_delta)?;
+        let sqrt_info = self.sqrt_info();
+        let l = self.layout;
+        let count = self.window.len();
+        let ext = *self.ext;
+        let mut poses = [KeyframePose { p_wb: Vec3::zeros(), q_wb: crate::math::Quat::identity(), td: 0.0 }; N];
+        for (k, p) in poses.iter_mut().enumerate().take(count) {
+            *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
+        }
+        let mut cost = 0.0;
+        let linearize = ne.is_some();
+        for li in 0..self.lms.len() {
+            let Some(lm) = self.lms.landmarks().get(li) else { break };
+            if !lm.usable {
+                continue;
+            }
+            let (s, Some(e)) = (lm.anchor_s as usize, lm.anchor_e.map(usize::from)) else {
+                continue;
+            };
+            if self.set == FactorSet::Oldest && s != 0 {
+                continue;
+            }
+            let (Some(Some(os)), Some(Some(oe))) = (lm.obs.get(s), lm.obs.get(e)) else {
+                continue;
+            };
+            let (Some(ps), Some(pe)) = (poses.get(s), poses.get(e)) else { continue };
+            let (obs_s, obs_e) = (timed(os), timed(oe));
+            let mut lm_cost = 0.0;
+            let mut n_obs = 0;
+            let mut failed = false;
+            // Evaluate every observation first: a landmark enters the system whole or not at all.
+            let mut jacs: HVec<(usize, crate::factors::pose_only_visual::PoseOnlyJacobians), N> =
+                HVec::new();
+            for (j, oj) in lm.obs.iter().enumerate().take(count) {
+                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else { continue };
+                if j == s {
+                    continue;
+                }
+                let f = PoseOnlyVisualFactor {
+                    kf_s: s,
+                    kf_e: e,
+                    kf_j: j,
+                    obs_s,
+                    obs_e,
+                    obs_j: timed(oj),
+                    sqrt_info,
+                };
+                if linearize {
+                    match f.evaluate(ps, pe, pj, &ext) {
+                        Ok(jac) => {
+                            let _ = jacs.push((j, jac));
+                        }
+                        Err(_) => failed = true,
+                    }
+                } else {
+                    match f.residual(ps, pe, pj, &ext) {
+                        Ok(r) => {
+                            lm_cost += huber.rho(r.norm_squared())[0];
+                            n_obs += 1;
+                        }
+                        Err(_) => failed = true,
+                    }
+                }
+            }
+            if let (false, Some(ne_ref)) = (failed, ne.as_deref_mut()) {
+                for (j, jac) in jacs.iter() {
+                    let j = *j;
+                    let sq = jac.r.norm_squared();
+                    let w = huber.sqrt_weight(sq);
+                    lm_cost += huber.rho(sq)[0];
+                    n_obs += 1;
+                    let r = [jac.r.x * w, jac.r.y * w];
+                    let (mut a, mut b, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12], [0.0; 12]);
+                    row_major(&(jac.d_pose_s * w), &mut a);
+                    row_major(&(jac.d_pose_e * w), &mut b);
+                    row_major(&(jac.d_pose_j * w), &mut c);
+                    row_major(&(jac.d_ext * w), &mut x);
+                    let td = [jac.d_td[0] * w, jac.d_td[1] * w, jac.d_td[2] * w];
+                    let tds = [[td[0].x, td[0].y], [td[1].x, td[1].y], [td[2].x, td[2].y]];
+                    let mut blocks: HVec<JacobianBlock<'_>, 8> = HVec::new();
+                    let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
+                    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(s as u8))?, 6, &a));
+                    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(e as u8))?, 6, &b));
+                    if j != e {
+                        let _ = blocks.push(JacobianBlock::new(col(Block::Kf(j as u8))?, 6, &c));
+                    }
+                    if est_ext {
+                        let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
+                    }
+                    if est_td {
+                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
+                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(e as u8))?, 1, &tds[1]));
+                        if j != e {
+                            let _ =
+                                blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[2]));
+                        }
+                    }
+                    ne_ref.add_blocks(&r, &blocks)?;
+                }
+            }
+            if failed {
+                if linearize {
+                    if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
+                        lm.usable = false;
+                    }
+                    self.counts.disabled += 1;
+                } else {
+                    return Err(Error::Degenerate);
+                }
+            }
+            if n_obs > 0 {
+                self.counts.landmarks += 1;
+                self.counts.observations += n_obs;
+            }
+            cost += lm_cost;
+        }
+        Ok(cost)
+    }
+
+    fn inverse_depth_visual(
+        &mut self,
+        ne: &mut Option<&mut NormalEquations<D>>,
+        est_td: bool,
+        est_ext: bool,
+    ) -> Result<f64, Error> {
+        let huber = Huber::new(self.cfg.huber_delta)?;
+        let sqrt_info = self.sqrt_info();
+        let l = self.layout;
+        let count = self.window.len();
+        let ext = *self.ext;
+        let mut poses = [KeyframePose { p_wb: Vec3::zeros(), q_wb: crate::math::Quat::identity(), td: 0.0 }; N];
+        for (k, p) in poses.iter_mut().enumerate().take(count) {
+            *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
+        }
+        let mut cost = 0.0;
+        for li in 0..self.lms.len() {
+            let Some(lm) = self.lms.landmarks().get(li) else { break };
+            if let Some(sc) = self.schur.get_mut(li) {
+                sc.clear();
+            }
+            if !lm.usable || lm.inv_depth <= 0.0 {
+                continue;
+            }
+            let s = lm.anchor_s as usize;
+            if self.set == FactorSet::Oldest && s != 0 {
+                continue;
+            }
+            let (Some(Some(os)), Some(ps)) = (lm.obs.get(s), poses.get(s)) else { continue };
+            let obs_s = timed(os);
+            let tau = lm.inv_depth;
+            let mut lm_cost = 0.0;
+            let mut n_obs = 0;
+            let mut failed = false;
+            let mut jacs: HVec<(usize, crate::factors::inverse_depth_visual::InverseDepthJacobians), N> =
+                HVec::new();
+            for (j, oj) in lm.obs.iter().enumerate().take(count) {
+                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else { continue };
+                if j == s {
+                    continue;
+                }
+                let f = InverseDepthVisualFactor { kf_s: s, kf_j: j, obs_s, obs_j: timed(oj), sqrt_info };
+                if ne.is_some() {
+                    match f.evaluate(ps, pj, &ext, tau) {
+                        Ok(jac) => {
+                            let _ = jacs.push((j, jac));
+                        }
+                        Err(_) => failed = true,
+                    }
+                } else {
+                    match f.residual(ps, pj, &ext, tau) {
+                        Ok(r) => {
+                            lm_cost += huber.rho(r.norm_squared())[0];
+                            n_obs += 1;
+                        }
+                        Err(_) => failed = true,
+                    }
+                }
+            }
+            if let (false, Some(ne_ref)) = (failed, ne.as_deref_mut()) {
+                for (j, jac) in jacs.iter() {
+                    let j = *j;
+                    let sq = jac.r.norm_squared();
+                    let w = huber.sqrt_weight(sq);
+                    lm_cost += huber.rho(sq)[0];
+                    n_obs += 1;
+                    let r = [jac.r.x * w, jac.r.y * w];
+                    let (mut a, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12]);
+                    row_major(&(jac.d_pose_s * w), &mut a);
+                    row_major(&(jac.d_pose_j * w), &mut c);
+                    row_major(&(jac.d_ext * w), &mut x);
+                    let tds = [
+                        [jac.d_td[0].x * w, jac.d_td[0].y * w],
+                        [jac.d_td[1].x * w, jac.d_td[1].y * w],
+                    ];
+                    let jl = [jac.d_tau.x * w, jac.d_tau.y * w];
+                    let mut blocks: HVec<JacobianBlock<'_>, 6> = HVec::new();
+                    let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
+                    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(s as u8))?, 6, &a));
+                    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(j as u8))?, 6, &c));
+                    if est_ext {
+                        let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
+                    }
+                    if est_td {
+                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
+                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[1]));
+                    }
+                    let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
+                    sc.add_residual(ne_ref, &r, &blocks, &jl)?;
+                }
+            }
+            if failed {
+                if ne.is_some() {
+                    if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
+                        lm.usable = false;
+                    }
+                    self.counts.disabled += 1;
+                } else {
+                    return Err(Error::Degenerate);
+                }
+            }
+            if let (false, Some(ne_ref), Some(sc)) = (failed, ne.as_deref_mut(), self.schur.get(li)) {
+                sc.fold_into(ne_ref, 0.0)?;
+            }
+            if n_obs > 0 {
+                self.counts.landmarks += 1;
+                self.counts.observations += n_obs;
+            }
+            cost += lm_cost;
+        }
+        Ok(cost)
+    }
+}
+
+impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_, N, L, D> {
+    fn dim(&self) -> usize {
+        self.layout.dim()
+    }
+
+    fn linearize(&mut self, ne: &mut NormalEquations<D>) -> Result<(), Error> {
+        self.assemble(Some(ne)).map(|_| ())
+    }
+
+    fn cost(&mut self) -> Result<f64, Error> {
+        self.assemble(None)
+    }
+
+    fn apply(&mut self, dx: &[f64]) {
+        let l = self.layout;
+        let get3 = |c: usize| -> Vec3 {
+            Vec3::new(
+                dx.get(c).copied().unwrap_or(0.0),
+                dx.get(c + 1).copied().unwrap_or(0.0),
+                dx.get(c + 2).copied().unwrap_or(0.0),
+            )
+        };
+        for k in 0..self.window.len() {
+            let Some(c) = l.col(Block::Kf(k as u8)) else { continue };
+            let tdc = l.col(Block::Td(k as u8));
+            if let Some(kf) = self.window.get_mut(k) {
+                let s = &mut kf.state;
+                s.p_wb += get3(c);
+                s.q_wb = s.q_wb * quat_exp(&get3(c + 3));
+                s.v_wb += get3(c + 6);
+                s.bg += get3(c + 9);
+                s.ba += get3(c + 12);
+                if let Some(t) = tdc {
+                    kf.td_s += dx.get(t).copied().unwrap_or(0.0);
+                }
+            }
+        }
+        if let Some(c) = l.col(Block::Ext) {
+            self.ext.p_bc += get3(c);
+            self.ext.q_bc = self.ext.q_bc * quat_exp(&get3(c + 3));
+        }
+        if self.cfg.mode == VisualMode::InverseDepth {
+            for (lm, sc) in self.lms.landmarks_mut().iter_mut().zip(self.schur.iter()) {
+                if lm.usable && lm.inv_depth > 0.0 {
+                    if let Ok(dt) = sc.back_substitute(dx, 0.0) {
+                        // A depth may not cross the camera plane in one step.
+                        lm.inv_depth = (lm.inv_depth + dt).max(0.1 * lm.inv_depth);
+                    }
+                }
+            }
+        }
+    }
+
+    fn save(&mut self) {
+        for k in 0..self.window.len() {
+            if let (Some(kf), Some(slot)) = (self.window.get(k), self.saved.states.get_mut(k)) {
+                *slot = (kf.state, kf.td_s);
+            }
+        }
+        self.saved.ext = *self.ext;
+        for (lm, s) in self.lms.landmarks().iter().zip(self.saved.inv_depth.iter_mut()) {
+            *s = lm.inv_depth;
+        }
+    }
+
+    fn restore(&mut self) {
+        for k in 0..self.window.len() {
+            if let (Some(kf), Some(slot)) = (self.window.get_mut(k), self.saved.states.get(k)) {
+                kf.state = slot.0;
+                kf.td_s = slot.1;
+            }
+        }
+        *self.ext = self.saved.ext;
+        for (lm, s) in self.lms.landmarks_mut().iter_mut().zip(self.saved.inv_depth.iter()) {
+            lm.inv_depth = *s;
+        }
+    }
+}

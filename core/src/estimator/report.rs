@@ -1,0 +1,79 @@
+//! What the estimator tells its user: per-keyframe reports and running counters.
+
+use crate::frontend::KeyframeDecision;
+use crate::solver::Termination;
+
+/// Statistics of one keyframe's back-end step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeyframeReport {
+    /// IMU time of the keyframe, ns.
+    pub t_ns: i64,
+    /// Camera time of the keyframe image, ns.
+    pub t_cam_ns: i64,
+    /// Why this frame became a keyframe.
+    pub decision: KeyframeDecision,
+    /// Keyframes in the window after the step.
+    pub window_len: u32,
+    /// Landmarks in the manager.
+    pub landmarks_total: u32,
+    /// Landmarks that entered the final optimization pass.
+    pub landmarks_used: u32,
+    /// Visual observations (2-row residuals) in the final pass.
+    pub observations_used: u32,
+    /// RMS of the visual reprojection error per axis after the solve, px.
+    pub residual_rms_px: f64,
+    /// LM iterations over both passes.
+    pub iterations: u32,
+    /// Robust cost before and after the solve.
+    pub cost: (f64, f64),
+    /// Why the last LM pass stopped.
+    pub termination: Option<Termination>,
+    /// Observations removed by the chi-square test between the passes.
+    pub culled_chi2: u32,
+    /// Observations removed by the post-solve reprojection test.
+    pub culled_observations: u32,
+    /// Landmarks removed by the post-solve reprojection test.
+    pub culled_landmarks: u32,
+    /// Landmarks disabled for degenerate geometry during the solve.
+    pub disabled_landmarks: u32,
+    /// Time of the optimization (both passes, culling included), ns.
+    pub solve_ns: u64,
+    /// Time of the marginalization, ns.
+    pub marginalization_ns: u64,
+    /// Whole back-end step (landmark preparation, solve, marginalization, culling), ns.
+    pub total_ns: u64,
+}
+
+/// Running counters of everything the estimator rejected, dropped or reset.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// IMU samples accepted.
+    pub imu_samples: u64,
+    /// IMU samples rejected as non-finite.
+    pub imu_rejected_nonfinite: u64,
+    /// IMU samples rejected for non-increasing time.
+    pub imu_rejected_time: u64,
+    /// Camera frames offered.
+    pub frames: u64,
+    /// Frames rejected for non-increasing time.
+    pub frames_rejected_time: u64,
+    /// Frames that arrived before initialization.
+    pub frames_before_init: u64,
+    /// Frames replaced before the IMU reached them (camera ahead of IMU).
+    pub frames_dropped_no_imu: u64,
+    /// Keyframes created.
+    pub keyframes: u64,
+    /// Feature observations offered.
+    pub features_received: u64,
+    /// Feature observations rejected (non-finite, outside image, duplicate id, undistortion,
+    /// frame capacity).
+    pub features_rejected: u64,
+    /// New tracks refused because the landmark capacity was reached.
+    pub landmarks_refused_capacity: u64,
+    /// Solves that returned an error (the state kept its last accepted value).
+    pub solver_failures: u64,
+    /// Marginalizations that failed (the prior was dropped).
+    pub marginalization_failures: u64,
+    /// Estimator resets (IMU gap, preintegration overflow).
+    pub resets: u64,
+}

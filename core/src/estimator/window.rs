@@ -1,0 +1,259 @@
+//! The sliding window of keyframes and the map from state blocks to error-state columns.
+//!
+//! Keyframes are addressed by *position*, `0` = oldest. Each keyframe keeps its navigation state
+//! (at the IMU time of its image), its camera time delay and the preintegration from the
+//! previous keyframe to it (unused for position 0).
+
+use crate::inertial::preintegration::Preintegration;
+use crate::inertial::NavState;
+
+/// IMU samples a keyframe interval can hold (re-integration needs them all): 1.28 s at 400 Hz,
+/// far above the 0.475 s forced-keyframe interval.
+pub const MAX_INTERVAL_SAMPLES: usize = 512;
+
+/// Preintegration type used by the window.
+pub type Preint = Preintegration<MAX_INTERVAL_SAMPLES>;
+
+/// One keyframe.
+#[derive(Debug, Clone)]
+pub struct Keyframe {
+    /// Image time on the camera clock, ns.
+    pub t_cam_ns: i64,
+    /// State at the IMU time of the image (`t_cam + td` at creation).
+    pub state: NavState,
+    /// Camera-IMU time delay estimate of this keyframe, s.
+    pub td_s: f64,
+    /// Preintegration from the previous keyframe to this one (`None` for the first keyframe).
+    pub preint: Option<Preint>,
+}
+
+/// Ring of at most `N` keyframes.
+pub struct Window<const N: usize> {
+    slots: [Option<Keyframe>; N],
+    head: usize,
+    count: usize,
+}
+
+impl<const N: usize> Default for Window<N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize> Window<N> {
+    /// An empty window.
+    pub fn new() -> Self {
+        Window { slots: core::array::from_fn(|_| None), head: 0, count: 0 }
+    }
+
+    /// Keyframes in the window.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    /// True when there are no keyframes.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// True when `N` keyframes are held.
+    pub fn is_full(&self) -> bool {
+        self.count == N
+    }
+
+    fn slot(&self, pos: usize) -> Option<usize> {
+        (pos < self.count && N > 0).then(|| (self.head + pos) % N)
+    }
+
+    /// Keyframe at `pos`.
+    pub fn get(&self, pos: usize) -> Option<&Keyframe> {
+        self.slot(pos).and_then(|s| self.slots.get(s)).and_then(|k| k.as_ref())
+    }
+
+    /// Mutable keyframe at `pos`.
+    pub fn get_mut(&mut self, pos: usize) -> Option<&mut Keyframe> {
+        let s = self.slot(pos)?;
+        self.slots.get_mut(s).and_then(|k| k.as_mut())
+    }
+
+    /// The newest keyframe.
+    pub fn last(&self) -> Option<&Keyframe> {
+        self.count.checked_sub(1).and_then(|p| self.get(p))
+    }
+
+    /// Appends a keyframe; returns it back if the window is full.
+    pub fn push(&mut self, kf: Keyframe) -> Result<(), Keyframe> {
+        if self.count >= N {
+            return Err(kf);
+        }
+        let s = (self.head + self.count) % N;
+        match self.slots.get_mut(s) {
+            Some(slot) => {
+                *slot = Some(kf);
+                self.count += 1;
+                Ok(())
+            }
+            None => Err(kf),
+        }
+    }
+
+    /// Removes the oldest keyframe.
+    pub fn pop_oldest(&mut self) -> Option<Keyframe> {
+        if self.count == 0 {
+            return None;
+        }
+        let kf = self.slots.get_mut(self.head).and_then(|s| s.take());
+        self.head = (self.head + 1) % N;
+        self.count -= 1;
+        kf
+    }
+
+    /// Removes everything.
+    pub fn clear(&mut self) {
+        for s in self.slots.iter_mut() {
+            *s = None;
+        }
+        self.head = 0;
+        self.count = 0;
+    }
+}
+
+/// Width of a keyframe's error state `[p, theta, v, bg, ba]`.
+pub const KF_DIM: usize = 15;
+/// Width of the extrinsic error state `[p_bc, theta_bc]`.
+pub const EXT_DIM: usize = 6;
+
+/// A block of the error state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Block {
+    /// Keyframe at a window position (15 columns).
+    Kf(u8),
+    /// The camera-IMU extrinsic (6 columns).
+    Ext,
+    /// Time delay of the keyframe at a window position (1 column).
+    Td(u8),
+}
+
+impl Block {
+    /// Number of error-state columns of the block.
+    pub fn dim(self) -> usize {
+        match self {
+            Block::Kf(_) => KF_DIM,
+            Block::Ext => EXT_DIM,
+            Block::Td(_) => 1,
+        }
+    }
+}
+
+/// Column of every state block in one linear system.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Layout<const N: usize> {
+    kf: [Option<usize>; N],
+    td: [Option<usize>; N],
+    ext: Option<usize>,
+    n: usize,
+}
+
+impl<const N: usize> Layout<N> {
+    fn empty() -> Self {
+        Layout { kf: [None; N], td: [None; N], ext: None, n: 0 }
+    }
+
+    fn place(&mut self, b: Block) {
+        match b {
+            Block::Kf(k) => {
+                if let Some(c) = self.kf.get_mut(k as usize) {
+                    *c = Some(self.n);
+                }
+            }
+            Block::Td(k) => {
+                if let Some(c) = self.td.get_mut(k as usize) {
+                    *c = Some(self.n);
+                }
+            }
+            Block::Ext => self.ext = Some(self.n),
+        }
+        self.n += b.dim();
+    }
+
+    /// The solve layout: keyframes in window order, then the extrinsic, then the time delays.
+    pub fn solve(count: usize, ext: bool, td: bool) -> Self {
+        let mut l = Self::empty();
+        for k in 0..count.min(N) {
+            l.place(Block::Kf(k as u8));
+        }
+        if ext {
+            l.place(Block::Ext);
+        }
+        if td {
+            for k in 0..count.min(N) {
+                l.place(Block::Td(k as u8));
+            }
+        }
+        l
+    }
+
+    /// The marginalization layout: the oldest keyframe (and its delay) first, so the first
+    /// [`Layout::marginalized_dim`] columns are eliminated, then the rest in solve order.
+    pub fn marginalize_oldest(count: usize, ext: bool, td: bool) -> Self {
+        let mut l = Self::empty();
+        l.place(Block::Kf(0));
+        if td {
+            l.place(Block::Td(0));
+        }
+        for k in 1..count.min(N) {
+            l.place(Block::Kf(k as u8));
+        }
+        if ext {
+            l.place(Block::Ext);
+        }
+        if td {
+            for k in 1..count.min(N) {
+                l.place(Block::Td(k as u8));
+            }
+        }
+        l
+    }
+
+    /// Columns eliminated by the marginalization layout.
+    pub fn marginalized_dim(td: bool) -> usize {
+        KF_DIM + usize::from(td)
+    }
+
+    /// Total dimension.
+    pub fn dim(&self) -> usize {
+        self.n
+    }
+
+    /// First column of a block, if present.
+    pub fn col(&self, b: Block) -> Option<usize> {
+        match b {
+            Block::Kf(k) => self.kf.get(k as usize).copied().flatten(),
+            Block::Td(k) => self.td.get(k as usize).copied().flatten(),
+            Block::Ext => self.ext,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layouts_are_dense_and_ordered() {
+        let s: Layout<4> = Layout::solve(3, true, true);
+        assert_eq!(s.dim(), 3 * 15 + 6 + 3);
+        assert_eq!(s.col(Block::Kf(2)), Some(30));
+        assert_eq!(s.col(Block::Ext), Some(45));
+        assert_eq!(s.col(Block::Td(0)), Some(51));
+        assert_eq!(s.col(Block::Kf(3)), None);
+        let m: Layout<4> = Layout::marginalize_oldest(3, false, true);
+        assert_eq!(m.col(Block::Kf(0)), Some(0));
+        assert_eq!(m.col(Block::Td(0)), Some(15));
+        assert_eq!(m.col(Block::Kf(1)), Some(16));
+        assert_eq!(m.col(Block::Td(2)), Some(47));
+        assert_eq!(m.dim(), 48);
+        assert_eq!(Layout::<4>::marginalized_dim(true), 16);
+    }
+}
