@@ -9,4 +9,4 @@ pub mod keyframe;
 pub mod tracks;
 
 pub use keyframe::{KeyframeConfig, KeyframeDecision, KeyframeSelector};
-// pub use tracks::{FrameStats, NormalizedObs, TrackTable};
+pub use tracks::{FrameStats, NormalizedObs, TrackTable};

@@ -10,7 +10,7 @@
 //! refused and counted in [`ManagerStats::refused_capacity`]; existing landmarks are never evicted
 //! to make room, so a long-lived well-constrained landmark is never traded for a new one.
 
-use crate::frontend::tracks::NormalizedObs;
+use crate::frontend::NormalizedObs;
 use heapless::index_map::FnvIndexMap;
 use heapless::Vec;
 
