@@ -23,6 +23,7 @@ pub mod log;
 
 pub mod camera;
 pub mod error;
+pub mod estimator;
 pub mod factors;
 pub mod frontend;
 pub mod inertial;

@@ -37,7 +37,7 @@ pub struct FirstStatePrior {
 }
 
 /// Everything the estimator needs to know before the first sample.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy)]
 pub struct EstimatorConfig {
     /// Camera intrinsics and distortion.
     pub camera: PinholeCamera,
