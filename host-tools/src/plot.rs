@@ -37,7 +37,8 @@ const BACKEND_COLOR: RGBColor = RGBColor(44, 160, 44);
 
 fn register_font() -> Result<()> {
     static DONE: OnceLock<bool> = OnceLock::new();
-    let ok = *DONE.get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, FONT_TTF).is_ok());
+    let ok = *DONE
+        .get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, FONT_TTF).is_ok());
     if ok {
         Ok(())
     } else {
@@ -57,16 +58,27 @@ pub struct BackendSample {
 /// Reads a CSV whose header names at least `t_s` and `backend_ms` (any order, extra columns
 /// allowed, a leading `#` on the header is ignored).
 pub fn read_stats_csv(path: &Path) -> Result<Vec<BackendSample>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read stats file {}", path.display()))?;
-    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read stats file {}", path.display()))?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
     let Some((_, header)) = lines.next() else {
         bail!("{}: empty stats file", path.display());
     };
-    let cols: Vec<&str> = header.trim_start_matches('#').split(',').map(str::trim).collect();
+    let cols: Vec<&str> = header
+        .trim_start_matches('#')
+        .split(',')
+        .map(str::trim)
+        .collect();
     let col = |name: &str| {
-        cols.iter()
-            .position(|c| *c == name)
-            .ok_or_else(|| anyhow!("{}:1: header has no `{name}` column (found {cols:?})", path.display()))
+        cols.iter().position(|c| *c == name).ok_or_else(|| {
+            anyhow!(
+                "{}:1: header has no `{name}` column (found {cols:?})",
+                path.display()
+            )
+        })
     };
     let (i_t, i_b) = (col("t_s")?, col("backend_ms")?);
     let mut out = Vec::new();
@@ -78,7 +90,11 @@ pub fn read_stats_csv(path: &Path) -> Result<Vec<BackendSample>> {
                 .ok_or_else(|| anyhow!("{}:{}: missing `{name}` field", path.display(), i + 1))?;
             match s.parse::<f64>() {
                 Ok(v) if v.is_finite() => Ok(v),
-                _ => bail!("{}:{}: `{name}` value {s:?} is not a finite number", path.display(), i + 1),
+                _ => bail!(
+                    "{}:{}: `{name}` value {s:?} is not a finite number",
+                    path.display(),
+                    i + 1
+                ),
             }
         };
         out.push(BackendSample {
@@ -110,13 +126,21 @@ fn decimate<T: Copy>(v: &[T]) -> Vec<T> {
     let stride = v.len().div_ceil(MAX_POINTS).max(1);
     let mut out: Vec<T> = v.iter().step_by(stride).copied().collect();
     // Keep the last point so the curve ends where the data does.
-    if let (Some(&last), true) = (v.last(), (v.len() - 1) % stride != 0) {
-        out.push(last);
+    if let Some(&last) = v.last() {
+        if (v.len() - 1) % stride != 0 {
+            out.push(last);
+        }
     }
     out
 }
 
-fn build(gt: &[StampedPose], est: &[StampedPose], report: &EvalReport, backend: Option<&[BackendSample]>, title: String) -> Figure {
+fn build(
+    gt: &[StampedPose],
+    est: &[StampedPose],
+    report: &EvalReport,
+    backend: Option<&[BackendSample]>,
+    title: String,
+) -> Figure {
     let t0_ns = gt.first().map_or(0, |p| p.t_ns);
     let rel = |t_ns: i64| (t_ns - t0_ns) as f64 * 1e-9;
     let tf = &report.transform;
@@ -132,7 +156,9 @@ fn build(gt: &[StampedPose], est: &[StampedPose], report: &EvalReport, backend: 
     let gt_span = (rel(t0_ns), gt.last().map_or(0.0, |p| rel(p.t_ns)));
     let backend = backend.map(|b| {
         let t0_s = t0_ns as f64 * 1e-9;
-        let same_clock = b.first().is_some_and(|s| s.t_s - t0_s >= gt_span.0 - 1.0 && s.t_s - t0_s <= gt_span.1 + 1.0);
+        let same_clock = b
+            .first()
+            .is_some_and(|s| s.t_s - t0_s >= gt_span.0 - 1.0 && s.t_s - t0_s <= gt_span.1 + 1.0);
         decimate(
             &b.iter()
                 .map(|s| (if same_clock { s.t_s - t0_s } else { s.t_s }, s.backend_ms))
@@ -144,7 +170,11 @@ fn build(gt: &[StampedPose], est: &[StampedPose], report: &EvalReport, backend: 
         est_label: format!("estimate ({} aligned)", report.alignment.name()),
         gt_xy: decimate(&gt.iter().map(|p| (p.p_wb.x, p.p_wb.y)).collect::<Vec<_>>()),
         est_xy: decimate(&est_w.iter().map(|&(_, x, y, _)| (x, y)).collect::<Vec<_>>()),
-        gt_z: decimate(&gt.iter().map(|p| (rel(p.t_ns), p.p_wb.z)).collect::<Vec<_>>()),
+        gt_z: decimate(
+            &gt.iter()
+                .map(|p| (rel(p.t_ns), p.p_wb.z))
+                .collect::<Vec<_>>(),
+        ),
         est_z: decimate(&est_w.iter().map(|&(t, _, _, z)| (t, z)).collect::<Vec<_>>()),
         err: decimate(
             &report
@@ -160,7 +190,9 @@ fn build(gt: &[StampedPose], est: &[StampedPose], report: &EvalReport, backend: 
 
 /// Range of `vals` with a margin; never empty.
 fn padded(vals: impl Iterator<Item = f64>, frac: f64, include_zero: bool) -> Range<f64> {
-    let (mut lo, mut hi) = vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| (l.min(v), h.max(v)));
+    let (mut lo, mut hi) = vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+        (l.min(v), h.max(v))
+    });
     if !lo.is_finite() || !hi.is_finite() {
         (lo, hi) = (0.0, 1.0);
     }
@@ -169,7 +201,11 @@ fn padded(vals: impl Iterator<Item = f64>, frac: f64, include_zero: bool) -> Ran
     }
     let span = (hi - lo).max(1e-3);
     let pad = span * frac;
-    (if include_zero && lo >= 0.0 { 0.0 } else { lo - pad })..hi + pad
+    (if include_zero && lo >= 0.0 {
+        0.0
+    } else {
+        lo - pad
+    })..hi + pad
 }
 
 /// Grows the shorter range so one metre spans the same pixels on both axes.
@@ -224,10 +260,15 @@ fn line_panel<DB: DrawingBackend>(
         .map_err(err)?;
     for &(label, pts, color, width) in series {
         chart
-            .draw_series(LineSeries::new(pts.iter().copied(), color.stroke_width(width)))
+            .draw_series(LineSeries::new(
+                pts.iter().copied(),
+                color.stroke_width(width),
+            ))
             .map_err(err)?
             .label(label)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], color.stroke_width(3)));
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 24, y)], color.stroke_width(3))
+            });
     }
     if !series.is_empty() {
         chart
@@ -251,8 +292,16 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, fig: &Figure) -> DrawR
     let est_label = fig.est_label.as_str();
     let (w, h) = top_left.dim_in_pixel();
     let (xr, yr) = equal_aspect(
-        padded(fig.gt_xy.iter().chain(&fig.est_xy).map(|p| p.0), 0.05, false),
-        padded(fig.gt_xy.iter().chain(&fig.est_xy).map(|p| p.1), 0.05, false),
+        padded(
+            fig.gt_xy.iter().chain(&fig.est_xy).map(|p| p.0),
+            0.05,
+            false,
+        ),
+        padded(
+            fig.gt_xy.iter().chain(&fig.est_xy).map(|p| p.1),
+            0.05,
+            false,
+        ),
         // Plot area without the label areas, margins and caption.
         f64::from(w.saturating_sub(72 + 24).max(1)),
         f64::from(h.saturating_sub(48 + 24 + 40).max(1)),
@@ -262,7 +311,10 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, fig: &Figure) -> DrawR
         "top view",
         "x [m]",
         "y [m]",
-        &[("ground truth", &fig.gt_xy, GT_COLOR, 3), (est_label, &fig.est_xy, EST_COLOR, 1)],
+        &[
+            ("ground truth", &fig.gt_xy, GT_COLOR, 3),
+            (est_label, &fig.est_xy, EST_COLOR, 1),
+        ],
         xr,
         yr,
     )?;
@@ -273,7 +325,10 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, fig: &Figure) -> DrawR
         "height",
         "time [s]",
         "z [m]",
-        &[("ground truth", &fig.gt_z, GT_COLOR, 3), (est_label, &fig.est_z, EST_COLOR, 1)],
+        &[
+            ("ground truth", &fig.gt_z, GT_COLOR, 3),
+            (est_label, &fig.est_z, EST_COLOR, 1),
+        ],
         t_range.clone(),
         padded(fig.gt_z.iter().chain(&fig.est_z).map(|p| p.1), 0.1, false),
     )?;
@@ -284,7 +339,15 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, fig: &Figure) -> DrawR
     match &fig.backend {
         Some(b) => {
             let (bl, br) = bottom.split_horizontally(bottom.dim_in_pixel().0 / 2);
-            line_panel(&bl, &err_caption, "time [s]", "error [m]", &err_series, t_range, err_y)?;
+            line_panel(
+                &bl,
+                &err_caption,
+                "time [s]",
+                "error [m]",
+                &err_series,
+                t_range,
+                err_y,
+            )?;
             let mean = b.iter().map(|p| p.1).sum::<f64>() / b.len().max(1) as f64;
             line_panel(
                 &br,
@@ -296,7 +359,15 @@ fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, fig: &Figure) -> DrawR
                 padded(b.iter().map(|p| p.1), 0.1, true),
             )?;
         }
-        None => line_panel(&bottom, &err_caption, "time [s]", "error [m]", &err_series, t_range, err_y)?,
+        None => line_panel(
+            &bottom,
+            &err_caption,
+            "time [s]",
+            "error [m]",
+            &err_series,
+            t_range,
+            err_y,
+        )?,
     }
     root.present().map_err(err)
 }
@@ -314,7 +385,10 @@ pub fn plot(
     let report = evaluate(gt, est, opts)?;
     let fig = build(gt, est, &report, backend, title.to_string());
     register_font()?;
-    let ext = out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
     match ext.as_deref() {
         Some("svg") => draw(SVGBackend::new(out, SIZE_PX).into_drawing_area(), &fig),
         Some("png") => draw(BitMapBackend::new(out, SIZE_PX).into_drawing_area(), &fig),
@@ -322,4 +396,30 @@ pub fn plot(
     }
     .with_context(|| format!("writing {}", out.display()))?;
     Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decimation_bounds_points_and_keeps_both_ends() {
+        assert!(decimate::<u32>(&[]).is_empty());
+        let short: Vec<u32> = (0..10).collect();
+        assert_eq!(decimate(&short), short);
+        let long: Vec<u32> = (0..10_001).collect();
+        let d = decimate(&long);
+        assert!(d.len() <= MAX_POINTS + 1, "{}", d.len());
+        assert_eq!((d[0], d[d.len() - 1]), (0, 10_000));
+    }
+
+    #[test]
+    fn equal_aspect_gives_equal_metres_per_pixel() {
+        let (x, y) = equal_aspect(0.0..10.0, 0.0..1.0, 500.0, 250.0);
+        assert_eq!(x, 0.0..10.0);
+        assert!(((y.end - y.start) / 250.0 - 10.0 / 500.0).abs() < 1e-15);
+        assert!((0.5 * (y.start + y.end) - 0.5).abs() < 1e-15);
+        let r = padded(std::iter::empty(), 0.1, false);
+        assert!(r.end > r.start);
+    }
 }

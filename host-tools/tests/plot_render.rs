@@ -82,7 +82,10 @@ fn png_decodes_with_expected_size_and_series_colours() {
     let total = (info.width * info.height) as usize;
     let white = count_rgb(rgb, (255, 255, 255));
     // Mostly white background, but clearly drawn on: grid, text and four panels of lines.
-    assert!(white < total * 97 / 100 && white > total / 2, "white {white} of {total}");
+    assert!(
+        white < total * 97 / 100 && white > total / 2,
+        "white {white} of {total}"
+    );
     // Each series' colour is on the canvas (ground truth, estimate, error, back-end).
     for (name, c, min) in [
         ("ground truth", (40, 40, 40), 2000),
@@ -138,20 +141,35 @@ fn svg_names_panels_and_series() {
     assert!(!without.contains("back-end"));
     // 5 data polylines + 5 legend lines without stats; one more of each with.
     let n = |s: &str| s.matches("<polyline").count();
-    assert!(n(&without) >= 5 && n(&with) > n(&without), "{} {}", n(&without), n(&with));
+    assert!(
+        n(&without) >= 5 && n(&with) > n(&without),
+        "{} {}",
+        n(&without),
+        n(&with)
+    );
 }
 
 #[test]
 fn stats_csv_and_output_errors_are_clear() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("stats.csv");
-    std::fs::write(&p, "# frame,t_s,extra,backend_ms\n0,1.5,x,12.25\n1,1.6,y,13\n").unwrap();
+    std::fs::write(
+        &p,
+        "# frame,t_s,extra,backend_ms\n0,1.5,x,12.25\n1,1.6,y,13\n",
+    )
+    .unwrap();
     let rows = read_stats_csv(&p).unwrap();
     assert_eq!(
         rows,
         vec![
-            BackendSample { t_s: 1.5, backend_ms: 12.25 },
-            BackendSample { t_s: 1.6, backend_ms: 13.0 }
+            BackendSample {
+                t_s: 1.5,
+                backend_ms: 12.25
+            },
+            BackendSample {
+                t_s: 1.6,
+                backend_ms: 13.0
+            }
         ]
     );
     std::fs::write(&p, "t_s,frontend_ms\n1,2\n").unwrap();
@@ -162,8 +180,15 @@ fn stats_csv_and_output_errors_are_clear() {
     assert!(e.contains("stats.csv:3") && e.contains("\"fast\""), "{e}");
 
     let gt = euroc_gt();
-    let e = plot(&gt, &gt, &EvalOptions::default(), None, "t", &dir.path().join("x.jpg"))
-        .unwrap_err()
-        .to_string();
+    let e = plot(
+        &gt,
+        &gt,
+        &EvalOptions::default(),
+        None,
+        "t",
+        &dir.path().join("x.jpg"),
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains(".svg or .png"), "{e}");
 }

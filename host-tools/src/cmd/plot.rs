@@ -44,8 +44,10 @@ pub fn run(args: Args) -> Result<()> {
         segments_m: Vec::new(),
     };
     let name = |p: &PathBuf| {
-        p.file_name()
-            .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into_owned())
+        p.file_name().map_or_else(
+            || p.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
     };
     let title = format!("{} vs ground truth {}", name(&args.est), name(&args.gt));
     let report = plot(&gt, &est, &opts, backend.as_deref(), &title, &args.out)?;

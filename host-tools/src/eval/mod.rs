@@ -353,8 +353,10 @@ mod tests {
             "{e}"
         );
         // ... unless the offset is given.
-        let mut o = EvalOptions::default();
-        o.t_offset_s = -0.05;
+        let mut o = EvalOptions {
+            t_offset_s: -0.05,
+            ..EvalOptions::default()
+        };
         assert_eq!(evaluate(&gt, &shifted, &o).unwrap().matched_poses, 600);
         o.segments_m = vec![0.0];
         assert!(evaluate(&gt, &shifted, &o).is_err());
