@@ -5,3 +5,6 @@
 //! their own modules so tests and benches can call them directly.
 
 pub mod cmd;
+pub mod eval;
+pub mod plot;
+pub mod progress;
