@@ -98,7 +98,8 @@ fn run(imu: &[ImuSample], gt: &[NavState], noise: ImuNoise, ba: Vec3) -> Run {
         for smp in &imu[s + 1..=e] {
             pre.push(smp).unwrap();
         }
-        pre.evaluate_raw(&xi, &xj, G, &mut r, &mut ji, &mut jj).unwrap();
+        pre.evaluate_raw(&xi, &xj, G, &mut r, &mut ji, &mut jj)
+            .unwrap();
         let cov = pre.covariance();
         out.all += nse::<9>(cov, &r, 0);
         out.p += nse::<3>(cov, &r, 0);
@@ -128,7 +129,10 @@ fn car_preintegration_covariance_is_consistent() {
         let fd = (w[2].p_wb - w[0].p_wb) / ((w[2].t_ns - w[0].t_ns) as f64 * 1e-9);
         dv_max = dv_max.max((fd - w[1].v_wb).norm());
     }
-    assert!(dv_max < 0.5, "GT velocity vs differenced position: {dv_max} m/s");
+    assert!(
+        dv_max < 0.5,
+        "GT velocity vs differenced position: {dv_max} m/s"
+    );
 
     let g_d = diff_density(imu, |s| s.gyro_rps);
     let a_d = diff_density(imu, |s| s.accel_mps2);

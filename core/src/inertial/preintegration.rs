@@ -504,8 +504,7 @@ impl<const M: usize> Preintegration<M> {
         let chol = nalgebra::Cholesky::new(self.cov).ok_or(Error::NotPositiveDefinite)?;
         let l = chol.l_dirty();
         // Reject a factor whose diagonal underflowed: the solves would divide by ~0.
-        let dmin = (0..15).map(|i| l[(i, i)]).fold(f64::INFINITY, f64::min);
-        if !(dmin > 1e-150) {
+        if !(0..15).all(|i| l[(i, i)] > 1e-150) {
             return Err(Error::NotPositiveDefinite);
         }
         let ok = l.solve_lower_triangular_mut(r)
