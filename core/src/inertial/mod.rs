@@ -2,7 +2,16 @@
 //! interpolation, static initialization, and IMU preintegration between keyframes.
 
 pub mod imu;
+pub mod increment;
+pub mod init;
+pub mod ins;
+pub mod preintegration;
 pub mod state;
+pub mod window;
 
 pub use imu::{ImuNoise, ImuSample};
+pub use init::{state_from_full, StaticInitConfig, StaticInitializer, StaticStats};
+pub use ins::{Ins, InsConfig};
+pub use preintegration::{Mat15, PreintConfig, Preintegration, Vec15};
 pub use state::NavState;
+pub use window::InsWindow;

@@ -1,0 +1,326 @@
+//! INS initialization: static (zero-velocity) initialization by gravity leveling, or from a
+//! given full state.
+//!
+//! Static detection over a sliding window of samples: the platform is static when
+//! `| mean |f| - g | <= accel_norm_tol`, every axis of the specific force has a standard
+//! deviation `<= accel_std_max` and every gyro axis `<= gyro_std_max`, and the window spans at
+//! least `min_static_s`.
+//!
+//! Leveling: at rest the mean specific force is `f = R_wb^T (0, 0, g)`. With yaw set to zero and
+//! `R_wb = Ry(pitch) Rx(roll)`, `f = g (-sin pitch, sin roll cos pitch, cos roll cos pitch)`, so
+//! `roll = atan2(f_y, f_z)` and `pitch = atan2(-f_x, sqrt(f_y^2 + f_z^2))`. The gyro bias is the
+//! mean gyro (Earth rotation, < 7.3e-5 rad/s, is absorbed into it). The accelerometer bias is not
+//! separable from the tilt at rest and is set to zero; position and velocity are zero.
+
+use super::imu::ImuSample;
+use super::state::NavState;
+use crate::math::{quat_exp, Vec3};
+use crate::Error;
+use heapless::Deque;
+
+/// Validates a full state for starting the INS: every component finite and the quaternion
+/// re-normalized ([`Error::NonFinite`], or [`Error::Degenerate`] for a (near-)zero quaternion).
+pub fn state_from_full(s: &NavState) -> Result<NavState, Error> {
+    let all_finite = s
+        .p_wb
+        .iter()
+        .chain(s.v_wb.iter())
+        .chain(s.bg.iter())
+        .chain(s.ba.iter())
+        .chain(s.q_wb.coords.iter())
+        .all(|x| x.is_finite());
+    if !all_finite {
+        return Err(Error::NonFinite);
+    }
+    if s.q_wb.coords.norm() < 1e-6 {
+        return Err(Error::Degenerate);
+    }
+    Ok(NavState {
+        q_wb: super::ins::renormalize(s.q_wb),
+        ..*s
+    })
+}
+
+/// Thresholds of the static detector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StaticInitConfig {
+    /// Gravity magnitude, m/s^2.
+    pub gravity_mps2: f64,
+    /// Largest `| mean |f| - g |`, m/s^2.
+    pub accel_norm_tol_mps2: f64,
+    /// Largest standard deviation of each specific-force axis, m/s^2.
+    pub accel_std_max_mps2: f64,
+    /// Largest standard deviation of each gyro axis, rad/s.
+    pub gyro_std_max_rps: f64,
+    /// Shortest static span, s.
+    pub min_static_s: f64,
+    /// Larger sample spacings restart the detection, s.
+    pub max_dt_s: f64,
+}
+
+impl StaticInitConfig {
+    /// Thresholds that fit consumer and tactical MEMS IMUs on a still platform.
+    pub const DEFAULT: StaticInitConfig = StaticInitConfig {
+        gravity_mps2: 9.81,
+        accel_norm_tol_mps2: 0.3,
+        accel_std_max_mps2: 0.05,
+        gyro_std_max_rps: 0.005,
+        min_static_s: 1.0,
+        max_dt_s: 0.05,
+    };
+
+    fn is_valid(&self) -> bool {
+        [
+            self.gravity_mps2,
+            self.accel_norm_tol_mps2,
+            self.accel_std_max_mps2,
+            self.gyro_std_max_rps,
+            self.min_static_s,
+            self.max_dt_s,
+        ]
+        .iter()
+        .all(|x| x.is_finite() && *x > 0.0)
+    }
+}
+
+/// Sliding-window static initializer holding up to `M` samples; `M` must cover `min_static_s`
+/// at the IMU rate.
+#[derive(Debug, Clone)]
+pub struct StaticInitializer<const M: usize> {
+    cfg: StaticInitConfig,
+    window: Deque<ImuSample, M>,
+    gaps: u32,
+}
+
+/// Mean and per-axis standard deviation of the window's gyro and specific force.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StaticStats {
+    /// Mean gyro, rad/s.
+    pub gyro_mean: Vec3,
+    /// Per-axis gyro standard deviation, rad/s.
+    pub gyro_std: Vec3,
+    /// Mean specific force, m/s^2.
+    pub accel_mean: Vec3,
+    /// Per-axis specific-force standard deviation, m/s^2.
+    pub accel_std: Vec3,
+    /// Mean of `|f|`, m/s^2.
+    pub accel_norm_mean: f64,
+}
+
+impl<const M: usize> StaticInitializer<M> {
+    /// A new initializer ([`Error::InvalidConfig`] for non-positive thresholds or `M < 2`).
+    pub fn new(cfg: StaticInitConfig) -> Result<Self, Error> {
+        if !cfg.is_valid() || M < 2 {
+            return Err(Error::InvalidConfig);
+        }
+        Ok(StaticInitializer {
+            cfg,
+            window: Deque::new(),
+            gaps: 0,
+        })
+    }
+
+    /// How many time gaps restarted the detection.
+    pub fn gaps(&self) -> u32 {
+        self.gaps
+    }
+
+    /// Statistics of the current window ([`Error::NotEnoughData`] below two samples).
+    pub fn stats(&self) -> Result<StaticStats, Error> {
+        let n = self.window.len();
+        if n < 2 {
+            return Err(Error::NotEnoughData);
+        }
+        let inv_n = 1.0 / n as f64;
+        let (mut gm, mut am, mut norm_m) = (Vec3::zeros(), Vec3::zeros(), 0.0);
+        for s in self.window.iter() {
+            gm += s.gyro_rps;
+            am += s.accel_mps2;
+            norm_m += s.accel_mps2.norm();
+        }
+        gm *= inv_n;
+        am *= inv_n;
+        let (mut gv, mut av) = (Vec3::zeros(), Vec3::zeros());
+        for s in self.window.iter() {
+            gv += (s.gyro_rps - gm).component_mul(&(s.gyro_rps - gm));
+            av += (s.accel_mps2 - am).component_mul(&(s.accel_mps2 - am));
+        }
+        let inv_n1 = 1.0 / (n as f64 - 1.0);
+        Ok(StaticStats {
+            gyro_mean: gm,
+            gyro_std: (gv * inv_n1).map(libm::sqrt),
+            accel_mean: am,
+            accel_std: (av * inv_n1).map(libm::sqrt),
+            accel_norm_mean: norm_m * inv_n,
+        })
+    }
+
+    /// Feeds one sample. Returns the leveled state at this sample's time once the window is
+    /// static for long enough. Non-finite and non-increasing samples are rejected (window
+    /// untouched); a gap above `max_dt_s` restarts the window at this sample and is counted.
+    /// [`Error::CapacityExceeded`] means the full window spans less than `min_static_s` (the
+    /// sample is still taken): `M` is too small for this IMU rate.
+    pub fn push(&mut self, s: &ImuSample) -> Result<Option<NavState>, Error> {
+        if !s.is_finite() {
+            return Err(Error::NonFinite);
+        }
+        if let Some(last) = self.window.back() {
+            match super::ins::check_sample(s, last.t_ns, self.cfg.max_dt_s) {
+                Ok(_) => {}
+                Err(Error::TimeGap) => {
+                    self.window.clear();
+                    self.gaps = self.gaps.saturating_add(1);
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        if self.window.is_full() {
+            self.window.pop_front();
+        }
+        self.window
+            .push_back(*s)
+            .map_err(|_| Error::CapacityExceeded)?;
+        let (Some(first), Some(last)) = (self.window.front(), self.window.back()) else {
+            return Ok(None);
+        };
+        let span_s = (last.t_ns as i128 - first.t_ns as i128) as f64 * 1e-9;
+        if span_s < self.cfg.min_static_s {
+            return if self.window.is_full() {
+                Err(Error::CapacityExceeded)
+            } else {
+                Ok(None)
+            };
+        }
+        let st = self.stats()?;
+        let c = &self.cfg;
+        let is_static = libm::fabs(st.accel_norm_mean - c.gravity_mps2) <= c.accel_norm_tol_mps2
+            && st.accel_std.max() <= c.accel_std_max_mps2
+            && st.gyro_std.max() <= c.gyro_std_max_rps;
+        if !is_static {
+            return Ok(None);
+        }
+        Ok(Some(level(&st, last.t_ns)))
+    }
+}
+
+/// The leveled state from window statistics.
+fn level(st: &StaticStats, t_ns: i64) -> NavState {
+    let f = st.accel_mean;
+    let roll = libm::atan2(f.y, f.z);
+    let pitch = libm::atan2(-f.x, libm::sqrt(f.y * f.y + f.z * f.z));
+    let q_wb = quat_exp(&Vec3::new(0.0, pitch, 0.0)) * quat_exp(&Vec3::new(roll, 0.0, 0.0));
+    NavState {
+        t_ns,
+        q_wb,
+        bg: st.gyro_mean,
+        ..NavState::identity(t_ns)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Quat;
+
+    fn cfg() -> StaticInitConfig {
+        StaticInitConfig {
+            min_static_s: 0.5,
+            ..StaticInitConfig::DEFAULT
+        }
+    }
+
+    #[test]
+    fn levels_a_tilted_body_and_recovers_gyro_bias() {
+        let q_true = quat_exp(&Vec3::new(0.0, 0.0, 1.2))
+            * quat_exp(&Vec3::new(0.0, -0.3, 0.0))
+            * quat_exp(&Vec3::new(0.4, 0.0, 0.0));
+        let f = q_true.inverse() * Vec3::new(0.0, 0.0, 9.81);
+        let bg = Vec3::new(0.001, -0.002, 0.003);
+        let mut init = StaticInitializer::<200>::new(cfg()).unwrap();
+        let mut out = None;
+        for k in 0..200i64 {
+            // Deterministic +-1 mrad/s, +-5 mm/s^2 dither so the std is not zero.
+            let d = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let s = ImuSample {
+                t_ns: k * 5_000_000,
+                gyro_rps: bg + Vec3::new(1e-3, 0.0, 0.0) * d,
+                accel_mps2: f + Vec3::new(0.0, 5e-3, 0.0) * d,
+            };
+            if let Some(st) = init.push(&s).unwrap() {
+                out = Some(st);
+                break;
+            }
+        }
+        let st = out.expect("static window must initialize");
+        // 0.5 s at 200 Hz: initialized at the 101st sample.
+        assert_eq!(st.t_ns, 500_000_000);
+        // Gravity direction in the body matches; yaw is zero.
+        let up_b = st.q_wb.inverse() * Vec3::z();
+        let up_true = q_true.inverse() * Vec3::z();
+        assert!((up_b - up_true).norm() < 1e-3, "{up_b:?} vs {up_true:?}");
+        let fwd_w = st.q_wb * Vec3::x();
+        assert!(fwd_w.y.abs() < 1e-12);
+        assert!((st.bg - bg).norm() < 2e-5);
+        assert_eq!(st.v_wb, Vec3::zeros());
+    }
+
+    #[test]
+    fn motion_prevents_initialization_and_gaps_restart() {
+        let mut init = StaticInitializer::<200>::new(cfg()).unwrap();
+        for k in 0..200i64 {
+            let s = ImuSample {
+                t_ns: k * 5_000_000,
+                gyro_rps: Vec3::new(0.0, 0.0, 0.3 * libm::sin(k as f64 * 0.1)),
+                accel_mps2: Vec3::new(0.0, 0.0, 9.81),
+            };
+            assert_eq!(init.push(&s), Ok(None));
+        }
+        // Gap then a static sample: window restarts.
+        let s = ImuSample {
+            t_ns: 10_000_000_000,
+            gyro_rps: Vec3::zeros(),
+            accel_mps2: Vec3::new(0.0, 0.0, 9.81),
+        };
+        assert_eq!(init.push(&s), Ok(None));
+        assert_eq!(init.gaps(), 1);
+        assert_eq!(init.stats().err(), Some(Error::NotEnoughData));
+        assert_eq!(init.push(&s), Err(Error::TimeNotIncreasing));
+        let nan = ImuSample {
+            t_ns: 10_005_000_000,
+            gyro_rps: Vec3::new(f64::NAN, 0.0, 0.0),
+            ..s
+        };
+        assert_eq!(init.push(&nan), Err(Error::NonFinite));
+    }
+
+    #[test]
+    fn too_small_window_reports_capacity() {
+        let mut init = StaticInitializer::<10>::new(cfg()).unwrap();
+        let mut last = Ok(None);
+        for k in 0..10i64 {
+            last = init.push(&ImuSample {
+                t_ns: k * 5_000_000,
+                gyro_rps: Vec3::zeros(),
+                accel_mps2: Vec3::new(0.0, 0.0, 9.81),
+            });
+        }
+        assert_eq!(last, Err(Error::CapacityExceeded));
+        assert_eq!(
+            StaticInitializer::<1>::new(cfg()).err(),
+            Some(Error::InvalidConfig)
+        );
+    }
+
+    #[test]
+    fn full_state_validation() {
+        let mut s = NavState::identity(3);
+        s.q_wb = Quat::new_unchecked(nalgebra::Quaternion::new(2.0, 0.0, 0.0, 0.0));
+        let v = state_from_full(&s).unwrap();
+        assert!((v.q_wb.coords.norm() - 1.0).abs() < 1e-15);
+        s.q_wb = Quat::new_unchecked(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0));
+        assert_eq!(state_from_full(&s).err(), Some(Error::Degenerate));
+        s.bg.z = f64::INFINITY;
+        assert_eq!(state_from_full(&s).err(), Some(Error::NonFinite));
+    }
+}
