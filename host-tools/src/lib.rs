@@ -5,6 +5,8 @@
 //! their own modules so tests and benches can call them directly.
 
 pub mod cmd;
+pub mod config;
 pub mod eval;
 pub mod plot;
 pub mod progress;
+pub mod runner;

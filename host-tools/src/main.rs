@@ -22,6 +22,8 @@ enum Cmd {
     Eval(cmd::eval::Args),
     /// Plot an estimate against ground truth (SVG or PNG).
     Plot(cmd::plot::Args),
+    /// Replay a dataset through the estimator and evaluate it.
+    Run(cmd::run::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -29,5 +31,6 @@ fn main() -> anyhow::Result<()> {
         Cmd::Simulate(a) => cmd::simulate::run(a),
         Cmd::Eval(a) => cmd::eval::run(a),
         Cmd::Plot(a) => cmd::plot::run(a),
+        Cmd::Run(a) => cmd::run::run(a),
     }
 }

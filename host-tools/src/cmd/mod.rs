@@ -2,4 +2,5 @@
 
 pub mod eval;
 pub mod plot;
+pub mod run;
 pub mod simulate;
