@@ -404,9 +404,50 @@ fn ordered<T>(path: &Path, topic: &str, mut v: Vec<T>, t: impl Fn(&T) -> i64) ->
     Ok(v)
 }
 
+/// Largest uncompressed chunk accepted, bytes.
+pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
+
+/// Walks the top-level record framing (`opcode: u8, length: u64, body`) and rejects chunks that
+/// claim more than [`MAX_CHUNK_BYTES`] uncompressed: the `mcap` crate allocates the claimed size
+/// up front, so a corrupt size would abort the process instead of failing.
+fn check_chunk_sizes(path: &Path, b: &[u8]) -> Result<(), IoError> {
+    const CHUNK: u8 = 0x06;
+    const FOOTER: u8 = 0x02;
+    let u64_at = |o: usize| -> Option<u64> {
+        b.get(o..o.checked_add(8)?)
+            .and_then(|s| s.try_into().ok())
+            .map(u64::from_le_bytes)
+    };
+    let mut pos = mcap::MAGIC.len();
+    while let (Some(&op), Some(len)) = (b.get(pos), u64_at(pos + 1)) {
+        if op == CHUNK {
+            // Chunk body: message_start_time u64, message_end_time u64, uncompressed_size u64.
+            if let Some(size) = u64_at(pos + 9 + 16) {
+                if size > MAX_CHUNK_BYTES {
+                    return Err(IoError::Corrupt {
+                        file: path.into(),
+                        what: "chunk".into(),
+                        offset: pos as u64,
+                        msg: format!("uncompressed size {size} exceeds {MAX_CHUNK_BYTES} bytes"),
+                    });
+                }
+            }
+        }
+        if op == FOOTER {
+            break;
+        }
+        match usize::try_from(len).ok().and_then(|l| pos.checked_add(9)?.checked_add(l)) {
+            Some(next) => pos = next,
+            None => break,
+        }
+    }
+    Ok(())
+}
+
 /// Reads a whole MCAP file into a [`Dataset`].
 pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    check_chunk_sizes(path, &bytes)?;
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, (String, String, String)> = HashMap::new();
     let mut ds_imu = Vec::new();
@@ -418,9 +459,26 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
     let mut calib = None;
     let mut sim_truth = None;
 
-    let reader = mcap::read::ChunkFlattener::new(&bytes).map_err(|e| mcap_err(path, e))?;
-    for rec in reader {
-        match rec.map_err(|e| mcap_err(path, e))? {
+    // The sans-io reader with a record length limit, so a corrupt length inside a chunk fails
+    // instead of allocating it.
+    let opts = mcap::sans_io::LinearReaderOptions::default()
+        .with_record_length_limit(MAX_CHUNK_BYTES as usize);
+    let mut reader = mcap::sans_io::LinearReader::new_with_options(opts);
+    let mut rest: &[u8] = &bytes;
+    while let Some(event) = reader.next_event() {
+        let rec = match event.map_err(|e| mcap_err(path, e))? {
+            mcap::sans_io::LinearReadEvent::ReadRequest(need) => {
+                let n = need.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+                continue;
+            }
+            mcap::sans_io::LinearReadEvent::Record { data, opcode } => {
+                mcap::parse_record(opcode, data).map_err(|e| mcap_err(path, e))?
+            }
+        };
+        match rec {
             mcap::records::Record::Schema { header, .. } => {
                 schemas.insert(header.id, header.name.clone());
             }

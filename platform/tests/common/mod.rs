@@ -133,9 +133,13 @@ pub fn synthetic(name: &str) -> Dataset {
     }
 }
 
-/// Angle between two rotations, rad.
+/// Angle between two rotations, rad (exactly 0 only for bit-identical quaternions).
 pub fn angle(a: &Quat, b: &Quat) -> f64 {
-    a.angle_to(b)
+    if a == b {
+        0.0
+    } else {
+        a.angle_to(b).max(f64::MIN_POSITIVE)
+    }
 }
 
 /// Asserts two datasets are equal, quaternions within `q_tol_rad` and ground-truth velocities
