@@ -171,7 +171,9 @@ impl<'a> CdrReader<'a> {
             });
         }
         let bytes = self.take(len, "string")?;
-        let (nul, text) = bytes.split_last().ok_or_else(|| self.error("empty string"))?;
+        let (nul, text) = bytes
+            .split_last()
+            .ok_or_else(|| self.error("empty string"))?;
         if *nul != 0 {
             return Err(self.error("string is not NUL-terminated"));
         }

@@ -52,8 +52,7 @@ pub const DEFAULT_GRAVITY_MPS2: f64 = 9.81;
 const IMU_HEADER: &str = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]";
 const FEATURES_HEADER: &str = "#timestamp [ns],feature_id,u [px],v [px]";
 const CAM_HEADER: &str = "#timestamp [ns],filename";
-const LIDAR_HEADER: &str =
-    "#timestamp [ns],point_timestamp [ns],x [m],y [m],z [m],intensity";
+const LIDAR_HEADER: &str = "#timestamp [ns],point_timestamp [ns],x [m],y [m],z [m],intensity";
 
 /// The `mav0` folder of `dir` (which may be the folder holding `mav0/` or `mav0/` itself), and
 /// the dataset name.
@@ -65,7 +64,10 @@ fn locate(dir: &Path) -> (PathBuf, String) {
             Some(n) if n == "mav0" => dir.parent().map(Path::to_path_buf),
             _ => None,
         };
-        (dir.to_path_buf(), parent.unwrap_or_else(|| dir.to_path_buf()))
+        (
+            dir.to_path_buf(),
+            parent.unwrap_or_else(|| dir.to_path_buf()),
+        )
     };
     let abs = std::fs::canonicalize(&named).unwrap_or(named);
     let name = abs
@@ -219,9 +221,8 @@ pub fn read_images(ds: &mut Dataset) -> Result<(), IoError> {
 
 fn read_imu(path: &Path) -> Result<Vec<ImuSample>, IoError> {
     let mut c = CsvLines::open(path, 7)?;
-    let mut out: Vec<ImuSample> = Vec::with_capacity(
-        (std::fs::metadata(path).map(|m| m.len()).unwrap_or(0) / 100) as usize,
-    );
+    let mut out: Vec<ImuSample> =
+        Vec::with_capacity((std::fs::metadata(path).map(|m| m.len()).unwrap_or(0) / 100) as usize);
     while c.next_line()? {
         let f = c.fields::<7>()?;
         let t_ns = c.ns(0, f[0])?;
@@ -291,7 +292,11 @@ fn read_lidar(path: &Path) -> Result<Vec<LidarScan>, IoError> {
     Ok(out)
 }
 
-fn read_image_list(path: &Path, data_dir: &Path, cam: &PinholeCamera) -> Result<Vec<ImageFrame>, IoError> {
+fn read_image_list(
+    path: &Path,
+    data_dir: &Path,
+    cam: &PinholeCamera,
+) -> Result<Vec<ImageFrame>, IoError> {
     let mut c = CsvLines::open(path, 2)?;
     let mut out: Vec<ImageFrame> = Vec::new();
     while c.next_line()? {
@@ -361,7 +366,10 @@ fn read_camera(d: &Doc) -> Result<(PinholeCamera, Extrinsic, f64, f64), IoError>
     let r = d.root();
     if let Some(m) = d.opt_str(r, "camera_model")? {
         if m != "pinhole" {
-            return Err(d.error(d.line_of(r, "camera_model"), format!("camera_model {m:?} is not pinhole")));
+            return Err(d.error(
+                d.line_of(r, "camera_model"),
+                format!("camera_model {m:?} is not pinhole"),
+            ));
         }
     }
     let t = doc_t_bs(d)?.ok_or_else(|| d.error(d.line_of(r, "T_BS"), "cam0 needs T_BS"))?;
@@ -371,7 +379,10 @@ fn read_camera(d: &Doc) -> Result<(PinholeCamera, Extrinsic, f64, f64), IoError>
         if v.fract() == 0.0 && v > 0.0 && v <= f64::from(u32::MAX) {
             Ok(v as u32)
         } else {
-            Err(d.error(res_line, format!("resolution {v} is not a positive integer")))
+            Err(d.error(
+                res_line,
+                format!("resolution {v} is not a positive integer"),
+            ))
         }
     };
     let k = d.list_f64(r, "intrinsics", Some(4))?;
@@ -398,7 +409,10 @@ fn read_camera(d: &Doc) -> Result<(PinholeCamera, Extrinsic, f64, f64), IoError>
         }
         "none" => Distortion::None,
         other => {
-            return Err(d.error(model_line, format!("unsupported distortion_model {other:?}")));
+            return Err(d.error(
+                model_line,
+                format!("unsupported distortion_model {other:?}"),
+            ));
         }
     };
     let camera = PinholeCamera {
@@ -463,7 +477,11 @@ pub fn write_dataset(dir: &Path, ds: &Dataset) -> Result<(), IoError> {
     let _ = writeln!(y, "rate_hz: {:?}", c.imu_rate_hz);
     let _ = writeln!(y, "gyroscope_noise_density: {:?}", n.gyro_noise_density);
     let _ = writeln!(y, "gyroscope_random_walk: {:?}", n.gyro_bias_rw);
-    let _ = writeln!(y, "accelerometer_noise_density: {:?}", n.accel_noise_density);
+    let _ = writeln!(
+        y,
+        "accelerometer_noise_density: {:?}",
+        n.accel_noise_density
+    );
     let _ = writeln!(y, "accelerometer_random_walk: {:?}", n.accel_bias_rw);
     let _ = writeln!(y, "gravity_magnitude: {:?}", c.gravity_mps2);
     if let Some(t) = n.bias_corr_time_s {
@@ -538,7 +556,10 @@ pub fn write_dataset(dir: &Path, ds: &Dataset) -> Result<(), IoError> {
         if let Some(s) = ds.lidar.iter().find(|s| s.points.is_empty()) {
             return Err(IoError::Invalid {
                 path: ldir,
-                msg: format!("sweep at {} ns has no points; a CSV cannot store it", s.t_ns),
+                msg: format!(
+                    "sweep at {} ns has no points; a CSV cannot store it",
+                    s.t_ns
+                ),
             });
         }
         if !ds.lidar.is_empty() {

@@ -142,13 +142,13 @@ fn calibration_from_metadata(
     path: &Path,
     m: &BTreeMap<String, String>,
 ) -> Result<(String, Calibration), IoError> {
-    let bad = |k: &str, why: &str| {
-        invalid(
-            path,
-            format!("{CALIBRATION_METADATA}: key {k:?} {why}"),
-        )
+    let bad =
+        |k: &str, why: &str| invalid(path, format!("{CALIBRATION_METADATA}: key {k:?} {why}"));
+    let get = |k: &str| {
+        m.get(k)
+            .map(String::as_str)
+            .ok_or_else(|| bad(k, "is missing"))
     };
-    let get = |k: &str| m.get(k).map(String::as_str).ok_or_else(|| bad(k, "is missing"));
     let vec = |k: &str, n: usize| -> Result<Vec<f64>, IoError> {
         let v: Vec<f64> = get(k)?
             .split_whitespace()
@@ -257,7 +257,10 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
     };
     let mut ch: HashMap<Kind, u16> = HashMap::new();
     if !ds.imu.is_empty() {
-        ch.insert(Kind::Imu, channel(&mut w, TOPIC_IMU, IMU_TYPE, ros2::imu_schema()).map_err(me)?);
+        ch.insert(
+            Kind::Imu,
+            channel(&mut w, TOPIC_IMU, IMU_TYPE, ros2::imu_schema()).map_err(me)?,
+        );
     }
     if !ds.images.is_empty() {
         let id = channel(&mut w, TOPIC_IMAGE, IMAGE_TYPE, ros2::image_schema()).map_err(me)?;
@@ -265,7 +268,10 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
     }
     if !ds.lidar.is_empty() {
         let s = ros2::point_cloud2_schema();
-        ch.insert(Kind::Lidar, channel(&mut w, TOPIC_LIDAR, POINT_CLOUD2_TYPE, s).map_err(me)?);
+        ch.insert(
+            Kind::Lidar,
+            channel(&mut w, TOPIC_LIDAR, POINT_CLOUD2_TYPE, s).map_err(me)?,
+        );
     }
     if !ds.features.is_empty() {
         let s = ros2::point_cloud_schema();
@@ -277,14 +283,40 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
         let s = ros2::odometry_schema();
         let id = channel(&mut w, TOPIC_GROUND_TRUTH, ODOMETRY_TYPE, s).map_err(me)?;
         ch.insert(Kind::GroundTruth, id);
-        bias_ch = channel(&mut w, TOPIC_GROUND_TRUTH_BIAS, IMU_TYPE, ros2::imu_schema()).map_err(me)?;
+        bias_ch = channel(
+            &mut w,
+            TOPIC_GROUND_TRUTH_BIAS,
+            IMU_TYPE,
+            ros2::imu_schema(),
+        )
+        .map_err(me)?;
     }
 
     let mut events: Vec<(i64, Kind, usize)> = Vec::new();
-    events.extend(ds.imu.iter().enumerate().map(|(i, s)| (s.t_ns, Kind::Imu, i)));
-    events.extend(ds.images.iter().enumerate().map(|(i, s)| (s.t_ns, Kind::Image, i)));
-    events.extend(ds.lidar.iter().enumerate().map(|(i, s)| (s.t_ns, Kind::Lidar, i)));
-    events.extend(ds.features.iter().enumerate().map(|(i, s)| (s.t_ns, Kind::Features, i)));
+    events.extend(
+        ds.imu
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Imu, i)),
+    );
+    events.extend(
+        ds.images
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Image, i)),
+    );
+    events.extend(
+        ds.lidar
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Lidar, i)),
+    );
+    events.extend(
+        ds.features
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Features, i)),
+    );
     events.extend(
         ds.ground_truth
             .iter()
@@ -298,7 +330,10 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
         let s = seq.entry(channel_id).or_insert(0);
         *s += 1;
         let time = u64::try_from(t_ns).map_err(|_| {
-            invalid(path, format!("time {t_ns} ns is before 1970 and cannot be an MCAP log time"))
+            invalid(
+                path,
+                format!("time {t_ns} ns is before 1970 and cannot be an MCAP log time"),
+            )
         })?;
         let header = mcap::records::MessageHeader {
             channel_id,
@@ -312,7 +347,9 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
         let cid = ch.get(&kind).copied().unwrap_or(0);
         match kind {
             Kind::Imu => {
-                let m = convert::imu_to_msg(&ds.imu[i]).encode().map_err(|e| cdr(TOPIC_IMU, e))?;
+                let m = convert::imu_to_msg(&ds.imu[i])
+                    .encode()
+                    .map_err(|e| cdr(TOPIC_IMU, e))?;
                 put(&mut w, cid, t, &m)?;
             }
             Kind::Image => {
@@ -324,22 +361,40 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
                     if (pw, ph) != (im.width, im.height) {
                         return Err(invalid(
                             p,
-                            format!("image is {pw}x{ph}, the dataset says {}x{}", im.width, im.height),
+                            format!(
+                                "image is {pw}x{ph}, the dataset says {}x{}",
+                                im.width, im.height
+                            ),
                         ));
                     }
                     px
                 } else {
-                    return Err(conv(TOPIC_IMAGE, format!("image at {t} ns has no pixels and no file")));
+                    return Err(conv(
+                        TOPIC_IMAGE,
+                        format!("image at {t} ns has no pixels and no file"),
+                    ));
                 };
                 let m = convert::image_to_msg(im, px).map_err(|e| conv(TOPIC_IMAGE, e))?;
-                put(&mut w, cid, t, &m.encode().map_err(|e| cdr(TOPIC_IMAGE, e))?)?;
+                put(
+                    &mut w,
+                    cid,
+                    t,
+                    &m.encode().map_err(|e| cdr(TOPIC_IMAGE, e))?,
+                )?;
             }
             Kind::Lidar => {
                 let m = convert::lidar_to_msg(&ds.lidar[i]).map_err(|e| conv(TOPIC_LIDAR, e))?;
-                put(&mut w, cid, t, &m.encode().map_err(|e| cdr(TOPIC_LIDAR, e))?)?;
+                put(
+                    &mut w,
+                    cid,
+                    t,
+                    &m.encode().map_err(|e| cdr(TOPIC_LIDAR, e))?,
+                )?;
             }
             Kind::Features => {
-                let m = feature_msgs[i].encode().map_err(|e| cdr(TOPIC_FEATURES, e))?;
+                let m = feature_msgs[i]
+                    .encode()
+                    .map_err(|e| cdr(TOPIC_FEATURES, e))?;
                 put(&mut w, cid, t, &m)?;
             }
             Kind::GroundTruth => {
@@ -380,9 +435,7 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
         .map_err(me)?;
     }
     w.finish().map_err(me)?;
-    w.into_inner()
-        .flush()
-        .map_err(|e| IoError::io(path, e))
+    w.into_inner().flush().map_err(|e| IoError::io(path, e))
 }
 
 /// First IMU time (attachment time), 0 when unknown.
@@ -393,7 +446,12 @@ fn events_start(ds: &Dataset) -> u64 {
 }
 
 /// Sorts by time and rejects repeated stamps.
-fn ordered<T>(path: &Path, topic: &str, mut v: Vec<T>, t: impl Fn(&T) -> i64) -> Result<Vec<T>, IoError> {
+fn ordered<T>(
+    path: &Path,
+    topic: &str,
+    mut v: Vec<T>,
+    t: impl Fn(&T) -> i64,
+) -> Result<Vec<T>, IoError> {
     v.sort_by_key(&t);
     if let Some(w) = v.windows(2).find(|w| t(&w[0]) == t(&w[1])) {
         return Err(invalid(
@@ -436,7 +494,10 @@ fn check_chunk_sizes(path: &Path, b: &[u8]) -> Result<(), IoError> {
         if op == FOOTER {
             break;
         }
-        match usize::try_from(len).ok().and_then(|l| pos.checked_add(9)?.checked_add(l)) {
+        match usize::try_from(len)
+            .ok()
+            .and_then(|l| pos.checked_add(9)?.checked_add(l))
+        {
             Some(next) => pos = next,
             None => break,
         }
@@ -520,7 +581,10 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
                 match topic.as_str() {
                     TOPIC_IMU => {
                         let m = msgs::Imu::decode(&data).map_err(corrupt)?;
-                        ds_imu.push(convert::imu_from_msg(&m).ok_or_else(|| bad("non-finite sample".into()))?);
+                        ds_imu.push(
+                            convert::imu_from_msg(&m)
+                                .ok_or_else(|| bad("non-finite sample".into()))?,
+                        );
                     }
                     TOPIC_GROUND_TRUTH_BIAS => {
                         let m = msgs::Imu::decode(&data).map_err(corrupt)?;
@@ -528,7 +592,9 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
                             return Err(bad("repeated stamp".into()));
                         }
                     }
-                    TOPIC_GROUND_TRUTH => odoms.push(msgs::Odometry::decode(&data).map_err(corrupt)?),
+                    TOPIC_GROUND_TRUTH => {
+                        odoms.push(msgs::Odometry::decode(&data).map_err(corrupt)?)
+                    }
                     TOPIC_IMAGE => {
                         let m = msgs::Image::decode(&data).map_err(corrupt)?;
                         images.push(convert::image_from_msg(m).map_err(bad)?);
@@ -549,12 +615,13 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
             mcap::records::Record::Attachment { header, data, .. }
                 if header.name == SIM_TRUTH_ATTACHMENT =>
             {
-                let j: SimTruthJson = serde_json::from_slice(&data).map_err(|e| IoError::Corrupt {
-                    file: path.into(),
-                    what: SIM_TRUTH_ATTACHMENT.into(),
-                    offset: e.column() as u64,
-                    msg: e.to_string(),
-                })?;
+                let j: SimTruthJson =
+                    serde_json::from_slice(&data).map_err(|e| IoError::Corrupt {
+                        file: path.into(),
+                        what: SIM_TRUTH_ATTACHMENT.into(),
+                        offset: e.column() as u64,
+                        msg: e.to_string(),
+                    })?;
                 sim_truth = Some(SimTruth {
                     landmarks_w: j
                         .landmarks_w
@@ -591,13 +658,18 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
         if b.is_none() && !biases.is_empty() {
             return Err(invalid(
                 path,
-                format!("{TOPIC_GROUND_TRUTH_BIAS}: no message at {} ns", o.header.t_ns),
+                format!(
+                    "{TOPIC_GROUND_TRUTH_BIAS}: no message at {} ns",
+                    o.header.t_ns
+                ),
             ));
         }
-        ground_truth.push(
-            convert::ground_truth_from_msgs(o, b)
-                .map_err(|e| invalid(path, format!("{TOPIC_GROUND_TRUTH} at {} ns: {e}", o.header.t_ns)))?,
-        );
+        ground_truth.push(convert::ground_truth_from_msgs(o, b).map_err(|e| {
+            invalid(
+                path,
+                format!("{TOPIC_GROUND_TRUTH} at {} ns: {e}", o.header.t_ns),
+            )
+        })?);
     }
     Ok(Dataset {
         name: if name.is_empty() {

@@ -14,7 +14,10 @@ fn reads_euroc_v101_30s_features() {
     assert_eq!(ds.name, "euroc-v101-30s-features");
     assert_eq!(ds.imu.len(), 6021);
     assert_eq!(ds.features.len(), 601);
-    assert_eq!(ds.features.iter().map(|f| f.obs.len()).sum::<usize>(), 13316);
+    assert_eq!(
+        ds.features.iter().map(|f| f.obs.len()).sum::<usize>(),
+        13316
+    );
     let counts: Vec<usize> = ds.features.iter().map(|f| f.obs.len()).collect();
     assert_eq!(counts.iter().min(), Some(&12));
     assert_eq!(counts.iter().max(), Some(&38));
@@ -24,7 +27,11 @@ fn reads_euroc_v101_30s_features() {
     let s = &ds.imu[0];
     assert_eq!(s.t_ns, 1_403_715_273_262_142_976);
     assert_eq!(s.gyro_rps.x, -0.0020943951023931952);
-    assert_eq!(s.accel_mps2.z, -3.6938381666666662);
+    // The file's text, parsed the way Rust parses it (more digits than an f64 holds).
+    assert_eq!(
+        s.accel_mps2.z,
+        "-3.6938381666666662".parse::<f64>().unwrap()
+    );
     let o = &ds.features[0].obs[1];
     assert_eq!((o.id, o.u_px, o.v_px), (2, 519.0212, 442.0211));
     assert_eq!(ds.features[600].t_ns, 1_403_715_303_262_142_976);
@@ -50,7 +57,10 @@ fn reads_euroc_v101_30s_features() {
     assert_eq!(c.imu_noise.gyro_noise_density, 1.6968e-04);
     assert_eq!(c.imu_noise.accel_bias_rw, 3.0e-3);
     assert_eq!(c.imu_noise.bias_corr_time_s, None);
-    assert_eq!((c.imu_rate_hz, c.camera_rate_hz, c.td_s), (200.0, 20.0, 0.0));
+    assert_eq!(
+        (c.imu_rate_hz, c.camera_rate_hz, c.td_s),
+        (200.0, 20.0, 0.0)
+    );
     assert_eq!(c.gravity_mps2, 9.81);
 }
 
@@ -62,7 +72,10 @@ fn reads_euroc_v101_images_at_rest_and_decodes_pngs() {
     assert_eq!(ds.ground_truth.len(), 2895);
     assert_eq!(ds.images.len(), 95);
     assert!(ds.features.is_empty());
-    assert!(ds.images.iter().all(|i| i.mono8.is_empty() && i.path.is_some()));
+    assert!(ds
+        .images
+        .iter()
+        .all(|i| i.mono8.is_empty() && i.path.is_some()));
     assert_eq!(ds.images[1].t_ns, 1_403_715_273_312_143_104);
     read_images(&mut ds).unwrap();
     for im in &ds.images {
@@ -72,7 +85,10 @@ fn reads_euroc_v101_images_at_rest_and_decodes_pngs() {
     let px = &ds.images[0].mono8;
     let mean = px.iter().map(|&p| p as f64).sum::<f64>() / px.len() as f64;
     let (lo, hi) = (px.iter().min().unwrap(), px.iter().max().unwrap());
-    assert!(mean > 20.0 && mean < 235.0 && hi - lo > 100, "{mean} {lo} {hi}");
+    assert!(
+        mean > 20.0 && mean < 235.0 && hi - lo > 100,
+        "{mean} {lo} {hi}"
+    );
 }
 
 #[test]
@@ -80,7 +96,10 @@ fn reads_openvins_sim_corridor_mono() {
     let ds = read_dataset(&shared("openvins-sim-corridor-mono")).unwrap();
     assert_eq!(ds.imu.len(), 116_881);
     assert_eq!(ds.features.len(), 2922);
-    assert_eq!(ds.features.iter().map(|f| f.obs.len()).sum::<usize>(), 730_412);
+    assert_eq!(
+        ds.features.iter().map(|f| f.obs.len()).sum::<usize>(),
+        730_412
+    );
     assert!(ds.features.iter().all(|f| f.obs.len() <= 250));
     assert_eq!(ds.ground_truth.len(), 29_221);
     assert_eq!(ds.calib.gravity_mps2, 9.81);
@@ -159,21 +178,49 @@ fn corrupt_imu_csv_reports_the_line() {
     let ok = "1000,0.1,0.2,0.3,0.0,0.0,9.8\n";
     let cases = [
         // Truncated line.
-        (format!("{IMU_HEAD}{ok}2000,0.1,0.2\n"), 3, "expected 7 fields, found 3"),
+        (
+            format!("{IMU_HEAD}{ok}2000,0.1,0.2\n"),
+            3,
+            "expected 7 fields, found 3",
+        ),
         // Non-numeric field.
-        (format!("{IMU_HEAD}{ok}2000,0.1,abc,0.3,0,0,9.8\n"), 3, "field 3 (\"abc\")"),
+        (
+            format!("{IMU_HEAD}{ok}2000,0.1,abc,0.3,0,0,9.8\n"),
+            3,
+            "field 3 (\"abc\")",
+        ),
         // Non-finite value.
-        (format!("{IMU_HEAD}{ok}2000,0.1,NaN,0.3,0,0,9.8\n"), 3, "not a finite number"),
+        (
+            format!("{IMU_HEAD}{ok}2000,0.1,NaN,0.3,0,0,9.8\n"),
+            3,
+            "not a finite number",
+        ),
         // Time going backwards, then repeating.
-        (format!("{IMU_HEAD}{ok}999,0.1,0.2,0.3,0,0,9.8\n"), 3, "does not increase"),
+        (
+            format!("{IMU_HEAD}{ok}999,0.1,0.2,0.3,0,0,9.8\n"),
+            3,
+            "does not increase",
+        ),
         (format!("{IMU_HEAD}{ok}{ok}"), 3, "does not increase"),
         // Fractional timestamp.
-        (format!("{IMU_HEAD}1000.5,0.1,0.2,0.3,0,0,9.8\n"), 2, "integer nanoseconds"),
+        (
+            format!("{IMU_HEAD}1000.5,0.1,0.2,0.3,0,0,9.8\n"),
+            2,
+            "integer nanoseconds",
+        ),
         // A comment inside the data and a blank line inside the data.
         (format!("{IMU_HEAD}{ok}# note\n"), 3, "only line 1"),
-        (format!("{IMU_HEAD}{ok}\n2000,0,0,0,0,0,9.8\n"), 3, "blank line"),
+        (
+            format!("{IMU_HEAD}{ok}\n2000,0,0,0,0,0,9.8\n"),
+            3,
+            "blank line",
+        ),
         // Wrong file (a 4-column header).
-        (format!("#timestamp [ns],feature_id,u [px],v [px]\n{ok}"), 1, "header has 4 columns"),
+        (
+            format!("#timestamp [ns],feature_id,u [px],v [px]\n{ok}"),
+            1,
+            "header has 4 columns",
+        ),
     ];
     for (text, line, msg) in cases {
         expect_parse_error("imu0/data.csv", &text, line, msg);
@@ -183,7 +230,11 @@ fn corrupt_imu_csv_reports_the_line() {
     let mut ds = synthetic("x");
     ds.sim_truth = None;
     write_dataset(dir.path(), &ds).unwrap();
-    std::fs::write(dir.path().join("mav0/imu0/data.csv"), format!("{IMU_HEAD}{ok}\n\n")).unwrap();
+    std::fs::write(
+        dir.path().join("mav0/imu0/data.csv"),
+        format!("{IMU_HEAD}{ok}\n\n"),
+    )
+    .unwrap();
     assert_eq!(read_dataset(dir.path()).unwrap().imu.len(), 1);
 }
 
@@ -191,9 +242,21 @@ fn corrupt_imu_csv_reports_the_line() {
 fn corrupt_features_and_images_report_the_line() {
     let head = "#timestamp [ns],feature_id,u [px],v [px]\n";
     let cases = [
-        (format!("{head}10,1,2.0,3.0\n10,2,2.0\n"), 3, "expected 4 fields"),
-        (format!("{head}10,1,2.0,3.0\n10,-2,2.0,3.0\n"), 3, "unsigned integer"),
-        (format!("{head}10,1,2.0,3.0\n20,1,2.0,3.0\n15,1,2.0,3.0\n"), 4, "does not increase"),
+        (
+            format!("{head}10,1,2.0,3.0\n10,2,2.0\n"),
+            3,
+            "expected 4 fields",
+        ),
+        (
+            format!("{head}10,1,2.0,3.0\n10,-2,2.0,3.0\n"),
+            3,
+            "unsigned integer",
+        ),
+        (
+            format!("{head}10,1,2.0,3.0\n20,1,2.0,3.0\n15,1,2.0,3.0\n"),
+            4,
+            "does not increase",
+        ),
         (format!("{head}10,1,2.0,3.0\n10,1,4.0,3.0\n"), 3, "repeated"),
         (format!("{head}10,1,2.0,x\n"), 2, "field 4"),
     ];
@@ -234,13 +297,37 @@ fn bad_yaml_reports_the_line() {
     let back = read_dataset(dir.path()).unwrap();
     assert_eq!(back.calib.camera.fx, 1.0);
 
-    expect_parse_error("cam0/sensor.yaml", &cam("[1.0, 2.0, 3.0]", "equidistant"), 12, "needs 4 values");
-    expect_parse_error("cam0/sensor.yaml", &cam("[1.0, 2.0, 3.0, fu]", "equidistant"), 12, "\"fu\"");
-    expect_parse_error("cam0/sensor.yaml", &cam("[1.0, 2.0, 3.0, 4.0", "equidistant"), 13, "missing comma");
-    let open_list = format!("{}intrinsics: [1.0, 2.0,\n   3.0\n", cam("[1.0, 2.0, 3.0, 4.0]", "none").replace("intrinsics: [1.0, 2.0, 3.0, 4.0]\n", ""));
+    expect_parse_error(
+        "cam0/sensor.yaml",
+        &cam("[1.0, 2.0, 3.0]", "equidistant"),
+        12,
+        "needs 4 values",
+    );
+    expect_parse_error(
+        "cam0/sensor.yaml",
+        &cam("[1.0, 2.0, 3.0, fu]", "equidistant"),
+        12,
+        "\"fu\"",
+    );
+    expect_parse_error(
+        "cam0/sensor.yaml",
+        &cam("[1.0, 2.0, 3.0, 4.0", "equidistant"),
+        13,
+        "missing comma",
+    );
+    let open_list = format!(
+        "{}intrinsics: [1.0, 2.0,\n   3.0\n",
+        cam("[1.0, 2.0, 3.0, 4.0]", "none").replace("intrinsics: [1.0, 2.0, 3.0, 4.0]\n", "")
+    );
     expect_parse_error("cam0/sensor.yaml", &open_list, 14, "unterminated");
-    expect_parse_error("cam0/sensor.yaml", &cam("[1.0, 2.0, 3.0, 4.0]", "kannala"), 13, "unsupported");
-    let rotated = cam("[1.0, 2.0, 3.0, 4.0]", "none").replace("0.0, 1.0, 0.0, 0.0,", "0.0, 2.0, 0.0, 0.0,");
+    expect_parse_error(
+        "cam0/sensor.yaml",
+        &cam("[1.0, 2.0, 3.0, 4.0]", "kannala"),
+        13,
+        "unsupported",
+    );
+    let rotated =
+        cam("[1.0, 2.0, 3.0, 4.0]", "none").replace("0.0, 1.0, 0.0, 0.0,", "0.0, 2.0, 0.0, 0.0,");
     expect_parse_error("cam0/sensor.yaml", &rotated, 3, "not a rotation");
     expect_parse_error(
         "imu0/sensor.yaml",
@@ -248,7 +335,12 @@ fn bad_yaml_reports_the_line() {
         5,
         "accelerometer_random_walk",
     );
-    expect_parse_error("imu0/sensor.yaml", "rate_hz 200\n", 1, "expected `key: value`");
+    expect_parse_error(
+        "imu0/sensor.yaml",
+        "rate_hz 200\n",
+        1,
+        "expected `key: value`",
+    );
 }
 
 #[test]

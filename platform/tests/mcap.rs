@@ -35,7 +35,11 @@ fn raw_topics(path: &std::path::Path) -> BTreeMap<String, (String, String, Vec<V
         let schema = m.channel.schema.as_ref().unwrap();
         assert_eq!(schema.encoding, "ros2msg");
         let e = out.entry(m.channel.topic.clone()).or_insert_with(|| {
-            (schema.name.clone(), m.channel.message_encoding.clone(), Vec::new())
+            (
+                schema.name.clone(),
+                m.channel.message_encoding.clone(),
+                Vec::new(),
+            )
         });
         e.2.push(m.data.into_owned());
     }
@@ -73,7 +77,13 @@ fn messages_follow_the_documented_ros_conventions() {
     let names: Vec<&str> = pc.channels.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(
         names,
-        ["id_of_point", "u_of_point", "v_of_point", "velocity_x_of_point", "velocity_y_of_point"]
+        [
+            "id_of_point",
+            "u_of_point",
+            "v_of_point",
+            "velocity_x_of_point",
+            "velocity_y_of_point"
+        ]
     );
     let obs = &ds.features[1].obs;
     for (k, o) in obs.iter().enumerate() {
@@ -81,7 +91,10 @@ fn messages_follow_the_documented_ros_conventions() {
         assert_eq!(p[2], 1.0);
         let (u, v) = distort_to_pixel(&ds.calib.camera, p[0] as f64, p[1] as f64);
         // float32 normalized coordinates: ~1e-7 * 460 px.
-        assert!((u - o.u_px).abs() < 1e-3 && (v - o.v_px).abs() < 1e-3, "{u} {v} {o:?}");
+        assert!(
+            (u - o.u_px).abs() < 1e-3 && (v - o.v_px).abs() < 1e-3,
+            "{u} {v} {o:?}"
+        );
         assert_eq!(pc.channels[0].values[k], o.id as f32);
         assert_eq!(pc.channels[1].values[k], o.u_px as f32);
     }
@@ -94,7 +107,10 @@ fn messages_follow_the_documented_ros_conventions() {
     // Odometry: world/body frames, twist in the body frame.
     let od = msgs::Odometry::decode(&topics["/groundtruth"].2[3]).unwrap();
     let gt = &ds.ground_truth[3];
-    assert_eq!((od.header.frame_id.as_str(), od.child_frame_id.as_str()), ("world", "body"));
+    assert_eq!(
+        (od.header.frame_id.as_str(), od.child_frame_id.as_str()),
+        ("world", "body")
+    );
     assert_eq!(od.header.t_ns, gt.t_ns);
     let v_b = gt.q_wb.inverse() * gt.v_wb;
     assert_eq!(od.linear, [v_b.x, v_b.y, v_b.z]);
@@ -112,10 +128,13 @@ fn messages_follow_the_documented_ros_conventions() {
     assert_eq!(t3, 3 * 1_999_999);
     // Image.
     let im = msgs::Image::decode(&topics["/cam0/image_raw"].2[2]).unwrap();
-    assert_eq!((im.encoding.as_str(), im.step, im.data.len()), ("mono8", 16, 192));
+    assert_eq!(
+        (im.encoding.as_str(), im.step, im.data.len()),
+        ("mono8", 16, 192)
+    );
     assert_eq!(im.data, ds.images[2].mono8);
     // Every message starts with the little-endian CDR header.
-    for (_, (_, _, ms)) in &topics {
+    for (_, _, ms) in topics.values() {
         for m in ms {
             assert!(CdrReader::new(m).is_ok());
         }
@@ -199,7 +218,10 @@ fn a_truncated_message_names_topic_and_offset() {
     write_dataset(&good_path, &ds).unwrap();
     let bytes = std::fs::read(&good_path).unwrap();
     let path = dir.path().join("cut.mcap");
-    let mut w = mcap::Writer::new(std::io::BufWriter::new(std::fs::File::create(&path).unwrap())).unwrap();
+    let mut w = mcap::Writer::new(std::io::BufWriter::new(
+        std::fs::File::create(&path).unwrap(),
+    ))
+    .unwrap();
     let mut meta = None;
     for rec in mcap::read::ChunkFlattener::new(&bytes).unwrap() {
         if let mcap::records::Record::Metadata(m) = rec.unwrap() {
@@ -217,7 +239,9 @@ fn a_truncated_message_names_topic_and_offset() {
     w.finish().unwrap();
     drop(w);
     match read_dataset(&path) {
-        Err(IoError::Corrupt { what, offset, msg, .. }) => {
+        Err(IoError::Corrupt {
+            what, offset, msg, ..
+        }) => {
             assert_eq!(what, "/imu0 message 1");
             assert_eq!(offset, 100, "{msg}");
             assert!(msg.contains("truncated"), "{msg}");
@@ -232,15 +256,27 @@ fn unwritable_values_are_rejected() {
     let path = dir.path().join("x.mcap");
     let mut ds = synthetic("syn");
     ds.features[0].obs[0].id = 1 << 24;
-    assert!(matches!(write_dataset(&path, &ds), Err(IoError::Invalid { .. })));
+    assert!(matches!(
+        write_dataset(&path, &ds),
+        Err(IoError::Invalid { .. })
+    ));
     let mut ds = synthetic("syn");
     ds.lidar[0].points[0].t_ns = ds.lidar[0].t_ns - 1;
-    assert!(matches!(write_dataset(&path, &ds), Err(IoError::Invalid { .. })));
+    assert!(matches!(
+        write_dataset(&path, &ds),
+        Err(IoError::Invalid { .. })
+    ));
     let mut ds = synthetic("syn");
     ds.images[0].mono8.pop();
-    assert!(matches!(write_dataset(&path, &ds), Err(IoError::Invalid { .. })));
+    assert!(matches!(
+        write_dataset(&path, &ds),
+        Err(IoError::Invalid { .. })
+    ));
     // No calibration record: not a povins file.
-    let mut w = mcap::Writer::new(std::io::BufWriter::new(std::fs::File::create(&path).unwrap())).unwrap();
+    let mut w = mcap::Writer::new(std::io::BufWriter::new(
+        std::fs::File::create(&path).unwrap(),
+    ))
+    .unwrap();
     w.finish().unwrap();
     drop(w);
     match read_dataset(&path) {

@@ -78,11 +78,23 @@ fn official_python_tools_decode_every_message() {
     let f0 = ds.features[0].t_ns;
     let expected = [
         format!("topic /cam0/features sensor_msgs/msg/PointCloud 5 {f0}"),
-        format!("topic /cam0/image_raw sensor_msgs/msg/Image 3 {}", ds.images[0].t_ns),
-        format!("topic /groundtruth nav_msgs/msg/Odometry 10 {}", ds.ground_truth[0].t_ns),
-        format!("topic /groundtruth/imu_bias sensor_msgs/msg/Imu 10 {}", ds.ground_truth[0].t_ns),
+        format!(
+            "topic /cam0/image_raw sensor_msgs/msg/Image 3 {}",
+            ds.images[0].t_ns
+        ),
+        format!(
+            "topic /groundtruth nav_msgs/msg/Odometry 10 {}",
+            ds.ground_truth[0].t_ns
+        ),
+        format!(
+            "topic /groundtruth/imu_bias sensor_msgs/msg/Imu 10 {}",
+            ds.ground_truth[0].t_ns
+        ),
         format!("topic /imu0 sensor_msgs/msg/Imu 100 {t0}"),
-        format!("topic /lidar0/points sensor_msgs/msg/PointCloud2 2 {}", ds.lidar[0].t_ns),
+        format!(
+            "topic /lidar0/points sensor_msgs/msg/PointCloud2 2 {}",
+            ds.lidar[0].t_ns
+        ),
         "metadata povins.calibration 16".to_string(),
     ];
     assert_eq!(&lines[..expected.len()], &expected[..], "{out}");

@@ -101,14 +101,22 @@ impl CsvLines {
 
     /// Field `i` of the line as integer nanoseconds.
     pub fn ns(&self, i: usize, s: &str) -> Result<i64, IoError> {
-        s.parse()
-            .map_err(|_| self.err(format!("field {} ({s:?}) is not integer nanoseconds", i + 1)))
+        s.parse().map_err(|_| {
+            self.err(format!(
+                "field {} ({s:?}) is not integer nanoseconds",
+                i + 1
+            ))
+        })
     }
 
     /// Field `i` as an unsigned integer.
     pub fn u64(&self, i: usize, s: &str) -> Result<u64, IoError> {
-        s.parse()
-            .map_err(|_| self.err(format!("field {} ({s:?}) is not an unsigned integer", i + 1)))
+        s.parse().map_err(|_| {
+            self.err(format!(
+                "field {} ({s:?}) is not an unsigned integer",
+                i + 1
+            ))
+        })
     }
 
     /// Field `i` as a finite `f64`.
@@ -128,7 +136,12 @@ impl CsvLines {
     }
 
     /// Checks that `t_ns` is after `prev` (strictly, or equal allowed when `allow_equal`).
-    pub fn check_time(&self, prev: Option<i64>, t_ns: i64, allow_equal: bool) -> Result<(), IoError> {
+    pub fn check_time(
+        &self,
+        prev: Option<i64>,
+        t_ns: i64,
+        allow_equal: bool,
+    ) -> Result<(), IoError> {
         match prev {
             Some(p) if t_ns < p || (t_ns == p && !allow_equal) => Err(self.err(format!(
                 "time {t_ns} ns does not increase (previous {p} ns)"

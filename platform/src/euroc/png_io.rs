@@ -16,9 +16,7 @@ fn corrupt(path: &Path, msg: String) -> IoError {
 pub fn read_mono8(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
     let f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
     let dec = png::Decoder::new(std::io::BufReader::new(f));
-    let mut rd = dec
-        .read_info()
-        .map_err(|e| corrupt(path, e.to_string()))?;
+    let mut rd = dec.read_info().map_err(|e| corrupt(path, e.to_string()))?;
     let mut buf = vec![0u8; rd.output_buffer_size()];
     let info = rd
         .next_frame(&mut buf)
@@ -38,7 +36,10 @@ pub fn read_mono8(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
         px.extend_from_slice(row.get(..w).unwrap_or(row));
     }
     if px.len() != w * h {
-        return Err(corrupt(path, format!("decoded {} of {} pixels", px.len(), w * h)));
+        return Err(corrupt(
+            path,
+            format!("decoded {} of {} pixels", px.len(), w * h),
+        ));
     }
     Ok((info.width, info.height, px))
 }

@@ -255,7 +255,11 @@ fn parse_map(path: &Path, lines: &[Line], pos: &mut usize, indent: usize) -> Res
             return Err(perr(path, l.no, "block lists are not supported"));
         }
         let Some((key, rest)) = split_key(&l.text) else {
-            return Err(perr(path, l.no, format!("expected `key: value`, found {:?}", l.text)));
+            return Err(perr(
+                path,
+                l.no,
+                format!("expected `key: value`, found {:?}", l.text),
+            ));
         };
         let key = unquote(path, l.no, key)?;
         if key.is_empty() {
@@ -382,7 +386,10 @@ name: \"a # b\"
     fn parses_the_euroc_camera_layout() {
         let d = Doc::parse(Path::new("cam.yaml"), CAM).unwrap();
         let r = d.root();
-        assert_eq!(d.opt_str(r, "comment").unwrap(), Some("VI-Sensor cam0 (MT9M034)"));
+        assert_eq!(
+            d.opt_str(r, "comment").unwrap(),
+            Some("VI-Sensor cam0 (MT9M034)")
+        );
         assert_eq!(d.opt_str(r, "name").unwrap(), Some("a # b"));
         assert_eq!(d.f64(r, "rate_hz").unwrap(), 20.0);
         assert_eq!(

@@ -177,10 +177,7 @@ pub fn lidar_to_msg(s: &LidarScan) -> Result<PointCloud2, String> {
         }
         data.extend_from_slice(&dt.to_le_bytes());
     }
-    let dense = s
-        .points
-        .iter()
-        .all(|p| p.p_l.iter().all(|x| x.is_finite()));
+    let dense = s.points.iter().all(|p| p.p_l.iter().all(|x| x.is_finite()));
     Ok(PointCloud2 {
         header: Header::new(s.t_ns, FRAME_LIDAR),
         height: 1,
@@ -225,7 +222,9 @@ pub fn lidar_from_msg(m: &PointCloud2) -> Result<LidarScan, String> {
     let (step, row) = (m.point_step as usize, m.row_step as usize);
     let (w, h) = (m.width as usize, m.height as usize);
     if w.checked_mul(step).is_none_or(|b| b > row) {
-        return Err(format!("width {w} x point_step {step} exceeds row_step {row}"));
+        return Err(format!(
+            "width {w} x point_step {step} exceeds row_step {row}"
+        ));
     }
     if h.checked_mul(row).is_none_or(|b| b > m.data.len()) {
         return Err(format!(
@@ -315,7 +314,10 @@ pub fn image_from_msg(m: Image) -> Result<ImageFrame, String> {
 }
 
 /// Feature frames to VINS-Mono style messages (velocities need the previous frame).
-pub fn features_to_msgs(frames: &[FeatureFrame], cam: &PinholeCamera) -> Result<Vec<PointCloud>, String> {
+pub fn features_to_msgs(
+    frames: &[FeatureFrame],
+    cam: &PinholeCamera,
+) -> Result<Vec<PointCloud>, String> {
     let mut prev: HashMap<u64, (f64, f64)> = HashMap::new();
     let mut prev_t: Option<i64> = None;
     let mut out = Vec::with_capacity(frames.len());

@@ -55,7 +55,9 @@ pub fn synthetic(name: &str) -> Dataset {
             t_ns: t0 + f as i64 * 100_000_000,
             width: 16,
             height: 12,
-            mono8: (0..16 * 12).map(|p| ((p * 7 + f * 31) % 256) as u8).collect(),
+            mono8: (0..16 * 12)
+                .map(|p| ((p * 7 + f * 31) % 256) as u8)
+                .collect(),
             path: None,
         })
         .collect();
@@ -125,7 +127,10 @@ pub fn synthetic(name: &str) -> Dataset {
         lidar,
         ground_truth,
         sim_truth: Some(SimTruth {
-            landmarks_w: vec![(100, Vec3::new(1.0 / 3.0, -2.5, 7.125)), (103, Vec3::new(0.1, 0.2, 0.3))],
+            landmarks_w: vec![
+                (100, Vec3::new(1.0 / 3.0, -2.5, 7.125)),
+                (103, Vec3::new(0.1, 0.2, 0.3)),
+            ],
             wrong_tracks: vec![103],
             edge_features: vec![100, 106],
             lidar_edge_points: vec![vec![true, false, false], vec![false; 50]],
@@ -156,8 +161,20 @@ pub fn assert_same(a: &Dataset, b: &Dataset, q_tol_rad: f64, v_tol: f64) {
         assert!(angle(&x.q_ab, &y.q_ab) <= q_tol_rad);
     }
     assert_eq!(
-        (ca.td_s, ca.camera_rate_hz, ca.imu_noise, ca.imu_rate_hz, ca.gravity_mps2),
-        (cb.td_s, cb.camera_rate_hz, cb.imu_noise, cb.imu_rate_hz, cb.gravity_mps2)
+        (
+            ca.td_s,
+            ca.camera_rate_hz,
+            ca.imu_noise,
+            ca.imu_rate_hz,
+            ca.gravity_mps2
+        ),
+        (
+            cb.td_s,
+            cb.camera_rate_hz,
+            cb.imu_noise,
+            cb.imu_rate_hz,
+            cb.gravity_mps2
+        )
     );
     assert_eq!(a.imu, b.imu);
     assert_eq!(a.features, b.features);
@@ -171,7 +188,13 @@ pub fn assert_same(a: &Dataset, b: &Dataset, q_tol_rad: f64, v_tol: f64) {
     for (x, y) in a.ground_truth.iter().zip(&b.ground_truth) {
         assert_eq!((x.t_ns, x.p_wb, x.bg, x.ba), (y.t_ns, y.p_wb, y.bg, y.ba));
         assert!(angle(&x.q_wb, &y.q_wb) <= q_tol_rad, "{} ns", x.t_ns);
-        assert!((x.v_wb - y.v_wb).amax() <= v_tol, "{} ns: {} vs {}", x.t_ns, x.v_wb, y.v_wb);
+        assert!(
+            (x.v_wb - y.v_wb).amax() <= v_tol,
+            "{} ns: {} vs {}",
+            x.t_ns,
+            x.v_wb,
+            y.v_wb
+        );
     }
     assert_eq!(a.sim_truth, b.sim_truth);
 }
