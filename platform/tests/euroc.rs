@@ -365,3 +365,36 @@ fn missing_imu_is_an_error_and_missing_optional_sensors_are_empty() {
     }
     assert!(read_dataset(Path::new("/nonexistent/povins")).is_err());
 }
+
+#[test]
+fn extrinsics_are_re_expressed_in_the_imu_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut ds = synthetic("x");
+    ds.sim_truth = None;
+    write_dataset(dir.path(), &ds).unwrap();
+    // IMU rotated +90 deg about z and offset in EuRoC's body frame B: T_B_imu.
+    let yaml = dir.path().join("mav0/imu0/sensor.yaml");
+    let text = std::fs::read_to_string(&yaml).unwrap();
+    let start = text.find("T_BS:").unwrap();
+    let end = text.find("rate_hz").unwrap();
+    let t_b_imu = "T_BS:\n  cols: 4\n  rows: 4\n  data: [0.0, -1.0, 0.0, 0.5,\n         1.0, 0.0, 0.0, 0.0,\n         0.0, 0.0, 1.0, 0.0,\n         0.0, 0.0, 0.0, 1.0]\n";
+    std::fs::write(
+        &yaml,
+        format!("{}{t_b_imu}{}", &text[..start], &text[end..]),
+    )
+    .unwrap();
+    let back = read_dataset(dir.path()).unwrap();
+    // p_imu_cam = R_B_imu^T (p_B_cam - p_B_imu): rotating by -90 deg maps (x, y) -> (y, -x).
+    let p = ds.calib.t_bc.p_ab;
+    let q = back.calib.t_bc.p_ab;
+    assert!((q.x - p.y).abs() < 1e-15 && (q.y + (p.x - 0.5)).abs() < 1e-15 && q.z == p.z);
+    let r_imu_cam = back.calib.t_bc.q_ab.to_rotation_matrix();
+    let r_b_cam = ds.calib.t_bc.q_ab.to_rotation_matrix();
+    let r_b_imu = nalgebra::Rotation3::from_axis_angle(
+        &nalgebra::Vector3::z_axis(),
+        std::f64::consts::FRAC_PI_2,
+    );
+    assert!((r_b_imu * r_imu_cam)
+        .matrix()
+        .relative_eq(r_b_cam.matrix(), 1e-12, 1e-12));
+}
