@@ -329,10 +329,7 @@ mod tests {
         for (a, b) in back.iter().zip(&gt) {
             // Renormalizing an already unit quaternion may move its last bit; all else is exact.
             assert!(a.q_wb.angle_to(&b.q_wb) < 1e-15);
-            assert_eq!(
-                (a.t_ns, a.p_wb, a.v_wb, a.bg, a.ba),
-                (b.t_ns, b.p_wb, b.v_wb, b.bg, b.ba)
-            );
+            assert_eq!((a.t_ns, a.p_wb, a.v_wb, a.bg, a.ba), (b.t_ns, b.p_wb, b.v_wb, b.bg, b.ba));
         }
         let poses = read_trajectory(&out).unwrap();
         assert_eq!(poses.len(), gt.len());
