@@ -1,25 +1,619 @@
-//! EuRoC ASL folders (`mav0/...`), including the `features0` extension.
+//! EuRoC ASL folders (`mav0/...`), including the `features0` and `lidar0` extensions.
 //!
-//! STUB: signatures fixed; bodies are implemented by the data-plane work.
+//! Layout read and written (under `mav0/`):
+//! - `imu0/data.csv` (`#timestamp [ns],w_RS_S_x [rad s^-1],...,a_RS_S_z [m s^-2]`) and
+//!   `imu0/sensor.yaml` (`rate_hz`, `gyroscope_noise_density`, `gyroscope_random_walk`,
+//!   `accelerometer_noise_density`, `accelerometer_random_walk`, optional `T_BS`; povins also
+//!   reads the optional `gravity_magnitude` (default 9.81 m/s^2) and `bias_correlation_time` (s)).
+//!   Required: a folder without them is an error.
+//! - `cam0/sensor.yaml`: `T_BS` (4x4 row-major, body-from-camera), `rate_hz`, `resolution`,
+//!   `intrinsics` `[fu, fv, cu, cv]`, `distortion_model` (`radial-tangential` | `equidistant` |
+//!   `none`), `distortion_coefficients`, optional Kalibr `timeshift_cam_imu` (s,
+//!   `t_imu = t_cam + shift`, default 0). `cam0/data.csv` (`#timestamp [ns],filename`) lists
+//!   images in `cam0/data/`; they are decoded only by [`read_images`].
+//! - `features0/data.csv` (`#timestamp [ns],feature_id,u [px],v [px]`): rows of one frame are
+//!   consecutive and share the stamp; frames increase in time; ids are unique within a frame.
+//! - `lidar0/sensor.yaml` (`T_BS`) and `lidar0/data.csv` (povins extension, `#timestamp
+//!   [ns],point_timestamp [ns],x [m],y [m],z [m],intensity`): one row per point, the first column
+//!   is the sweep time, rows of one sweep are consecutive. Sweeps without points cannot be stored.
+//! - `state_groundtruth_estimate0/data.csv` via [`crate::trajectory`].
+//!
+//! The body frame of [`Dataset`] is the IMU frame: when `imu0/sensor.yaml` has a non-identity
+//! `T_BS`, camera and LiDAR extrinsics are re-expressed in it (`T_imu_cam = T_B_imu^-1 T_B_cam`).
+//! `SimTruth` and the dataset name are not stored in a folder (the name is the folder's name).
+//!
+//! Numbers are written with Rust's shortest round-trip formatting, so reading a written folder
+//! gives back the same `f64`/`f32` bits; extrinsic and ground-truth quaternions go through a
+//! rotation matrix or renormalization and come back within 1e-15 rad.
 
-use crate::dataset::Dataset;
+mod csv;
+mod png_io;
+mod yaml;
+
+pub use png_io::{read_mono8 as read_png_mono8, write_mono8 as write_png_mono8};
+
+use crate::dataset::{Calibration, Dataset, Extrinsic, FeatureFrame, ImageFrame, LidarScan};
 use crate::error::IoError;
-use std::path::Path;
+use crate::trajectory::{read_euroc_groundtruth, write_euroc_groundtruth};
+use csv::CsvLines;
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+use povins_core::camera::{Distortion, FeatureObs, PinholeCamera};
+use povins_core::inertial::{ImuNoise, ImuSample};
+use povins_core::lidar::LidarPoint;
+use povins_core::math::Vec3;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use yaml::Doc;
 
-/// Reads an EuRoC ASL folder (the folder containing `mav0/`, or `mav0/` itself).
+/// Gravity magnitude assumed when `imu0/sensor.yaml` has no `gravity_magnitude`, m/s^2.
+pub const DEFAULT_GRAVITY_MPS2: f64 = 9.81;
+
+const IMU_HEADER: &str = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]";
+const FEATURES_HEADER: &str = "#timestamp [ns],feature_id,u [px],v [px]";
+const CAM_HEADER: &str = "#timestamp [ns],filename";
+const LIDAR_HEADER: &str = "#timestamp [ns],point_timestamp [ns],x [m],y [m],z [m],intensity";
+
+/// The `mav0` folder of `dir` (which may be the folder holding `mav0/` or `mav0/` itself), and
+/// the dataset name.
+fn locate(dir: &Path) -> (PathBuf, String) {
+    let (mav0, named) = if dir.join("mav0").is_dir() {
+        (dir.join("mav0"), dir.to_path_buf())
+    } else {
+        let parent = match dir.file_name() {
+            Some(n) if n == "mav0" => dir.parent().map(Path::to_path_buf),
+            _ => None,
+        };
+        (
+            dir.to_path_buf(),
+            parent.unwrap_or_else(|| dir.to_path_buf()),
+        )
+    };
+    let abs = std::fs::canonicalize(&named).unwrap_or(named);
+    let name = abs
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    (mav0, name)
+}
+
+/// Reads an EuRoC ASL folder (the folder containing `mav0/`, or `mav0/` itself). Images are
+/// listed with their paths and the `cam0` resolution; call [`read_images`] for the pixels.
 pub fn read_dataset(dir: &Path) -> Result<Dataset, IoError> {
-    Err(IoError::Invalid {
-        path: dir.into(),
-        msg: "not implemented yet".into(),
+    let (mav0, name) = locate(dir);
+    let imu_dir = mav0.join("imu0");
+    if !imu_dir.join("data.csv").is_file() || !imu_dir.join("sensor.yaml").is_file() {
+        return Err(IoError::Invalid {
+            path: imu_dir,
+            msg: "imu0/data.csv and imu0/sensor.yaml are required".into(),
+        });
+    }
+    let imu_yaml = Doc::read(&imu_dir.join("sensor.yaml"))?;
+    let t_b_imu = match doc_t_bs(&imu_yaml)? {
+        Some(t) => t,
+        None => Extrinsic::identity(),
+    };
+    let imu = read_imu(&imu_dir.join("data.csv"))?;
+
+    let cam_dir = mav0.join("cam0");
+    let cam_yaml_path = cam_dir.join("sensor.yaml");
+    let features_path = mav0.join("features0").join("data.csv");
+    let cam_csv = cam_dir.join("data.csv");
+    let cam_yaml = if cam_yaml_path.is_file() {
+        Some(Doc::read(&cam_yaml_path)?)
+    } else if features_path.is_file() || cam_csv.is_file() {
+        return Err(IoError::Invalid {
+            path: cam_yaml_path,
+            msg: "camera data present but cam0/sensor.yaml is missing".into(),
+        });
+    } else {
+        None
+    };
+
+    let (camera, t_bc, td_s, camera_rate_hz) = match &cam_yaml {
+        Some(d) => {
+            let (cam, t, td, rate) = read_camera(d)?;
+            (cam, compose_in_imu(&t_b_imu, &t), td, rate)
+        }
+        // No camera at all: a placeholder the estimator cannot mistake for a real one.
+        None => (
+            PinholeCamera {
+                width: 0,
+                height: 0,
+                fx: 1.0,
+                fy: 1.0,
+                cx: 0.0,
+                cy: 0.0,
+                distortion: Distortion::None,
+            },
+            Extrinsic::identity(),
+            0.0,
+            0.0,
+        ),
+    };
+
+    let r = imu_yaml.root();
+    let imu_noise = ImuNoise {
+        gyro_noise_density: imu_yaml.f64(r, "gyroscope_noise_density")?,
+        accel_noise_density: imu_yaml.f64(r, "accelerometer_noise_density")?,
+        gyro_bias_rw: imu_yaml.f64(r, "gyroscope_random_walk")?,
+        accel_bias_rw: imu_yaml.f64(r, "accelerometer_random_walk")?,
+        bias_corr_time_s: imu_yaml.opt_f64(r, "bias_correlation_time")?,
+    };
+    if !imu_noise.is_valid() {
+        return Err(imu_yaml.error(
+            imu_yaml.line_of(r, "gyroscope_noise_density"),
+            "noise densities must be non-negative and the correlation time positive",
+        ));
+    }
+    let imu_rate_hz = imu_yaml.f64(r, "rate_hz")?;
+    let gravity_mps2 = imu_yaml
+        .opt_f64(r, "gravity_magnitude")?
+        .unwrap_or(DEFAULT_GRAVITY_MPS2);
+
+    let lidar_dir = mav0.join("lidar0");
+    let t_bl = if lidar_dir.join("sensor.yaml").is_file() {
+        let d = Doc::read(&lidar_dir.join("sensor.yaml"))?;
+        let t = doc_t_bs(&d)?.ok_or_else(|| d.error(1, "lidar0/sensor.yaml needs T_BS"))?;
+        Some(compose_in_imu(&t_b_imu, &t))
+    } else {
+        None
+    };
+    let lidar = if lidar_dir.join("data.csv").is_file() {
+        read_lidar(&lidar_dir.join("data.csv"))?
+    } else {
+        Vec::new()
+    };
+
+    let features = if features_path.is_file() {
+        read_features(&features_path)?
+    } else {
+        Vec::new()
+    };
+    let images = if cam_csv.is_file() {
+        read_image_list(&cam_csv, &cam_dir.join("data"), &camera)?
+    } else {
+        Vec::new()
+    };
+    let gt_path = mav0.join("state_groundtruth_estimate0").join("data.csv");
+    let ground_truth = if gt_path.is_file() {
+        read_euroc_groundtruth(&gt_path)?
+    } else {
+        Vec::new()
+    };
+
+    Ok(Dataset {
+        name,
+        calib: Calibration {
+            camera,
+            t_bc,
+            td_s,
+            camera_rate_hz,
+            imu_noise,
+            imu_rate_hz,
+            gravity_mps2,
+            t_bl,
+        },
+        imu,
+        features,
+        images,
+        lidar,
+        ground_truth,
+        sim_truth: None,
     })
 }
 
-/// Writes camera calibration, IMU, features, images (if decoded) and ground truth as an EuRoC
-/// ASL folder under `dir/mav0`.
+/// Decodes every listed image that has a path and no pixels yet (8-bit grayscale PNG).
+pub fn read_images(ds: &mut Dataset) -> Result<(), IoError> {
+    for im in &mut ds.images {
+        if !im.mono8.is_empty() {
+            continue;
+        }
+        if let Some(p) = &im.path {
+            let (w, h, px) = png_io::read_mono8(p)?;
+            im.width = w;
+            im.height = h;
+            im.mono8 = px;
+        }
+    }
+    Ok(())
+}
+
+fn read_imu(path: &Path) -> Result<Vec<ImuSample>, IoError> {
+    let mut c = CsvLines::open(path, 7)?;
+    let mut out: Vec<ImuSample> =
+        Vec::with_capacity((std::fs::metadata(path).map(|m| m.len()).unwrap_or(0) / 100) as usize);
+    while c.next_line()? {
+        let f = c.fields::<7>()?;
+        let t_ns = c.ns(0, f[0])?;
+        c.check_time(out.last().map(|s| s.t_ns), t_ns, false)?;
+        out.push(ImuSample {
+            t_ns,
+            gyro_rps: Vec3::new(c.f64(1, f[1])?, c.f64(2, f[2])?, c.f64(3, f[3])?),
+            accel_mps2: Vec3::new(c.f64(4, f[4])?, c.f64(5, f[5])?, c.f64(6, f[6])?),
+        });
+    }
+    Ok(out)
+}
+
+fn read_features(path: &Path) -> Result<Vec<FeatureFrame>, IoError> {
+    let mut c = CsvLines::open(path, 4)?;
+    let mut out: Vec<FeatureFrame> = Vec::new();
+    let mut ids = std::collections::HashSet::new();
+    while c.next_line()? {
+        let f = c.fields::<4>()?;
+        let t_ns = c.ns(0, f[0])?;
+        let obs = FeatureObs {
+            id: c.u64(1, f[1])?,
+            u_px: c.f64(2, f[2])?,
+            v_px: c.f64(3, f[3])?,
+        };
+        c.check_time(out.last().map(|fr| fr.t_ns), t_ns, true)?;
+        match out.last_mut() {
+            Some(fr) if fr.t_ns == t_ns => {
+                if !ids.insert(obs.id) {
+                    return Err(c.err(format!("feature id {} repeated in frame {t_ns}", obs.id)));
+                }
+                fr.obs.push(obs);
+            }
+            _ => {
+                ids.clear();
+                ids.insert(obs.id);
+                out.push(FeatureFrame {
+                    t_ns,
+                    obs: vec![obs],
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn read_lidar(path: &Path) -> Result<Vec<LidarScan>, IoError> {
+    let mut c = CsvLines::open(path, 6)?;
+    let mut out: Vec<LidarScan> = Vec::new();
+    while c.next_line()? {
+        let f = c.fields::<6>()?;
+        let t_ns = c.ns(0, f[0])?;
+        let p = LidarPoint {
+            t_ns: c.ns(1, f[1])?,
+            p_l: [c.f32(2, f[2])?, c.f32(3, f[3])?, c.f32(4, f[4])?],
+            intensity: c.f32(5, f[5])?,
+        };
+        c.check_time(out.last().map(|s| s.t_ns), t_ns, true)?;
+        match out.last_mut() {
+            Some(s) if s.t_ns == t_ns => s.points.push(p),
+            _ => out.push(LidarScan {
+                t_ns,
+                points: vec![p],
+            }),
+        }
+    }
+    Ok(out)
+}
+
+fn read_image_list(
+    path: &Path,
+    data_dir: &Path,
+    cam: &PinholeCamera,
+) -> Result<Vec<ImageFrame>, IoError> {
+    let mut c = CsvLines::open(path, 2)?;
+    let mut out: Vec<ImageFrame> = Vec::new();
+    while c.next_line()? {
+        let f = c.fields::<2>()?;
+        let t_ns = c.ns(0, f[0])?;
+        c.check_time(out.last().map(|s| s.t_ns), t_ns, false)?;
+        if f[1].is_empty() || f[1].contains(['/', '\\']) {
+            return Err(c.err(format!("bad image file name {:?}", f[1])));
+        }
+        out.push(ImageFrame {
+            t_ns,
+            width: cam.width,
+            height: cam.height,
+            mono8: Vec::new(),
+            path: Some(data_dir.join(f[1])),
+        });
+    }
+    Ok(out)
+}
+
+/// `T_BS` of a sensor.yaml, if present.
+fn doc_t_bs(d: &Doc) -> Result<Option<Extrinsic>, IoError> {
+    let Some(m) = d.opt_map(d.root(), "T_BS")? else {
+        return Ok(None);
+    };
+    let line = d.line_of(d.root(), "T_BS");
+    for k in ["rows", "cols"] {
+        if let Some(v) = d.opt_f64(m, k)? {
+            if v != 4.0 {
+                return Err(d.error(d.line_of(m, k), format!("T_BS {k} must be 4")));
+            }
+        }
+    }
+    let a = d.list_f64(m, "data", Some(16))?;
+    let data_line = d.line_of(m, "data");
+    if a[12] != 0.0 || a[13] != 0.0 || a[14] != 0.0 || a[15] != 1.0 {
+        return Err(d.error(data_line, "T_BS last row must be [0, 0, 0, 1]"));
+    }
+    let r = Matrix3::new(a[0], a[1], a[2], a[4], a[5], a[6], a[8], a[9], a[10]);
+    let err = (r.transpose() * r - Matrix3::identity()).abs().max();
+    if !(err < 1e-6 && r.determinant() > 0.0) {
+        return Err(d.error(
+            line,
+            format!("T_BS rotation is not a rotation (|R^T R - I| = {err:e})"),
+        ));
+    }
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    Ok(Some(Extrinsic {
+        q_ab: UnitQuaternion::new_normalize(q.into_inner()),
+        p_ab: Vec3::new(a[3], a[7], a[11]),
+    }))
+}
+
+/// `T_imu_s = T_B_imu^-1 T_B_s`, skipped (exactly) when `T_B_imu` is the identity.
+fn compose_in_imu(t_b_imu: &Extrinsic, t_b_s: &Extrinsic) -> Extrinsic {
+    if *t_b_imu == Extrinsic::identity() {
+        return *t_b_s;
+    }
+    let qi = t_b_imu.q_ab.inverse();
+    Extrinsic {
+        q_ab: qi * t_b_s.q_ab,
+        p_ab: qi * (t_b_s.p_ab - t_b_imu.p_ab),
+    }
+}
+
+fn read_camera(d: &Doc) -> Result<(PinholeCamera, Extrinsic, f64, f64), IoError> {
+    let r = d.root();
+    if let Some(m) = d.opt_str(r, "camera_model")? {
+        if m != "pinhole" {
+            return Err(d.error(
+                d.line_of(r, "camera_model"),
+                format!("camera_model {m:?} is not pinhole"),
+            ));
+        }
+    }
+    let t = doc_t_bs(d)?.ok_or_else(|| d.error(d.line_of(r, "T_BS"), "cam0 needs T_BS"))?;
+    let res = d.list_f64(r, "resolution", Some(2))?;
+    let res_line = d.line_of(r, "resolution");
+    let dim = |v: f64| -> Result<u32, IoError> {
+        if v.fract() == 0.0 && v > 0.0 && v <= f64::from(u32::MAX) {
+            Ok(v as u32)
+        } else {
+            Err(d.error(
+                res_line,
+                format!("resolution {v} is not a positive integer"),
+            ))
+        }
+    };
+    let k = d.list_f64(r, "intrinsics", Some(4))?;
+    if !(k[0] > 0.0 && k[1] > 0.0) {
+        return Err(d.error(d.line_of(r, "intrinsics"), "focal lengths must be positive"));
+    }
+    let model = d.opt_str(r, "distortion_model")?.unwrap_or("none");
+    let model_line = d.line_of(r, "distortion_model");
+    let distortion = match model {
+        "radial-tangential" | "radtan" | "plumb_bob" => {
+            let c = d.list_f64(r, "distortion_coefficients", Some(4))?;
+            Distortion::RadTan {
+                k1: c[0],
+                k2: c[1],
+                p1: c[2],
+                p2: c[3],
+            }
+        }
+        "equidistant" | "fisheye" => {
+            let c = d.list_f64(r, "distortion_coefficients", Some(4))?;
+            Distortion::Equidistant {
+                k: [c[0], c[1], c[2], c[3]],
+            }
+        }
+        "none" => Distortion::None,
+        other => {
+            return Err(d.error(
+                model_line,
+                format!("unsupported distortion_model {other:?}"),
+            ));
+        }
+    };
+    let camera = PinholeCamera {
+        width: dim(res[0])?,
+        height: dim(res[1])?,
+        fx: k[0],
+        fy: k[1],
+        cx: k[2],
+        cy: k[3],
+        distortion,
+    };
+    let td_s = d.opt_f64(r, "timeshift_cam_imu")?.unwrap_or(0.0);
+    let rate = d.f64(r, "rate_hz")?;
+    Ok((camera, t, td_s, rate))
+}
+
+fn t_bs_yaml(out: &mut String, t: &Extrinsic) {
+    let m = t.q_ab.to_rotation_matrix();
+    let m = m.matrix();
+    let p = t.p_ab;
+    let _ = writeln!(out, "T_BS:\n  cols: 4\n  rows: 4");
+    let _ = writeln!(
+        out,
+        "  data: [{:?}, {:?}, {:?}, {:?},\n         {:?}, {:?}, {:?}, {:?},\n         {:?}, {:?}, {:?}, {:?},\n         0.0, 0.0, 0.0, 1.0]",
+        m[(0, 0)], m[(0, 1)], m[(0, 2)], p.x,
+        m[(1, 0)], m[(1, 1)], m[(1, 2)], p.y,
+        m[(2, 0)], m[(2, 1)], m[(2, 2)], p.z
+    );
+}
+
+fn write_file(path: &Path, text: &str) -> Result<(), IoError> {
+    std::fs::write(path, text).map_err(|e| IoError::io(path, e))
+}
+
+fn mkdir(p: &Path) -> Result<(), IoError> {
+    std::fs::create_dir_all(p).map_err(|e| IoError::io(p, e))
+}
+
+/// Buffered writing of one CSV file with an error that names it.
+fn write_csv(
+    path: &Path,
+    body: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
+) -> Result<(), IoError> {
+    let f = std::fs::File::create(path).map_err(|e| IoError::io(path, e))?;
+    let mut w = std::io::BufWriter::with_capacity(1 << 16, f);
+    body(&mut w)
+        .and_then(|()| w.flush())
+        .map_err(|e| IoError::io(path, e))
+}
+
+/// Writes calibration, IMU, features, LiDAR, images and ground truth as an EuRoC ASL folder
+/// under `dir/mav0`. Images with pixels are encoded as PNG; images with only a path are copied.
 pub fn write_dataset(dir: &Path, ds: &Dataset) -> Result<(), IoError> {
-    let _ = ds;
-    Err(IoError::Invalid {
-        path: dir.into(),
-        msg: "not implemented yet".into(),
+    let mav0 = dir.join("mav0");
+    let c = &ds.calib;
+
+    let imu_dir = mav0.join("imu0");
+    mkdir(&imu_dir)?;
+    let mut y = String::from("%YAML:1.0\nsensor_type: imu\ncomment: written by povins\n");
+    t_bs_yaml(&mut y, &Extrinsic::identity());
+    let n = &c.imu_noise;
+    let _ = writeln!(y, "rate_hz: {:?}", c.imu_rate_hz);
+    let _ = writeln!(y, "gyroscope_noise_density: {:?}", n.gyro_noise_density);
+    let _ = writeln!(y, "gyroscope_random_walk: {:?}", n.gyro_bias_rw);
+    let _ = writeln!(
+        y,
+        "accelerometer_noise_density: {:?}",
+        n.accel_noise_density
+    );
+    let _ = writeln!(y, "accelerometer_random_walk: {:?}", n.accel_bias_rw);
+    let _ = writeln!(y, "gravity_magnitude: {:?}", c.gravity_mps2);
+    if let Some(t) = n.bias_corr_time_s {
+        let _ = writeln!(y, "bias_correlation_time: {t:?}");
+    }
+    write_file(&imu_dir.join("sensor.yaml"), &y)?;
+    write_csv(&imu_dir.join("data.csv"), |w| {
+        writeln!(w, "{IMU_HEADER}")?;
+        for s in &ds.imu {
+            let (g, a) = (s.gyro_rps, s.accel_mps2);
+            writeln!(
+                w,
+                "{},{:?},{:?},{:?},{:?},{:?},{:?}",
+                s.t_ns, g.x, g.y, g.z, a.x, a.y, a.z
+            )?;
+        }
+        Ok(())
+    })?;
+
+    let cam_dir = mav0.join("cam0");
+    mkdir(&cam_dir)?;
+    let cam = &c.camera;
+    let mut y = String::from("%YAML:1.0\nsensor_type: camera\ncomment: written by povins\n");
+    t_bs_yaml(&mut y, &c.t_bc);
+    let (model, coeffs) = match cam.distortion {
+        Distortion::None => ("none", [0.0; 4]),
+        Distortion::RadTan { k1, k2, p1, p2 } => ("radial-tangential", [k1, k2, p1, p2]),
+        Distortion::Equidistant { k } => ("equidistant", k),
+    };
+    let _ = writeln!(y, "rate_hz: {:?}", c.camera_rate_hz);
+    let _ = writeln!(y, "resolution: [{}, {}]", cam.width, cam.height);
+    let _ = writeln!(y, "camera_model: pinhole");
+    let _ = writeln!(
+        y,
+        "intrinsics: [{:?}, {:?}, {:?}, {:?}] # fu, fv, cu, cv",
+        cam.fx, cam.fy, cam.cx, cam.cy
+    );
+    let _ = writeln!(y, "distortion_model: {model}");
+    let _ = writeln!(
+        y,
+        "distortion_coefficients: [{:?}, {:?}, {:?}, {:?}]",
+        coeffs[0], coeffs[1], coeffs[2], coeffs[3]
+    );
+    let _ = writeln!(y, "timeshift_cam_imu: {:?} # t_imu = t_cam + shift", c.td_s);
+    write_file(&cam_dir.join("sensor.yaml"), &y)?;
+    if !ds.images.is_empty() {
+        write_images(&cam_dir, &ds.images)?;
+    }
+
+    if !ds.features.is_empty() {
+        let fdir = mav0.join("features0");
+        mkdir(&fdir)?;
+        write_csv(&fdir.join("data.csv"), |w| {
+            writeln!(w, "{FEATURES_HEADER}")?;
+            for fr in &ds.features {
+                for o in &fr.obs {
+                    writeln!(w, "{},{},{:?},{:?}", fr.t_ns, o.id, o.u_px, o.v_px)?;
+                }
+            }
+            Ok(())
+        })?;
+    }
+
+    if c.t_bl.is_some() || !ds.lidar.is_empty() {
+        let ldir = mav0.join("lidar0");
+        mkdir(&ldir)?;
+        if let Some(t) = &c.t_bl {
+            let mut y = String::from("%YAML:1.0\nsensor_type: lidar\ncomment: written by povins\n");
+            t_bs_yaml(&mut y, t);
+            write_file(&ldir.join("sensor.yaml"), &y)?;
+        }
+        if let Some(s) = ds.lidar.iter().find(|s| s.points.is_empty()) {
+            return Err(IoError::Invalid {
+                path: ldir,
+                msg: format!(
+                    "sweep at {} ns has no points; a CSV cannot store it",
+                    s.t_ns
+                ),
+            });
+        }
+        if !ds.lidar.is_empty() {
+            write_csv(&ldir.join("data.csv"), |w| {
+                writeln!(w, "{LIDAR_HEADER}")?;
+                for s in &ds.lidar {
+                    for p in &s.points {
+                        writeln!(
+                            w,
+                            "{},{},{:?},{:?},{:?},{:?}",
+                            s.t_ns, p.t_ns, p.p_l[0], p.p_l[1], p.p_l[2], p.intensity
+                        )?;
+                    }
+                }
+                Ok(())
+            })?;
+        }
+    }
+
+    if !ds.ground_truth.is_empty() {
+        let gdir = mav0.join("state_groundtruth_estimate0");
+        mkdir(&gdir)?;
+        write_euroc_groundtruth(&gdir.join("data.csv"), &ds.ground_truth)?;
+    }
+    Ok(())
+}
+
+fn write_images(cam_dir: &Path, images: &[ImageFrame]) -> Result<(), IoError> {
+    let data_dir = cam_dir.join("data");
+    mkdir(&data_dir)?;
+    for im in images {
+        let dst = data_dir.join(format!("{}.png", im.t_ns));
+        if !im.mono8.is_empty() {
+            png_io::write_mono8(&dst, im.width, im.height, &im.mono8)?;
+        } else if let Some(src) = &im.path {
+            let same = match (std::fs::canonicalize(src), std::fs::canonicalize(&dst)) {
+                (Ok(a), Ok(b)) => a == b,
+                _ => false,
+            };
+            if !same {
+                std::fs::copy(src, &dst).map_err(|e| IoError::io(src, e))?;
+            }
+        } else {
+            return Err(IoError::Invalid {
+                path: dst,
+                msg: "image has neither pixels nor a source file".into(),
+            });
+        }
+    }
+    write_csv(&cam_dir.join("data.csv"), |w| {
+        writeln!(w, "{CAM_HEADER}")?;
+        for im in images {
+            writeln!(w, "{},{}.png", im.t_ns, im.t_ns)?;
+        }
+        Ok(())
     })
 }

@@ -4,10 +4,12 @@
 //! folders, MCAP with ROS 2 CDR messages, TUM trajectories), the in-memory [`dataset::Dataset`]
 //! they all produce, and the runtime pieces around the `no_std` core.
 
+pub mod cdr;
 pub mod dataset;
 pub mod error;
 pub mod euroc;
 pub mod mcap_io;
+pub mod ros2;
 pub mod trajectory;
 
 pub use dataset::Dataset;

@@ -1,24 +1,690 @@
-//! MCAP files with ROS 2 (CDR) messages.
+//! MCAP files (profile `ros2`) with ROS 2 CDR messages, readable by Foxglove and the official
+//! `mcap` tools.
 //!
-//! STUB: signatures fixed; bodies are implemented by the data-plane work.
+//! | topic | schema (`ros2msg`, message encoding `cdr`) | content |
+//! |---|---|---|
+//! | `/imu0` | `sensor_msgs/msg/Imu` | IMU samples |
+//! | `/cam0/image_raw` | `sensor_msgs/msg/Image` | mono8 images |
+//! | `/cam0/features` | `sensor_msgs/msg/PointCloud` | feature tracks, VINS-Mono layout |
+//! | `/lidar0/points` | `sensor_msgs/msg/PointCloud2` | LiDAR sweeps, per-point `t` |
+//! | `/groundtruth` | `nav_msgs/msg/Odometry` | body pose and velocity in `world` |
+//! | `/groundtruth/imu_bias` | `sensor_msgs/msg/Imu` | ground-truth biases (gyro in `angular_velocity`, accel in `linear_acceleration`) |
+//!
+//! Field conventions are in [`crate::ros2::convert`]. Message log and publish times are the
+//! header stamps; messages are written in time order. The calibration is a metadata record
+//! [`CALIBRATION_METADATA`] of strings, numbers in Rust's shortest round-trip form, vectors
+//! space-separated: `resolution` (`w h`), `intrinsics` (`fx fy cx cy`), `distortion_model`
+//! (`radial-tangential` | `equidistant` | `none`), `distortion_coefficients` (`k1 k2 p1 p2` or
+//! the four equidistant `k`), `camera_rate_hz`, `T_bc` and `T_bl` (`px py pz qx qy qz qw`: the
+//! sensor origin in the body and the rotation sensor -> body; `T_bl` absent without LiDAR),
+//! `td_s` (`t_imu = t_cam + td_s`), `imu_rate_hz`, `gyroscope_noise_density`,
+//! `gyroscope_random_walk`, `accelerometer_noise_density`, `accelerometer_random_walk`,
+//! `bias_correlation_time_s` (`none` for a random walk), `gravity_mps2`, `name`. A simulator's
+//! [`SimTruth`] is the JSON attachment [`SIM_TRUTH_ATTACHMENT`].
+//!
+//! Reading ignores topics it does not know, orders each topic by header stamp and rejects
+//! repeated stamps. A message that does not decode is [`IoError::Corrupt`] naming the topic, the
+//! message's sequence number and the byte offset inside the message.
 
-use crate::dataset::Dataset;
+use crate::cdr::CdrError;
+use crate::dataset::{Calibration, Dataset, Extrinsic, SimTruth};
 use crate::error::IoError;
+use crate::euroc::read_png_mono8;
+use crate::ros2::convert::{self, quat_from_xyzw, quat_to_xyzw};
+use crate::ros2::{self, msgs};
+use povins_core::camera::{Distortion, PinholeCamera};
+use povins_core::inertial::ImuNoise;
+use povins_core::math::Vec3;
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashMap};
+use std::io::Write as _;
 use std::path::Path;
+
+/// IMU topic.
+pub const TOPIC_IMU: &str = "/imu0";
+/// Image topic.
+pub const TOPIC_IMAGE: &str = "/cam0/image_raw";
+/// Feature topic.
+pub const TOPIC_FEATURES: &str = "/cam0/features";
+/// LiDAR topic.
+pub const TOPIC_LIDAR: &str = "/lidar0/points";
+/// Ground-truth pose topic.
+pub const TOPIC_GROUND_TRUTH: &str = "/groundtruth";
+/// Ground-truth bias topic.
+pub const TOPIC_GROUND_TRUTH_BIAS: &str = "/groundtruth/imu_bias";
+/// Name of the calibration metadata record.
+pub const CALIBRATION_METADATA: &str = "povins.calibration";
+/// Name of the simulator-truth attachment.
+pub const SIM_TRUTH_ATTACHMENT: &str = "povins.sim_truth.json";
+
+const IMU_TYPE: &str = "sensor_msgs/msg/Imu";
+const IMAGE_TYPE: &str = "sensor_msgs/msg/Image";
+const POINT_CLOUD_TYPE: &str = "sensor_msgs/msg/PointCloud";
+const POINT_CLOUD2_TYPE: &str = "sensor_msgs/msg/PointCloud2";
+const ODOMETRY_TYPE: &str = "nav_msgs/msg/Odometry";
+
+fn invalid(path: &Path, msg: impl Into<String>) -> IoError {
+    IoError::Invalid {
+        path: path.into(),
+        msg: msg.into(),
+    }
+}
+
+fn mcap_err(path: &Path, e: mcap::McapError) -> IoError {
+    IoError::Corrupt {
+        file: path.into(),
+        what: "mcap".into(),
+        offset: 0,
+        msg: e.to_string(),
+    }
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SimTruthJson {
+    landmarks_w: Vec<(u64, [f64; 3])>,
+    wrong_tracks: Vec<u64>,
+    edge_features: Vec<u64>,
+    lidar_edge_points: Vec<Vec<bool>>,
+}
+
+fn num(v: f64) -> String {
+    format!("{v:?}")
+}
+
+fn nums(v: &[f64]) -> String {
+    v.iter().map(|x| num(*x)).collect::<Vec<_>>().join(" ")
+}
+
+fn extrinsic_str(t: &Extrinsic) -> String {
+    let q = quat_to_xyzw(&t.q_ab);
+    nums(&[t.p_ab.x, t.p_ab.y, t.p_ab.z, q[0], q[1], q[2], q[3]])
+}
+
+fn calibration_metadata(ds: &Dataset) -> BTreeMap<String, String> {
+    let c = &ds.calib;
+    let cam = &c.camera;
+    let (model, k) = match cam.distortion {
+        Distortion::None => ("none", [0.0; 4]),
+        Distortion::RadTan { k1, k2, p1, p2 } => ("radial-tangential", [k1, k2, p1, p2]),
+        Distortion::Equidistant { k } => ("equidistant", k),
+    };
+    let n = &c.imu_noise;
+    let mut m = BTreeMap::new();
+    let mut put = |k: &str, v: String| {
+        m.insert(k.to_string(), v);
+    };
+    put("name", ds.name.clone());
+    put("resolution", format!("{} {}", cam.width, cam.height));
+    put("intrinsics", nums(&[cam.fx, cam.fy, cam.cx, cam.cy]));
+    put("distortion_model", model.into());
+    put("distortion_coefficients", nums(&k));
+    put("camera_rate_hz", num(c.camera_rate_hz));
+    put("T_bc", extrinsic_str(&c.t_bc));
+    put("td_s", num(c.td_s));
+    put("imu_rate_hz", num(c.imu_rate_hz));
+    put("gyroscope_noise_density", num(n.gyro_noise_density));
+    put("gyroscope_random_walk", num(n.gyro_bias_rw));
+    put("accelerometer_noise_density", num(n.accel_noise_density));
+    put("accelerometer_random_walk", num(n.accel_bias_rw));
+    put(
+        "bias_correlation_time_s",
+        n.bias_corr_time_s.map_or("none".into(), num),
+    );
+    put("gravity_mps2", num(c.gravity_mps2));
+    if let Some(t) = &c.t_bl {
+        put("T_bl", extrinsic_str(t));
+    }
+    m
+}
+
+/// Parses the calibration metadata back.
+fn calibration_from_metadata(
+    path: &Path,
+    m: &BTreeMap<String, String>,
+) -> Result<(String, Calibration), IoError> {
+    let bad =
+        |k: &str, why: &str| invalid(path, format!("{CALIBRATION_METADATA}: key {k:?} {why}"));
+    let get = |k: &str| {
+        m.get(k)
+            .map(String::as_str)
+            .ok_or_else(|| bad(k, "is missing"))
+    };
+    let vec = |k: &str, n: usize| -> Result<Vec<f64>, IoError> {
+        let v: Vec<f64> = get(k)?
+            .split_whitespace()
+            .map(|s| s.parse::<f64>().ok().filter(|x| x.is_finite()))
+            .collect::<Option<_>>()
+            .ok_or_else(|| bad(k, "is not a list of finite numbers"))?;
+        if v.len() != n {
+            return Err(bad(k, &format!("needs {n} numbers")));
+        }
+        Ok(v)
+    };
+    let one = |k: &str| -> Result<f64, IoError> { Ok(vec(k, 1)?[0]) };
+    let ext = |k: &str| -> Result<Extrinsic, IoError> {
+        let v = vec(k, 7)?;
+        Ok(Extrinsic {
+            q_ab: quat_from_xyzw([v[3], v[4], v[5], v[6]])
+                .ok_or_else(|| bad(k, "has a non-unit quaternion"))?,
+            p_ab: Vec3::new(v[0], v[1], v[2]),
+        })
+    };
+    let res: Vec<u32> = get("resolution")?
+        .split_whitespace()
+        .map(|s| s.parse().ok())
+        .collect::<Option<_>>()
+        .filter(|v: &Vec<u32>| v.len() == 2)
+        .ok_or_else(|| bad("resolution", "is not `width height`"))?;
+    let k = vec("intrinsics", 4)?;
+    let d = vec("distortion_coefficients", 4)?;
+    let distortion = match get("distortion_model")? {
+        "none" => Distortion::None,
+        "radial-tangential" => Distortion::RadTan {
+            k1: d[0],
+            k2: d[1],
+            p1: d[2],
+            p2: d[3],
+        },
+        "equidistant" => Distortion::Equidistant {
+            k: [d[0], d[1], d[2], d[3]],
+        },
+        _ => return Err(bad("distortion_model", "is not a known model")),
+    };
+    let imu_noise = ImuNoise {
+        gyro_noise_density: one("gyroscope_noise_density")?,
+        accel_noise_density: one("accelerometer_noise_density")?,
+        gyro_bias_rw: one("gyroscope_random_walk")?,
+        accel_bias_rw: one("accelerometer_random_walk")?,
+        bias_corr_time_s: match get("bias_correlation_time_s")? {
+            "none" => None,
+            _ => Some(one("bias_correlation_time_s")?),
+        },
+    };
+    let calib = Calibration {
+        camera: PinholeCamera {
+            width: res[0],
+            height: res[1],
+            fx: k[0],
+            fy: k[1],
+            cx: k[2],
+            cy: k[3],
+            distortion,
+        },
+        t_bc: ext("T_bc")?,
+        td_s: one("td_s")?,
+        camera_rate_hz: one("camera_rate_hz")?,
+        imu_noise,
+        imu_rate_hz: one("imu_rate_hz")?,
+        gravity_mps2: one("gravity_mps2")?,
+        t_bl: if m.contains_key("T_bl") {
+            Some(ext("T_bl")?)
+        } else {
+            None
+        },
+    };
+    Ok((m.get("name").cloned().unwrap_or_default(), calib))
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+enum Kind {
+    Imu,
+    Image,
+    Lidar,
+    Features,
+    GroundTruth,
+}
+
+/// Writes a [`Dataset`] as MCAP (ROS 2 CDR messages, calibration as metadata, zstd chunks).
+/// Images without pixels are loaded from their PNG file.
+pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
+    let cdr = |topic: &str, e: CdrError| invalid(path, format!("{topic}: {e}"));
+    let conv = |topic: &str, e: String| invalid(path, format!("{topic}: {e}"));
+    // Everything is checked and encoded lazily in time order; features need the whole sequence
+    // for their velocities, so they are converted up front.
+    let feature_msgs = convert::features_to_msgs(&ds.features, &ds.calib.camera)
+        .map_err(|e| conv(TOPIC_FEATURES, e))?;
+
+    let f = std::fs::File::create(path).map_err(|e| IoError::io(path, e))?;
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(std::io::BufWriter::with_capacity(1 << 20, f))
+        .map_err(|e| mcap_err(path, e))?;
+    let me = |e| mcap_err(path, e);
+    let no_meta = BTreeMap::new();
+    let channel = |w: &mut mcap::Writer<_>, topic: &str, ty: &str, schema: String| {
+        let sid = w.add_schema(ty, "ros2msg", schema.as_bytes())?;
+        w.add_channel(sid, topic, "cdr", &no_meta)
+    };
+    let mut ch: HashMap<Kind, u16> = HashMap::new();
+    if !ds.imu.is_empty() {
+        ch.insert(
+            Kind::Imu,
+            channel(&mut w, TOPIC_IMU, IMU_TYPE, ros2::imu_schema()).map_err(me)?,
+        );
+    }
+    if !ds.images.is_empty() {
+        let id = channel(&mut w, TOPIC_IMAGE, IMAGE_TYPE, ros2::image_schema()).map_err(me)?;
+        ch.insert(Kind::Image, id);
+    }
+    if !ds.lidar.is_empty() {
+        let s = ros2::point_cloud2_schema();
+        ch.insert(
+            Kind::Lidar,
+            channel(&mut w, TOPIC_LIDAR, POINT_CLOUD2_TYPE, s).map_err(me)?,
+        );
+    }
+    if !ds.features.is_empty() {
+        let s = ros2::point_cloud_schema();
+        let id = channel(&mut w, TOPIC_FEATURES, POINT_CLOUD_TYPE, s).map_err(me)?;
+        ch.insert(Kind::Features, id);
+    }
+    let mut bias_ch = 0;
+    if !ds.ground_truth.is_empty() {
+        let s = ros2::odometry_schema();
+        let id = channel(&mut w, TOPIC_GROUND_TRUTH, ODOMETRY_TYPE, s).map_err(me)?;
+        ch.insert(Kind::GroundTruth, id);
+        bias_ch = channel(
+            &mut w,
+            TOPIC_GROUND_TRUTH_BIAS,
+            IMU_TYPE,
+            ros2::imu_schema(),
+        )
+        .map_err(me)?;
+    }
+
+    let mut events: Vec<(i64, Kind, usize)> = Vec::new();
+    events.extend(
+        ds.imu
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Imu, i)),
+    );
+    events.extend(
+        ds.images
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Image, i)),
+    );
+    events.extend(
+        ds.lidar
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Lidar, i)),
+    );
+    events.extend(
+        ds.features
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::Features, i)),
+    );
+    events.extend(
+        ds.ground_truth
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.t_ns, Kind::GroundTruth, i)),
+    );
+    events.sort_unstable();
+
+    let mut seq: HashMap<u16, u32> = HashMap::new();
+    let mut put = |w: &mut mcap::Writer<_>, channel_id: u16, t_ns: i64, data: &[u8]| {
+        let s = seq.entry(channel_id).or_insert(0);
+        *s += 1;
+        let time = u64::try_from(t_ns).map_err(|_| {
+            invalid(
+                path,
+                format!("time {t_ns} ns is before 1970 and cannot be an MCAP log time"),
+            )
+        })?;
+        let header = mcap::records::MessageHeader {
+            channel_id,
+            sequence: *s,
+            log_time: time,
+            publish_time: time,
+        };
+        w.write_to_known_channel(&header, data).map_err(me)
+    };
+    for (t, kind, i) in events {
+        let cid = ch.get(&kind).copied().unwrap_or(0);
+        match kind {
+            Kind::Imu => {
+                let m = convert::imu_to_msg(&ds.imu[i])
+                    .encode()
+                    .map_err(|e| cdr(TOPIC_IMU, e))?;
+                put(&mut w, cid, t, &m)?;
+            }
+            Kind::Image => {
+                let im = &ds.images[i];
+                let px = if !im.mono8.is_empty() {
+                    im.mono8.clone()
+                } else if let Some(p) = &im.path {
+                    let (pw, ph, px) = read_png_mono8(p)?;
+                    if (pw, ph) != (im.width, im.height) {
+                        return Err(invalid(
+                            p,
+                            format!(
+                                "image is {pw}x{ph}, the dataset says {}x{}",
+                                im.width, im.height
+                            ),
+                        ));
+                    }
+                    px
+                } else {
+                    return Err(conv(
+                        TOPIC_IMAGE,
+                        format!("image at {t} ns has no pixels and no file"),
+                    ));
+                };
+                let m = convert::image_to_msg(im, px).map_err(|e| conv(TOPIC_IMAGE, e))?;
+                put(
+                    &mut w,
+                    cid,
+                    t,
+                    &m.encode().map_err(|e| cdr(TOPIC_IMAGE, e))?,
+                )?;
+            }
+            Kind::Lidar => {
+                let m = convert::lidar_to_msg(&ds.lidar[i]).map_err(|e| conv(TOPIC_LIDAR, e))?;
+                put(
+                    &mut w,
+                    cid,
+                    t,
+                    &m.encode().map_err(|e| cdr(TOPIC_LIDAR, e))?,
+                )?;
+            }
+            Kind::Features => {
+                let m = feature_msgs[i]
+                    .encode()
+                    .map_err(|e| cdr(TOPIC_FEATURES, e))?;
+                put(&mut w, cid, t, &m)?;
+            }
+            Kind::GroundTruth => {
+                let (odom, bias) = convert::ground_truth_to_msgs(&ds.ground_truth[i]);
+                let o = odom.encode().map_err(|e| cdr(TOPIC_GROUND_TRUTH, e))?;
+                put(&mut w, cid, t, &o)?;
+                let b = bias.encode().map_err(|e| cdr(TOPIC_GROUND_TRUTH_BIAS, e))?;
+                put(&mut w, bias_ch, t, &b)?;
+            }
+        }
+    }
+
+    w.write_metadata(&mcap::records::Metadata {
+        name: CALIBRATION_METADATA.into(),
+        metadata: calibration_metadata(ds),
+    })
+    .map_err(me)?;
+    if let Some(st) = &ds.sim_truth {
+        let j = SimTruthJson {
+            landmarks_w: st
+                .landmarks_w
+                .iter()
+                .map(|(id, p)| (*id, [p.x, p.y, p.z]))
+                .collect(),
+            wrong_tracks: st.wrong_tracks.clone(),
+            edge_features: st.edge_features.clone(),
+            lidar_edge_points: st.lidar_edge_points.clone(),
+        };
+        let data = serde_json::to_vec(&j).map_err(|e| invalid(path, e.to_string()))?;
+        let t0 = events_start(ds);
+        w.attach(&mcap::Attachment {
+            log_time: t0,
+            create_time: t0,
+            name: SIM_TRUTH_ATTACHMENT.into(),
+            media_type: "application/json".into(),
+            data: Cow::Owned(data),
+        })
+        .map_err(me)?;
+    }
+    w.finish().map_err(me)?;
+    w.into_inner().flush().map_err(|e| IoError::io(path, e))
+}
+
+/// First IMU time (attachment time), 0 when unknown.
+fn events_start(ds: &Dataset) -> u64 {
+    ds.imu
+        .first()
+        .map_or(0, |s| u64::try_from(s.t_ns).unwrap_or(0))
+}
+
+/// Sorts by time and rejects repeated stamps.
+fn ordered<T>(
+    path: &Path,
+    topic: &str,
+    mut v: Vec<T>,
+    t: impl Fn(&T) -> i64,
+) -> Result<Vec<T>, IoError> {
+    v.sort_by_key(&t);
+    if let Some(w) = v.windows(2).find(|w| t(&w[0]) == t(&w[1])) {
+        return Err(invalid(
+            path,
+            format!("{topic}: two messages stamped {} ns", t(&w[0])),
+        ));
+    }
+    Ok(v)
+}
+
+/// Largest uncompressed chunk accepted, bytes.
+pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
+
+/// Walks the top-level record framing (`opcode: u8, length: u64, body`) and rejects chunks that
+/// claim more than [`MAX_CHUNK_BYTES`] uncompressed: the `mcap` crate allocates the claimed size
+/// up front, so a corrupt size would abort the process instead of failing.
+fn check_chunk_sizes(path: &Path, b: &[u8]) -> Result<(), IoError> {
+    const CHUNK: u8 = 0x06;
+    const FOOTER: u8 = 0x02;
+    let u64_at = |o: usize| -> Option<u64> {
+        b.get(o..o.checked_add(8)?)
+            .and_then(|s| s.try_into().ok())
+            .map(u64::from_le_bytes)
+    };
+    let mut pos = mcap::MAGIC.len();
+    while let (Some(&op), Some(len)) = (b.get(pos), u64_at(pos + 1)) {
+        if op == CHUNK {
+            // Chunk body: message_start_time u64, message_end_time u64, uncompressed_size u64.
+            if let Some(size) = u64_at(pos + 9 + 16) {
+                if size > MAX_CHUNK_BYTES {
+                    return Err(IoError::Corrupt {
+                        file: path.into(),
+                        what: "chunk".into(),
+                        offset: pos as u64,
+                        msg: format!("uncompressed size {size} exceeds {MAX_CHUNK_BYTES} bytes"),
+                    });
+                }
+            }
+        }
+        if op == FOOTER {
+            break;
+        }
+        match usize::try_from(len)
+            .ok()
+            .and_then(|l| pos.checked_add(9)?.checked_add(l))
+        {
+            Some(next) => pos = next,
+            None => break,
+        }
+    }
+    Ok(())
+}
 
 /// Reads a whole MCAP file into a [`Dataset`].
 pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
-    Err(IoError::Invalid {
-        path: path.into(),
-        msg: "not implemented yet".into(),
-    })
-}
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    check_chunk_sizes(path, &bytes)?;
+    let mut schemas: HashMap<u16, String> = HashMap::new();
+    let mut channels: HashMap<u16, (String, String, String)> = HashMap::new();
+    let mut ds_imu = Vec::new();
+    let mut images = Vec::new();
+    let mut lidar = Vec::new();
+    let mut features = Vec::new();
+    let mut odoms: Vec<msgs::Odometry> = Vec::new();
+    let mut biases: HashMap<i64, msgs::Imu> = HashMap::new();
+    let mut calib = None;
+    let mut sim_truth = None;
 
-/// Writes a [`Dataset`] as MCAP (ROS 2 CDR messages, calibration as metadata).
-pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
-    let _ = ds;
-    Err(IoError::Invalid {
-        path: path.into(),
-        msg: "not implemented yet".into(),
+    // The sans-io reader with a record length limit, so a corrupt length inside a chunk fails
+    // instead of allocating it.
+    let opts = mcap::sans_io::LinearReaderOptions::default()
+        .with_record_length_limit(MAX_CHUNK_BYTES as usize);
+    let mut reader = mcap::sans_io::LinearReader::new_with_options(opts);
+    let mut rest: &[u8] = &bytes;
+    while let Some(event) = reader.next_event() {
+        let rec = match event.map_err(|e| mcap_err(path, e))? {
+            mcap::sans_io::LinearReadEvent::ReadRequest(need) => {
+                let n = need.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+                continue;
+            }
+            mcap::sans_io::LinearReadEvent::Record { data, opcode } => {
+                mcap::parse_record(opcode, data).map_err(|e| mcap_err(path, e))?
+            }
+        };
+        match rec {
+            mcap::records::Record::Schema { header, .. } => {
+                schemas.insert(header.id, header.name.clone());
+            }
+            mcap::records::Record::Channel(c) => {
+                let ty = schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                channels.insert(c.id, (c.topic, ty, c.message_encoding));
+            }
+            mcap::records::Record::Message { header, data } => {
+                let Some((topic, ty, enc)) = channels.get(&header.channel_id) else {
+                    return Err(IoError::Corrupt {
+                        file: path.into(),
+                        what: format!("message {}", header.sequence),
+                        offset: 0,
+                        msg: format!("channel {} was never declared", header.channel_id),
+                    });
+                };
+                let want = match topic.as_str() {
+                    TOPIC_IMU | TOPIC_GROUND_TRUTH_BIAS => IMU_TYPE,
+                    TOPIC_IMAGE => IMAGE_TYPE,
+                    TOPIC_FEATURES => POINT_CLOUD_TYPE,
+                    TOPIC_LIDAR => POINT_CLOUD2_TYPE,
+                    TOPIC_GROUND_TRUTH => ODOMETRY_TYPE,
+                    _ => continue,
+                };
+                if ty != want || enc != "cdr" {
+                    return Err(invalid(
+                        path,
+                        format!("{topic}: schema {ty:?} encoding {enc:?}, expected {want:?} cdr"),
+                    ));
+                }
+                let what = || format!("{topic} message {}", header.sequence);
+                let corrupt = |e: CdrError| IoError::Corrupt {
+                    file: path.into(),
+                    what: what(),
+                    offset: e.offset as u64,
+                    msg: e.msg,
+                };
+                let bad = |msg: String| invalid(path, format!("{}: {msg}", what()));
+                match topic.as_str() {
+                    TOPIC_IMU => {
+                        let m = msgs::Imu::decode(&data).map_err(corrupt)?;
+                        ds_imu.push(
+                            convert::imu_from_msg(&m)
+                                .ok_or_else(|| bad("non-finite sample".into()))?,
+                        );
+                    }
+                    TOPIC_GROUND_TRUTH_BIAS => {
+                        let m = msgs::Imu::decode(&data).map_err(corrupt)?;
+                        if biases.insert(m.header.t_ns, m).is_some() {
+                            return Err(bad("repeated stamp".into()));
+                        }
+                    }
+                    TOPIC_GROUND_TRUTH => {
+                        odoms.push(msgs::Odometry::decode(&data).map_err(corrupt)?)
+                    }
+                    TOPIC_IMAGE => {
+                        let m = msgs::Image::decode(&data).map_err(corrupt)?;
+                        images.push(convert::image_from_msg(m).map_err(bad)?);
+                    }
+                    TOPIC_FEATURES => {
+                        let m = msgs::PointCloud::decode(&data).map_err(corrupt)?;
+                        features.push(convert::features_from_msg(&m).map_err(bad)?);
+                    }
+                    _ => {
+                        let m = msgs::PointCloud2::decode(&data).map_err(corrupt)?;
+                        lidar.push(convert::lidar_from_msg(&m).map_err(bad)?);
+                    }
+                }
+            }
+            mcap::records::Record::Metadata(m) if m.name == CALIBRATION_METADATA => {
+                calib = Some(calibration_from_metadata(path, &m.metadata)?);
+            }
+            mcap::records::Record::Attachment { header, data, .. }
+                if header.name == SIM_TRUTH_ATTACHMENT =>
+            {
+                let j: SimTruthJson =
+                    serde_json::from_slice(&data).map_err(|e| IoError::Corrupt {
+                        file: path.into(),
+                        what: SIM_TRUTH_ATTACHMENT.into(),
+                        offset: e.column() as u64,
+                        msg: e.to_string(),
+                    })?;
+                sim_truth = Some(SimTruth {
+                    landmarks_w: j
+                        .landmarks_w
+                        .into_iter()
+                        .map(|(id, p)| (id, Vec3::from(p)))
+                        .collect(),
+                    wrong_tracks: j.wrong_tracks,
+                    edge_features: j.edge_features,
+                    lidar_edge_points: j.lidar_edge_points,
+                });
+            }
+            _ => {}
+        }
+    }
+    let (name, calib) =
+        calib.ok_or_else(|| invalid(path, format!("no {CALIBRATION_METADATA} metadata record")))?;
+    if ds_imu.is_empty() {
+        return Err(invalid(path, format!("no {TOPIC_IMU} messages")));
+    }
+    let odoms = ordered(path, TOPIC_GROUND_TRUTH, odoms, |o| o.header.t_ns)?;
+    if !biases.is_empty() && biases.len() != odoms.len() {
+        return Err(invalid(
+            path,
+            format!(
+                "{} {TOPIC_GROUND_TRUTH} messages but {} {TOPIC_GROUND_TRUTH_BIAS} messages",
+                odoms.len(),
+                biases.len()
+            ),
+        ));
+    }
+    let mut ground_truth = Vec::with_capacity(odoms.len());
+    for o in &odoms {
+        let b = biases.get(&o.header.t_ns);
+        if b.is_none() && !biases.is_empty() {
+            return Err(invalid(
+                path,
+                format!(
+                    "{TOPIC_GROUND_TRUTH_BIAS}: no message at {} ns",
+                    o.header.t_ns
+                ),
+            ));
+        }
+        ground_truth.push(convert::ground_truth_from_msgs(o, b).map_err(|e| {
+            invalid(
+                path,
+                format!("{TOPIC_GROUND_TRUTH} at {} ns: {e}", o.header.t_ns),
+            )
+        })?);
+    }
+    Ok(Dataset {
+        name: if name.is_empty() {
+            path.file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        } else {
+            name
+        },
+        calib,
+        imu: ordered(path, TOPIC_IMU, ds_imu, |s| s.t_ns)?,
+        features: ordered(path, TOPIC_FEATURES, features, |s| s.t_ns)?,
+        images: ordered(path, TOPIC_IMAGE, images, |s| s.t_ns)?,
+        lidar: ordered(path, TOPIC_LIDAR, lidar, |s| s.t_ns)?,
+        ground_truth,
+        sim_truth,
     })
 }
