@@ -42,13 +42,12 @@ pub fn schur_complement_in_place<const D: usize>(
         return Err(Error::DimensionMismatch);
     }
     floor.validate()?;
-    let finite = ne
-        .h
-        .iter()
-        .enumerate()
-        .take(n)
-        .all(|(i, row)| all_finite(row.get(i..n).unwrap_or(&[])))
-        && all_finite(ne.b.get(..n).unwrap_or(&[]));
+    let finite =
+        ne.h.iter()
+            .enumerate()
+            .take(n)
+            .all(|(i, row)| all_finite(row.get(i..n).unwrap_or(&[])))
+            && all_finite(ne.b.get(..n).unwrap_or(&[]));
     if !finite || !ne.cost.is_finite() {
         return Err(Error::NonFinite);
     }
@@ -171,12 +170,7 @@ pub fn add_prior<const D: usize>(
     }
     let mut r = [0.0; D];
     for ((ri, row), r0i) in r.iter_mut().zip(j0.iter()).zip(r0) {
-        *ri = r0i
-            + row
-                .iter()
-                .zip(dx)
-                .map(|(j, d)| j * d)
-                .sum::<f64>();
+        *ri = r0i + row.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();
     }
     if !all_finite(r.get(..p).unwrap_or(&[])) {
         return Err(Error::NonFinite);

@@ -243,8 +243,7 @@ impl<const D: usize> NormalEquations<D> {
         let m = r.len();
         for (p, blk) in blocks.iter().enumerate() {
             let end = blk.col.checked_add(blk.width);
-            if Some(blk.jac.len()) != m.checked_mul(blk.width) || end.is_none_or(|e| e > self.n)
-            {
+            if Some(blk.jac.len()) != m.checked_mul(blk.width) || end.is_none_or(|e| e > self.n) {
                 return Err(Error::DimensionMismatch);
             }
             let overlaps = blocks.iter().skip(p + 1).any(|q| {

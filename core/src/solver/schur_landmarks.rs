@@ -77,10 +77,7 @@ impl<const P: usize> LandmarkSchur<P> {
     }
 
     fn find(&self, col: usize) -> Option<usize> {
-        self.cols
-            .iter()
-            .take(self.len)
-            .position(|&c| c == col)
+        self.cols.iter().take(self.len).position(|&c| c == col)
     }
 
     /// Adds one residual `r` of this landmark: the pose part (`pose_blocks`, as in
