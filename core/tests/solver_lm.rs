@@ -139,6 +139,7 @@ fn rosenbrock_reaches_the_known_minimum() {
         ..LmConfig::DEFAULT
     };
     let s = ws.solve(&mut p, &cfg).unwrap();
+    eprintln!("rosenbrock: {s:?}");
     assert!(
         (p.x[0] - 1.0).abs() < 1e-6 && (p.x[1] - 1.0).abs() < 1e-6,
         "{:?} {s:?}",
@@ -205,6 +206,7 @@ fn rank_deficient_gauge_problem_does_not_blow_up() {
         ..LmConfig::DEFAULT
     };
     let s = ws.solve(&mut p, &cfg).unwrap();
+    eprintln!("gauge: {s:?}");
     assert!(p.x.iter().all(|v| v.is_finite()));
     assert!((p.x[0] + p.x[1] - 2.0).abs() < 1e-7, "{:?} {s:?}", p.x);
     // The free direction x0 - x1 gets equal, bounded updates (symmetric problem) ...

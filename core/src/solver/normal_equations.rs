@@ -47,6 +47,8 @@ impl<'a> JacobianBlock<'a> {
 /// `h` holds the upper triangle of `H = sum J^T J`, `b = -sum J^T r`, `cost = sum r^T r`.
 /// About `8 D^2` bytes: construct it in place (`Box::new(NormalEquations::new())` on the host, a
 /// `static` on a microcontroller), never by value on a small stack.
+/// `Clone` copies by value (a `D x D` temporary): for big `D` prefer copying into an existing
+/// buffer (e.g. [`NormalEquations::copy_from`]).
 #[derive(Clone)]
 pub struct NormalEquations<const D: usize> {
     /// Upper triangle of `H` (rows/columns `0..n` are active).
@@ -222,13 +224,29 @@ impl<const D: usize> NormalEquations<D> {
             return Ok(());
         }
         let first = cols.first().copied().unwrap_or(0);
-        let contiguous = cols.iter().enumerate().all(|(a, &c)| c == first + a);
-        for (row, &ri) in jac.chunks_exact(k).zip(r) {
-            self.cost += ri * ri;
-            if contiguous {
-                accumulate_row_contiguous(&mut self.h, &mut self.b, first, row, ri);
-            } else {
-                accumulate_row_indexed(&mut self.h, &mut self.b, cols, row, ri);
+        if cols.iter().enumerate().all(|(a, &c)| c == first + a) {
+            self.accumulate_blocks(r, &[JacobianBlock::new(first, k, jac)]);
+            return Ok(());
+        }
+        self.cost += r.iter().map(|v| v * v).sum::<f64>();
+        let col = |row: usize, a: usize| jac.get(row * k + a).copied().unwrap_or(0.0);
+        for (a, &ca) in cols.iter().enumerate() {
+            if let Some(bc) = self.b.get_mut(ca) {
+                *bc -= r
+                    .iter()
+                    .enumerate()
+                    .map(|(row, ri)| col(row, a) * ri)
+                    .sum::<f64>();
+            }
+            let Some(hrow) = self.h.get_mut(ca) else {
+                continue;
+            };
+            for (bb, &cb) in cols.iter().enumerate() {
+                if ca <= cb {
+                    if let Some(v) = hrow.get_mut(cb) {
+                        *v += (0..m).map(|row| col(row, a) * col(row, bb)).sum::<f64>();
+                    }
+                }
             }
         }
         Ok(())
@@ -259,29 +277,44 @@ impl<const D: usize> NormalEquations<D> {
         if !all_finite(r) || blocks.iter().any(|blk| !all_finite(blk.jac)) {
             return Err(Error::NonFinite);
         }
-        for (row, &ri) in r.iter().enumerate() {
-            self.cost += ri * ri;
-            for p in blocks {
-                let jp = p.row(row);
-                for (i, &ji) in jp.iter().enumerate() {
-                    if ji == 0.0 {
-                        continue;
-                    }
-                    let c = p.col + i;
-                    if let Some(bc) = self.b.get_mut(c) {
-                        *bc -= ji * ri;
-                    }
-                    let Some(hrow) = self.h.get_mut(c) else {
+        self.accumulate_blocks(r, blocks);
+        Ok(())
+    }
+
+    /// Column-first accumulation over validated blocks: for each state column `c` of block `p`
+    /// and each block `q` right of it, the short slice `h[c][q]` stays in L1 while all residual
+    /// rows are summed into it (one pass over `H` per factor, not one per residual row).
+    fn accumulate_blocks(&mut self, r: &[f64], blocks: &[JacobianBlock<'_>]) {
+        self.cost += r.iter().map(|v| v * v).sum::<f64>();
+        for p in blocks {
+            for i in 0..p.width {
+                let c = p.col + i;
+                let jp_col = |row: usize| p.jac.get(row * p.width + i).copied().unwrap_or(0.0);
+                if let Some(bc) = self.b.get_mut(c) {
+                    *bc -= r
+                        .iter()
+                        .enumerate()
+                        .map(|(row, ri)| jp_col(row) * ri)
+                        .sum::<f64>();
+                }
+                let Some(hrow) = self.h.get_mut(c) else {
+                    continue;
+                };
+                for q in blocks.iter().filter(|q| q.col >= p.col) {
+                    // Inside the own block only the upper part j >= i is stored.
+                    let start = if q.col == p.col { i } else { 0 };
+                    let Some(dst) = hrow.get_mut(q.col + start..q.col + q.width) else {
                         continue;
                     };
-                    axpy(hrow.get_mut(c..p.col + p.width), ji, jp.get(i..));
-                    for q in blocks.iter().filter(|q| q.col > p.col) {
-                        axpy(hrow.get_mut(q.col..q.col + q.width), ji, Some(q.row(row)));
+                    for row in 0..r.len() {
+                        let a = jp_col(row);
+                        if a != 0.0 {
+                            axpy(Some(&mut *dst), a, q.row(row).get(start..));
+                        }
                     }
                 }
             }
         }
-        Ok(())
     }
 }
 

@@ -19,6 +19,10 @@
 //! By Cauchy-Schwarz `|H_lp,j|^2 <= H_ll (H_pp)_jj`, so the update stays bounded however small
 //! `H_ll > 0` is; only `H_ll == 0` (a landmark whose depth no residual sees, hence `H_lp == 0`)
 //! is skipped. An optional Levenberg-Marquardt damping `lambda` uses `H_ll (1 + lambda)`.
+//!
+//! Inside [`crate::solver::LmProblem`]: `linearize` accumulates and folds every landmark (keeping
+//! the accumulators), the driver damps and solves the reduced pose system, and `apply` recovers
+//! each `dtau` with [`LandmarkSchur::back_substitute`] before updating the inverse depths.
 
 use super::normal_equations::{all_finite, JacobianBlock, NormalEquations};
 use crate::Error;
