@@ -27,6 +27,8 @@ pub enum Error {
     NotPositiveDefinite,
     /// A geometric quantity was degenerate (e.g. zero parallax, point behind the camera).
     Degenerate,
+    /// Slice lengths or state indices do not match the dimensions of the problem.
+    DimensionMismatch,
 }
 
 impl core::fmt::Display for Error {
@@ -43,6 +45,7 @@ impl core::fmt::Display for Error {
             Error::InvalidConfig => "invalid configuration",
             Error::NotPositiveDefinite => "matrix not positive definite",
             Error::Degenerate => "degenerate geometry",
+            Error::DimensionMismatch => "dimension or index mismatch",
         };
         f.write_str(s)
     }

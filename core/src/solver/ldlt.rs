@@ -1,0 +1,442 @@
+//! In-place `LDL^T` factorization of a symmetric matrix given by its upper triangle, with a pivot
+//! floor, in a caller-owned buffer (so `H` survives for Levenberg-Marquardt retries).
+//!
+//! We factor `A = U^T D U` with `U = L^T` unit upper triangular: that is the same `LDL^T`, written
+//! so every inner loop runs along a contiguous row of the row-major upper triangle. Step `k`
+//! (right-looking Gaussian elimination, no square roots):
+//!
+//! ```text
+//! d_k = a_kk
+//! a_ij -= a_ki a_kj / d_k        for k < i <= j < n
+//! u_kj  = a_kj / d_k             for j > k
+//! ```
+//!
+//! **Pivot floor.** A pivot `d_k <= floor` (tiny, zero or negative: rank deficiency or an
+//! indefinite matrix) is *dropped*: `d_k := 0`, row `k` of `U` is zeroed and the step updates
+//! nothing. Solving then yields `x_k = 0` and exactly the solution of the system with state `k`
+//! removed (held at its linearization point), so a gauge freedom or an unobserved state can never
+//! blow the step up. The floor is `max(absolute, relative * max_i |a_ii|)`.
+//!
+//! After `m` steps the trailing block `a[m..n][m..n]` is the Schur complement
+//! `A_rr - A_rm A_mm^-1 A_mr`; [`crate::solver::marginalization`] reuses the kernel for that.
+
+use super::normal_equations::{all_finite, NormalEquations};
+use crate::Error;
+
+/// Threshold under which a pivot is dropped: `max(absolute, relative * max_i |a_ii|)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PivotFloor {
+    /// Fraction of the largest diagonal magnitude (scale-free part of the floor).
+    pub relative: f64,
+    /// Absolute lower bound of the floor.
+    pub absolute: f64,
+}
+
+impl PivotFloor {
+    /// `relative = 1e-12`, `absolute = 0`: drops only numerically singular directions.
+    pub const DEFAULT: Self = Self {
+        relative: 1e-12,
+        absolute: 0.0,
+    };
+
+    pub(crate) fn threshold(&self, max_abs_diag: f64) -> f64 {
+        let rel = self.relative * max_abs_diag;
+        if rel > self.absolute {
+            rel
+        } else {
+            self.absolute
+        }
+    }
+
+    pub(crate) fn validate(&self) -> Result<(), Error> {
+        if self.relative.is_finite()
+            && self.absolute.is_finite()
+            && self.relative >= 0.0
+            && self.absolute >= 0.0
+        {
+            Ok(())
+        } else {
+            Err(Error::InvalidConfig)
+        }
+    }
+}
+
+impl Default for PivotFloor {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Diagnostics of one factorization, returned as data.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FactorReport {
+    /// Dimension that was factored.
+    pub n: usize,
+    /// Number of pivots above the floor (kept).
+    pub rank: usize,
+    /// Smallest raw pivot seen (before the floor; 0 when `n == 0`).
+    pub min_pivot: f64,
+    /// Largest raw pivot seen (0 when `n == 0`).
+    pub max_pivot: f64,
+    /// Pivots below `-floor` (evidence of an indefinite matrix, not just rank deficiency).
+    pub negative_pivots: usize,
+    /// Every pivot was kept (`rank == n`).
+    pub positive_definite: bool,
+}
+
+/// Running pivot statistics of an elimination.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PivotStats {
+    n: usize,
+    rank: usize,
+    min: f64,
+    max: f64,
+    negative: usize,
+}
+
+impl PivotStats {
+    pub(crate) const fn new() -> Self {
+        Self {
+            n: 0,
+            rank: 0,
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+            negative: 0,
+        }
+    }
+
+    pub(crate) fn report(&self) -> FactorReport {
+        let (min_pivot, max_pivot) = if self.n == 0 {
+            (0.0, 0.0)
+        } else {
+            (self.min, self.max)
+        };
+        FactorReport {
+            n: self.n,
+            rank: self.rank,
+            min_pivot,
+            max_pivot,
+            negative_pivots: self.negative,
+            positive_definite: self.rank == self.n,
+        }
+    }
+}
+
+/// `max |a_ii|` over `range` of the diagonal.
+pub(crate) fn max_abs_diag<const D: usize>(
+    a: &[[f64; D]; D],
+    range: core::ops::Range<usize>,
+) -> f64 {
+    range
+        .filter_map(|i| a.get(i).and_then(|row| row.get(i)))
+        .fold(0.0_f64, |acc, v| acc.max(libm::fabs(*v)))
+}
+
+/// Runs elimination steps `steps` on the upper triangle of the active `n x n` block of `a`
+/// (see module docs), storing kept pivots in `d` (0 for dropped ones) and the unit-upper factor
+/// rows in place. Errors only on a non-finite pivot.
+pub(crate) fn eliminate<const D: usize>(
+    a: &mut [[f64; D]; D],
+    d: &mut [f64; D],
+    n: usize,
+    steps: core::ops::Range<usize>,
+    floor: f64,
+    stats: &mut PivotStats,
+) -> Result<(), Error> {
+    let n = n.min(D);
+    for k in steps.start..steps.end.min(n) {
+        let (top, bottom) = a.split_at_mut(k + 1);
+        let Some(row_k) = top.last_mut() else {
+            continue;
+        };
+        let pivot = row_k.get(k).copied().unwrap_or(0.0);
+        if !pivot.is_finite() {
+            return Err(Error::NonFinite);
+        }
+        stats.n += 1;
+        stats.min = stats.min.min(pivot);
+        stats.max = stats.max.max(pivot);
+        let tail = row_k.get_mut(k + 1..n).unwrap_or(&mut []);
+        if pivot <= floor {
+            if pivot < -floor {
+                stats.negative += 1;
+            }
+            if let Some(dk) = d.get_mut(k) {
+                *dk = 0.0;
+            }
+            tail.fill(0.0);
+            continue;
+        }
+        stats.rank += 1;
+        if let Some(dk) = d.get_mut(k) {
+            *dk = pivot;
+        }
+        let inv = 1.0 / pivot;
+        // a_ij -= (a_ki / d_k) a_kj for i in k+1..n, j in i..n: row i is updated with the tail of
+        // row k starting at column i.
+        for (off, row_i) in bottom.iter_mut().take(n - k - 1).enumerate() {
+            let a_ki = tail.get(off).copied().unwrap_or(0.0);
+            if a_ki == 0.0 {
+                continue;
+            }
+            let f = a_ki * inv;
+            let i = k + 1 + off;
+            if let (Some(dst), Some(src)) = (row_i.get_mut(i..n), tail.get(off..)) {
+                for (x, s) in dst.iter_mut().zip(src) {
+                    *x -= f * s;
+                }
+            }
+        }
+        for v in tail.iter_mut() {
+            *v *= inv;
+        }
+    }
+    Ok(())
+}
+
+/// `y <- U^-T y` over the steps `steps` (forward substitution with the unit-upper rows of `a`).
+pub(crate) fn forward_substitute<const D: usize>(
+    a: &[[f64; D]; D],
+    n: usize,
+    steps: core::ops::Range<usize>,
+    y: &mut [f64],
+) {
+    let n = n.min(D).min(y.len());
+    for k in steps.start..steps.end.min(n) {
+        let (head, tail) = y.split_at_mut(k + 1);
+        let yk = head.last().copied().unwrap_or(0.0);
+        if yk == 0.0 {
+            continue;
+        }
+        if let Some(u) = a.get(k).and_then(|row| row.get(k + 1..n)) {
+            for (t, u) in tail.iter_mut().zip(u) {
+                *t -= u * yk;
+            }
+        }
+    }
+}
+
+/// Caller-owned `LDL^T` workspace of capacity `D` (about `8 D^2` bytes; build in place).
+pub struct Ldlt<const D: usize> {
+    /// Upper triangle of the loaded matrix, then the unit-upper factor `U` above the diagonal.
+    a: [[f64; D]; D],
+    /// Kept pivots (0 for dropped ones).
+    d: [f64; D],
+    n: usize,
+    factored: bool,
+}
+
+impl<const D: usize> Default for Ldlt<D> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const D: usize> Ldlt<D> {
+    /// Empty workspace; `const` so it can initialize a `static`.
+    pub const fn new() -> Self {
+        Self {
+            a: [[0.0; D]; D],
+            d: [0.0; D],
+            n: 0,
+            factored: false,
+        }
+    }
+
+    /// Dimension of the loaded matrix.
+    pub fn dim(&self) -> usize {
+        self.n
+    }
+
+    /// Whether [`Ldlt::factorize`] has run on the loaded matrix.
+    pub fn is_factored(&self) -> bool {
+        self.factored
+    }
+
+    /// Copies the upper triangle of the active block of `ne.h`.
+    pub fn load(&mut self, ne: &NormalEquations<D>) -> Result<(), Error> {
+        self.load_upper(&ne.h, ne.dim())
+    }
+
+    /// Copies the upper triangle of the leading `n x n` block of `h` (lower triangle ignored).
+    pub fn load_upper(&mut self, h: &[[f64; D]; D], n: usize) -> Result<(), Error> {
+        if n > D {
+            return Err(Error::CapacityExceeded);
+        }
+        for (i, row) in h.iter().enumerate().take(n) {
+            if !all_finite(row.get(i..n).unwrap_or(&[])) {
+                return Err(Error::NonFinite);
+            }
+        }
+        for (i, (dst, src)) in self.a.iter_mut().zip(h.iter()).enumerate().take(n) {
+            if let (Some(dst), Some(src)) = (dst.get_mut(i..n), src.get(i..n)) {
+                dst.copy_from_slice(src);
+            }
+        }
+        self.n = n;
+        self.factored = false;
+        Ok(())
+    }
+
+    /// Marquardt damping of the loaded matrix: `a_ii += lambda * clamp(a_ii, diag_min, diag_max)`.
+    /// The clamp keeps states with a (near-)zero diagonal dampable and huge ones bounded.
+    pub fn add_marquardt_damping(
+        &mut self,
+        lambda: f64,
+        diag_min: f64,
+        diag_max: f64,
+    ) -> Result<(), Error> {
+        let valid = lambda.is_finite()
+            && lambda >= 0.0
+            && diag_min.is_finite()
+            && diag_max.is_finite()
+            && diag_min >= 0.0
+            && diag_min <= diag_max;
+        if !valid || self.factored {
+            return Err(Error::InvalidConfig);
+        }
+        for (i, row) in self.a.iter_mut().enumerate().take(self.n) {
+            if let Some(v) = row.get_mut(i) {
+                *v += lambda * v.clamp(diag_min, diag_max);
+            }
+        }
+        Ok(())
+    }
+
+    /// Factors the loaded matrix in place. Rank deficiency and indefiniteness are reported in
+    /// the [`FactorReport`], not as errors; `Err` only for a non-finite pivot or a bad floor.
+    pub fn factorize(&mut self, floor: PivotFloor) -> Result<FactorReport, Error> {
+        floor.validate()?;
+        let n = self.n;
+        let threshold = floor.threshold(max_abs_diag(&self.a, 0..n));
+        let mut stats = PivotStats::new();
+        self.factored = false;
+        eliminate(&mut self.a, &mut self.d, n, 0..n, threshold, &mut stats)?;
+        self.factored = true;
+        Ok(stats.report())
+    }
+
+    /// Solves `A x = rhs` in place (`x` holds `rhs` on entry, `n` entries). Dropped pivots give
+    /// `x_k = 0` (see module docs). `Err(NonFinite)` if the result overflowed.
+    pub fn solve_in_place(&self, x: &mut [f64]) -> Result<(), Error> {
+        if !self.factored {
+            return Err(Error::NotInitialized);
+        }
+        let n = self.n;
+        if x.len() != n {
+            return Err(Error::DimensionMismatch);
+        }
+        forward_substitute(&self.a, n, 0..n, x);
+        for (xk, &dk) in x.iter_mut().zip(self.d.iter()) {
+            *xk = if dk > 0.0 { *xk / dk } else { 0.0 };
+        }
+        for k in (0..n).rev() {
+            let (head, tail) = x.split_at_mut(k + 1);
+            let dot: f64 = self
+                .a
+                .get(k)
+                .and_then(|row| row.get(k + 1..n))
+                .unwrap_or(&[])
+                .iter()
+                .zip(tail.iter())
+                .map(|(u, t)| u * t)
+                .sum();
+            if let Some(xk) = head.last_mut() {
+                *xk -= dot;
+            }
+        }
+        if all_finite(x) {
+            Ok(())
+        } else {
+            Err(Error::NonFinite)
+        }
+    }
+
+    /// Kept pivot `d_k` (0 if dropped); `None` outside the factored dimension.
+    pub fn pivot(&self, k: usize) -> Option<f64> {
+        if self.factored && k < self.n {
+            self.d.get(k).copied()
+        } else {
+            None
+        }
+    }
+
+    /// Row `k` of the unit-upper factor `U` (entries `k+1..n`; the unit diagonal is implicit).
+    pub fn factor_row(&self, k: usize) -> Option<&[f64]> {
+        if self.factored && k < self.n {
+            self.a.get(k).and_then(|row| row.get(k + 1..self.n))
+        } else {
+            None
+        }
+    }
+
+    /// `y <- U^-T y` (first half of a solve), `y` with `n` entries.
+    pub fn forward_substitute(&self, y: &mut [f64]) -> Result<(), Error> {
+        if !self.factored {
+            return Err(Error::NotInitialized);
+        }
+        if y.len() != self.n {
+            return Err(Error::DimensionMismatch);
+        }
+        forward_substitute(&self.a, self.n, 0..self.n, y);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn factors_and_solves_a_3x3_closed_form() {
+        // A = U^T D U with U = [[1,2,3],[0,1,4],[0,0,1]], D = diag(2,3,5).
+        let mut ne = NormalEquations::<4>::new();
+        ne.reset(3).unwrap();
+        ne.h[0][0] = 2.0;
+        ne.h[0][1] = 4.0;
+        ne.h[0][2] = 6.0;
+        ne.h[1][1] = 11.0;
+        ne.h[1][2] = 24.0;
+        ne.h[2][2] = 71.0;
+        ne.h[2][0] = f64::NAN; // the lower triangle must never be read
+        let mut f = Ldlt::<4>::new();
+        f.load(&ne).unwrap();
+        let rep = f.factorize(PivotFloor::DEFAULT).unwrap();
+        assert_eq!(rep.rank, 3);
+        assert!(rep.positive_definite);
+        assert_eq!(rep.min_pivot, 2.0);
+        assert_eq!(rep.max_pivot, 5.0);
+        assert_eq!(f.pivot(1), Some(3.0));
+        assert_eq!(f.factor_row(0), Some(&[2.0, 3.0][..]));
+        assert_eq!(f.factor_row(1), Some(&[4.0][..]));
+        // x = (1, -1, 2): A x = (2-4+12, 4-11+48, 6-24+142) = (10, 41, 124)
+        let mut x = [10.0, 41.0, 124.0];
+        f.solve_in_place(&mut x).unwrap();
+        for (got, want) in x.iter().zip([1.0, -1.0, 2.0]) {
+            assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+        }
+    }
+
+    #[test]
+    fn indefinite_and_singular_are_reported_not_panicked() {
+        let mut f = Ldlt::<3>::new();
+        let mut h = [[0.0; 3]; 3];
+        h[0][0] = 1.0;
+        h[0][1] = 2.0;
+        h[1][1] = 1.0; // pivot 2 = 1 - 4 = -3
+        h[2][2] = 0.0; // singular
+        f.load_upper(&h, 3).unwrap();
+        let rep = f.factorize(PivotFloor::DEFAULT).unwrap();
+        assert_eq!(rep.rank, 1);
+        assert_eq!(rep.negative_pivots, 1);
+        assert_eq!(rep.min_pivot, -3.0);
+        assert!(!rep.positive_definite);
+        let mut x = [1.0, 1.0, 1.0];
+        f.solve_in_place(&mut x).unwrap();
+        assert_eq!(x, [1.0, 0.0, 0.0]);
+        h[1][1] = f64::INFINITY;
+        let mut fresh = Ldlt::<3>::new();
+        assert_eq!(fresh.load_upper(&h, 3), Err(Error::NonFinite));
+        assert_eq!(fresh.solve_in_place(&mut x), Err(Error::NotInitialized));
+    }
+}

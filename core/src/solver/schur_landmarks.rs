@@ -1,0 +1,205 @@
+//! Schur elimination of one landmark's scalar parameter (inverse depth `tau`) for the
+//! conventional inverse-depth bundle-adjustment mode.
+//!
+//! For a landmark with Jacobians `J_p` (pose states) and `j_l` (its inverse depth), the joint
+//! normal equations are
+//!
+//! ```text
+//! [ H_pp  H_pl ] [dx  ]   [ b_p ]      H_ll = sum j_l^T j_l,  H_lp = sum j_l^T J_p,
+//! [ H_lp  H_ll ] [dtau] = [ b_l ],     b_l  = -sum j_l^T r.
+//! ```
+//!
+//! `H_pp`, `b_p` go straight into the [`NormalEquations`]; this struct keeps `H_ll`, `b_l` and the
+//! sparse row `H_lp` (at most `P` touched pose columns). Eliminating `dtau`:
+//!
+//! ```text
+//! H_pp -= H_pl H_lp / H_ll,   b_p -= H_pl b_l / H_ll,   dtau = (b_l - H_lp dx) / H_ll.
+//! ```
+//!
+//! By Cauchy-Schwarz `|H_lp,j|^2 <= H_ll (H_pp)_jj`, so the update stays bounded however small
+//! `H_ll > 0` is; only `H_ll == 0` (a landmark whose depth no residual sees, hence `H_lp == 0`)
+//! is skipped. An optional Levenberg-Marquardt damping `lambda` uses `H_ll (1 + lambda)`.
+//!
+//! Inside [`crate::solver::LmProblem`]: `linearize` accumulates and folds every landmark (keeping
+//! the accumulators), the driver damps and solves the reduced pose system, and `apply` recovers
+//! each `dtau` with [`LandmarkSchur::back_substitute`] before updating the inverse depths.
+
+use super::normal_equations::{all_finite, JacobianBlock, NormalEquations};
+use crate::Error;
+
+/// Accumulator of one landmark's `H_ll`, `b_l` and sparse `H_lp` over at most `P` pose columns.
+#[derive(Debug, Clone)]
+pub struct LandmarkSchur<const P: usize> {
+    h_ll: f64,
+    b_l: f64,
+    cols: [usize; P],
+    h_lp: [f64; P],
+    len: usize,
+}
+
+impl<const P: usize> Default for LandmarkSchur<P> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const P: usize> LandmarkSchur<P> {
+    /// Empty accumulator.
+    pub const fn new() -> Self {
+        Self {
+            h_ll: 0.0,
+            b_l: 0.0,
+            cols: [0; P],
+            h_lp: [0.0; P],
+            len: 0,
+        }
+    }
+
+    /// Forgets everything (next landmark).
+    pub fn clear(&mut self) {
+        self.h_ll = 0.0;
+        self.b_l = 0.0;
+        self.len = 0;
+    }
+
+    /// `H_ll` accumulated so far.
+    pub fn h_ll(&self) -> f64 {
+        self.h_ll
+    }
+
+    /// `b_l` accumulated so far.
+    pub fn b_l(&self) -> f64 {
+        self.b_l
+    }
+
+    /// Touched pose columns and their `H_lp` entries.
+    pub fn coupling(&self) -> (&[usize], &[f64]) {
+        (
+            self.cols.get(..self.len).unwrap_or(&[]),
+            self.h_lp.get(..self.len).unwrap_or(&[]),
+        )
+    }
+
+    fn find(&self, col: usize) -> Option<usize> {
+        self.cols.iter().take(self.len).position(|&c| c == col)
+    }
+
+    /// Adds one residual `r` of this landmark: the pose part (`pose_blocks`, as in
+    /// [`NormalEquations::add_blocks`]) goes into `ne` (with the cost), the inverse-depth column
+    /// `j_l` (`r.len()` entries) into this accumulator. Nothing is accumulated on `Err`.
+    pub fn add_residual<const D: usize>(
+        &mut self,
+        ne: &mut NormalEquations<D>,
+        r: &[f64],
+        pose_blocks: &[JacobianBlock<'_>],
+        j_l: &[f64],
+    ) -> Result<(), Error> {
+        if j_l.len() != r.len() {
+            return Err(Error::DimensionMismatch);
+        }
+        if !all_finite(j_l) {
+            return Err(Error::NonFinite);
+        }
+        let new_cols: usize = pose_blocks
+            .iter()
+            .map(|blk| {
+                (blk.col..blk.col.saturating_add(blk.width))
+                    .filter(|&c| self.find(c).is_none())
+                    .count()
+            })
+            .sum();
+        if self.len + new_cols > P {
+            return Err(Error::CapacityExceeded);
+        }
+        ne.add_blocks(r, pose_blocks)?;
+        for (&jl, &ri) in j_l.iter().zip(r) {
+            self.h_ll += jl * jl;
+            self.b_l -= jl * ri;
+        }
+        for blk in pose_blocks {
+            for i in 0..blk.width {
+                let col = blk.col + i;
+                // H_lp,col = sum_rows j_l[row] * J[row][i]
+                let v: f64 = j_l
+                    .iter()
+                    .enumerate()
+                    .map(|(row, jl)| jl * blk.jac.get(row * blk.width + i).copied().unwrap_or(0.0))
+                    .sum();
+                let idx = match self.find(col) {
+                    Some(idx) => idx,
+                    None => {
+                        let idx = self.len;
+                        if let Some(c) = self.cols.get_mut(idx) {
+                            *c = col;
+                        }
+                        if let Some(h) = self.h_lp.get_mut(idx) {
+                            *h = 0.0;
+                        }
+                        self.len += 1;
+                        idx
+                    }
+                };
+                if let Some(h) = self.h_lp.get_mut(idx) {
+                    *h += v;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn effective_h_ll(&self, lambda: f64) -> Option<f64> {
+        let h = self.h_ll * (1.0 + lambda);
+        (h > 0.0 && h.is_finite()).then_some(h)
+    }
+
+    /// Eliminates the inverse depth from `ne`: `H -= H_pl H_lp / H_ll`, `b -= H_pl b_l / H_ll`
+    /// (upper triangle only), with `H_ll` damped by `(1 + lambda)`. Returns `Ok(false)` and
+    /// changes nothing when `H_ll == 0` (the depth is unobserved and decoupled).
+    pub fn fold_into<const D: usize>(
+        &self,
+        ne: &mut NormalEquations<D>,
+        lambda: f64,
+    ) -> Result<bool, Error> {
+        if !(lambda.is_finite() && lambda >= 0.0) {
+            return Err(Error::InvalidConfig);
+        }
+        let (cols, h_lp) = self.coupling();
+        if cols.iter().any(|&c| c >= ne.dim()) {
+            return Err(Error::DimensionMismatch);
+        }
+        let Some(h_ll) = self.effective_h_ll(lambda) else {
+            return Ok(false);
+        };
+        for (&ca, &ha) in cols.iter().zip(h_lp) {
+            let f = ha / h_ll;
+            if let Some(b) = ne.b.get_mut(ca) {
+                *b -= f * self.b_l;
+            }
+            let Some(hrow) = ne.h.get_mut(ca) else {
+                continue;
+            };
+            for (&cb, &hb) in cols.iter().zip(h_lp) {
+                if ca <= cb {
+                    if let Some(v) = hrow.get_mut(cb) {
+                        *v -= f * hb;
+                    }
+                }
+            }
+        }
+        Ok(true)
+    }
+
+    /// Inverse-depth step `dtau = (b_l - H_lp dx) / (H_ll (1 + lambda))` from the solved pose
+    /// step `dx` (indexed by state); 0 for an unobserved depth.
+    pub fn back_substitute(&self, dx: &[f64], lambda: f64) -> Result<f64, Error> {
+        let (cols, h_lp) = self.coupling();
+        let mut acc = self.b_l;
+        for (&c, &h) in cols.iter().zip(h_lp) {
+            acc -= h * dx.get(c).copied().ok_or(Error::DimensionMismatch)?;
+        }
+        Ok(match self.effective_h_ll(lambda) {
+            Some(h_ll) => acc / h_ll,
+            None => 0.0,
+        })
+    }
+}
