@@ -5,3 +5,4 @@
 //! their own modules so tests and benches can call them directly.
 
 pub mod cmd;
+pub mod sim;
