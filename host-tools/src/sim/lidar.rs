@@ -10,9 +10,10 @@
 //! Each ray is cast from the LiDAR pose at its own time (interpolated on a 1 ms knot grid of
 //! exact trajectory poses), so motion distortion is real. The true LiDAR mounting differs from
 //! the nominal calibration by the configured extrinsic error. Returns get Gaussian range noise.
-//! Edge points: a return whose neighbour ray (previous/next in the sweep, and the adjacent column
-//! for the spinning pattern) hits nothing (sky) or another surface at a clearly different range
-//! (`> max(0.3 m, 10 %)`).
+//! Edge points: a return near a depth discontinuity, i.e. one of its neighbour rays hits nothing
+//! (sky) or another surface at a clearly different range (`> max(0.3 m, 10 %)`). Neighbours are
+//! the previous/next ray of the sweep (0.2-0.35 deg away along the scan line) and two probe rays
+//! at `edge_angle_rad` on either side across it.
 
 use super::rng::Rng;
 use super::trajectory::Trajectory;
@@ -55,6 +56,8 @@ pub struct LidarParams {
     pub range_noise_m: f64,
     /// Minimum and maximum range, m.
     pub range_m: (f64, f64),
+    /// Angular radius of the depth-discontinuity test around each return, rad.
+    pub edge_angle_rad: f64,
 }
 
 /// Rosette prism rates, Hz (incommensurate so the pattern does not repeat).
@@ -111,15 +114,24 @@ impl LidarPattern {
         }
     }
 
-    /// Index offsets of the neighbours used for the edge test.
-    fn neighbours(&self) -> Vec<isize> {
-        match *self {
-            LidarPattern::Rosette { .. } => vec![-1, 1],
-            // Adjacent columns only count while they are angularly close (<= 2.5 deg apart).
-            LidarPattern::Spinning { beams, columns, .. } if columns >= 144 => {
-                vec![-1, 1, -(beams as isize), beams as isize]
+    /// Unit direction (LiDAR frame) across the scan line at ray `i`: horizontal for a spinning
+    /// pattern (its sequence runs down a column), normal to the curve for the rosette.
+    fn across(&self, i: usize, d_l: &Vec3, sweep_s: f64, t_abs_s: f64) -> Vec3 {
+        let v = match *self {
+            LidarPattern::Spinning { .. } => Vec3::z().cross(d_l),
+            LidarPattern::Rosette { points, .. } => {
+                let prev = self.ray(i.saturating_sub(1), sweep_s, t_abs_s).0;
+                let next = self
+                    .ray((i + 1).min(points.saturating_sub(1)), sweep_s, t_abs_s)
+                    .0;
+                d_l.cross(&(next - prev))
             }
-            LidarPattern::Spinning { .. } => vec![-1, 1],
+        };
+        let n = v.norm();
+        if n > 1e-12 {
+            v / n
+        } else {
+            d_l.cross(&Vec3::x()).normalize()
         }
     }
 }
@@ -131,6 +143,10 @@ pub struct SweepOut {
     /// Per point: near a depth discontinuity.
     pub edge: Vec<bool>,
 }
+
+/// A return before edge classification: (range, direction in `l`, time offset ns, intensity,
+/// probe rays found a discontinuity).
+type Return = (f64, Vec3, i64, f32, bool);
 
 /// `T_wl` at trajectory time `t_s` for the true mounting `t_bl`.
 pub fn lidar_pose(traj: &Trajectory, t_bl: &Extrinsic, t_s: f64) -> (Vec3, Quat) {
@@ -159,7 +175,9 @@ pub fn simulate_sweep(
     // Per ray: the true hit (cast beyond the maximum range so that ground or walls just past it
     // still count as the same surface for the edge test) and the return, if any.
     let mut hits: Vec<Option<(f64, u32)>> = Vec::with_capacity(n);
-    let mut rets: Vec<Option<(f64, Vec3, i64, f32)>> = Vec::with_capacity(n);
+    let mut rets: Vec<Option<Return>> = Vec::with_capacity(n);
+    let tan_edge = libm::tan(params.edge_angle_rad);
+    let t_cast = 2.0 * params.range_m.1;
     for i in 0..n {
         let (d_l, dt) = params.pattern.ray(i, sweep_s, t_start_s);
         let x = (dt / knot_dt).min(n_knots as f64 - 1e-9);
@@ -170,7 +188,7 @@ pub fn simulate_sweep(
         let o = p0 + (p1 - p0) * f;
         let q = q0.slerp(&q1, f);
         let d_w = q * d_l;
-        let hit = world.raycast(&o, &d_w, 2.0 * params.range_m.1);
+        let hit = world.raycast(&o, &d_w, t_cast);
         hits.push(hit.map(|h| (h.t, h.surface_id())));
         rets.push(hit.and_then(|h| {
             let r = h.t + params.range_noise_m * rng.normal();
@@ -180,10 +198,22 @@ pub fn simulate_sweep(
             let cos_inc = (-h.normal.dot(&d_w)).clamp(0.0, 1.0);
             let inten = (255.0 * world.material(&h).reflectivity() * (0.3 + 0.7 * cos_inc)) as f32;
             let dt_ns = (dt * 1e9).round() as i64;
-            Some((r, d_l, dt_ns.min(sweep_ns - 1), inten))
+            // Probes on both sides across the scan line (the sequence neighbours cover along it).
+            let across = q * params.pattern.across(i, &d_l, sweep_s, t_start_s) * tan_edge;
+            let probe_edge = [1.0, -1.0].iter().any(|sgn| {
+                let d = (d_w + across * *sgn).normalize();
+                match world.raycast(&o, &d, t_cast) {
+                    None => true,
+                    Some(g) => {
+                        g.surface_id() != h.surface_id()
+                            && (g.t - h.t).abs() > (0.3f64).max(0.1 * h.t)
+                    }
+                }
+            });
+            Some((r, d_l, dt_ns.min(sweep_ns - 1), inten, probe_edge))
         }));
     }
-    let nb = params.pattern.neighbours();
+    let nb = [-1isize, 1];
     // Ring neighbours (+-1) must stay in the same column of a spinning pattern.
     let column_len = match params.pattern {
         LidarPattern::Spinning { beams, .. } => beams.max(1),
@@ -192,25 +222,23 @@ pub fn simulate_sweep(
     let mut points = Vec::with_capacity(n);
     let mut edge = Vec::with_capacity(n);
     for i in 0..n {
-        let (Some((r, d_l, dt_ns, inten)), Some((_, s))) = (rets[i], hits[i]) else {
+        let (Some((r, d_l, dt_ns, inten, probe_edge)), Some((_, s))) = (rets[i], hits[i]) else {
             continue;
         };
-        let is_edge = nb.iter().any(|&o| {
-            let j = i as isize + o;
-            if j < 0 || j >= n as isize {
-                return false;
-            }
-            if o.abs() == 1
-                && column_len != usize::MAX
-                && (j as usize) / column_len != i / column_len
-            {
-                return false;
-            }
-            match hits[j as usize] {
-                None => true,
-                Some((rj, sj, ..)) => sj != s && (rj - r).abs() > (0.3f64).max(0.1 * r),
-            }
-        });
+        let is_edge = probe_edge
+            || nb.iter().any(|&o| {
+                let j = i as isize + o;
+                if j < 0 || j >= n as isize {
+                    return false;
+                }
+                if column_len != usize::MAX && (j as usize) / column_len != i / column_len {
+                    return false;
+                }
+                match hits[j as usize] {
+                    None => true,
+                    Some((rj, sj, ..)) => sj != s && (rj - r).abs() > (0.3f64).max(0.1 * r),
+                }
+            });
         let p = d_l * r;
         points.push(LidarPoint {
             t_ns: t_start_ns + dt_ns,

@@ -282,6 +282,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             rate_hz: 10.0,
             range_noise_m: cfg.lidar_range_noise_m,
             range_m: range,
+            edge_angle_rad: 0.5f64.to_radians(),
         }
     });
     let t_bl_true = lidar_params.as_ref().map(|_| {
