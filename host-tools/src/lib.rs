@@ -10,3 +10,4 @@ pub mod eval;
 pub mod plot;
 pub mod progress;
 pub mod runner;
+pub mod sim;
