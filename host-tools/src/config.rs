@@ -164,7 +164,10 @@ impl RunConfigFile {
         let k = &self.keyframe;
         set(&mut cfg.keyframe.min_interval_s, k.min_interval_s);
         set(&mut cfg.keyframe.min_translation_m, k.min_translation_m);
-        set(&mut cfg.keyframe.min_translation_interval_s, k.min_translation_interval_s);
+        set(
+            &mut cfg.keyframe.min_translation_interval_s,
+            k.min_translation_interval_s,
+        );
         if let Some(d) = k.max_rotation_deg {
             cfg.keyframe.max_rotation_rad = d.to_radians();
         }
@@ -173,8 +176,14 @@ impl RunConfigFile {
             cfg.keyframe.min_parallax_px = k.min_parallax_px;
         }
         let s = &self.static_init;
-        set(&mut cfg.static_init.accel_norm_tol_mps2, s.accel_norm_tol_mps2);
-        set(&mut cfg.static_init.accel_std_max_mps2, s.accel_std_max_mps2);
+        set(
+            &mut cfg.static_init.accel_norm_tol_mps2,
+            s.accel_norm_tol_mps2,
+        );
+        set(
+            &mut cfg.static_init.accel_std_max_mps2,
+            s.accel_std_max_mps2,
+        );
         set(&mut cfg.static_init.gyro_std_max_rps, s.gyro_std_max_rps);
         set(&mut cfg.static_init.min_static_s, s.min_static_s);
     }

@@ -33,7 +33,10 @@ pub fn monotonic_ns() -> u64 {
 /// The estimator configuration implied by a dataset's calibration (before `--config`).
 pub fn config_for(ds: &Dataset) -> EstimatorConfig {
     let c = &ds.calib;
-    let ext = CameraExtrinsic { p_bc: c.t_bc.p_ab, q_bc: c.t_bc.q_ab };
+    let ext = CameraExtrinsic {
+        p_bc: c.t_bc.p_ab,
+        q_bc: c.t_bc.q_ab,
+    };
     let mut cfg = EstimatorConfig::new(c.camera, ext, c.imu_noise);
     cfg.gravity_mps2 = c.gravity_mps2;
     cfg.td_s = c.td_s;
@@ -59,23 +62,43 @@ pub struct RunOutput {
 }
 
 /// Replays `ds` through a new estimator with `cfg`.
-pub fn replay(ds: &Dataset, cfg: EstimatorConfig, init: InitMode, progress: &Progress) -> Result<RunOutput> {
+pub fn replay(
+    ds: &Dataset,
+    cfg: EstimatorConfig,
+    init: InitMode,
+    progress: &Progress,
+) -> Result<RunOutput> {
     if ds.imu.is_empty() {
         bail!("{}: the dataset has no IMU samples", ds.name);
     }
-    let mut est: Box<PoVins> = Box::new(PoVins::new(cfg).map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?);
+    let mut est: Box<PoVins> = Box::new(
+        PoVins::new(cfg).map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?,
+    );
     let mut start = 0;
     if init == InitMode::Groundtruth {
         let Some(g0) = ds.ground_truth.first() else {
-            bail!("{}: --init groundtruth needs ground truth in the dataset", ds.name);
+            bail!(
+                "{}: --init groundtruth needs ground truth in the dataset",
+                ds.name
+            );
         };
-        start = ds.imu.iter().position(|s| s.t_ns >= g0.t_ns).unwrap_or(ds.imu.len());
+        start = ds
+            .imu
+            .iter()
+            .position(|s| s.t_ns >= g0.t_ns)
+            .unwrap_or(ds.imu.len());
         let Some(s0) = ds.imu.get(start) else {
-            bail!("{}: no IMU sample after the first ground-truth state", ds.name);
+            bail!(
+                "{}: no IMU sample after the first ground-truth state",
+                ds.name
+            );
         };
         let gt0 = interpolate_state(&ds.ground_truth, s0.t_ns).unwrap_or(*g0);
-        est.initialize(NavState { t_ns: s0.t_ns, ..gt0 })
-            .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;
+        est.initialize(NavState {
+            t_ns: s0.t_ns,
+            ..gt0
+        })
+        .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;
     }
     let mut out = RunOutput {
         imu_rate: Vec::with_capacity(ds.imu.len()),
@@ -117,7 +140,10 @@ pub fn replay(ds: &Dataset, cfg: EstimatorConfig, init: InitMode, progress: &Pro
 /// Ground-truth state at `t_ns` by linear interpolation (slerp for attitude).
 pub fn interpolate_state(gt: &[NavState], t_ns: i64) -> Option<NavState> {
     let k = gt.partition_point(|g| g.t_ns <= t_ns);
-    let (a, b) = (gt.get(k.checked_sub(1)?)?, gt.get(k).unwrap_or(gt.get(k - 1)?));
+    let (a, b) = (
+        gt.get(k.checked_sub(1)?)?,
+        gt.get(k).unwrap_or(gt.get(k - 1)?),
+    );
     if b.t_ns == a.t_ns {
         return Some(NavState { t_ns, ..*a });
     }

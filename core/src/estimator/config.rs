@@ -96,7 +96,10 @@ pub struct EstimatorConfig {
 impl EstimatorConfig {
     /// Defaults for a camera and IMU: LE-VINS keyframe rules, sigma_p = 1.5 px, Huber 1 sigma.
     pub fn new(camera: PinholeCamera, extrinsic: CameraExtrinsic, imu_noise: ImuNoise) -> Self {
-        let lm = LmConfig { max_iterations: 6, ..LmConfig::DEFAULT };
+        let lm = LmConfig {
+            max_iterations: 6,
+            ..LmConfig::DEFAULT
+        };
         EstimatorConfig {
             camera,
             extrinsic,
@@ -152,7 +155,9 @@ impl EstimatorConfig {
             && pos(self.td_prior_s)
             && pos(self.extrinsic_prior.0)
             && pos(self.extrinsic_prior.1)
-            && [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2].iter().all(|v| pos(*v))
+            && [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2]
+                .iter()
+                .all(|v| pos(*v))
             && self.td_s.is_finite()
             && self.imu_noise.is_valid()
             && pos(self.camera.fx)

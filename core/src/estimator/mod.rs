@@ -192,7 +192,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     }
 
     fn ins_config(&self) -> InsConfig {
-        InsConfig { gravity_mps2: self.cfg.gravity_mps2, max_dt_s: self.cfg.max_imu_dt_s }
+        InsConfig {
+            gravity_mps2: self.cfg.gravity_mps2,
+            max_dt_s: self.cfg.max_imu_dt_s,
+        }
     }
 
     fn reset_window(&mut self) {
@@ -229,7 +232,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
             self.counters.frames_dropped_no_imu += 1;
         }
-        let mut pf = PendingFrame { t_cam_ns, obs: HVec::new() };
+        let mut pf = PendingFrame {
+            t_cam_ns,
+            obs: HVec::new(),
+        };
         let take = obs.len().min(MAX_FEATURES);
         for o in obs.iter().take(take) {
             let _ = pf.obs.push(*o);
@@ -257,12 +263,17 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 self.counters.imu_rejected_time += 1;
                 return Err(Error::TimeNotIncreasing);
             }
-            if (s.t_ns - last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s && self.status == Status::Running {
+            if (s.t_ns - last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s
+                && self.status == Status::Running
+            {
                 self.reset();
             }
         }
         self.counters.imu_samples += 1;
-        let mut out = ImuOutput { nav: None, keyframe: None };
+        let mut out = ImuOutput {
+            nav: None,
+            keyframe: None,
+        };
         if self.status == Status::WaitingForInit {
             match self.static_init.push(s) {
                 Ok(Some(state)) => {
@@ -280,7 +291,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             // Frames before initialization only feed the track velocities.
             if let Some(p) = self.pending.take() {
                 self.counters.frames_before_init += 1;
-                let _ = self.tracks.process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs);
+                let _ =
+                    self.tracks
+                        .process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs);
             }
             self.last_imu = Some(*s);
             out.nav = self.ins.as_ref().map(|i| *i.state());
@@ -316,7 +329,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 
     /// INS propagation and preintegration of one sample (real or interpolated).
     fn advance(&mut self, s: &ImuSample) -> Result<(), Error> {
-        let Some(ins) = self.ins.as_mut() else { return Err(Error::NotInitialized) };
+        let Some(ins) = self.ins.as_mut() else {
+            return Err(Error::NotInitialized);
+        };
         match ins.propagate(s) {
             Ok(_) => {}
             Err(Error::TimeGap) => {
@@ -338,17 +353,23 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 
     fn process_frame(&mut self, p: &PendingFrame) -> Result<Option<KeyframeReport>, Error> {
         let t0 = now(&self.cfg);
-        let st = match self.tracks.process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs) {
-            Ok(st) => st,
-            Err(Error::TimeNotIncreasing) => {
-                self.counters.frames_rejected_time += 1;
-                return Ok(None);
-            }
-            Err(e) => return Err(e),
-        };
+        let st =
+            match self
+                .tracks
+                .process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs)
+            {
+                Ok(st) => st,
+                Err(Error::TimeNotIncreasing) => {
+                    self.counters.frames_rejected_time += 1;
+                    return Ok(None);
+                }
+                Err(e) => return Err(e),
+            };
         self.counters.features_received += u64::from(st.received);
         self.counters.features_rejected += u64::from(st.received - st.accepted);
-        let Some(ins) = self.ins.as_ref() else { return Ok(None) };
+        let Some(ins) = self.ins.as_ref() else {
+            return Ok(None);
+        };
         let nav = *ins.state();
 
         let decision = match self.window.last() {
@@ -358,9 +379,14 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 let dp = (nav.p_wb - last.state.p_wb).norm();
                 let dr = log_so3(&(last.state.q_wb.inverse() * nav.q_wb)).norm();
                 let parallax = self.mean_parallax_px();
-                let nearly_full = self.open.as_ref().is_some_and(|o| o.len() + 16 >= MAX_INTERVAL_SAMPLES);
+                let nearly_full = self
+                    .open
+                    .as_ref()
+                    .is_some_and(|o| o.len() + 16 >= MAX_INTERVAL_SAMPLES);
                 match self.selector.decide(dt_s, dp, dr, parallax) {
-                    KeyframeDecision::No if nearly_full && dt_s >= self.cfg.keyframe.min_interval_s => {
+                    KeyframeDecision::No
+                        if nearly_full && dt_s >= self.cfg.keyframe.min_interval_s =>
+                    {
                         KeyframeDecision::Timeout
                     }
                     d => d,
@@ -439,7 +465,12 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let td = self.current_td();
         let sample = self.last_sample_at(nav.t_ns);
         let preint = self.open.take();
-        let kf = Keyframe { t_cam_ns, state: nav, td_s: td, preint };
+        let kf = Keyframe {
+            t_cam_ns,
+            state: nav,
+            td_s: td,
+            preint,
+        };
         if self.window.push(kf).is_err() {
             return Err(Error::CapacityExceeded);
         }
@@ -447,7 +478,13 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             self.prior.clear();
             self.initial = Some(self.initial_priors(&nav, td));
         }
-        self.open = Some(Preint::new(self.cfg.imu_noise, self.cfg.preint, &sample, nav.bg, nav.ba)?);
+        self.open = Some(Preint::new(
+            self.cfg.imu_noise,
+            self.cfg.preint,
+            &sample,
+            nav.bg,
+            nav.ba,
+        )?);
         let pos = self.window.len() - 1;
         self.lms.add_keyframe_obs(pos, &self.frame_obs, td);
         self.counters.keyframes += 1;
@@ -481,7 +518,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         match self.last_imu {
             Some(s) if s.t_ns == t_ns => s,
             Some(s) => ImuSample { t_ns, ..s },
-            None => ImuSample { t_ns, gyro_rps: Vec3::zeros(), accel_mps2: Vec3::zeros() },
+            None => ImuSample {
+                t_ns,
+                gyro_rps: Vec3::zeros(),
+                accel_mps2: Vec3::zeros(),
+            },
         }
     }
 
@@ -491,19 +532,30 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             kf0: *kf0,
             kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
             td0: (td, self.cfg.td_prior_s),
-            ext: (self.cfg.extrinsic, self.cfg.extrinsic_prior.0, self.cfg.extrinsic_prior.1),
+            ext: (
+                self.cfg.extrinsic,
+                self.cfg.extrinsic_prior.0,
+                self.cfg.extrinsic_prior.1,
+            ),
         }
     }
 
     fn kf_pose(&self, pos: usize) -> Option<KeyframePose> {
-        self.window.get(pos).map(|k| KeyframePose { p_wb: k.state.p_wb, q_wb: k.state.q_wb, td: k.td_s })
+        self.window.get(pos).map(|k| KeyframePose {
+            p_wb: k.state.p_wb,
+            q_wb: k.state.q_wb,
+            td: k.td_s,
+        })
     }
 
     /// Chooses anchors and gates every landmark for the coming solve.
     fn prepare_landmarks(&mut self) {
         let count = self.window.len();
         let ext = self.ext;
-        let mut cams = [crate::camera::CameraPose { p_wc: Vec3::zeros(), q_wc: crate::math::Quat::identity() }; N];
+        let mut cams = [crate::camera::CameraPose {
+            p_wc: Vec3::zeros(),
+            q_wc: crate::math::Quat::identity(),
+        }; N];
         for (k, c) in cams.iter_mut().enumerate().take(count) {
             if let Some(p) = self.kf_pose(k) {
                 *c = ext.camera_pose(&p.p_wb, &p.q_wb);
@@ -515,17 +567,31 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         for lm in self.lms.landmarks_mut() {
             lm.usable = false;
             let s = lm.anchor_s as usize;
-            let (Some(Some(os)), Some(cs)) = (lm.obs.get(s), cams.get(s)) else { continue };
+            let (Some(Some(os)), Some(cs)) = (lm.obs.get(s), cams.get(s)) else {
+                continue;
+            };
             let td_s = self.window.get(s).map_or(0.0, |k| k.td_s);
-            let x_s = TimedObs { x_n: crate::camera::Vec2::new(os.x_n[0], os.x_n[1]), vel: crate::camera::Vec2::new(os.vel[0], os.vel[1]), td0: os.td0_s }.corrected(td_s);
+            let x_s = TimedObs {
+                x_n: crate::camera::Vec2::new(os.x_n[0], os.x_n[1]),
+                vel: crate::camera::Vec2::new(os.vel[0], os.vel[1]),
+                td0: os.td0_s,
+            }
+            .corrected(td_s);
             let mut best: Option<(usize, f64, Vec3)> = None;
             for (k, ok) in lm.obs.iter().enumerate().take(count) {
-                let (Some(ok), Some(ck)) = (ok, cams.get(k)) else { continue };
+                let (Some(ok), Some(ck)) = (ok, cams.get(k)) else {
+                    continue;
+                };
                 if k == s {
                     continue;
                 }
                 let td_k = self.window.get(k).map_or(0.0, |kf| kf.td_s);
-                let x_k = TimedObs { x_n: crate::camera::Vec2::new(ok.x_n[0], ok.x_n[1]), vel: crate::camera::Vec2::new(ok.vel[0], ok.vel[1]), td0: ok.td0_s }.corrected(td_k);
+                let x_k = TimedObs {
+                    x_n: crate::camera::Vec2::new(ok.x_n[0], ok.x_n[1]),
+                    vel: crate::camera::Vec2::new(ok.vel[0], ok.vel[1]),
+                    td0: ok.td0_s,
+                }
+                .corrected(td_k);
                 let (r_ks, _) = ck.relative_from(cs);
                 let theta = x_k.cross(&(r_ks * x_s)).norm();
                 if theta.is_finite() && best.is_none_or(|(_, t, _)| theta > t) {
@@ -542,7 +608,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
             let Some(ce) = cams.get(e) else { continue };
             let (r_es, t_es) = ce.relative_from(cs);
-            let Ok(d) = pose_only_depth(&x_s, &x_e, &r_es, &t_es, min_par) else { continue };
+            let Ok(d) = pose_only_depth(&x_s, &x_e, &r_es, &t_es, min_par) else {
+                continue;
+            };
             if !(d.d_s >= dmin && d.d_s <= dmax) {
                 continue;
             }
@@ -554,7 +622,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     }
 
     fn solve_layout(&self) -> Layout<N> {
-        Layout::solve(self.window.len(), self.cfg.estimate_extrinsic, self.cfg.estimate_td)
+        Layout::solve(
+            self.window.len(),
+            self.cfg.estimate_extrinsic,
+            self.cfg.estimate_td,
+        )
     }
 
     fn run_lm(&mut self, cfg: &crate::solver::LmConfig, report: &mut KeyframeReport) -> bool {
@@ -639,19 +711,34 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             obs_s: to(lm.obs.get(s)?.as_ref()?),
             obs_e: to(lm.obs.get(e)?.as_ref()?),
             obs_j: to(lm.obs.get(j)?.as_ref()?),
-            sqrt_info: crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px,
+            sqrt_info: crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy)
+                / self.cfg.sigma_px,
         };
         match self.cfg.mode {
-            VisualMode::PoseOnly => f.residual(&self.kf_pose(s)?, &self.kf_pose(e)?, &self.kf_pose(j)?, &self.ext).ok(),
-            VisualMode::InverseDepth => crate::factors::inverse_depth_visual::InverseDepthVisualFactor {
-                kf_s: s,
-                kf_j: j,
-                obs_s: f.obs_s,
-                obs_j: f.obs_j,
-                sqrt_info: f.sqrt_info,
+            VisualMode::PoseOnly => f
+                .residual(
+                    &self.kf_pose(s)?,
+                    &self.kf_pose(e)?,
+                    &self.kf_pose(j)?,
+                    &self.ext,
+                )
+                .ok(),
+            VisualMode::InverseDepth => {
+                crate::factors::inverse_depth_visual::InverseDepthVisualFactor {
+                    kf_s: s,
+                    kf_j: j,
+                    obs_s: f.obs_s,
+                    obs_j: f.obs_j,
+                    sqrt_info: f.sqrt_info,
+                }
+                .residual(
+                    &self.kf_pose(s)?,
+                    &self.kf_pose(j)?,
+                    &self.ext,
+                    lm.inv_depth,
+                )
+                .ok()
             }
-            .residual(&self.kf_pose(s)?, &self.kf_pose(j)?, &self.ext, lm.inv_depth)
-            .ok(),
         }
     }
 
@@ -664,14 +751,25 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if !usable {
                 continue;
             }
-            let s = self.lms.landmarks().get(li).map_or(0, |l| l.anchor_s as usize);
+            let s = self
+                .lms
+                .landmarks()
+                .get(li)
+                .map_or(0, |l| l.anchor_s as usize);
             for j in 0..count {
                 if j == s {
                     continue;
                 }
-                let bad = self.obs_residual(li, j).is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
+                let bad = self
+                    .obs_residual(li, j)
+                    .is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
                 if bad {
-                    if let Some(o) = self.lms.landmarks_mut().get_mut(li).and_then(|l| l.obs.get_mut(j)) {
+                    if let Some(o) = self
+                        .lms
+                        .landmarks_mut()
+                        .get_mut(li)
+                        .and_then(|l| l.obs.get_mut(j))
+                    {
                         *o = None;
                         culled += 1;
                     }
@@ -693,7 +791,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                     lm.lidar = None;
                 }
             }
-            if lm.anchor_e.is_some_and(|e| lm.obs.get(e as usize).is_none_or(|o| o.is_none())) {
+            if lm
+                .anchor_e
+                .is_some_and(|e| lm.obs.get(e as usize).is_none_or(|o| o.is_none()))
+            {
                 lm.anchor_e = None;
             }
         }
@@ -709,7 +810,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let (mut sq_sum, mut sq_n) = (0.0, 0u32);
         let mut drop_lm: HVec<u64, L> = HVec::new();
         for li in 0..self.lms.len() {
-            let Some(lm) = self.lms.landmarks().get(li) else { break };
+            let Some(lm) = self.lms.landmarks().get(li) else {
+                break;
+            };
             if !lm.usable {
                 continue;
             }
@@ -750,7 +853,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             n_lm = self.lms.retain(|lm| !drop_lm.contains(&lm.id), true) as u32;
         }
         self.fix_anchors();
-        let rms = if sq_n > 0 { libm::sqrt(sq_sum / f64::from(sq_n)) } else { 0.0 };
+        let rms = if sq_n > 0 {
+            libm::sqrt(sq_sum / f64::from(sq_n))
+        } else {
+            0.0
+        };
         (n_obs, n_lm, rms)
     }
 
@@ -779,26 +886,44 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             problem.assemble(Some(&mut self.marg_ne))?;
         }
         let m = Layout::<N>::marginalized_dim(td);
-        let floor = PivotFloor { relative: 1e-10, absolute: 1e-12 };
+        let floor = PivotFloor {
+            relative: 1e-10,
+            absolute: 1e-12,
+        };
         schur_complement_in_place(&mut self.marg_ne, m, floor)?;
         let p = self.marg_ne.dim();
         // New blocks (positions still pre-shift) with their linearization points.
         self.prior.blocks.clear();
         for k in 1..count {
             let st = self.window.get(k).ok_or(Error::NotEnoughData)?.state;
-            self.prior.blocks.push((Block::Kf(k as u8), LinPoint::Kf(st))).map_err(|_| Error::CapacityExceeded)?;
+            self.prior
+                .blocks
+                .push((Block::Kf(k as u8), LinPoint::Kf(st)))
+                .map_err(|_| Error::CapacityExceeded)?;
         }
         if ext {
-            self.prior.blocks.push((Block::Ext, LinPoint::Ext(self.ext))).map_err(|_| Error::CapacityExceeded)?;
+            self.prior
+                .blocks
+                .push((Block::Ext, LinPoint::Ext(self.ext)))
+                .map_err(|_| Error::CapacityExceeded)?;
         }
         if td {
             for k in 1..count {
                 let t = self.window.get(k).ok_or(Error::NotEnoughData)?.td_s;
-                self.prior.blocks.push((Block::Td(k as u8), LinPoint::Td(t))).map_err(|_| Error::CapacityExceeded)?;
+                self.prior
+                    .blocks
+                    .push((Block::Td(k as u8), LinPoint::Td(t)))
+                    .map_err(|_| Error::CapacityExceeded)?;
             }
         }
         let r0 = self.prior.r0.get_mut(..p).ok_or(Error::CapacityExceeded)?;
-        sqrt_prior(&self.marg_ne, floor, &mut self.marg_ldlt, &mut self.prior.j0, r0)?;
+        sqrt_prior(
+            &self.marg_ne,
+            floor,
+            &mut self.marg_ldlt,
+            &mut self.prior.j0,
+            r0,
+        )?;
         self.prior.set_dim(p)?;
         self.prior.shift_positions()?;
         self.initial = None;
@@ -811,7 +936,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 /// Linear interpolation of an IMU sample at `t_ns` between `a` and `b` (`a.t < t <= b.t`).
 fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
     let span = (b.t_ns - a.t_ns) as f64;
-    let w = if span > 0.0 { (t_ns - a.t_ns) as f64 / span } else { 1.0 };
+    let w = if span > 0.0 {
+        (t_ns - a.t_ns) as f64 / span
+    } else {
+        1.0
+    };
     ImuSample {
         t_ns,
         gyro_rps: a.gyro_rps + (b.gyro_rps - a.gyro_rps) * w,

@@ -26,7 +26,13 @@ pub enum LinPoint {
 /// Error of a keyframe state w.r.t. a linearization point, written into `out[..15]`.
 pub fn kf_minus(x: &NavState, x0: &NavState, out: &mut [f64]) {
     let th = log_so3(&(x0.q_wb.inverse() * x.q_wb));
-    let parts = [x.p_wb - x0.p_wb, th, x.v_wb - x0.v_wb, x.bg - x0.bg, x.ba - x0.ba];
+    let parts = [
+        x.p_wb - x0.p_wb,
+        th,
+        x.v_wb - x0.v_wb,
+        x.bg - x0.bg,
+        x.ba - x0.ba,
+    ];
     for (chunk, v) in out.chunks_mut(3).zip(parts.iter()) {
         for (o, e) in chunk.iter_mut().zip(v.iter()) {
             *o = *e;
@@ -68,7 +74,12 @@ impl<const D: usize, const N: usize> Default for MargPrior<D, N> {
 impl<const D: usize, const N: usize> MargPrior<D, N> {
     /// No prior.
     pub const fn new() -> Self {
-        MargPrior { j0: [[0.0; D]; D], r0: [0.0; D], blocks: HVec::new(), dim: 0 }
+        MargPrior {
+            j0: [[0.0; D]; D],
+            r0: [0.0; D],
+            blocks: HVec::new(),
+            dim: 0,
+        }
     }
 
     /// Dimension (0 = inactive).
@@ -135,7 +146,12 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
                 }
                 _ => return Err(Error::DimensionMismatch),
             }
-            for (i, c) in cols.get_mut(at..at + w).ok_or(Error::DimensionMismatch)?.iter_mut().enumerate() {
+            for (i, c) in cols
+                .get_mut(at..at + w)
+                .ok_or(Error::DimensionMismatch)?
+                .iter_mut()
+                .enumerate()
+            {
                 *c = c0 + i;
             }
             at += w;

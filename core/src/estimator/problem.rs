@@ -80,7 +80,10 @@ impl<const N: usize, const L: usize> Saved<N, L> {
     pub fn new() -> Self {
         Saved {
             states: [(NavState::identity(0), 0.0); N],
-            ext: CameraExtrinsic { p_bc: Vec3::zeros(), q_bc: crate::math::Quat::identity() },
+            ext: CameraExtrinsic {
+                p_bc: Vec3::zeros(),
+                q_bc: crate::math::Quat::identity(),
+            },
             inv_depth: [0.0; L],
         }
     }
@@ -119,7 +122,11 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
 }
 
 fn timed(o: &KfObs) -> TimedObs {
-    TimedObs { x_n: Vec2::new(o.x_n[0], o.x_n[1]), vel: Vec2::new(o.vel[0], o.vel[1]), td0: o.td0_s }
+    TimedObs {
+        x_n: Vec2::new(o.x_n[0], o.x_n[1]),
+        vel: Vec2::new(o.vel[0], o.vel[1]),
+        td0: o.td0_s,
+    }
 }
 
 /// Copies a column-major nalgebra matrix into a row-major slice.
@@ -153,9 +160,11 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
     }
 
     fn kf_pose(&self, pos: usize) -> Option<KeyframePose> {
-        self.window
-            .get(pos)
-            .map(|k| KeyframePose { p_wb: k.state.p_wb, q_wb: k.state.q_wb, td: k.td_s })
+        self.window.get(pos).map(|k| KeyframePose {
+            p_wb: k.state.p_wb,
+            q_wb: k.state.q_wb,
+            td: k.td_s,
+        })
     }
 
     fn current(&self, b: Block) -> Option<LinPoint> {
@@ -188,7 +197,11 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         }
 
         // IMU preintegration and delay random walk between consecutive keyframes.
-        let last_pair = if self.set == FactorSet::Oldest { 2.min(count) } else { count };
+        let last_pair = if self.set == FactorSet::Oldest {
+            2.min(count)
+        } else {
+            count
+        };
         let g = self.cfg.gravity_mps2;
         let mut r = Vec15::zeros();
         let mut ji = Mat15::zeros();
@@ -202,7 +215,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let pre = b.preint.as_ref().ok_or(Error::NotEnoughData)?;
             pre.evaluate(&a.state, &b.state, g, &mut r, &mut ji, &mut jj)?;
             let (ca, cb) = (
-                l.col(Block::Kf((k - 1) as u8)).ok_or(Error::DimensionMismatch)?,
+                l.col(Block::Kf((k - 1) as u8))
+                    .ok_or(Error::DimensionMismatch)?,
                 l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch)?,
             );
             row_major(&ji, &mut ji_rm);
@@ -210,20 +224,27 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             cost += sink(
                 &mut ne,
                 r.as_slice(),
-                &[JacobianBlock::new(ca, KF_DIM, &ji_rm), JacobianBlock::new(cb, KF_DIM, &jj_rm)],
+                &[
+                    JacobianBlock::new(ca, KF_DIM, &ji_rm),
+                    JacobianBlock::new(cb, KF_DIM, &jj_rm),
+                ],
             )?;
             if est_td {
                 let dt = pre.dt_s().max(1e-3);
                 let q = self.cfg.td_rw_s_per_sqrt_s * self.cfg.td_rw_s_per_sqrt_s;
                 let (rt, [da, db]) = TdRandomWalk::new(q, dt)?.evaluate(a.td_s, b.td_s)?;
                 let (ta, tb) = (
-                    l.col(Block::Td((k - 1) as u8)).ok_or(Error::DimensionMismatch)?,
+                    l.col(Block::Td((k - 1) as u8))
+                        .ok_or(Error::DimensionMismatch)?,
                     l.col(Block::Td(k as u8)).ok_or(Error::DimensionMismatch)?,
                 );
                 cost += sink(
                     &mut ne,
                     &[rt],
-                    &[JacobianBlock::new(ta, 1, &[da]), JacobianBlock::new(tb, 1, &[db])],
+                    &[
+                        JacobianBlock::new(ta, 1, &[da]),
+                        JacobianBlock::new(tb, 1, &[db]),
+                    ],
                 )?;
             }
         }
@@ -316,14 +337,20 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let l = self.layout;
         let count = self.window.len();
         let ext = *self.ext;
-        let mut poses = [KeyframePose { p_wb: Vec3::zeros(), q_wb: crate::math::Quat::identity(), td: 0.0 }; N];
+        let mut poses = [KeyframePose {
+            p_wb: Vec3::zeros(),
+            q_wb: crate::math::Quat::identity(),
+            td: 0.0,
+        }; N];
         for (k, p) in poses.iter_mut().enumerate().take(count) {
             *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
         }
         let mut cost = 0.0;
         let linearize = ne.is_some();
         for li in 0..self.lms.len() {
-            let Some(lm) = self.lms.landmarks().get(li) else { break };
+            let Some(lm) = self.lms.landmarks().get(li) else {
+                break;
+            };
             if !lm.usable {
                 continue;
             }
@@ -336,7 +363,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let (Some(Some(os)), Some(Some(oe))) = (lm.obs.get(s), lm.obs.get(e)) else {
                 continue;
             };
-            let (Some(ps), Some(pe)) = (poses.get(s), poses.get(e)) else { continue };
+            let (Some(ps), Some(pe)) = (poses.get(s), poses.get(e)) else {
+                continue;
+            };
             let (obs_s, obs_e) = (timed(os), timed(oe));
             let mut lm_cost = 0.0;
             let mut n_obs = 0;
@@ -345,7 +374,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let mut jacs: HVec<(usize, crate::factors::pose_only_visual::PoseOnlyJacobians), N> =
                 HVec::new();
             for (j, oj) in lm.obs.iter().enumerate().take(count) {
-                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else { continue };
+                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else {
+                    continue;
+                };
                 if j == s {
                     continue;
                 }
@@ -401,11 +432,16 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                         let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
                     }
                     if est_td {
-                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
-                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(e as u8))?, 1, &tds[1]));
+                        let _ =
+                            blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
+                        let _ =
+                            blocks.push(JacobianBlock::new(col(Block::Td(e as u8))?, 1, &tds[1]));
                         if j != e {
-                            let _ =
-                                blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[2]));
+                            let _ = blocks.push(JacobianBlock::new(
+                                col(Block::Td(j as u8))?,
+                                1,
+                                &tds[2],
+                            ));
                         }
                     }
                     ne_ref.add_blocks(&r, &blocks)?;
@@ -441,13 +477,19 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let l = self.layout;
         let count = self.window.len();
         let ext = *self.ext;
-        let mut poses = [KeyframePose { p_wb: Vec3::zeros(), q_wb: crate::math::Quat::identity(), td: 0.0 }; N];
+        let mut poses = [KeyframePose {
+            p_wb: Vec3::zeros(),
+            q_wb: crate::math::Quat::identity(),
+            td: 0.0,
+        }; N];
         for (k, p) in poses.iter_mut().enumerate().take(count) {
             *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
         }
         let mut cost = 0.0;
         for li in 0..self.lms.len() {
-            let Some(lm) = self.lms.landmarks().get(li) else { break };
+            let Some(lm) = self.lms.landmarks().get(li) else {
+                break;
+            };
             if let Some(sc) = self.schur.get_mut(li) {
                 sc.clear();
             }
@@ -458,20 +500,35 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             if self.set == FactorSet::Oldest && s != 0 {
                 continue;
             }
-            let (Some(Some(os)), Some(ps)) = (lm.obs.get(s), poses.get(s)) else { continue };
+            let (Some(Some(os)), Some(ps)) = (lm.obs.get(s), poses.get(s)) else {
+                continue;
+            };
             let obs_s = timed(os);
             let tau = lm.inv_depth;
             let mut lm_cost = 0.0;
             let mut n_obs = 0;
             let mut failed = false;
-            let mut jacs: HVec<(usize, crate::factors::inverse_depth_visual::InverseDepthJacobians), N> =
-                HVec::new();
+            let mut jacs: HVec<
+                (
+                    usize,
+                    crate::factors::inverse_depth_visual::InverseDepthJacobians,
+                ),
+                N,
+            > = HVec::new();
             for (j, oj) in lm.obs.iter().enumerate().take(count) {
-                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else { continue };
+                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else {
+                    continue;
+                };
                 if j == s {
                     continue;
                 }
-                let f = InverseDepthVisualFactor { kf_s: s, kf_j: j, obs_s, obs_j: timed(oj), sqrt_info };
+                let f = InverseDepthVisualFactor {
+                    kf_s: s,
+                    kf_j: j,
+                    obs_s,
+                    obs_j: timed(oj),
+                    sqrt_info,
+                };
                 if ne.is_some() {
                     match f.evaluate(ps, pj, &ext, tau) {
                         Ok(jac) => {
@@ -514,8 +571,10 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                         let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
                     }
                     if est_td {
-                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
-                        let _ = blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[1]));
+                        let _ =
+                            blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
+                        let _ =
+                            blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[1]));
                     }
                     let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
                     sc.add_residual(ne_ref, &r, &blocks, &jl)?;
@@ -531,7 +590,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     return Err(Error::Degenerate);
                 }
             }
-            if let (false, Some(ne_ref), Some(sc)) = (failed, ne.as_deref_mut(), self.schur.get(li)) {
+            if let (false, Some(ne_ref), Some(sc)) = (failed, ne.as_deref_mut(), self.schur.get(li))
+            {
                 sc.fold_into(ne_ref, 0.0)?;
             }
             if n_obs > 0 {
@@ -567,7 +627,9 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
             )
         };
         for k in 0..self.window.len() {
-            let Some(c) = l.col(Block::Kf(k as u8)) else { continue };
+            let Some(c) = l.col(Block::Kf(k as u8)) else {
+                continue;
+            };
             let tdc = l.col(Block::Td(k as u8));
             if let Some(kf) = self.window.get_mut(k) {
                 let s = &mut kf.state;
@@ -604,7 +666,12 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
             }
         }
         self.saved.ext = *self.ext;
-        for (lm, s) in self.lms.landmarks().iter().zip(self.saved.inv_depth.iter_mut()) {
+        for (lm, s) in self
+            .lms
+            .landmarks()
+            .iter()
+            .zip(self.saved.inv_depth.iter_mut())
+        {
             *s = lm.inv_depth;
         }
     }
@@ -617,7 +684,12 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
             }
         }
         *self.ext = self.saved.ext;
-        for (lm, s) in self.lms.landmarks_mut().iter_mut().zip(self.saved.inv_depth.iter()) {
+        for (lm, s) in self
+            .lms
+            .landmarks_mut()
+            .iter_mut()
+            .zip(self.saved.inv_depth.iter())
+        {
             lm.inv_depth = *s;
         }
     }

@@ -43,7 +43,11 @@ impl<const N: usize> Default for Window<N> {
 impl<const N: usize> Window<N> {
     /// An empty window.
     pub fn new() -> Self {
-        Window { slots: core::array::from_fn(|_| None), head: 0, count: 0 }
+        Window {
+            slots: core::array::from_fn(|_| None),
+            head: 0,
+            count: 0,
+        }
     }
 
     /// Keyframes in the window.
@@ -67,7 +71,9 @@ impl<const N: usize> Window<N> {
 
     /// Keyframe at `pos`.
     pub fn get(&self, pos: usize) -> Option<&Keyframe> {
-        self.slot(pos).and_then(|s| self.slots.get(s)).and_then(|k| k.as_ref())
+        self.slot(pos)
+            .and_then(|s| self.slots.get(s))
+            .and_then(|k| k.as_ref())
     }
 
     /// Mutable keyframe at `pos`.
@@ -157,7 +163,12 @@ pub struct Layout<const N: usize> {
 
 impl<const N: usize> Layout<N> {
     fn empty() -> Self {
-        Layout { kf: [None; N], td: [None; N], ext: None, n: 0 }
+        Layout {
+            kf: [None; N],
+            td: [None; N],
+            ext: None,
+            n: 0,
+        }
     }
 
     fn place(&mut self, b: Block) {

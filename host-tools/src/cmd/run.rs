@@ -41,7 +41,10 @@ pub fn load_dataset(path: &Path) -> Result<Dataset> {
     } else if !path.exists() {
         anyhow::bail!("dataset {} does not exist", path.display())
     } else {
-        anyhow::bail!("{}: expected an EuRoC folder or an .mcap file", path.display())
+        anyhow::bail!(
+            "{}: expected an EuRoC folder or an .mcap file",
+            path.display()
+        )
     }
 }
 
@@ -86,9 +89,17 @@ pub struct Summary {
 
 /// Computes the summary of a run (and its evaluation when ground truth exists).
 pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> Result<Summary> {
-    let mut ms: Vec<f64> = out.reports.iter().map(|r| r.total_ns as f64 * 1e-6).collect();
+    let mut ms: Vec<f64> = out
+        .reports
+        .iter()
+        .map(|r| r.total_ns as f64 * 1e-6)
+        .collect();
     ms.sort_by(f64::total_cmp);
-    let mut used: Vec<f64> = out.reports.iter().map(|r| f64::from(r.landmarks_used)).collect();
+    let mut used: Vec<f64> = out
+        .reports
+        .iter()
+        .map(|r| f64::from(r.landmarks_used))
+        .collect();
     used.sort_by(f64::total_cmp);
     let total_ms: f64 = ms.iter().sum();
     let frames = out.camera_frames.max(1) as f64;
@@ -101,7 +112,11 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         backend_ms_median: percentile(&ms, 50.0),
         backend_ms_p99: percentile(&ms, 99.0),
         backend_ms_max: ms.last().copied().unwrap_or(0.0),
-        backend_ms_mean: if ms.is_empty() { 0.0 } else { total_ms / ms.len() as f64 },
+        backend_ms_mean: if ms.is_empty() {
+            0.0
+        } else {
+            total_ms / ms.len() as f64
+        },
         backend_ms_per_camera_frame: total_ms / frames,
         estimator_ms_per_camera_frame: out.estimator_wall_s * 1e3 / frames,
         landmarks_used_median: percentile(&used, 50.0),
@@ -114,7 +129,10 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
     if !ds.ground_truth.is_empty() && !out.imu_rate.is_empty() {
         let gt: Vec<StampedPose> = ds.ground_truth.iter().map(StampedPose::from).collect();
         let est: Vec<StampedPose> = out.imu_rate.iter().map(StampedPose::from).collect();
-        let opts = EvalOptions { alignment: Alignment::PosYaw, ..Default::default() };
+        let opts = EvalOptions {
+            alignment: Alignment::PosYaw,
+            ..Default::default()
+        };
         match evaluate(&gt, &est, &opts) {
             Ok(r) => {
                 s.ate_pos_rmse_m = Some(r.ate_pos_m.rmse);
@@ -165,18 +183,28 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
             r.cost.0,
             r.cost.1,
             r.decision,
-            r.termination.map_or("none".to_string(), |t| format!("{t:?}")),
+            r.termination
+                .map_or("none".to_string(), |t| format!("{t:?}")),
         )?;
     }
     f.flush()?;
-    std::fs::write(dir.join("summary.json"), serde_json::to_string_pretty(summary)? + "\n")?;
+    std::fs::write(
+        dir.join("summary.json"),
+        serde_json::to_string_pretty(summary)? + "\n",
+    )?;
     Ok(())
 }
 
 /// Prints the human-readable result lines.
 pub fn print_summary(s: &Summary, out_dir: &Path) {
-    println!("dataset   {} ({} mode, {:?} init)", s.dataset, s.mode, s.init);
-    println!("keyframes {} of {} camera frames", s.keyframes, s.camera_frames);
+    println!(
+        "dataset   {} ({} mode, {:?} init)",
+        s.dataset, s.mode, s.init
+    );
+    println!(
+        "keyframes {} of {} camera frames",
+        s.keyframes, s.camera_frames
+    );
     match (s.ate_pos_rmse_m, s.ate_rot_rmse_deg) {
         (Some(p), Some(r)) => println!(
             "ATE       {p:.4} m, {r:.3} deg (posyaw-aligned, {} poses)",
