@@ -307,16 +307,18 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             .map(|p| p.t_cam_ns + (self.current_td() * 1e9) as i64)
             .filter(|t_f| *t_f <= s.t_ns);
         if let Some(t_f) = frame_due {
-            if let Some(prev) = self.last_imu.filter(|p| p.t_ns < t_f) {
-                let split = interpolate(&prev, s, t_f);
-                self.advance(&split)?;
-            } else if self.ins.as_ref().is_some_and(|i| i.state().t_ns < t_f) {
-                // The frame is later than the last sample but there is no earlier sample (first
-                // sample after initialization): integrate to the sample itself.
-                self.advance(s)?;
+            // The keyframe sample: the real one at t_f, or one interpolated at t_f, or (right
+            // after initialization, with no earlier sample) this sample itself.
+            let sample_f = match self.last_imu {
+                _ if t_f == s.t_ns => *s,
+                Some(prev) if prev.t_ns < t_f => interpolate(&prev, s, t_f),
+                _ => *s,
+            };
+            if self.ins.as_ref().is_some_and(|i| i.state().t_ns < sample_f.t_ns) {
+                self.advance(&sample_f)?;
             }
             if let Some(p) = self.pending.take() {
-                out.keyframe = self.process_frame(&p)?;
+                out.keyframe = self.process_frame(&p, &sample_f)?;
             }
         }
         if self.ins.as_ref().is_some_and(|i| i.state().t_ns < s.t_ns) {
@@ -351,7 +353,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         Ok(())
     }
 
-    fn process_frame(&mut self, p: &PendingFrame) -> Result<Option<KeyframeReport>, Error> {
+    fn process_frame(
+        &mut self,
+        p: &PendingFrame,
+        sample: &ImuSample,
+    ) -> Result<Option<KeyframeReport>, Error> {
         let t0 = now(&self.cfg);
         let st =
             match self
@@ -396,7 +402,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         if !decision.is_keyframe() {
             return Ok(None);
         }
-        self.add_keyframe(p.t_cam_ns, nav, decision, t0).map(Some)
+        self.add_keyframe(p.t_cam_ns, nav, sample, decision, t0).map(Some)
     }
 
     /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe.
@@ -425,6 +431,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         &mut self,
         t_cam_ns: i64,
         nav: NavState,
+        sample: &ImuSample,
         decision: KeyframeDecision,
         t0: u64,
     ) -> Result<KeyframeReport, Error> {
@@ -463,7 +470,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 
         // 2. Append the keyframe with the interval's preintegration, start the next interval.
         let td = self.current_td();
-        let sample = self.last_sample_at(nav.t_ns);
+        // The sample at the keyframe time starts the next interval.
+        let sample = ImuSample { t_ns: nav.t_ns, ..*sample };
         let preint = self.open.take();
         let kf = Keyframe {
             t_cam_ns,
@@ -511,19 +519,6 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         report.landmarks_total = self.lms.len() as u32;
         report.total_ns = now(&self.cfg).saturating_sub(t0);
         Ok(report)
-    }
-
-    /// The IMU sample at the INS time (the split sample of a frame, or the last real one).
-    fn last_sample_at(&self, t_ns: i64) -> ImuSample {
-        match self.last_imu {
-            Some(s) if s.t_ns == t_ns => s,
-            Some(s) => ImuSample { t_ns, ..s },
-            None => ImuSample {
-                t_ns,
-                gyro_rps: Vec3::zeros(),
-                accel_mps2: Vec3::zeros(),
-            },
-        }
     }
 
     fn initial_priors(&self, kf0: &NavState, td: f64) -> InitialPriors {
