@@ -135,7 +135,9 @@ impl Ins {
             return Ok(&self.state);
         }
         let dt_s = check_sample(s, self.state.t_ns, self.cfg.max_dt_s)?;
-        let start = self.prev_sample.unwrap_or(*s);
+        // Without a stored start sample, hold `s` constant over the interval: the start sample
+        // must carry the state's time, or the increment would span zero seconds.
+        let start = self.prev_sample.unwrap_or(ImuSample { t_ns: self.state.t_ns, ..*s });
         let inc = Increment::from_samples(
             self.older_sample.as_ref(),
             &start,
@@ -243,6 +245,20 @@ mod tests {
         assert!((st.p_wb - p_true).norm() < 1e-9, "{:?}", st.p_wb - p_true);
         assert!((st.v_wb - v_true).norm() < 1e-10);
         assert_eq!(st.t_ns, 10_000_000_000);
+    }
+
+    /// Starting without a sample at the state's time (e.g. after `set_state`) must still
+    /// integrate the specific force over the first interval, not only gravity.
+    #[test]
+    fn first_interval_without_start_sample_integrates_specific_force() {
+        let f_b = Vec3::new(0.0, 0.0, G);
+        let mut ins = Ins::new(cfg(), NavState::identity(0)).unwrap();
+        for k in 1..=100i64 {
+            ins.propagate(&sample(k * 5_000_000, Vec3::zeros(), f_b)).unwrap();
+        }
+        let st = ins.state();
+        assert!(st.v_wb.norm() < 1e-12, "at rest, velocity {:?}", st.v_wb);
+        assert!(st.p_wb.norm() < 1e-12, "at rest, position {:?}", st.p_wb);
     }
 
     /// Classic coning: the body axis precesses on a cone of half angle `beta` at rate `omega`,
