@@ -67,6 +67,9 @@ pub struct EstimatorConfig {
     pub huber_delta: f64,
     /// Smallest parallax `|x_e x R_es x_s|` (rad-like) for a landmark to enter the optimization.
     pub min_parallax: f64,
+    /// Largest analytic depth standard deviation, as a fraction of the depth, for a landmark to
+    /// enter the optimization (gates landmarks whose pose-only depth is still noise).
+    pub max_rel_depth_std: f64,
     /// Valid landmark depth range, m (LE-VINS: 1-200 m).
     pub depth_range_m: (f64, f64),
     /// Chi-square threshold (2 dof, 95%) of the cull between the two LM passes.
@@ -121,6 +124,7 @@ impl EstimatorConfig {
             sigma_px: 1.5,
             huber_delta: 1.0,
             min_parallax: 0.01,
+            max_rel_depth_std: 0.1,
             depth_range_m: (0.1, 200.0),
             chi2_threshold: 5.991,
             cull_mean_px: 4.5,
@@ -146,6 +150,7 @@ impl EstimatorConfig {
             && pos(self.huber_delta)
             && self.min_parallax.is_finite()
             && self.min_parallax >= 0.0
+            && pos(self.max_rel_depth_std)
             && pos(self.depth_range_m.0)
             && self.depth_range_m.1 > self.depth_range_m.0
             && pos(self.chi2_threshold)

@@ -34,7 +34,7 @@ use crate::frontend::{KeyframeDecision, KeyframeSelector, NormalizedObs, TrackTa
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
 use crate::inertial::{ImuSample, NavState};
-use crate::landmarks::pose_only_depth;
+use crate::landmarks::{depth_std, pose_only_depth, TwoView};
 use crate::math::{log_so3, Vec3};
 use crate::solver::{
     schur_complement_in_place, sqrt_prior, LandmarkSchur, Ldlt, LmWorkspace, NormalEquations,
@@ -558,6 +558,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         }
         let (dmin, dmax) = self.cfg.depth_range_m;
         let min_par = self.cfg.min_parallax;
+        let max_rel = self.cfg.max_rel_depth_std;
+        let sigma_px = self.cfg.sigma_px;
+        let focal = crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy);
         let mode = self.cfg.mode;
         for lm in self.lms.landmarks_mut() {
             lm.usable = false;
