@@ -612,6 +612,13 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if !(d.d_s >= dmin && d.d_s <= dmax) {
                 continue;
             }
+            // The pose-only residuals treat the depth from (s, e) as exact: admit a landmark only
+            // once its analytic depth uncertainty (paper IV.B) is a small fraction of the depth.
+            let two = TwoView::new(&x_s, &x_e, &r_es, &t_es);
+            match depth_std(&two, sigma_px, &focal) {
+                Ok(sd) if sd <= max_rel * d.d_s => {}
+                _ => continue,
+            }
             lm.usable = true;
             if mode == VisualMode::InverseDepth && !(lm.inv_depth > 0.0) {
                 lm.inv_depth = 1.0 / d.d_s;
