@@ -7,7 +7,7 @@
 use super::window::{Block, Layout};
 use crate::camera::CameraExtrinsic;
 use crate::inertial::NavState;
-use crate::math::log_so3;
+use crate::math::{jr_inv_so3, log_so3, Vec3};
 use crate::solver::{add_prior, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
@@ -60,6 +60,9 @@ pub struct MargPrior<const D: usize, const N: usize> {
     pub j0: [[f64; D]; D],
     /// `r0`.
     pub r0: [f64; D],
+    /// `J0` with its rotation columns mapped through `Jr^-1` of the current rotation error
+    /// (scratch of [`MargPrior::add_to`]).
+    j_eff: [[f64; D]; D],
     /// Blocks in prior order with their linearization points.
     pub blocks: HVec<(Block, LinPoint), MAX_PRIOR_BLOCKS>,
     dim: usize,
@@ -77,6 +80,7 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         MargPrior {
             j0: [[0.0; D]; D],
             r0: [0.0; D],
+            j_eff: [[0.0; D]; D],
             blocks: HVec::new(),
             dim: 0,
         }
@@ -120,8 +124,13 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
     /// Computes `dx = x [-] x0` block by block with the current state given by `current`,
     /// and the column of each prior entry in `layout`, then adds `r0 + J0 dx` to `ne` (or only
     /// its cost when `ne` is `None`). Returns the prior's cost `|r|^2`.
+    ///
+    /// The rotation part of `dx` is `Log(R0^T R)`, whose derivative w.r.t. the right
+    /// perturbation of `R` is `Jr^-1(Log(R0^T R))`: the Jacobian added is `J0` with those columns
+    /// multiplied by it, so the gradient stays exact when the window rotates away from the
+    /// linearization point (a yaw drift of the gauge, for instance).
     pub fn add_to(
-        &self,
+        &mut self,
         layout: &Layout<N>,
         current: impl Fn(Block) -> Option<LinPoint>,
         ne: Option<&mut NormalEquations<D>>,
@@ -164,8 +173,48 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         );
         match ne {
             Some(ne) => {
+                // Rotation columns of J0 times Jr^-1 of their block's rotation error.
+                for (row_eff, row) in self.j_eff.iter_mut().zip(self.j0.iter()).take(p) {
+                    row_eff.copy_from_slice(row);
+                }
+                let mut at = 0;
+                for (b, _) in self.blocks.iter() {
+                    let rot = match b {
+                        Block::Kf(_) | Block::Ext => Some(at + 3),
+                        Block::Td(_) => None,
+                    };
+                    if let Some(c) = rot {
+                        let th = Vec3::new(
+                            dx.get(c).copied().unwrap_or(0.0),
+                            dx.get(c + 1).copied().unwrap_or(0.0),
+                            dx.get(c + 2).copied().unwrap_or(0.0),
+                        );
+                        let m = jr_inv_so3(&th);
+                        for (row_eff, row) in self.j_eff.iter_mut().zip(self.j0.iter()).take(p) {
+                            let (Some(src), Some(dst)) = (row.get(c..c + 3), row_eff.get_mut(c..c + 3))
+                            else {
+                                continue;
+                            };
+                            for (k, d) in dst.iter_mut().enumerate() {
+                                *d = src[0] * m[(0, k)] + src[1] * m[(1, k)] + src[2] * m[(2, k)];
+                            }
+                        }
+                    }
+                    at += b.dim();
+                }
                 let before = ne.cost;
-                add_prior(ne, &self.j0, r0, dx, cols)?;
+                // r = r0 + J0 dx, linearized with the mapped Jacobian: add_prior forms the
+                // residual from its matrix, so pass the residual's offset explicitly.
+                let mut r_lin = [0.0; D];
+                for ((ri, row), (row_eff, r0i)) in
+                    r_lin.iter_mut().zip(self.j0.iter()).zip(self.j_eff.iter().zip(r0)).take(p)
+                {
+                    let r_true = r0i + row.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();
+                    let r_eff = row_eff.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();
+                    *ri = r_true - r_eff;
+                }
+                let r_lin = r_lin.get(..p).ok_or(Error::DimensionMismatch)?;
+                add_prior(ne, &self.j_eff, r_lin, dx, cols)?;
                 Ok(ne.cost - before)
             }
             None => {

@@ -106,7 +106,7 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     /// Camera-IMU extrinsic (a variable when estimated).
     pub ext: &'a mut CameraExtrinsic,
     /// Marginalization prior.
-    pub prior: &'a MargPrior<D, N>,
+    pub prior: &'a mut MargPrior<D, N>,
     /// Initial priors, until the first marginalization.
     pub initial: Option<&'a InitialPriors>,
     /// Column map.
@@ -167,14 +167,6 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         })
     }
 
-    fn current(&self, b: Block) -> Option<LinPoint> {
-        match b {
-            Block::Kf(k) => self.window.get(k as usize).map(|kf| LinPoint::Kf(kf.state)),
-            Block::Td(k) => self.window.get(k as usize).map(|kf| LinPoint::Td(kf.td_s)),
-            Block::Ext => Some(LinPoint::Ext(*self.ext)),
-        }
-    }
-
     /// Visits the factors of `self.set`, adding them to `ne` (or only summing their cost).
     /// Returns the (robust) cost. With `ne`, landmarks whose residual is degenerate are disabled
     /// (`usable = false`); without, such a landmark makes the evaluation fail, so an LM trial
@@ -189,8 +181,13 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
 
         // Priors.
         if self.prior.dim() > 0 {
-            let prior = self.prior;
-            cost += prior.add_to(&l, |b| self.current(b), ne.as_deref_mut())?;
+            let (window, ext) = (&*self.window, *self.ext);
+            let current = |b: Block| match b {
+                Block::Kf(k) => window.get(k as usize).map(|kf| LinPoint::Kf(kf.state)),
+                Block::Td(k) => window.get(k as usize).map(|kf| LinPoint::Td(kf.td_s)),
+                Block::Ext => Some(LinPoint::Ext(ext)),
+            };
+            cost += self.prior.add_to(&l, current, ne.as_deref_mut())?;
         }
         if let Some(ip) = self.initial {
             cost += self.initial_priors(ip, &mut ne, est_td, est_ext)?;
