@@ -16,6 +16,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// Simulate the robot scenario, estimate, evaluate and plot (the README's main job).
+    Demo(cmd::demo::Args),
     /// Simulate a camera + IMU + LiDAR sequence with ground truth.
     Simulate(cmd::simulate::Args),
     /// Evaluate an estimated trajectory against ground truth (ATE, RTE).
@@ -28,6 +30,7 @@ enum Cmd {
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().cmd {
+        Cmd::Demo(a) => cmd::demo::run(a),
         Cmd::Simulate(a) => cmd::simulate::run(a),
         Cmd::Eval(a) => cmd::eval::run(a),
         Cmd::Plot(a) => cmd::plot::run(a),

@@ -64,17 +64,15 @@ pub struct RunOutput {
 /// Replays `ds` through a new estimator with `cfg`.
 pub fn replay(
     ds: &Dataset,
-    cfg: EstimatorConfig,
+    mut cfg: EstimatorConfig,
     init: InitMode,
     progress: &Progress,
 ) -> Result<RunOutput> {
     if ds.imu.is_empty() {
         bail!("{}: the dataset has no IMU samples", ds.name);
     }
-    let mut est: Box<PoVins> = Box::new(
-        PoVins::new(cfg).map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?,
-    );
     let mut start = 0;
+    let mut gt_start = None;
     if init == InitMode::Groundtruth {
         let Some(g0) = ds.ground_truth.first() else {
             bail!(
@@ -94,11 +92,22 @@ pub fn replay(
             );
         };
         let gt0 = interpolate_state(&ds.ground_truth, s0.t_ns).unwrap_or(*g0);
-        est.initialize(NavState {
+        // The true state is known: the first keyframe's prior says so (peers do the same).
+        cfg.first_prior.theta_rad = 2e-3;
+        cfg.first_prior.v_mps = 0.01;
+        cfg.first_prior.bg_rps = 1e-4;
+        cfg.first_prior.ba_mps2 = 0.01;
+        gt_start = Some(NavState {
             t_ns: s0.t_ns,
             ..gt0
-        })
-        .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;
+        });
+    }
+    let mut est: Box<PoVins> = Box::new(
+        PoVins::new(cfg).map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?,
+    );
+    if let Some(s0) = gt_start {
+        est.initialize(s0)
+            .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;
     }
     let mut out = RunOutput {
         imu_rate: Vec::with_capacity(ds.imu.len()),

@@ -99,8 +99,11 @@ pub struct EstimatorConfig {
 impl EstimatorConfig {
     /// Defaults for a camera and IMU: LE-VINS keyframe rules, sigma_p = 1.5 px, Huber 1 sigma.
     pub fn new(camera: PinholeCamera, extrinsic: CameraExtrinsic, imu_noise: ImuNoise) -> Self {
+        // A relative cost decrease of 1e-3 is far below the noise of the window's cost: iterating
+        // further only spends time.
         let lm = LmConfig {
             max_iterations: 6,
+            function_tolerance: 1e-3,
             ..LmConfig::DEFAULT
         };
         EstimatorConfig {

@@ -314,7 +314,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 Some(prev) if prev.t_ns < t_f => interpolate(&prev, s, t_f),
                 _ => *s,
             };
-            if self.ins.as_ref().is_some_and(|i| i.state().t_ns < sample_f.t_ns) {
+            if self
+                .ins
+                .as_ref()
+                .is_some_and(|i| i.state().t_ns < sample_f.t_ns)
+            {
                 self.advance(&sample_f)?;
             }
             if let Some(p) = self.pending.take() {
@@ -402,7 +406,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         if !decision.is_keyframe() {
             return Ok(None);
         }
-        self.add_keyframe(p.t_cam_ns, nav, sample, decision, t0).map(Some)
+        self.add_keyframe(p.t_cam_ns, nav, sample, decision, t0)
+            .map(Some)
     }
 
     /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe.
@@ -471,7 +476,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         // 2. Append the keyframe with the interval's preintegration, start the next interval.
         let td = self.current_td();
         // The sample at the keyframe time starts the next interval.
-        let sample = ImuSample { t_ns: nav.t_ns, ..*sample };
+        let sample = ImuSample {
+            t_ns: nav.t_ns,
+            ..*sample
+        };
         let preint = self.open.take();
         let kf = Keyframe {
             t_cam_ns,
@@ -494,6 +502,18 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             nav.ba,
         )?);
         let pos = self.window.len() - 1;
+        // A landmark seen in one earlier keyframe and not tracked into this one can never get a
+        // second observation: free its slot for the tracks of this keyframe.
+        self.lms.retain(
+            |lm| {
+                lm.n_obs() >= 2
+                    || self
+                        .frame_obs
+                        .binary_search_by(|o| o.id.cmp(&lm.id))
+                        .is_ok()
+            },
+            false,
+        );
         self.lms.add_keyframe_obs(pos, &self.frame_obs, td);
         self.counters.keyframes += 1;
 

@@ -191,7 +191,8 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
                         );
                         let m = jr_inv_so3(&th);
                         for (row_eff, row) in self.j_eff.iter_mut().zip(self.j0.iter()).take(p) {
-                            let (Some(src), Some(dst)) = (row.get(c..c + 3), row_eff.get_mut(c..c + 3))
+                            let (Some(src), Some(dst)) =
+                                (row.get(c..c + 3), row_eff.get_mut(c..c + 3))
                             else {
                                 continue;
                             };
@@ -206,8 +207,11 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
                 // r = r0 + J0 dx, linearized with the mapped Jacobian: add_prior forms the
                 // residual from its matrix, so pass the residual's offset explicitly.
                 let mut r_lin = [0.0; D];
-                for ((ri, row), (row_eff, r0i)) in
-                    r_lin.iter_mut().zip(self.j0.iter()).zip(self.j_eff.iter().zip(r0)).take(p)
+                for ((ri, row), (row_eff, r0i)) in r_lin
+                    .iter_mut()
+                    .zip(self.j0.iter())
+                    .zip(self.j_eff.iter().zip(r0))
+                    .take(p)
                 {
                     let r_true = r0i + row.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();
                     let r_eff = row_eff.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();

@@ -137,7 +137,10 @@ impl Ins {
         let dt_s = check_sample(s, self.state.t_ns, self.cfg.max_dt_s)?;
         // Without a stored start sample, hold `s` constant over the interval: the start sample
         // must carry the state's time, or the increment would span zero seconds.
-        let start = self.prev_sample.unwrap_or(ImuSample { t_ns: self.state.t_ns, ..*s });
+        let start = self.prev_sample.unwrap_or(ImuSample {
+            t_ns: self.state.t_ns,
+            ..*s
+        });
         let inc = Increment::from_samples(
             self.older_sample.as_ref(),
             &start,
@@ -254,7 +257,8 @@ mod tests {
         let f_b = Vec3::new(0.0, 0.0, G);
         let mut ins = Ins::new(cfg(), NavState::identity(0)).unwrap();
         for k in 1..=100i64 {
-            ins.propagate(&sample(k * 5_000_000, Vec3::zeros(), f_b)).unwrap();
+            ins.propagate(&sample(k * 5_000_000, Vec3::zeros(), f_b))
+                .unwrap();
         }
         let st = ins.state();
         assert!(st.v_wb.norm() < 1e-12, "at rest, velocity {:?}", st.v_wb);
