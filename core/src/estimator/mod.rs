@@ -487,9 +487,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             td_s: td,
             preint,
         };
-        if self.window.push(kf).is_err() {
-            return Err(Error::CapacityExceeded);
-        }
+        self.window.push(kf)?;
         if self.window.len() == 1 {
             self.prior.clear();
             self.initial = Some(self.initial_priors(&nav, td));
@@ -640,7 +638,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 _ => continue,
             }
             lm.usable = true;
-            if mode == VisualMode::InverseDepth && !(lm.inv_depth > 0.0) {
+            if mode == VisualMode::InverseDepth && (lm.inv_depth.is_nan() || lm.inv_depth <= 0.0) {
                 lm.inv_depth = 1.0 / d.d_s;
             }
         }
@@ -970,5 +968,61 @@ fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
         t_ns,
         gyro_rps: a.gyro_rps + (b.gyro_rps - a.gyro_rps) * w,
         accel_mps2: a.accel_mps2 + (b.accel_mps2 - a.accel_mps2) * w,
+    }
+}
+
+impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+    /// Self-check of the assembled problem at the current state: compares the analytic gradient
+    /// `-2 b` of the normal equations with central differences of the cost along every
+    /// error-state column (step `h`), and returns the worst relative error. Restores the state.
+    /// Meant for tests and diagnostics (it evaluates the cost `2 n` times).
+    pub fn gradient_check(&mut self, h: f64) -> Result<f64, Error> {
+        use crate::solver::LmProblem;
+        self.prepare_landmarks();
+        let layout = self.solve_layout();
+        let n = layout.dim();
+        let mut problem = Problem {
+            cfg: &self.cfg,
+            window: &mut self.window,
+            lms: &mut self.lms,
+            ext: &mut self.ext,
+            prior: &mut self.prior,
+            initial: self.initial.as_ref(),
+            layout,
+            set: FactorSet::All,
+            schur: &mut self.schur,
+            saved: &mut self.saved,
+            counts: Default::default(),
+        };
+        self.lm.ne.reset(n)?;
+        problem.linearize(&mut self.lm.ne)?;
+        if self.cfg.mode == VisualMode::InverseDepth {
+            // The reduced system's b is the gradient of the cost minimized over the depths,
+            // which central differences at fixed depths do not measure.
+            return Err(Error::InvalidConfig);
+        }
+        let mut worst = 0.0f64;
+        let mut dx = [0.0; D];
+        for i in 0..n {
+            let mut c = [0.0; 2];
+            for (slot, sign) in c.iter_mut().zip([1.0, -1.0]) {
+                problem.save();
+                if let Some(d) = dx.get_mut(i) {
+                    *d = sign * h;
+                }
+                problem.apply(dx.get(..n).unwrap_or(&[]));
+                *slot = problem.cost()?;
+                problem.restore();
+                if let Some(d) = dx.get_mut(i) {
+                    *d = 0.0;
+                }
+            }
+            let g_num = (c[0] - c[1]) / (2.0 * h);
+            let g_an = -2.0 * self.lm.ne.b.get(i).copied().unwrap_or(0.0);
+            let err =
+                libm::fabs(g_num - g_an) / (1.0 + libm::fmax(libm::fabs(g_num), libm::fabs(g_an)));
+            worst = libm::fmax(worst, err);
+        }
+        Ok(worst)
     }
 }

@@ -631,7 +631,7 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
             if let Some(kf) = self.window.get_mut(k) {
                 let s = &mut kf.state;
                 s.p_wb += get3(c);
-                s.q_wb = s.q_wb * quat_exp(&get3(c + 3));
+                s.q_wb *= quat_exp(&get3(c + 3));
                 s.v_wb += get3(c + 6);
                 s.bg += get3(c + 9);
                 s.ba += get3(c + 12);
@@ -642,7 +642,7 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
         }
         if let Some(c) = l.col(Block::Ext) {
             self.ext.p_bc += get3(c);
-            self.ext.q_bc = self.ext.q_bc * quat_exp(&get3(c + 3));
+            self.ext.q_bc *= quat_exp(&get3(c + 3));
         }
         if self.cfg.mode == VisualMode::InverseDepth {
             for (lm, sc) in self.lms.landmarks_mut().iter_mut().zip(self.schur.iter()) {

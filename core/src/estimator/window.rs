@@ -6,6 +6,7 @@
 
 use crate::inertial::preintegration::Preintegration;
 use crate::inertial::NavState;
+use crate::Error;
 
 /// IMU samples a keyframe interval can hold (re-integration needs them all): 1.28 s at 400 Hz,
 /// far above the 0.475 s forced-keyframe interval.
@@ -87,10 +88,10 @@ impl<const N: usize> Window<N> {
         self.count.checked_sub(1).and_then(|p| self.get(p))
     }
 
-    /// Appends a keyframe; returns it back if the window is full.
-    pub fn push(&mut self, kf: Keyframe) -> Result<(), Keyframe> {
+    /// Appends a keyframe ([`Error::CapacityExceeded`] if the window is full).
+    pub fn push(&mut self, kf: Keyframe) -> Result<(), Error> {
         if self.count >= N {
-            return Err(kf);
+            return Err(Error::CapacityExceeded);
         }
         let s = (self.head + self.count) % N;
         match self.slots.get_mut(s) {
@@ -99,7 +100,7 @@ impl<const N: usize> Window<N> {
                 self.count += 1;
                 Ok(())
             }
-            None => Err(kf),
+            None => Err(Error::CapacityExceeded),
         }
     }
 
