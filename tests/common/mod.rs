@@ -1,0 +1,172 @@
+//! Helpers shared by the estimator integration tests: data loading (failing loudly, naming the
+//! path, when the shared data is missing), the EuRoC configuration, ground-truth starts, a
+//! replay loop identical in its ordering to `runner::replay` (a frame is offered once the IMU
+//! stream has reached its stamp), and ATE.
+//!
+//! Each test binary uses a different subset of these helpers.
+#![allow(dead_code)]
+
+use povins::core::estimator::{EstimatorConfig, ImuOutput, PoVins, VisualMode};
+use povins::core::inertial::{ImuSample, NavState};
+use povins::host_tools::config::RunConfigFile;
+use povins::host_tools::eval::{evaluate, EvalOptions};
+use povins::host_tools::progress::Progress;
+use povins::host_tools::runner::{config_for, interpolate_state};
+use povins::host_tools::sim::{simulate, LidarKind, Scenario, SimConfig};
+use povins::platform::dataset::Dataset;
+use povins::platform::trajectory::StampedPose;
+use std::path::{Path, PathBuf};
+
+/// The shared data folder, relative to the repository root.
+pub const DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data");
+/// The EuRoC settings every EuRoC run uses.
+pub const EUROC_TOML: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/euroc.toml");
+/// EuRoC V1_01, first 30 s, with a real front end's tracks.
+pub const EUROC_30S: &str = "euroc-v101-30s-features";
+/// The OpenVINS simulator's corridor sequence (mono tracks, 400 Hz IMU).
+pub const OPENVINS_CORRIDOR: &str = "openvins-sim-corridor-mono";
+
+/// A shared data set folder; panics naming the path when it is missing.
+pub fn data_dir(name: &str) -> PathBuf {
+    let p = Path::new(DATA_DIR).join(name);
+    assert!(
+        p.join("mav0").is_dir(),
+        "shared data set {} is missing (expected an EuRoC ASL folder with mav0/)",
+        p.display()
+    );
+    p
+}
+
+/// Reads a shared EuRoC-layout data set.
+pub fn load(name: &str) -> Dataset {
+    let dir = data_dir(name);
+    povins::platform::euroc::read_dataset(&dir)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", dir.display()))
+}
+
+/// Keeps only the first `secs` seconds (from the first IMU sample) of every stream.
+pub fn truncate(ds: &mut Dataset, secs: f64) {
+    let t_end = ds.imu[0].t_ns + (secs * 1e9) as i64;
+    ds.imu.retain(|s| s.t_ns <= t_end);
+    ds.features.retain(|f| f.t_ns <= t_end);
+    ds.ground_truth.retain(|g| g.t_ns <= t_end);
+    ds.lidar.retain(|l| l.t_ns <= t_end);
+}
+
+/// `config_for` + `configs/euroc.toml`, in the given visual mode.
+pub fn euroc_config(ds: &Dataset, mode: VisualMode) -> EstimatorConfig {
+    let mut cfg = config_for(ds);
+    let file = RunConfigFile::read(Path::new(EUROC_TOML))
+        .unwrap_or_else(|e| panic!("cannot read {EUROC_TOML}: {e:#}"));
+    file.apply(&mut cfg);
+    cfg.mode = mode;
+    cfg
+}
+
+/// A simulated robot run without LiDAR (the estimator does not use it; this saves time).
+pub fn simulate_robot(seed: u64, secs: f64) -> Dataset {
+    let mut sc = SimConfig::new(Scenario::Robot, seed, secs);
+    sc.lidar = Some(LidarKind::None);
+    simulate(&sc, &|_, _, _| {})
+        .unwrap_or_else(|e| panic!("simulation failed: {e:#}"))
+        .dataset
+}
+
+/// A progress bar that draws nothing.
+pub fn quiet() -> Progress {
+    Progress::with_visibility(0, "", false)
+}
+
+/// The ground-truth start as `runner::replay` does it for `--init groundtruth`: the index of
+/// the first IMU sample covered by ground truth and the interpolated true state there. Also
+/// tightens the first keyframe's prior the same way.
+pub fn gt_start(ds: &Dataset, cfg: &mut EstimatorConfig) -> (usize, NavState) {
+    let g0 = ds
+        .ground_truth
+        .first()
+        .expect("the data set has ground truth");
+    let start = ds
+        .imu
+        .iter()
+        .position(|s| s.t_ns >= g0.t_ns)
+        .expect("an IMU sample after the first ground-truth state");
+    let t = ds.imu[start].t_ns;
+    let st = interpolate_state(&ds.ground_truth, t).expect("ground truth at the start");
+    cfg.first_prior.theta_rad = 2e-3;
+    cfg.first_prior.v_mps = 0.01;
+    cfg.first_prior.bg_rps = 1e-4;
+    cfg.first_prior.ba_mps2 = 0.01;
+    (start, NavState { t_ns: t, ..st })
+}
+
+/// Replays `imu[start..]` with the frames in time order, as `runner::replay` does: every frame
+/// whose stamp the current IMU sample has reached is offered before the sample. `on_out` sees
+/// every accepted sample's output (and the estimator after it) and returns `false` to stop.
+/// Allocation-free itself.
+pub fn drive(
+    est: &mut PoVins,
+    imu: &[ImuSample],
+    frames: &[(i64, &[povins::core::camera::FeatureObs])],
+    mut on_out: impl FnMut(&mut PoVins, &ImuSample, &ImuOutput) -> bool,
+) {
+    let t0 = imu.first().map_or(i64::MIN, |s| s.t_ns);
+    let mut fi = frames.partition_point(|f| f.0 < t0);
+    for s in imu {
+        while let Some(f) = frames.get(fi).filter(|f| f.0 <= s.t_ns) {
+            let _ = est.push_frame(f.0, f.1);
+            fi += 1;
+        }
+        if let Ok(o) = est.push_imu(s) {
+            if !on_out(est, s, &o) {
+                return;
+            }
+        }
+    }
+}
+
+/// The frames of a data set as `(t_cam_ns, observations)` slices for [`drive`].
+pub fn frames_of(ds: &Dataset) -> Vec<(i64, &[povins::core::camera::FeatureObs])> {
+    ds.features
+        .iter()
+        .map(|f| (f.t_ns, f.obs.as_slice()))
+        .collect()
+}
+
+/// A new boxed estimator.
+pub fn new_estimator(cfg: EstimatorConfig) -> Box<PoVins> {
+    Box::new(PoVins::new(cfg).expect("a valid estimator configuration"))
+}
+
+/// Position ATE RMSE (position + yaw alignment, evo's matching rules) of `states` against the
+/// data set's ground truth.
+pub fn ate_m(ds: &Dataset, states: &[NavState]) -> f64 {
+    let gt: Vec<StampedPose> = ds.ground_truth.iter().map(StampedPose::from).collect();
+    let est: Vec<StampedPose> = states.iter().map(StampedPose::from).collect();
+    evaluate(&gt, &est, &EvalOptions::default())
+        .unwrap_or_else(|e| panic!("evaluation failed: {e:#}"))
+        .ate_pos_m
+        .rmse
+}
+
+/// True when every number of the state is finite.
+pub fn state_is_finite(s: &NavState) -> bool {
+    [s.p_wb, s.v_wb, s.bg, s.ba]
+        .iter()
+        .all(|v| v.iter().all(|x| x.is_finite()))
+        && s.q_wb.coords.iter().all(|x| x.is_finite())
+}
+
+/// Runs `f` on a thread with a 64 MB stack and propagates its panic. `PoVins::new` returns the
+/// 1.5 MB estimator by value, so `Box::new(PoVins::new(..))` (also in `runner::replay`) can
+/// overflow the test harness's 2 MB thread stacks at this optimization level.
+pub fn big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+    match std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(f)
+        .expect("spawn a test thread")
+        .join()
+    {
+        Ok(v) => v,
+        Err(p) => std::panic::resume_unwind(p),
+    }
+}

@@ -1,0 +1,131 @@
+//! The whole estimator (INS, front-end bookkeeping, keyframe selection, LM solves,
+//! marginalization, culling) never touches the heap: the data and the boxed estimator are
+//! prepared first, then every IMU sample and frame is fed under a counting global allocator.
+
+mod common;
+
+use common::*;
+use povins::core::estimator::VisualMode;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+struct Counting;
+
+thread_local! {
+    // Per-thread flag and count: the harness's threads (and other tests running in parallel)
+    // cannot interfere. Const-initialized `Cell`s have no destructor, so touching them from the
+    // allocator cannot allocate or recurse.
+    static ACTIVE: Cell<bool> = const { Cell::new(false) };
+    static COUNT: Cell<usize> = const { Cell::new(0) };
+}
+
+fn note_alloc() {
+    if ACTIVE.with(Cell::get) {
+        COUNT.with(|c| c.set(c.get() + 1));
+    }
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; only counts.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note_alloc();
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note_alloc();
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note_alloc();
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// Counts the allocations `f` makes on this thread.
+fn count_allocs(f: impl FnOnce()) -> usize {
+    COUNT.with(|c| c.set(0));
+    ACTIVE.with(|a| a.set(true));
+    f();
+    ACTIVE.with(|a| a.set(false));
+    COUNT.with(Cell::get)
+}
+
+/// The counter itself works (otherwise every zero below would be meaningless).
+#[test]
+fn counter_sees_allocations() {
+    let n = count_allocs(|| {
+        let v: Vec<u64> = std::hint::black_box(Vec::with_capacity(16));
+        drop(v);
+    });
+    assert_eq!(n, 1);
+}
+
+fn euroc_alloc_free(mode: VisualMode) {
+    big_stack(move || {
+        let ds = load(EUROC_30S);
+        let cfg = euroc_config(&ds, mode);
+        let frames = frames_of(&ds);
+        let mut est = new_estimator(cfg);
+        let mut keyframes = 0usize;
+        let mut last = None;
+        let allocs = count_allocs(|| {
+            drive(&mut est, &ds.imu, &frames, |_, _, o| {
+                keyframes += usize::from(o.keyframe.is_some());
+                last = o.nav;
+                true
+            });
+        });
+        let c = est.counters();
+        println!("EuRoC {mode:?}: {keyframes} keyframes, {allocs} allocations, {c:?}");
+        assert!(keyframes > 40, "only {keyframes} keyframes in {mode:?}");
+        assert_eq!(c.keyframes as usize, keyframes);
+        assert!(last.as_ref().is_some_and(state_is_finite));
+        assert_eq!(
+            allocs, 0,
+            "the estimator allocated {allocs} times ({mode:?})"
+        );
+    });
+}
+
+#[test]
+fn euroc_pose_only_does_not_allocate() {
+    euroc_alloc_free(VisualMode::PoseOnly);
+}
+
+#[test]
+fn euroc_inverse_depth_does_not_allocate() {
+    euroc_alloc_free(VisualMode::InverseDepth);
+}
+
+#[test]
+fn simulated_robot_gt_init_does_not_allocate() {
+    big_stack(|| {
+        let ds = simulate_robot(3, 15.0);
+        let mut cfg = povins::host_tools::runner::config_for(&ds);
+        let (start, s0) = gt_start(&ds, &mut cfg);
+        let frames = frames_of(&ds);
+        let mut est = new_estimator(cfg);
+        let mut keyframes = 0usize;
+        let allocs = count_allocs(|| {
+            est.initialize(s0).expect("initialize from ground truth");
+            drive(&mut est, &ds.imu[start..], &frames, |_, _, o| {
+                keyframes += usize::from(o.keyframe.is_some());
+                true
+            });
+        });
+        let c = est.counters();
+        println!("simulated robot: {keyframes} keyframes, {allocs} allocations, {c:?}");
+        assert!(keyframes > 40, "only {keyframes} keyframes");
+        assert!(
+            c.landmarks_refused_capacity > 0,
+            "the landmark capacity was not reached"
+        );
+        assert_eq!(allocs, 0, "the estimator allocated {allocs} times");
+    });
+}

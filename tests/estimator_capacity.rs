@@ -1,0 +1,60 @@
+//! The landmark capacity (`L` = 200 for `PoVins`) is a hard bound: a simulated robot run sees
+//! about 200 tracked features per frame, more than the manager can hold together with the
+//! landmarks still alive from older keyframes. New tracks beyond the capacity are refused and
+//! counted; the run still completes with keyframes and a sane trajectory.
+
+mod common;
+
+use common::*;
+use povins::host_tools::runner::config_for;
+
+const CAPACITY: usize = 200;
+
+#[test]
+fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
+    big_stack(|| {
+        let ds = simulate_robot(3, 15.0);
+        let per_frame = ds.features.iter().map(|f| f.obs.len()).sum::<usize>() as f64
+            / ds.features.len() as f64;
+        assert!(per_frame > 150.0, "only {per_frame:.1} features per frame");
+
+        let mut cfg = config_for(&ds);
+        let (start, s0) = gt_start(&ds, &mut cfg);
+        let mut est = new_estimator(cfg);
+        est.initialize(s0).expect("initialize from ground truth");
+        let frames = frames_of(&ds);
+        let (mut states, mut keyframes, mut max_landmarks) = (Vec::new(), 0usize, 0usize);
+        let mut full_keyframes = 0usize;
+        drive(&mut est, &ds.imu[start..], &frames, |e, _, o| {
+            states.extend(o.nav);
+            if let Some(r) = o.keyframe {
+                keyframes += 1;
+                let n = e.landmarks().len();
+                assert!(
+                    n <= CAPACITY,
+                    "{n} landmarks after the keyframe at {} ns",
+                    r.t_ns
+                );
+                assert_eq!(r.landmarks_total as usize, n);
+                assert!(r.landmarks_used as usize <= n);
+                max_landmarks = max_landmarks.max(n);
+                full_keyframes += usize::from(n == CAPACITY);
+            }
+            true
+        });
+        let c = est.counters();
+        let ate = ate_m(&ds, &states);
+        println!(
+            "simulated robot 15 s: {per_frame:.1} features/frame, {keyframes} keyframes, \
+             {full_keyframes} at capacity, max {max_landmarks} landmarks, ATE {ate:.4} m, {c:?}"
+        );
+        assert!(c.landmarks_refused_capacity > 0, "{c:?}");
+        assert_eq!(max_landmarks, CAPACITY, "the capacity was never reached");
+        assert!(keyframes > 40, "only {keyframes} keyframes");
+        assert_eq!(c.keyframes as usize, keyframes);
+        assert_eq!(c.solver_failures, 0, "{c:?}");
+        assert_eq!(c.resets, 0, "{c:?}");
+        assert!(states.iter().all(state_is_finite));
+        assert!(ate < 0.2, "ATE {ate:.4} m");
+    });
+}

@@ -1,0 +1,594 @@
+//! The estimator never panics on bad input and counts what it rejects. The base stream is real
+//! (EuRoC V1_01, first 30 s, static start, `configs/euroc.toml`), corrupted in one way per test.
+//!
+//! Where the corruption only adds input that must be rejected (non-finite or out-of-order IMU
+//! samples, junk observations, out-of-order frames), the test also asserts that the accepted
+//! input's output is bit-identical to the clean run: a rejected item must change nothing.
+
+mod common;
+
+use common::*;
+use povins::core::camera::FeatureObs;
+use povins::core::estimator::{Counters, PoVins, Status, VisualMode, MAX_FEATURES};
+use povins::core::inertial::{ImuSample, NavState};
+use povins::core::math::Vec3;
+use povins::host_tools::runner::interpolate_state;
+use povins::platform::dataset::Dataset;
+
+/// What a run produced.
+struct Run {
+    states: Vec<NavState>,
+    keyframe_times: Vec<i64>,
+    counters: Counters,
+    status: Status,
+}
+
+type Frames = Vec<(i64, Vec<FeatureObs>)>;
+
+fn euroc() -> (Dataset, Frames) {
+    let ds = load(EUROC_30S);
+    let frames = ds
+        .features
+        .iter()
+        .map(|f| (f.t_ns, f.obs.clone()))
+        .collect();
+    (ds, frames)
+}
+
+/// Replays `imu` and `frames` (in the given order) from a static start; `hook` runs after every
+/// accepted sample.
+fn run_with(
+    ds: &Dataset,
+    imu: &[ImuSample],
+    frames: &Frames,
+    mut hook: impl FnMut(&mut PoVins, &ImuSample),
+) -> Run {
+    let mut est = new_estimator(euroc_config(ds, VisualMode::PoseOnly));
+    let slices: Vec<(i64, &[FeatureObs])> =
+        frames.iter().map(|(t, o)| (*t, o.as_slice())).collect();
+    let mut states = Vec::with_capacity(imu.len());
+    let mut keyframe_times = Vec::new();
+    drive(&mut est, imu, &slices, |e, s, o| {
+        if let Some(n) = o.nav {
+            states.push(n);
+        }
+        if let Some(r) = o.keyframe {
+            keyframe_times.push(r.t_ns);
+        }
+        hook(e, s);
+        true
+    });
+    Run {
+        states,
+        keyframe_times,
+        counters: est.counters(),
+        status: est.status(),
+    }
+}
+
+fn run(ds: &Dataset, imu: &[ImuSample], frames: &Frames) -> Run {
+    run_with(ds, imu, frames, |_, _| {})
+}
+
+fn bits(s: &NavState) -> Vec<u64> {
+    let mut v = vec![s.t_ns as u64];
+    v.extend(
+        s.p_wb
+            .iter()
+            .chain(s.q_wb.coords.iter())
+            .chain(s.v_wb.iter())
+            .chain(s.bg.iter())
+            .chain(s.ba.iter())
+            .map(|x| x.to_bits()),
+    );
+    v
+}
+
+fn assert_same_states(clean: &Run, other: &Run, what: &str) {
+    assert_eq!(
+        clean.states.len(),
+        other.states.len(),
+        "{what}: state counts differ"
+    );
+    if let Some(i) =
+        (0..clean.states.len()).find(|&i| bits(&clean.states[i]) != bits(&other.states[i]))
+    {
+        panic!(
+            "{what}: the output changed at state #{i} (t = {} ns)",
+            clean.states[i].t_ns
+        );
+    }
+}
+
+fn assert_finite(r: &Run, what: &str) {
+    if let Some(s) = r.states.iter().find(|s| !state_is_finite(s)) {
+        panic!("{what}: non-finite state at t = {} ns: {s:?}", s.t_ns);
+    }
+}
+
+/// Time of a run's first navigation output (its static initialization), ns.
+fn init_time(r: &Run) -> i64 {
+    r.states.first().expect("the run initializes").t_ns
+}
+
+fn secs(ds: &Dataset, s: f64) -> i64 {
+    ds.imu[0].t_ns + (s * 1e9) as i64
+}
+
+fn keyframes_after(r: &Run, t_ns: i64) -> usize {
+    r.keyframe_times.iter().filter(|&&t| t > t_ns).count()
+}
+
+/// `fix` undoes the expected effect of the corruption on `other`'s counters; everything else
+/// must equal the clean run's.
+fn assert_counters_equal_except(
+    clean: &Counters,
+    other: &Counters,
+    mut fix: impl FnMut(&mut Counters),
+) {
+    let mut o = *other;
+    fix(&mut o);
+    assert_eq!(*clean, o, "counters differ beyond the injected corruption");
+}
+
+#[test]
+fn nonfinite_imu_samples_are_rejected_counted_and_change_nothing() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let clean = run(&ds, &ds.imu, &frames);
+        let mut imu = Vec::new();
+        let mut injected = 0u64;
+        for (k, s) in ds.imu.iter().enumerate() {
+            imu.push(*s);
+            if k % 97 == 50 {
+                // A newer stamp, so only the values can be the reason for the rejection.
+                let mut bad = ImuSample {
+                    t_ns: s.t_ns + 1_000,
+                    ..*s
+                };
+                match injected % 4 {
+                    0 => bad.gyro_rps.x = f64::NAN,
+                    1 => bad.accel_mps2.z = f64::INFINITY,
+                    2 => bad.accel_mps2.y = f64::NEG_INFINITY,
+                    _ => bad.gyro_rps = Vec3::repeat(f64::NAN),
+                }
+                imu.push(bad);
+                injected += 1;
+            }
+        }
+        let r = run(&ds, &imu, &frames);
+        println!("injected {injected} non-finite samples: {:?}", r.counters);
+        assert!(injected > 60);
+        assert_eq!(r.counters.imu_rejected_nonfinite, injected);
+        assert_counters_equal_except(&clean.counters, &r.counters, |c| {
+            c.imu_rejected_nonfinite = 0
+        });
+        assert_same_states(&clean, &r, "non-finite IMU samples");
+    });
+}
+
+#[test]
+fn imu_time_going_backwards_or_repeating_is_rejected_counted_and_changes_nothing() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let clean = run(&ds, &ds.imu, &frames);
+        let mut imu = Vec::new();
+        let mut injected = 0u64;
+        for (k, s) in ds.imu.iter().enumerate() {
+            imu.push(*s);
+            if k % 89 == 20 {
+                let bad = match injected % 4 {
+                    // An exact repeat.
+                    0 => *s,
+                    // The same stamp with other values.
+                    1 => ImuSample {
+                        gyro_rps: s.gyro_rps * 3.0,
+                        ..*s
+                    },
+                    // Half a sample period back.
+                    2 => ImuSample {
+                        t_ns: s.t_ns - 2_500_000,
+                        accel_mps2: -s.accel_mps2,
+                        ..*s
+                    },
+                    // A second back.
+                    _ => ImuSample {
+                        t_ns: s.t_ns - 1_000_000_000,
+                        ..*s
+                    },
+                };
+                imu.push(bad);
+                injected += 1;
+            }
+        }
+        let r = run(&ds, &imu, &frames);
+        println!("injected {injected} out-of-order samples: {:?}", r.counters);
+        assert!(injected > 60);
+        assert_eq!(r.counters.imu_rejected_time, injected);
+        assert_counters_equal_except(&clean.counters, &r.counters, |c| c.imu_rejected_time = 0);
+        assert_same_states(&clean, &r, "out-of-order IMU samples");
+    });
+}
+
+/// A 1 s IMU gap while the MAV still stands on the ground: the estimator resets, and the static
+/// period after the gap initializes it again.
+#[test]
+fn imu_gap_at_rest_resets_and_reinitializes_from_the_next_static_period() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let (gap0, gap1) = (secs(&ds, 2.4), secs(&ds, 3.4));
+        let imu: Vec<ImuSample> = ds
+            .imu
+            .iter()
+            .copied()
+            .filter(|s| s.t_ns <= gap0 || s.t_ns > gap1)
+            .collect();
+        let r = run(&ds, &imu, &frames);
+        let ate = ate_m(&ds, &r.states);
+        println!(
+            "gap at rest: {:?}, {} keyframes after the gap, ATE {ate:.4} m",
+            r.counters,
+            keyframes_after(&r, gap1)
+        );
+        assert!(init_time(&r) < gap0, "initialized before the gap");
+        assert_eq!(r.counters.resets, 1);
+        // No output between the reset and the new initialization (>= min_static_s later).
+        let reinit = r
+            .states
+            .iter()
+            .find(|s| s.t_ns > gap1)
+            .expect("output after the gap")
+            .t_ns;
+        assert!(
+            reinit >= gap1 + 1_000_000_000,
+            "re-initialized {} ns after the gap",
+            reinit - gap1
+        );
+        assert!(keyframes_after(&r, gap1) > 40);
+        assert_eq!(r.status, Status::Running);
+        assert_finite(&r, "gap at rest");
+        assert!(ate < 0.2, "ATE {ate:.4} m after re-initialization");
+    });
+}
+
+/// A 1 s IMU gap in flight: the estimator resets and waits (there is no static period);
+/// `initialize` with the true state restarts it and it produces keyframes again.
+#[test]
+fn imu_gap_in_flight_resets_and_restarts_after_initialize() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let (gap0, gap1) = (secs(&ds, 15.0), secs(&ds, 16.0));
+        let imu: Vec<ImuSample> = ds
+            .imu
+            .iter()
+            .copied()
+            .filter(|s| s.t_ns <= gap0 || s.t_ns > gap1)
+            .collect();
+        let mut restarted = None;
+        let r = run_with(&ds, &imu, &frames, |e, s| {
+            if s.t_ns > gap1 && restarted.is_none() {
+                // The first sample after the gap has reset the estimator.
+                assert_eq!(e.counters().resets, 1);
+                assert_eq!(e.status(), Status::WaitingForInit);
+                let gt = interpolate_state(&ds.ground_truth, s.t_ns).expect("ground truth");
+                e.initialize(gt).expect("initialize");
+                restarted = Some(s.t_ns);
+            }
+        });
+        let t_re = restarted.expect("the gap was reached");
+        let after: Vec<NavState> = r.states.iter().copied().filter(|s| s.t_ns > t_re).collect();
+        let ate = ate_m(&ds, &after);
+        let last = r.states.last().expect("output");
+        let gt_last = interpolate_state(&ds.ground_truth, last.t_ns).expect("ground truth");
+        let err_end = (last.p_wb - gt_last.p_wb).norm();
+        println!(
+            "gap in flight: {:?}, {} keyframes after the restart, ATE after it {ate:.4} m, \
+             final position error {err_end:.3} m",
+            r.counters,
+            keyframes_after(&r, t_re)
+        );
+        assert_eq!(r.counters.resets, 1);
+        assert!(keyframes_after(&r, t_re) > 20);
+        assert_eq!(r.counters.solver_failures, 0);
+        assert_finite(&r, "gap in flight");
+        assert!(ate < 0.2, "ATE {ate:.4} m after the restart");
+        // Started in the ground-truth frame: no alignment needed.
+        assert!(err_end < 0.5, "final position error {err_end:.3} m");
+    });
+}
+
+/// Observations the front end must reject are appended to real frames: NaN and infinite pixels,
+/// pixels outside the image, a repeated id (the first occurrence is the real one) and frames
+/// longer than `MAX_FEATURES`. Every one is counted and none changes the output.
+#[test]
+fn junk_observations_are_rejected_counted_and_change_nothing() {
+    big_stack(|| {
+        let (ds, mut frames) = euroc();
+        let clean = run(&ds, &ds.imu, &frames);
+        // Frames before the initialization only feed track velocities and are not counted.
+        let t_from = init_time(&clean) + 500_000_000;
+        let (w, h) = (ds.calib.camera.width as f64, ds.calib.camera.height as f64);
+        let mut injected = 0u64;
+        let mut next_id = 1u64 << 40;
+        let mut junk = |u_px: f64, v_px: f64| {
+            next_id += 1;
+            FeatureObs {
+                id: next_id,
+                u_px,
+                v_px,
+            }
+        };
+        let mut long_frames = 0;
+        for (k, (t, obs)) in frames.iter_mut().enumerate() {
+            if *t <= t_from || obs.is_empty() {
+                continue;
+            }
+            if k % 3 == 0 {
+                let first = obs[0];
+                obs.extend([
+                    junk(f64::NAN, 100.0),
+                    junk(200.0, f64::NAN),
+                    junk(f64::INFINITY, 100.0),
+                    junk(-5.0, 100.0),
+                    junk(100.0, h + 5.0),
+                    junk(w + 5.0, 1e12),
+                    FeatureObs {
+                        u_px: first.u_px + 2.0,
+                        ..first
+                    },
+                ]);
+                injected += 7;
+            }
+            if k % 50 == 1 {
+                // Past MAX_FEATURES: the tail is cut at the frame capacity, the rest is outside
+                // the image.
+                let n = MAX_FEATURES + 20 - obs.len();
+                obs.extend((0..n).map(|_| junk(-100.0, -100.0)));
+                injected += n as u64;
+                long_frames += 1;
+            }
+        }
+        let r = run(&ds, &ds.imu, &frames);
+        println!(
+            "injected {injected} junk observations ({long_frames} frames > MAX_FEATURES): {:?}",
+            r.counters
+        );
+        assert!(long_frames >= 8);
+        assert_eq!(
+            r.counters.features_rejected,
+            clean.counters.features_rejected + injected
+        );
+        assert_eq!(
+            r.counters.features_received,
+            clean.counters.features_received + injected
+        );
+        assert_counters_equal_except(&clean.counters, &r.counters, |c| {
+            c.features_rejected -= injected;
+            c.features_received -= injected;
+        });
+        assert_same_states(&clean, &r, "junk observations");
+    });
+}
+
+/// Empty frames inserted between real ones, and a 1 s camera blackout (every frame empty) in
+/// flight: the estimator keeps running on the INS and recovers when features return.
+#[test]
+fn empty_frames_and_a_camera_blackout_are_survived() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let (b0, b1) = (secs(&ds, 14.0), secs(&ds, 15.0));
+        let mut corrupted: Frames = Vec::new();
+        let mut inserted = 0u64;
+        for (k, (t, obs)) in frames.iter().enumerate() {
+            let in_blackout = *t > b0 && *t < b1;
+            corrupted.push((*t, if in_blackout { Vec::new() } else { obs.clone() }));
+            if k % 10 == 5 {
+                if let Some((t_next, _)) = frames.get(k + 1) {
+                    corrupted.push(((t + t_next) / 2, Vec::new()));
+                    inserted += 1;
+                }
+            }
+        }
+        let r = run(&ds, &ds.imu, &corrupted);
+        let ate = ate_m(&ds, &r.states);
+        println!(
+            "{inserted} empty frames + 1 s blackout: {:?}, {} keyframes after it, ATE {ate:.4} m",
+            r.counters,
+            keyframes_after(&r, b1)
+        );
+        assert_eq!(r.counters.frames, frames.len() as u64 + inserted);
+        assert_eq!(r.counters.resets, 0);
+        assert_eq!(r.counters.solver_failures, 0);
+        assert!(keyframes_after(&r, b1) > 20);
+        assert_finite(&r, "empty frames");
+        assert!(ate < 0.2, "ATE {ate:.4} m");
+    });
+}
+
+/// Frames whose stamp goes backwards or repeats are rejected and counted (also before the
+/// initialization: the frame they follow is still pending) and change nothing.
+#[test]
+fn frame_time_going_backwards_is_rejected_counted_and_changes_nothing() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let clean = run(&ds, &ds.imu, &frames);
+        let t_init = init_time(&clean);
+        let mut corrupted: Frames = Vec::new();
+        let (mut before, mut after) = (0u64, 0u64);
+        for (k, (t, obs)) in frames.iter().enumerate() {
+            corrupted.push((*t, obs.clone()));
+            if k % 7 == 3 {
+                let back = if k % 2 == 0 { *t } else { t - 10_000_000 };
+                corrupted.push((back, obs.clone()));
+                // The frame before it is still waiting for its IMU sample when this one comes.
+                if *t < t_init - 100_000_000 {
+                    before += 1;
+                } else if *t > t_init + 100_000_000 {
+                    after += 1;
+                } else {
+                    corrupted.pop();
+                }
+            }
+        }
+        // The replay offers a frame once the IMU reaches its stamp, so each backwards frame is
+        // offered right after the frame it follows, while that one is still pending.
+        let r = run(&ds, &ds.imu, &corrupted);
+        println!("{before} + {after} backwards frames: {:?}", r.counters);
+        assert!(before > 2 && after > 60);
+        assert_eq!(r.counters.frames, clean.counters.frames + before + after);
+        assert_counters_equal_except(&clean.counters, &r.counters, |c| {
+            c.frames -= before + after;
+            c.frames_rejected_time -= before + after;
+        });
+        assert_same_states(&clean, &r, "backwards frames");
+    });
+}
+
+/// Replays with the frames offered at explicit IMU times: `(offer_at_ns, t_cam_ns, obs)`,
+/// offered in list order once the IMU reaches `offer_at_ns`.
+fn run_offered(ds: &Dataset, frames: &[(i64, i64, Vec<FeatureObs>)]) -> Run {
+    let mut est = new_estimator(euroc_config(ds, VisualMode::PoseOnly));
+    let (mut states, mut keyframe_times) = (Vec::new(), Vec::new());
+    let mut fi = 0;
+    for s in &ds.imu {
+        while let Some((_, t_cam, obs)) = frames.get(fi).filter(|f| f.0 <= s.t_ns) {
+            let _ = est.push_frame(*t_cam, obs);
+            fi += 1;
+        }
+        if let Ok(o) = est.push_imu(s) {
+            states.extend(o.nav);
+            keyframe_times.extend(o.keyframe.map(|r| r.t_ns));
+        }
+    }
+    Run {
+        states,
+        keyframe_times,
+        counters: est.counters(),
+        status: est.status(),
+    }
+}
+
+/// One frame arrives stamped `lead_s` ahead of the IMU (right after the real frame at 12 s, a
+/// copy of it). It replaces the pending real frame (counted as dropped) and, until the IMU
+/// reaches its stamp, every real frame is older than it and rejected (counted).
+fn frame_far_ahead(lead_s: f64) -> (Dataset, Run, u64, i64) {
+    let (ds, frames) = euroc();
+    let k = frames
+        .iter()
+        .position(|f| f.0 > secs(&ds, 12.0))
+        .expect("a frame at 12 s");
+    let t_far = frames[k].0 + (lead_s * 1e9) as i64;
+    let mut offered: Vec<(i64, i64, Vec<FeatureObs>)> =
+        frames.iter().map(|(t, o)| (*t, *t, o.clone())).collect();
+    offered.insert(k + 1, (frames[k].0, t_far, frames[k].1.clone()));
+    let blocked = frames
+        .iter()
+        .filter(|f| f.0 > frames[k].0 && f.0 <= t_far)
+        .count() as u64;
+    let r = run_offered(&ds, &offered);
+    (ds, r, blocked, t_far)
+}
+
+#[test]
+fn a_frame_2s_ahead_of_the_imu_blocks_newer_frames_until_reached_counted() {
+    big_stack(|| {
+        let (ds, r, blocked, t_far) = frame_far_ahead(2.0);
+        let ate = ate_m(&ds, &r.states);
+        println!(
+            "frame 2 s ahead: {:?}, {} keyframes after it, ATE {ate:.4} m",
+            r.counters,
+            keyframes_after(&r, t_far)
+        );
+        assert!(blocked >= 39, "{blocked} frames blocked");
+        assert_eq!(r.counters.frames_dropped_no_imu, 1);
+        assert_eq!(r.counters.frames_rejected_time, blocked);
+        assert_eq!(r.counters.resets, 0);
+        assert!(keyframes_after(&r, t_far) > 20);
+        assert_finite(&r, "frame 2 s ahead");
+        assert!(ate < 0.3, "ATE {ate:.4} m");
+    });
+}
+
+/// 5 s ahead: the open preintegration interval (`MAX_INTERVAL_SAMPLES` = 2.56 s at 200 Hz)
+/// overflows while waiting, so the estimator resets (counted). In flight there is no static
+/// period to start again, so it waits for the rest of the run.
+#[test]
+fn a_frame_5s_ahead_of_the_imu_ends_in_a_counted_reset() {
+    big_stack(|| {
+        let (_, r, blocked, _) = frame_far_ahead(5.0);
+        println!("frame 5 s ahead: {:?}, status {:?}", r.counters, r.status);
+        assert_eq!(r.counters.frames_dropped_no_imu, 1);
+        assert!(r.counters.frames_rejected_time > 0 && r.counters.frames_rejected_time <= blocked);
+        assert_eq!(r.counters.resets, 1);
+        assert_eq!(r.status, Status::WaitingForInit);
+        assert_finite(&r, "frame 5 s ahead");
+    });
+}
+
+/// The camera stream runs ahead of the IMU: frames arrive in bursts of three before the IMU
+/// reaches the first of them; only the newest of a burst is kept, the others are counted.
+#[test]
+fn frames_arriving_ahead_of_the_imu_in_bursts_are_dropped_counted() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let offered: Vec<(i64, i64, Vec<FeatureObs>)> = frames
+            .iter()
+            .enumerate()
+            .map(|(k, (t, o))| (frames[k - k % 3].0, *t, o.clone()))
+            .collect();
+        let r = run_offered(&ds, &offered);
+        let bursts = frames.len() as u64 / 3;
+        let ate = ate_m(&ds, &r.states);
+        println!("bursts of 3 frames: {:?}, ATE {ate:.4} m", r.counters);
+        assert_eq!(r.counters.frames_dropped_no_imu, 2 * bursts);
+        assert_eq!(r.counters.frames_rejected_time, 0);
+        assert_eq!(r.counters.resets, 0);
+        assert!(r.counters.keyframes > 40);
+        assert_finite(&r, "bursts");
+        assert!(ate < 0.2, "ATE {ate:.4} m");
+    });
+}
+
+/// Absurd but finite IMU values (1e9 on every axis, three samples in flight) are not
+/// rejected by the core (it has no range check): the run must survive without a panic and
+/// with finite output. The trajectory after them is lost (see the printed numbers).
+#[test]
+fn absurd_finite_imu_values_do_not_panic_and_keep_the_output_finite() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let i0 = ds.imu.partition_point(|s| s.t_ns < secs(&ds, 15.0));
+        let mut imu = ds.imu.clone();
+        for s in &mut imu[i0..i0 + 3] {
+            s.accel_mps2 = Vec3::new(1e9, -1e9, 1e9);
+            s.gyro_rps = Vec3::new(1e9, 1e9, -1e9);
+        }
+        let r = run(&ds, &imu, &frames);
+        let last = r.states.last().expect("output");
+        println!(
+            "absurd IMU: {:?}, status {:?}, final position {:?}",
+            r.counters,
+            r.status,
+            last.p_wb.as_slice()
+        );
+        assert_eq!(r.counters.imu_samples, imu.len() as u64);
+        assert!(r.counters.keyframes > 40);
+        assert_finite(&r, "absurd IMU values");
+    });
+}
+
+/// Finite values near `f64::MAX` overflow the INS mechanization to NaN, and the estimator then
+/// publishes NaN states for the rest of the run. Documents a known bug (see the report of the
+/// `esttests` branch); run with `--ignored`.
+#[test]
+#[ignore = "known bug: huge finite IMU values overflow the INS into NaN output"]
+fn huge_finite_imu_values_keep_the_output_finite() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let i0 = ds.imu.partition_point(|s| s.t_ns < secs(&ds, 15.0));
+        let mut imu = ds.imu.clone();
+        imu[i0].accel_mps2 = Vec3::repeat(1e300);
+        imu[i0].gyro_rps = Vec3::repeat(1e300);
+        let r = run(&ds, &imu, &frames);
+        assert_finite(&r, "IMU values of 1e300");
+    });
+}
