@@ -51,6 +51,14 @@ pub struct EstimatorConfig {
     pub gravity_mps2: f64,
     /// Largest IMU sample spacing before the estimator resets, s.
     pub max_imu_dt_s: f64,
+    /// IMU sensor range: samples with a larger gyro component are rejected, rad/s.
+    pub max_gyro_rps: f64,
+    /// IMU sensor range: samples with a larger accelerometer component are rejected, m/s^2.
+    pub max_accel_mps2: f64,
+    /// The INS is considered diverged (and the estimator reset) above this speed, m/s.
+    pub max_speed_mps: f64,
+    /// Frames stamped more than this ahead of the newest IMU sample are rejected, s.
+    pub max_frame_lead_s: f64,
     /// Visual measurement model.
     pub mode: VisualMode,
     /// Keyframe thresholds.
@@ -113,6 +121,11 @@ impl EstimatorConfig {
             imu_noise,
             gravity_mps2: 9.81,
             max_imu_dt_s: 0.05,
+            // 2000 deg/s and 16 g: the full scale of common MEMS IMUs.
+            max_gyro_rps: 35.0,
+            max_accel_mps2: 160.0,
+            max_speed_mps: 100.0,
+            max_frame_lead_s: 1.0,
             mode: VisualMode::PoseOnly,
             keyframe: KeyframeConfig::default(),
             static_init: StaticInitConfig::DEFAULT,
@@ -149,6 +162,10 @@ impl EstimatorConfig {
         let p = &self.first_prior;
         let ok = pos(self.gravity_mps2)
             && pos(self.max_imu_dt_s)
+            && pos(self.max_gyro_rps)
+            && pos(self.max_accel_mps2)
+            && pos(self.max_speed_mps)
+            && pos(self.max_frame_lead_s)
             && pos(self.sigma_px)
             && pos(self.huber_delta)
             && self.min_parallax.is_finite()

@@ -225,6 +225,16 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// processed when the IMU reaches `t_cam + td`.
     pub fn push_frame(&mut self, t_cam_ns: i64, obs: &[FeatureObs]) -> Result<(), Error> {
         self.counters.frames += 1;
+        // A frame far ahead of the IMU would block every real frame until the IMU caught up
+        // (and overflow the open interval): refuse it.
+        let lead_limit_ns = (self.cfg.max_frame_lead_s * 1e9) as i64;
+        if self
+            .last_imu
+            .is_some_and(|s| t_cam_ns.saturating_sub(s.t_ns) > lead_limit_ns)
+        {
+            self.counters.frames_rejected_time += 1;
+            return Err(Error::OutOfRange);
+        }
         if let Some(p) = &self.pending {
             if t_cam_ns <= p.t_cam_ns {
                 self.counters.frames_rejected_time += 1;
@@ -257,6 +267,12 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         if !s.is_finite() {
             self.counters.imu_rejected_nonfinite += 1;
             return Err(Error::NonFinite);
+        }
+        if s.gyro_rps.amax() > self.cfg.max_gyro_rps
+            || s.accel_mps2.amax() > self.cfg.max_accel_mps2
+        {
+            self.counters.imu_rejected_range += 1;
+            return Err(Error::OutOfRange);
         }
         if let Some(last) = self.last_imu {
             if s.t_ns <= last.t_ns {
@@ -339,7 +355,16 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             return Err(Error::NotInitialized);
         };
         match ins.propagate(s) {
-            Ok(_) => {}
+            Ok(st) => {
+                let finite = st.p_wb.iter().chain(st.v_wb.iter()).all(|x| x.is_finite())
+                    && st.q_wb.coords.iter().all(|x| x.is_finite());
+                if !finite || st.v_wb.amax() > self.cfg.max_speed_mps {
+                    // Diverged (or fed garbage that passed the range check): start over.
+                    self.counters.divergence_resets += 1;
+                    self.reset();
+                    return Ok(());
+                }
+            }
             Err(Error::TimeGap) => {
                 self.reset();
                 return Ok(());

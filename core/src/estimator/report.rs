@@ -51,11 +51,13 @@ pub struct Counters {
     pub imu_samples: u64,
     /// IMU samples rejected as non-finite.
     pub imu_rejected_nonfinite: u64,
+    /// IMU samples rejected for exceeding the configured sensor range.
+    pub imu_rejected_range: u64,
     /// IMU samples rejected for non-increasing time.
     pub imu_rejected_time: u64,
     /// Camera frames offered.
     pub frames: u64,
-    /// Frames rejected for non-increasing time.
+    /// Frames rejected for non-increasing time, or for a stamp too far ahead of the IMU.
     pub frames_rejected_time: u64,
     /// Frames that arrived before initialization.
     pub frames_before_init: u64,
@@ -74,6 +76,8 @@ pub struct Counters {
     pub solver_failures: u64,
     /// Marginalizations that failed (the prior was dropped).
     pub marginalization_failures: u64,
-    /// Estimator resets (IMU gap, preintegration overflow).
+    /// Estimator resets (IMU gap, preintegration overflow, divergence).
     pub resets: u64,
+    /// Of the resets: those caused by a non-finite or implausibly fast INS state.
+    pub divergence_resets: u64,
 }
