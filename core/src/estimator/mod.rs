@@ -74,12 +74,14 @@ pub struct ImuOutput {
     pub keyframe: Option<KeyframeReport>,
 }
 
+#[derive(Clone)]
 struct PendingFrame {
     t_cam_ns: i64,
     obs: HVec<FeatureObs, MAX_FEATURES>,
 }
 
 /// The sliding-window estimator (see the module docs for the order of the steps).
+#[derive(Clone)]
 pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     cfg: EstimatorConfig,
     selector: KeyframeSelector,

@@ -55,6 +55,7 @@ pub fn ext_minus(x: &CameraExtrinsic, x0: &CameraExtrinsic, out: &mut [f64]) {
 pub const MAX_PRIOR_BLOCKS: usize = 64;
 
 /// The square-root marginalization prior of a window of `N` keyframes, capacity `D` dimensions.
+#[derive(Clone)]
 pub struct MargPrior<const D: usize, const N: usize> {
     /// `J0` (upper triangular, rows/columns `0..dim`).
     pub j0: [[f64; D]; D],

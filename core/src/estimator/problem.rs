@@ -69,6 +69,7 @@ pub struct AssemblyCounts {
 }
 
 /// Saved copy of the optimized variables (for LM trial steps).
+#[derive(Clone)]
 pub struct Saved<const N: usize, const L: usize> {
     states: [(NavState, f64); N],
     ext: CameraExtrinsic,

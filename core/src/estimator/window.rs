@@ -29,6 +29,7 @@ pub struct Keyframe {
 }
 
 /// Ring of at most `N` keyframes.
+#[derive(Clone)]
 pub struct Window<const N: usize> {
     slots: [Option<Keyframe>; N],
     head: usize,

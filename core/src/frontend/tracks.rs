@@ -41,6 +41,7 @@ pub struct FrameStats {
 }
 
 /// Remembers the previous frame's observations to give velocities to the next one.
+#[derive(Clone)]
 pub struct TrackTable<const F: usize> {
     prev: Vec<NormalizedObs, F>,
     prev_t_ns: Option<i64>,

@@ -83,6 +83,7 @@ pub struct ManagerStats {
 
 /// Fixed-capacity landmark store for a window of `N` keyframes and at most `L` landmarks.
 /// `H` is the capacity of the id index and must be a power of two `>= L`.
+#[derive(Clone)]
 pub struct LandmarkManager<const N: usize, const L: usize, const H: usize> {
     lms: Vec<Landmark<N>, L>,
     index: FnvIndexMap<u64, u16, H>,

@@ -217,6 +217,7 @@ pub(crate) fn forward_substitute<const D: usize>(
 }
 
 /// Caller-owned `LDL^T` workspace of capacity `D` (about `8 D^2` bytes; build in place).
+#[derive(Clone)]
 pub struct Ldlt<const D: usize> {
     /// Upper triangle of the loaded matrix, then the unit-upper factor `U` above the diagonal.
     a: [[f64; D]; D],

@@ -156,6 +156,7 @@ pub struct LmSummary {
 
 /// Caller-owned buffers of the LM driver: normal equations, the damped factor and the step
 /// (about `16 D^2` bytes; build in place).
+#[derive(Clone)]
 pub struct LmWorkspace<const D: usize> {
     /// Normal equations of the last linearization (kept across trials). After
     /// `MaxIterations`/`CostTolerance` the state has moved past it by one accepted step.

@@ -1,0 +1,90 @@
+//! Criterion benches of the estimator's back end on the OpenVINS corridor sequence (150-250
+//! landmarks per window, as the speed bar asks): one whole keyframe step (marginalization, both LM
+//! passes, culling) in the pose-only and the inverse-depth mode, from the same snapshot.
+//!
+//! Run: `cargo bench --bench estimator` (needs ../shared/data).
+
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
+use povins::core::estimator::{PoVins, VisualMode};
+use povins::host_tools::runner::config_for;
+use povins::platform::Dataset;
+use std::path::Path;
+
+const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data");
+
+fn load() -> Dataset {
+    let dir = Path::new(DATA).join("openvins-sim-corridor-mono");
+    assert!(dir.exists(), "shared data missing at {}", dir.display());
+    povins::platform::euroc::read_dataset(&dir).expect("corridor dataset")
+}
+
+/// Replays until just before the IMU sample that produces keyframe `k` (frames due at that
+/// sample already offered); returns the estimator and that sample's index.
+fn snapshot(ds: &Dataset, mode: VisualMode, k: usize) -> (Box<PoVins>, usize) {
+    let run = |stop: Option<usize>| -> (Box<PoVins>, Vec<usize>) {
+        let mut cfg = config_for(ds);
+        cfg.mode = mode;
+        cfg.clock = None;
+        let mut est = Box::new(PoVins::new(cfg).expect("config"));
+        let g0 = ds.ground_truth[0];
+        let start = ds.imu.partition_point(|s| s.t_ns < g0.t_ns);
+        est.initialize(povins::core::inertial::NavState {
+            t_ns: ds.imu[start].t_ns,
+            ..g0
+        })
+        .expect("init");
+        let mut fi = ds.features.partition_point(|f| f.t_ns < ds.imu[start].t_ns);
+        let mut kf_at = Vec::new();
+        for (i, s) in ds.imu.iter().enumerate().skip(start) {
+            while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
+                let _ = est.push_frame(f.t_ns, &f.obs);
+                fi += 1;
+            }
+            if Some(i) == stop {
+                break;
+            }
+            if let Ok(o) = est.push_imu(s) {
+                if o.keyframe.is_some() {
+                    kf_at.push(i);
+                    if kf_at.len() == k && stop.is_none() {
+                        break;
+                    }
+                }
+            }
+        }
+        (est, kf_at)
+    };
+    let (_, kf_at) = run(None);
+    let i = *kf_at.last().expect("keyframes");
+    let (est, _) = run(Some(i));
+    (est, i)
+}
+
+fn bench_keyframe(c: &mut Criterion) {
+    let ds = load();
+    for (name, mode) in [
+        ("pose_only", VisualMode::PoseOnly),
+        ("inverse_depth", VisualMode::InverseDepth),
+    ] {
+        let (est, i) = snapshot(&ds, mode, 200);
+        let sample = ds.imu[i];
+        c.bench_function(&format!("estimator/keyframe_step_{name}_corridor"), |b| {
+            b.iter_batched(
+                || Box::new((*est).clone()),
+                |mut e| {
+                    let out = e.push_imu(&sample).expect("sample");
+                    assert!(out.keyframe.is_some());
+                    e
+                },
+                BatchSize::LargeInput,
+            )
+        });
+    }
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(30);
+    targets = bench_keyframe
+}
+criterion_main!(benches);
