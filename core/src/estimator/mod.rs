@@ -37,8 +37,8 @@ use crate::inertial::{ImuSample, NavState};
 use crate::landmarks::{depth_std, pose_only_depth, TwoView};
 use crate::math::{log_so3, Vec3};
 use crate::solver::{
-    schur_complement_in_place, sqrt_prior, LandmarkSchur, Ldlt, LmWorkspace, NormalEquations,
-    PivotFloor,
+    schur_complement_in_place, sqrt_prior, FactorReport, LandmarkSchur, Ldlt, LmWorkspace,
+    NormalEquations, PivotFloor,
 };
 use crate::Error;
 use heapless::Vec as HVec;
@@ -104,6 +104,7 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     schur: [LandmarkSchur<SCHUR_COLS>; L],
     saved: Saved<N, L>,
     counters: Counters,
+    last_marg: Option<(FactorReport, FactorReport)>,
 }
 
 fn now(cfg: &EstimatorConfig) -> u64 {
@@ -146,6 +147,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             schur: core::array::from_fn(|_| LandmarkSchur::new()),
             saved: Saved::new(),
             counters: Counters::default(),
+            last_marg: None,
             cfg,
         })
     }
@@ -483,6 +485,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             culled_observations: 0,
             culled_landmarks: 0,
             disabled_landmarks: 0,
+            marginalized_rank_deficiency: 0,
+            prior_rank_deficiency: 0,
             solve_ns: 0,
             marginalization_ns: 0,
             total_ns: 0,
@@ -490,6 +494,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         // 1. Marginalize the oldest keyframe at the last optimized state.
         if self.window.is_full() {
             let tm = now(&self.cfg);
+            self.last_marg = None;
             if self.marginalize_oldest().is_err() {
                 self.counters.marginalization_failures += 1;
                 self.prior.clear();
@@ -498,6 +503,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 self.lms.shift_out_oldest();
             }
             report.marginalization_ns = now(&self.cfg).saturating_sub(tm);
+            if let Some((m, p)) = self.last_marg {
+                report.marginalized_rank_deficiency = (m.n - m.rank) as u32;
+                report.prior_rank_deficiency = (p.n - p.rank) as u32;
+            }
         }
 
         // 2. Append the keyframe with the interval's preintegration, start the next interval.
@@ -940,7 +949,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             relative: 1e-10,
             absolute: 1e-12,
         };
-        schur_complement_in_place(&mut self.marg_ne, m, floor)?;
+        let marg_report = schur_complement_in_place(&mut self.marg_ne, m, floor)?;
         let p = self.marg_ne.dim();
         // New blocks (positions still pre-shift) with their linearization points.
         self.prior.blocks.clear();
@@ -967,13 +976,14 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
         }
         let r0 = self.prior.r0.get_mut(..p).ok_or(Error::CapacityExceeded)?;
-        sqrt_prior(
+        let prior_report = sqrt_prior(
             &self.marg_ne,
             floor,
             &mut self.marg_ldlt,
             &mut self.prior.j0,
             r0,
         )?;
+        self.last_marg = Some((marg_report, prior_report));
         self.prior.set_dim(p)?;
         self.prior.shift_positions()?;
         self.initial = None;

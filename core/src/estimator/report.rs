@@ -36,6 +36,13 @@ pub struct KeyframeReport {
     pub culled_landmarks: u32,
     /// Landmarks disabled for degenerate geometry during the solve.
     pub disabled_landmarks: u32,
+    /// Pivots of the marginalized block dropped by the floor (directions the window could not
+    /// determine, e.g. the yaw gauge): 0 means the Schur complement was exact.
+    pub marginalized_rank_deficiency: u32,
+    /// Zero (or floored) pivots of the new square-root prior: states the marginalized factors
+    /// say nothing about (velocities and biases of keyframes linked to the oldest one only
+    /// through landmarks) plus any direction lost to the floor.
+    pub prior_rank_deficiency: u32,
     /// Time of the optimization (both passes, culling included), ns.
     pub solve_ns: u64,
     /// Time of the marginalization, ns.

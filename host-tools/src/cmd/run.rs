@@ -160,12 +160,12 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
     );
     writeln!(
         f,
-        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,cost_initial,cost_final,decision,termination"
+        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination"
     )?;
     for r in &out.reports {
         writeln!(
             f,
-            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{:.4},{:.4},{:?},{}",
+            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{}",
             povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
             r.total_ns as f64 * 1e-6,
             r.solve_ns as f64 * 1e-6,
@@ -180,6 +180,8 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
             r.culled_observations,
             r.culled_landmarks,
             r.disabled_landmarks,
+            r.marginalized_rank_deficiency,
+            r.prior_rank_deficiency,
             r.cost.0,
             r.cost.1,
             r.decision,
