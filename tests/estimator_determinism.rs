@@ -78,6 +78,8 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         culled_observations,
         culled_landmarks,
         disabled_landmarks,
+        marginalized_rank_deficiency,
+        prior_rank_deficiency,
         solve_ns: _,
         marginalization_ns: _,
         total_ns: _,
@@ -95,6 +97,8 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         culled_observations,
         culled_landmarks,
         disabled_landmarks,
+        marginalized_rank_deficiency,
+        prior_rank_deficiency,
     ] {
         h.u64(u64::from(*n));
     }
