@@ -680,6 +680,33 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         }
     }
 
+    /// The window's least-squares problem over `layout`, beside the LM workspace and the
+    /// marginalization system (disjoint borrows of the estimator).
+    fn split(
+        &mut self,
+        layout: Layout<N>,
+        set: FactorSet,
+    ) -> (
+        Problem<'_, N, L, D>,
+        &mut LmWorkspace<D>,
+        &mut NormalEquations<D>,
+    ) {
+        let problem = Problem {
+            cfg: &self.cfg,
+            window: &mut self.window,
+            lms: &mut self.lms,
+            ext: &mut self.ext,
+            prior: &mut self.prior,
+            initial: self.initial.as_ref(),
+            layout,
+            set,
+            schur: &mut self.schur,
+            saved: &mut self.saved,
+            counts: Default::default(),
+        };
+        (problem, &mut self.lm, &mut self.marg_ne)
+    }
+
     fn solve_layout(&self) -> Layout<N> {
         Layout::solve(
             self.window.len(),
@@ -690,20 +717,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 
     fn run_lm(&mut self, cfg: &crate::solver::LmConfig, report: &mut KeyframeReport) -> bool {
         let layout = self.solve_layout();
-        let mut problem = Problem {
-            cfg: &self.cfg,
-            window: &mut self.window,
-            lms: &mut self.lms,
-            ext: &mut self.ext,
-            prior: &mut self.prior,
-            initial: self.initial.as_ref(),
-            layout,
-            set: FactorSet::All,
-            schur: &mut self.schur,
-            saved: &mut self.saved,
-            counts: Default::default(),
-        };
-        let res = self.lm.solve(&mut problem, cfg);
+        let (mut problem, lm, _) = self.split(layout, FactorSet::All);
+        let res = lm.solve(&mut problem, cfg);
         report.disabled_landmarks += problem.counts.disabled;
         report.landmarks_used = problem.counts.landmarks;
         report.observations_used = problem.counts.observations;
@@ -929,20 +944,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.prepare_landmarks();
         self.marg_ne.reset(layout.dim())?;
         {
-            let mut problem = Problem {
-                cfg: &self.cfg,
-                window: &mut self.window,
-                lms: &mut self.lms,
-                ext: &mut self.ext,
-                prior: &mut self.prior,
-                initial: self.initial.as_ref(),
-                layout,
-                set: FactorSet::Oldest,
-                schur: &mut self.schur,
-                saved: &mut self.saved,
-                counts: Default::default(),
-            };
-            problem.assemble(Some(&mut self.marg_ne))?;
+            let (mut problem, _, marg_ne) = self.split(layout, FactorSet::Oldest);
+            problem.assemble(Some(marg_ne))?;
         }
         let m = Layout::<N>::marginalized_dim(td);
         let floor = PivotFloor {
@@ -1018,22 +1021,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.prepare_landmarks();
         let layout = self.solve_layout();
         let n = layout.dim();
-        let mut problem = Problem {
-            cfg: &self.cfg,
-            window: &mut self.window,
-            lms: &mut self.lms,
-            ext: &mut self.ext,
-            prior: &mut self.prior,
-            initial: self.initial.as_ref(),
-            layout,
-            set: FactorSet::All,
-            schur: &mut self.schur,
-            saved: &mut self.saved,
-            counts: Default::default(),
-        };
-        self.lm.ne.reset(n)?;
-        problem.linearize(&mut self.lm.ne)?;
-        if self.cfg.mode == VisualMode::InverseDepth {
+        let (mut problem, lm, _) = self.split(layout, FactorSet::All);
+        lm.ne.reset(n)?;
+        problem.linearize(&mut lm.ne)?;
+        if problem.cfg.mode == VisualMode::InverseDepth {
             // The reduced system's b is the gradient of the cost minimized over the depths,
             // which central differences at fixed depths do not measure.
             return Err(Error::InvalidConfig);
@@ -1055,7 +1046,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 }
             }
             let g_num = (c[0] - c[1]) / (2.0 * h);
-            let g_an = -2.0 * self.lm.ne.b.get(i).copied().unwrap_or(0.0);
+            let g_an = -2.0 * lm.ne.b.get(i).copied().unwrap_or(0.0);
             let err =
                 libm::fabs(g_num - g_an) / (1.0 + libm::fmax(libm::fabs(g_num), libm::fabs(g_an)));
             worst = libm::fmax(worst, err);
