@@ -163,3 +163,60 @@ fn every_invalid_input_is_rejected_without_side_effects() {
     assert_eq!(ne.cost, 0.0);
     assert_eq!(ne.get(0, 5), None);
 }
+
+/// The 2x6 fast path accumulates exactly what the general block path does (any column order,
+/// two or three blocks), and rejects overlapping or out-of-range blocks without side effects.
+#[test]
+fn fast_2x6_path_equals_general_block_path() {
+    let mut rng = Rng::new(77);
+    let mut fast: Box<NormalEquations<40>> = Box::new(NormalEquations::new());
+    let mut slow: Box<NormalEquations<40>> = Box::new(NormalEquations::new());
+    fast.reset(40).unwrap();
+    slow.reset(40).unwrap();
+    let col_sets: [&[usize]; 4] = [&[0, 12, 30], &[30, 6, 18], &[24, 3], &[10, 34, 20]];
+    for cols in col_sets {
+        let r = nalgebra::Vector2::new(rng.uniform(), rng.uniform());
+        let jacs: Vec<nalgebra::Matrix2x6<f64>> = cols
+            .iter()
+            .map(|_| nalgebra::Matrix2x6::from_fn(|_, _| rng.uniform()))
+            .collect();
+        fast.add_2x6_blocks(&r, &jacs, cols).unwrap();
+        let rows: Vec<Vec<f64>> = jacs
+            .iter()
+            .map(|j| {
+                (0..2)
+                    .flat_map(|i| (0..6).map(move |k| j[(i, k)]))
+                    .collect()
+            })
+            .collect();
+        let blocks: Vec<JacobianBlock<'_>> = cols
+            .iter()
+            .zip(&rows)
+            .map(|(&c, j)| JacobianBlock::new(c, 6, j))
+            .collect();
+        slow.add_blocks(r.as_slice(), &blocks).unwrap();
+    }
+    for i in 0..40 {
+        for j in i..40 {
+            assert!((fast.h[i][j] - slow.h[i][j]).abs() < 1e-12, "h[{i}][{j}]");
+        }
+        assert!((fast.b[i] - slow.b[i]).abs() < 1e-12, "b[{i}]");
+    }
+    assert!((fast.cost - slow.cost).abs() < 1e-12);
+    let before = fast.cost;
+    let r = nalgebra::Vector2::new(1.0, 2.0);
+    let j = nalgebra::Matrix2x6::from_element(1.0);
+    assert_eq!(
+        fast.add_2x6_blocks(&r, &[j, j], &[0, 3]),
+        Err(Error::DimensionMismatch)
+    );
+    assert_eq!(
+        fast.add_2x6_blocks(&r, &[j], &[36]),
+        Err(Error::DimensionMismatch)
+    );
+    assert_eq!(
+        fast.add_2x6_blocks(&nalgebra::Vector2::new(f64::NAN, 0.0), &[j], &[0]),
+        Err(Error::NonFinite)
+    );
+    assert_eq!(fast.cost, before);
+}

@@ -411,6 +411,26 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     let w = huber.sqrt_weight(sq);
                     lm_cost += huber.rho(sq)[0];
                     n_obs += 1;
+                    if !est_ext && !est_td {
+                        let col =
+                            |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
+                        let r = jac.r * w;
+                        let (cs, ce) = (col(s)?, col(e)?);
+                        if j == e {
+                            ne_ref.add_2x6_blocks(
+                                &r,
+                                &[jac.d_pose_s * w, jac.d_pose_e * w],
+                                &[cs, ce],
+                            )?;
+                        } else {
+                            ne_ref.add_2x6_blocks(
+                                &r,
+                                &[jac.d_pose_s * w, jac.d_pose_e * w, jac.d_pose_j * w],
+                                &[cs, ce, col(j)?],
+                            )?;
+                        }
+                        continue;
+                    }
                     let r = [jac.r.x * w, jac.r.y * w];
                     let (mut a, mut b, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12], [0.0; 12]);
                     row_major(&(jac.d_pose_s * w), &mut a);
