@@ -385,6 +385,67 @@ pub(crate) fn accumulate_row_indexed<const D: usize>(
     }
 }
 
+/// Fast path of [`NormalEquations::add_blocks`] for the commonest visual residual: 2 rows over
+/// up to three distinct 6-wide pose blocks. The 6x6 products are formed with fixed-size
+/// arithmetic and added block by block, so there is no per-entry bookkeeping.
+impl<const D: usize> NormalEquations<D> {
+    /// Adds `r` (2 rows) with Jacobian blocks `jacs[k]` (2x6) at state columns
+    /// `cols[k]..cols[k] + 6`. Blocks must not overlap. Nothing is accumulated on `Err`.
+    pub fn add_2x6_blocks(
+        &mut self,
+        r: &nalgebra::Vector2<f64>,
+        jacs: &[nalgebra::Matrix2x6<f64>],
+        cols: &[usize],
+    ) -> Result<(), Error> {
+        if jacs.len() != cols.len() || jacs.len() > 3 {
+            return Err(Error::DimensionMismatch);
+        }
+        for (a, &ca) in cols.iter().enumerate() {
+            if ca.checked_add(6).is_none_or(|e| e > self.n) {
+                return Err(Error::DimensionMismatch);
+            }
+            if cols
+                .iter()
+                .skip(a + 1)
+                .any(|&cb| ca < cb + 6 && cb < ca + 6)
+            {
+                return Err(Error::DimensionMismatch);
+            }
+        }
+        if !r.iter().all(|v| v.is_finite()) || !jacs.iter().all(|j| j.iter().all(|v| v.is_finite()))
+        {
+            return Err(Error::NonFinite);
+        }
+        self.cost += r.norm_squared();
+        for (a, (ja, &ca)) in jacs.iter().zip(cols).enumerate() {
+            let g = ja.transpose() * r;
+            for (i, gi) in g.iter().enumerate() {
+                if let Some(b) = self.b.get_mut(ca + i) {
+                    *b -= gi;
+                }
+            }
+            for (jb, &cb) in jacs.iter().zip(cols).skip(a) {
+                // Upper triangle: the block with the smaller column range is the row block.
+                let (m, r0, c0) = if ca <= cb {
+                    (ja.transpose() * jb, ca, cb)
+                } else {
+                    (jb.transpose() * ja, cb, ca)
+                };
+                for i in 0..6 {
+                    let Some(row) = self.h.get_mut(r0 + i).and_then(|h| h.get_mut(c0..c0 + 6))
+                    else {
+                        continue;
+                    };
+                    for (k, h) in row.iter_mut().enumerate() {
+                        *h += m[(i, k)];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -446,66 +507,5 @@ mod tests {
         assert_eq!(ne.reset(5), Err(Error::CapacityExceeded));
         assert_eq!(ne.cost, 0.0);
         assert!(ne.h.iter().flatten().all(|v| *v == 0.0));
-    }
-}
-
-/// Fast path of [`NormalEquations::add_blocks`] for the commonest visual residual: 2 rows over
-/// up to three distinct 6-wide pose blocks. The 6x6 products are formed with fixed-size
-/// arithmetic and added block by block, so there is no per-entry bookkeeping.
-impl<const D: usize> NormalEquations<D> {
-    /// Adds `r` (2 rows) with Jacobian blocks `jacs[k]` (2x6) at state columns
-    /// `cols[k]..cols[k] + 6`. Blocks must not overlap. Nothing is accumulated on `Err`.
-    pub fn add_2x6_blocks(
-        &mut self,
-        r: &nalgebra::Vector2<f64>,
-        jacs: &[nalgebra::Matrix2x6<f64>],
-        cols: &[usize],
-    ) -> Result<(), Error> {
-        if jacs.len() != cols.len() || jacs.len() > 3 {
-            return Err(Error::DimensionMismatch);
-        }
-        for (a, &ca) in cols.iter().enumerate() {
-            if ca.checked_add(6).is_none_or(|e| e > self.n) {
-                return Err(Error::DimensionMismatch);
-            }
-            if cols
-                .iter()
-                .skip(a + 1)
-                .any(|&cb| ca < cb + 6 && cb < ca + 6)
-            {
-                return Err(Error::DimensionMismatch);
-            }
-        }
-        if !r.iter().all(|v| v.is_finite()) || !jacs.iter().all(|j| j.iter().all(|v| v.is_finite()))
-        {
-            return Err(Error::NonFinite);
-        }
-        self.cost += r.norm_squared();
-        for (a, (ja, &ca)) in jacs.iter().zip(cols).enumerate() {
-            let g = ja.transpose() * r;
-            for (i, gi) in g.iter().enumerate() {
-                if let Some(b) = self.b.get_mut(ca + i) {
-                    *b -= gi;
-                }
-            }
-            for (jb, &cb) in jacs.iter().zip(cols).skip(a) {
-                // Upper triangle: the block with the smaller column range is the row block.
-                let (m, r0, c0) = if ca <= cb {
-                    (ja.transpose() * jb, ca, cb)
-                } else {
-                    (jb.transpose() * ja, cb, ca)
-                };
-                for i in 0..6 {
-                    let Some(row) = self.h.get_mut(r0 + i).and_then(|h| h.get_mut(c0..c0 + 6))
-                    else {
-                        continue;
-                    };
-                    for (k, h) in row.iter_mut().enumerate() {
-                        *h += m[(i, k)];
-                    }
-                }
-            }
-        }
-        Ok(())
     }
 }
