@@ -516,7 +516,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             t_ns: nav.t_ns,
             ..*sample
         };
-        let preint = self.open.take();
+        let mut preint = self.open.take();
+        if let Some(p) = preint.as_mut() {
+            // A closed interval is evaluated at every LM step: factor its covariance once.
+            let _ = p.cache_whitening();
+        }
         let kf = Keyframe {
             t_cam_ns,
             state: nav,
@@ -749,6 +753,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if let Some(pre) = self.window.get_mut(k).and_then(|b| b.preint.as_mut()) {
                 if pre.needs_reintegration(&bg, &ba) {
                     let _ = pre.reintegrate(bg, ba);
+                    let _ = pre.cache_whitening();
                 }
             }
         }

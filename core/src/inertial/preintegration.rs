@@ -131,6 +131,9 @@ pub struct Preintegration<const M: usize> {
     tmp: Mat15,
     prev_inc: Option<Increment>,
     samples: HVec<ImuSample, M>,
+    /// Cholesky factor of `cov`, once [`Preintegration::cache_whitening`] ran since the last
+    /// change of the covariance (an estimator evaluates a closed interval many times).
+    chol_l: Option<Mat15>,
 }
 
 impl<const M: usize> Preintegration<M> {
@@ -165,6 +168,7 @@ impl<const M: usize> Preintegration<M> {
             tmp: Mat15::zeros(),
             prev_inc: None,
             samples: HVec::new(),
+            chol_l: None,
         };
         p.reset(first, bg0, ba0)?;
         Ok(p)
@@ -188,6 +192,7 @@ impl<const M: usize> Preintegration<M> {
     }
 
     fn restart(&mut self, bg0: Vec3, ba0: Vec3) {
+        self.chol_l = None;
         self.bg0 = bg0;
         self.ba0 = ba0;
         self.t0_ns = self.samples.first().map_or(self.t0_ns, |s| s.t_ns);
@@ -227,6 +232,7 @@ impl<const M: usize> Preintegration<M> {
 
     /// One step of deltas, bias Jacobians and covariance.
     fn integrate(&mut self, older: Option<&ImuSample>, prev: &ImuSample, cur: &ImuSample, dt: f64) {
+        self.chol_l = None;
         let inc = Increment::from_samples(older, prev, cur, &self.bg0, &self.ba0);
         let step = two_sample(self.prev_inc.as_ref(), &inc);
         let jb = two_sample_bias_jacobians(self.prev_inc.as_ref(), &inc);
@@ -499,14 +505,35 @@ impl<const M: usize> Preintegration<M> {
         self.whiten(r, j_i, j_j)
     }
 
-    /// Applies `L^-1` (Cholesky factor of the covariance) to a residual and two Jacobians.
-    pub fn whiten(&self, r: &mut Vec15, j_i: &mut Mat15, j_j: &mut Mat15) -> Result<(), Error> {
+    /// Cholesky factor `L` of the covariance (`P = L L^T`), checked to be usable.
+    fn cholesky(&self) -> Result<Mat15, Error> {
         let chol = nalgebra::Cholesky::new(self.cov).ok_or(Error::NotPositiveDefinite)?;
-        let l = chol.l_dirty();
+        let l = chol.l_dirty().clone_owned();
         // Reject a factor whose diagonal underflowed: the solves would divide by ~0.
         if !(0..15).all(|i| l[(i, i)] > 1e-150) {
             return Err(Error::NotPositiveDefinite);
         }
+        Ok(l)
+    }
+
+    /// Computes and keeps the Cholesky factor of the current covariance, so that later
+    /// [`Preintegration::whiten`] calls skip the factorization (until the next sample or
+    /// re-integration). Results are bit-identical either way.
+    pub fn cache_whitening(&mut self) -> Result<(), Error> {
+        self.chol_l = Some(self.cholesky()?);
+        Ok(())
+    }
+
+    /// Applies `L^-1` (Cholesky factor of the covariance) to a residual and two Jacobians.
+    pub fn whiten(&self, r: &mut Vec15, j_i: &mut Mat15, j_j: &mut Mat15) -> Result<(), Error> {
+        let computed;
+        let l = match &self.chol_l {
+            Some(l) => l,
+            None => {
+                computed = self.cholesky()?;
+                &computed
+            }
+        };
         let ok = l.solve_lower_triangular_mut(r)
             && l.solve_lower_triangular_mut(j_i)
             && l.solve_lower_triangular_mut(j_j);
@@ -624,6 +651,27 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn cached_whitening_is_bit_identical_and_invalidated_by_new_samples() {
+        let mut p = build(50, Vec3::zeros(), Vec3::zeros(), NOISE);
+        let (xi, xj) = states();
+        let eval = |p: &Preintegration<256>| {
+            let (mut r, mut a, mut b) = (Vec15::zeros(), Mat15::zeros(), Mat15::zeros());
+            p.evaluate(&xi, &xj, 9.81, &mut r, &mut a, &mut b).unwrap();
+            (r, a, b)
+        };
+        let plain = eval(&p);
+        p.cache_whitening().unwrap();
+        assert_eq!(eval(&p), plain);
+        // A new sample changes the covariance: the cache must not be used any more.
+        p.push(&sample(51)).unwrap();
+        let after_push = eval(&p);
+        let mut q = p.clone();
+        q.cache_whitening().unwrap();
+        assert_eq!(eval(&q), after_push);
+        assert_ne!(after_push.0, plain.0);
     }
 
     #[test]
