@@ -992,7 +992,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             r0,
         )?;
         self.last_marg = Some((marg_report, prior_report));
-        self.prior.set_dim(p)?;
+        self.prior.set_dim(p, &self.marg_ne)?;
         self.prior.shift_positions()?;
         self.initial = None;
         let _ = self.window.pop_oldest();

@@ -8,7 +8,7 @@ use super::window::{Block, Layout};
 use crate::camera::CameraExtrinsic;
 use crate::inertial::NavState;
 use crate::math::{jr_inv_so3, log_so3, Vec3};
-use crate::solver::{add_prior, NormalEquations};
+use crate::solver::NormalEquations;
 use crate::Error;
 use heapless::Vec as HVec;
 
@@ -61,9 +61,13 @@ pub struct MargPrior<const D: usize, const N: usize> {
     pub j0: [[f64; D]; D],
     /// `r0`.
     pub r0: [f64; D],
-    /// `J0` with its rotation columns mapped through `Jr^-1` of the current rotation error
-    /// (scratch of [`MargPrior::add_to`]).
-    j_eff: [[f64; D]; D],
+    /// `H0 = J0^T J0` (full symmetric), `g0 = J0^T r0`, `c0 = r0^T r0`: the prior's quadratic
+    /// model, so that evaluating it costs `O(p^2)` instead of `O(p^3)`.
+    h0: [[f64; D]; D],
+    g0: [f64; D],
+    c0: f64,
+    /// Scratch of [`MargPrior::add_to`]: `H0` mapped through `Jr^-1` on rotation blocks.
+    h_eff: [[f64; D]; D],
     /// Blocks in prior order with their linearization points.
     pub blocks: HVec<(Block, LinPoint), MAX_PRIOR_BLOCKS>,
     dim: usize,
@@ -81,7 +85,10 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         MargPrior {
             j0: [[0.0; D]; D],
             r0: [0.0; D],
-            j_eff: [[0.0; D]; D],
+            h0: [[0.0; D]; D],
+            g0: [0.0; D],
+            c0: 0.0,
+            h_eff: [[0.0; D]; D],
             blocks: HVec::new(),
             dim: 0,
         }
@@ -98,12 +105,33 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         self.blocks.clear();
     }
 
-    /// Sets the dimension after `j0`, `r0` and `blocks` were written.
-    pub fn set_dim(&mut self, dim: usize) -> Result<(), Error> {
+    /// Activates the prior after `j0`, `r0` and `blocks` were written, with `h_star` the
+    /// marginal system they came from (`J0^T J0 = H*`, `J0^T r0 = -b*`, upper triangle of `H*`).
+    pub fn set_dim(&mut self, dim: usize, h_star: &NormalEquations<D>) -> Result<(), Error> {
         let total: usize = self.blocks.iter().map(|(b, _)| b.dim()).sum();
-        if dim > D || total != dim {
+        if dim > D || total != dim || h_star.dim() != dim {
             return Err(Error::DimensionMismatch);
         }
+        for i in 0..dim {
+            for j in i..dim {
+                let v = h_star
+                    .h
+                    .get(i)
+                    .and_then(|r| r.get(j))
+                    .copied()
+                    .unwrap_or(0.0);
+                if let Some(x) = self.h0.get_mut(i).and_then(|r| r.get_mut(j)) {
+                    *x = v;
+                }
+                if let Some(x) = self.h0.get_mut(j).and_then(|r| r.get_mut(i)) {
+                    *x = v;
+                }
+            }
+        }
+        for (g, b) in self.g0.iter_mut().zip(h_star.b.iter()).take(dim) {
+            *g = -b;
+        }
+        self.c0 = self.r0.iter().take(dim).map(|r| r * r).sum();
         self.dim = dim;
         Ok(())
     }
@@ -123,13 +151,14 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
     }
 
     /// Computes `dx = x [-] x0` block by block with the current state given by `current`,
-    /// and the column of each prior entry in `layout`, then adds `r0 + J0 dx` to `ne` (or only
-    /// its cost when `ne` is `None`). Returns the prior's cost `|r|^2`.
+    /// and the column of each prior entry in `layout`, then adds the residual `r0 + J0 dx` to
+    /// `ne` (or only its cost when `ne` is `None`), through its quadratic model
+    /// (`H0`, `g0`, `c0`): `O(p^2)`. Returns the prior's cost `|r|^2`.
     ///
     /// The rotation part of `dx` is `Log(R0^T R)`, whose derivative w.r.t. the right
-    /// perturbation of `R` is `Jr^-1(Log(R0^T R))`: the Jacobian added is `J0` with those columns
-    /// multiplied by it, so the gradient stays exact when the window rotates away from the
-    /// linearization point (a yaw drift of the gauge, for instance).
+    /// perturbation of `R` is `Jr^-1(Log(R0^T R))`: the system added is `M^T H0 M` with those
+    /// blocks of `M` equal to it, so the gradient stays exact when the window rotates away from
+    /// the linearization point (a yaw drift of the gauge, for instance).
     pub fn add_to(
         &mut self,
         layout: &Layout<N>,
@@ -167,69 +196,92 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
             at += w;
         }
         let p = self.dim;
-        let (dx, cols, r0) = (
+        let (dx, cols) = (
             dx.get(..p).ok_or(Error::DimensionMismatch)?,
             cols.get(..p).ok_or(Error::DimensionMismatch)?,
-            self.r0.get(..p).ok_or(Error::DimensionMismatch)?,
         );
-        match ne {
-            Some(ne) => {
-                // Rotation columns of J0 times Jr^-1 of their block's rotation error.
-                for (row_eff, row) in self.j_eff.iter_mut().zip(self.j0.iter()).take(p) {
-                    row_eff.copy_from_slice(row);
-                }
-                let mut at = 0;
-                for (b, _) in self.blocks.iter() {
-                    let rot = match b {
-                        Block::Kf(_) | Block::Ext => Some(at + 3),
-                        Block::Td(_) => None,
-                    };
-                    if let Some(c) = rot {
-                        let th = Vec3::new(
-                            dx.get(c).copied().unwrap_or(0.0),
-                            dx.get(c + 1).copied().unwrap_or(0.0),
-                            dx.get(c + 2).copied().unwrap_or(0.0),
-                        );
-                        let m = jr_inv_so3(&th);
-                        for (row_eff, row) in self.j_eff.iter_mut().zip(self.j0.iter()).take(p) {
-                            let (Some(src), Some(dst)) =
-                                (row.get(c..c + 3), row_eff.get_mut(c..c + 3))
-                            else {
-                                continue;
-                            };
-                            for (k, d) in dst.iter_mut().enumerate() {
-                                *d = src[0] * m[(0, k)] + src[1] * m[(1, k)] + src[2] * m[(2, k)];
-                            }
-                        }
-                    }
-                    at += b.dim();
-                }
-                let before = ne.cost;
-                // r = r0 + J0 dx, linearized with the mapped Jacobian: add_prior forms the
-                // residual from its matrix, so pass the residual's offset explicitly.
-                let mut r_lin = [0.0; D];
-                for ((ri, row), (row_eff, r0i)) in r_lin
-                    .iter_mut()
-                    .zip(self.j0.iter())
-                    .zip(self.j_eff.iter().zip(r0))
-                    .take(p)
-                {
-                    let r_true = r0i + row.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();
-                    let r_eff = row_eff.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();
-                    *ri = r_true - r_eff;
-                }
-                let r_lin = r_lin.get(..p).ok_or(Error::DimensionMismatch)?;
-                add_prior(ne, &self.j_eff, r_lin, dx, cols)?;
-                Ok(ne.cost - before)
+        // |r0 + J0 dx|^2 = c0 + dx . (g0 + q) with q = g0 + H0 dx; the gradient w.r.t. dx is 2 q.
+        let mut q = [0.0; D];
+        for ((qi, row), gi) in q.iter_mut().zip(self.h0.iter()).zip(self.g0.iter()).take(p) {
+            *qi = gi + row.iter().zip(dx).map(|(h, d)| h * d).sum::<f64>();
+        }
+        let cost = self.c0
+            + dx.iter()
+                .zip(q.iter().zip(self.g0.iter()))
+                .map(|(d, (qi, gi))| d * (gi + qi))
+                .sum::<f64>();
+        if !cost.is_finite() {
+            return Err(Error::NonFinite);
+        }
+        let Some(ne) = ne else { return Ok(cost) };
+        if cols.iter().any(|&c| c >= ne.dim()) {
+            return Err(Error::DimensionMismatch);
+        }
+        // Mapped system M^T H0 M, -M^T q, with M = I except Jr^-1 on the rotation blocks.
+        for (row_eff, row) in self.h_eff.iter_mut().zip(self.h0.iter()).take(p) {
+            row_eff.copy_from_slice(row);
+        }
+        let mut b_eff = [0.0; D];
+        for (be, qi) in b_eff.iter_mut().zip(q.iter()).take(p) {
+            *be = -qi;
+        }
+        let mut at = 0;
+        for (blk, _) in self.blocks.iter() {
+            let c = at + 3;
+            at += blk.dim();
+            if matches!(blk, Block::Td(_)) {
+                continue;
             }
-            None => {
-                let mut cost = 0.0;
-                for (row, r0i) in self.j0.iter().zip(r0) {
-                    let ri = r0i + row.iter().zip(dx).map(|(j, d)| j * d).sum::<f64>();
-                    cost += ri * ri;
+            let th = Vec3::new(
+                dx.get(c).copied().unwrap_or(0.0),
+                dx.get(c + 1).copied().unwrap_or(0.0),
+                dx.get(c + 2).copied().unwrap_or(0.0),
+            );
+            let m = jr_inv_so3(&th);
+            for row in self.h_eff.iter_mut().take(p) {
+                if let Some(v) = row.get_mut(c..c + 3) {
+                    let x = [v[0], v[1], v[2]];
+                    for (k, o) in v.iter_mut().enumerate() {
+                        *o = x[0] * m[(0, k)] + x[1] * m[(1, k)] + x[2] * m[(2, k)];
+                    }
                 }
-                Ok(cost)
+            }
+            for j in 0..p {
+                let x: [f64; 3] = core::array::from_fn(|i| {
+                    self.h_eff
+                        .get(c + i)
+                        .and_then(|r| r.get(j))
+                        .copied()
+                        .unwrap_or(0.0)
+                });
+                for k in 0..3 {
+                    if let Some(o) = self.h_eff.get_mut(c + k).and_then(|r| r.get_mut(j)) {
+                        *o = x[0] * m[(0, k)] + x[1] * m[(1, k)] + x[2] * m[(2, k)];
+                    }
+                }
+            }
+            if let Some(v) = b_eff.get_mut(c..c + 3) {
+                let x = [v[0], v[1], v[2]];
+                for (k, o) in v.iter_mut().enumerate() {
+                    *o = x[0] * m[(0, k)] + x[1] * m[(1, k)] + x[2] * m[(2, k)];
+                }
             }
         }
+        if !b_eff.iter().take(p).all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        for (i, (&ci, row)) in cols.iter().zip(self.h_eff.iter()).enumerate() {
+            if let Some(b) = ne.b.get_mut(ci) {
+                *b += b_eff.get(i).copied().unwrap_or(0.0);
+            }
+            for (&cj, &v) in cols.iter().zip(row.iter()).skip(i) {
+                let (r, c) = if ci <= cj { (ci, cj) } else { (cj, ci) };
+                if let Some(h) = ne.h.get_mut(r).and_then(|h| h.get_mut(c)) {
+                    *h += v;
+                }
+            }
+        }
+        ne.cost += cost;
+        Ok(cost)
     }
 }

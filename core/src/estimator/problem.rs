@@ -16,7 +16,7 @@ use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
 use crate::factors::pose_only_visual::PoseOnlyVisualFactor;
 use crate::factors::robust::Huber;
 use crate::factors::td::TdRandomWalk;
-use crate::factors::{KeyframePose, TimedObs};
+use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::inertial::preintegration::{Mat15, Vec15};
 use crate::inertial::NavState;
 use crate::landmarks::{KfObs, LandmarkManager};
@@ -343,6 +343,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         for (k, p) in poses.iter_mut().enumerate().take(count) {
             *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
         }
+        // Camera frames once per keyframe rather than three times per residual.
+        let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
         let mut cost = 0.0;
         let linearize = ne.is_some();
         for li in 0..self.lms.len() {
@@ -365,6 +367,10 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 continue;
             };
             let (obs_s, obs_e) = (timed(os), timed(oe));
+            let (Some(fs), Some(fe)) = (frames.get(s), frames.get(e)) else {
+                continue;
+            };
+            let fr = |j: usize| [*fs, *fe, frames.get(j).copied().unwrap_or(*fe)];
             let mut lm_cost = 0.0;
             let mut n_obs = 0;
             let mut failed = false;
@@ -388,14 +394,14 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     sqrt_info,
                 };
                 if linearize {
-                    match f.evaluate(ps, pe, pj, &ext) {
+                    match f.evaluate_with_frames([ps, pe, pj], &fr(j), &ext) {
                         Ok(jac) => {
                             let _ = jacs.push((j, jac));
                         }
                         Err(_) => failed = true,
                     }
                 } else {
-                    match f.residual(ps, pe, pj, &ext) {
+                    match f.residual_with_frames([ps, pe, pj], &fr(j), &ext) {
                         Ok(r) => {
                             lm_cost += huber.rho(r.norm_squared())[0];
                             n_obs += 1;

@@ -90,15 +90,21 @@ pub fn sqrt_info_from_pixels(focal: &Vec2, sigma_px: f64) -> Result<Vec2, Error>
     Ok(focal / sigma_px)
 }
 
-/// A keyframe's camera pose with the rotations the Jacobian chain needs.
+/// A keyframe's camera pose with the rotation matrices the Jacobian chain needs: `R_wb`, and the
+/// camera's `R_wc = R_wb R_bc`, `p_wc = p_wb + R_wb p_bc`. Computing it once per keyframe and
+/// passing it to the `*_with_frames` evaluations saves the conversions per residual.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct CamFrame {
+pub struct CamFrame {
+    /// Body rotation `R_wb`.
     pub r_wb: Mat3,
+    /// Camera rotation `R_wc`.
     pub r_wc: Mat3,
+    /// Camera position `p_wc`, m.
     pub p_wc: Vec3,
 }
 
 impl CamFrame {
+    /// The camera frame of a keyframe for an extrinsic.
     pub fn new(kf: &KeyframePose, ext: &CameraExtrinsic) -> Self {
         let r_wb = kf.q_wb.to_rotation_matrix().into_inner();
         let r_bc = ext.q_bc.to_rotation_matrix().into_inner();

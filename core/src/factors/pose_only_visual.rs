@@ -106,6 +106,7 @@ impl PoseOnlyVisualFactor {
         e: &KeyframePose,
         j: &KeyframePose,
         ext: &CameraExtrinsic,
+        frames: Option<&[CamFrame; 3]>,
     ) -> Result<(Eval, [CamFrame; 3]), Error> {
         self.validate()?;
         let j = if self.j_is_e() { e } else { j };
@@ -113,11 +114,14 @@ impl PoseOnlyVisualFactor {
         {
             return Err(Error::NonFinite);
         }
-        let (cs, ce, cj) = (
-            CamFrame::new(s, ext),
-            CamFrame::new(e, ext),
-            CamFrame::new(j, ext),
-        );
+        let (cs, ce, cj) = match frames {
+            Some([cs, ce, cj]) => (*cs, *ce, if self.j_is_e() { *ce } else { *cj }),
+            None => (
+                CamFrame::new(s, ext),
+                CamFrame::new(e, ext),
+                CamFrame::new(j, ext),
+            ),
+        };
         let x_s = self.obs_s.corrected(s.td);
         let x_e = self.obs_e.corrected(e.td);
         let x_j = self.obs_j.corrected(j.td);
@@ -170,8 +174,30 @@ impl PoseOnlyVisualFactor {
         j: &KeyframePose,
         ext: &CameraExtrinsic,
     ) -> Result<Vec2, Error> {
-        let (ev, _) = self.geometry(s, e, j, ext)?;
+        let (ev, _) = self.geometry(s, e, j, ext, None)?;
         Ok(self.whitened(&ev))
+    }
+
+    /// [`Self::residual`] with the camera frames of `s`, `e`, `j` precomputed (`CamFrame::new`
+    /// of the same poses and extrinsic; bit-identical result).
+    pub fn residual_with_frames(
+        &self,
+        kfs: [&KeyframePose; 3],
+        frames: &[CamFrame; 3],
+        ext: &CameraExtrinsic,
+    ) -> Result<Vec2, Error> {
+        let (ev, _) = self.geometry(kfs[0], kfs[1], kfs[2], ext, Some(frames))?;
+        Ok(self.whitened(&ev))
+    }
+
+    /// [`Self::evaluate`] with the camera frames precomputed (bit-identical result).
+    pub fn evaluate_with_frames(
+        &self,
+        kfs: [&KeyframePose; 3],
+        frames: &[CamFrame; 3],
+        ext: &CameraExtrinsic,
+    ) -> Result<PoseOnlyJacobians, Error> {
+        self.evaluate_inner(kfs[0], kfs[1], kfs[2], ext, Some(frames))
     }
 
     /// Whitened residual and all Jacobians. When `kf_j == kf_e`, `j` is ignored (pass `e`
@@ -185,7 +211,18 @@ impl PoseOnlyVisualFactor {
         j: &KeyframePose,
         ext: &CameraExtrinsic,
     ) -> Result<PoseOnlyJacobians, Error> {
-        let (ev, [cs, ce, cj]) = self.geometry(s, e, j, ext)?;
+        self.evaluate_inner(s, e, j, ext, None)
+    }
+
+    fn evaluate_inner(
+        &self,
+        s: &KeyframePose,
+        e: &KeyframePose,
+        j: &KeyframePose,
+        ext: &CameraExtrinsic,
+        frames: Option<&[CamFrame; 3]>,
+    ) -> Result<PoseOnlyJacobians, Error> {
+        let (ev, [cs, ce, cj]) = self.geometry(s, e, j, ext, frames)?;
         let two = &ev.two;
         let alpha = two.a.norm_squared();
         let dd = -two.a.dot(&two.b);
