@@ -6,7 +6,7 @@ mod vision_common;
 use nalgebra::{Matrix2x6, SMatrix};
 use povins_core::camera::{CameraExtrinsic, Vec2};
 use povins_core::factors::pose_only_visual::PoseOnlyVisualFactor;
-use povins_core::factors::{sqrt_info_from_pixels, KeyframePose, TimedObs};
+use povins_core::factors::{sqrt_info_from_pixels, CamFrame, KeyframePose, TimedObs};
 use povins_core::landmarks::pose_only_depth;
 use povins_core::math::Vec3;
 use povins_core::Error;
@@ -140,6 +140,15 @@ fn check_jacobians(j_is_e: bool, seed: u64) {
         let jac = f.evaluate(&st.s, &st.e, &j_pose, &st.ext).unwrap();
         let r0 = f.residual(&st.s, &st.e, &j_pose, &st.ext).unwrap();
         assert_eq!(jac.r, r0);
+        // Precomputed camera frames give bit-identical results.
+        let frames = [
+            CamFrame::new(&st.s, &st.ext),
+            CamFrame::new(&st.e, &st.ext),
+            CamFrame::new(&j_pose, &st.ext),
+        ];
+        let kfs = [&st.s, &st.e, &j_pose];
+        assert_eq!(f.residual_with_frames(kfs, &frames, &st.ext).unwrap(), r0);
+        assert_eq!(f.evaluate_with_frames(kfs, &frames, &st.ext).unwrap(), jac);
         let res = |s: &KeyframePose, e: &KeyframePose, j: &KeyframePose, x: &CameraExtrinsic| {
             // With j == e the caller passes e in both slots.
             let j = if j_is_e { e } else { j };
