@@ -7,6 +7,7 @@
 //! sigma_px = 1.5                # feature noise
 //! huber_delta = 1.0             # Huber threshold, in sigmas
 //! min_parallax = 0.01           # landmark gate (|x_e x R x_s|)
+//! max_rel_depth_std = 0.1       # landmark gate: analytic depth std / depth
 //! depth_range_m = [0.1, 200.0]
 //! cull_mean_px = 4.5
 //! cull_obs_px = 4.5
@@ -99,6 +100,7 @@ pub struct RunConfigFile {
     sigma_px: Option<f64>,
     huber_delta: Option<f64>,
     min_parallax: Option<f64>,
+    max_rel_depth_std: Option<f64>,
     depth_range_m: Option<[f64; 2]>,
     cull_mean_px: Option<f64>,
     cull_obs_px: Option<f64>,
@@ -140,6 +142,7 @@ impl RunConfigFile {
         set(&mut cfg.sigma_px, self.sigma_px);
         set(&mut cfg.huber_delta, self.huber_delta);
         set(&mut cfg.min_parallax, self.min_parallax);
+        set(&mut cfg.max_rel_depth_std, self.max_rel_depth_std);
         if let Some([a, b]) = self.depth_range_m {
             cfg.depth_range_m = (a, b);
         }
