@@ -13,6 +13,8 @@
 //! cull_obs_px = 4.5
 //! chi2_threshold = 5.991
 //! lm_max_iterations = 6
+//! marginalize_visual = true     # fold anchored landmarks into the prior (VINS-Mono)
+//! reuse_marginalized_landmarks = true  # re-anchor them and keep using them (VINS-Mono)
 //! estimate_td = false
 //! estimate_extrinsic = false
 //!
@@ -107,6 +109,8 @@ pub struct RunConfigFile {
     chi2_threshold: Option<f64>,
     lm_max_iterations: Option<usize>,
     estimate_td: Option<bool>,
+    marginalize_visual: Option<bool>,
+    reuse_marginalized_landmarks: Option<bool>,
     estimate_extrinsic: Option<bool>,
     #[serde(default)]
     imu: ImuSection,
@@ -154,6 +158,11 @@ impl RunConfigFile {
             cfg.lm_second.max_iterations = n;
         }
         set(&mut cfg.estimate_td, self.estimate_td);
+        set(&mut cfg.marginalize_visual, self.marginalize_visual);
+        set(
+            &mut cfg.reuse_marginalized_landmarks,
+            self.reuse_marginalized_landmarks,
+        );
         set(&mut cfg.estimate_extrinsic, self.estimate_extrinsic);
         let i = &self.imu;
         let n: &mut ImuNoise = &mut cfg.imu_noise;

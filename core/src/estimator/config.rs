@@ -90,6 +90,13 @@ pub struct EstimatorConfig {
     pub lm_first: LmConfig,
     /// Levenberg-Marquardt settings of the second pass (after the chi-square cull).
     pub lm_second: LmConfig,
+    /// Fold the visual measurements of landmarks anchored in the oldest keyframe into the
+    /// marginalization prior (as VINS-Mono does). Without, the prior carries only the IMU and
+    /// earlier-prior information (no double use of re-anchored observations).
+    pub marginalize_visual: bool,
+    /// Keep using a marginalized landmark's remaining observations after re-anchoring it (as
+    /// VINS-Mono does; counts them twice). Off: the landmark leaves with its anchor keyframe.
+    pub reuse_marginalized_landmarks: bool,
     /// Estimate the camera-IMU time delay (random walk between keyframes).
     pub estimate_td: bool,
     /// Random-walk density of the time delay, s/sqrt(s).
@@ -147,6 +154,8 @@ impl EstimatorConfig {
             cull_obs_px: 4.5,
             lm_first: lm,
             lm_second: lm,
+            marginalize_visual: true,
+            reuse_marginalized_landmarks: true,
             estimate_td: false,
             td_rw_s_per_sqrt_s: 1e-4,
             td_prior_s: 5e-3,

@@ -996,6 +996,12 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.prior.shift_positions()?;
         self.initial = None;
         let _ = self.window.pop_oldest();
+        if self.cfg.marginalize_visual && !self.cfg.reuse_marginalized_landmarks {
+            // Their observations now live in the prior: using them again after re-anchoring
+            // would count them twice. The tracks continue as new landmarks.
+            self.lms
+                .retain(|lm| !(lm.usable && lm.anchor_s == 0), false);
+        }
         self.lms.shift_out_oldest();
         Ok(())
     }

@@ -247,6 +247,12 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             }
         }
 
+        if self.set == FactorSet::Oldest && !self.cfg.marginalize_visual {
+            if let Some(ne) = ne {
+                ne.cost = cost;
+            }
+            return Ok(cost);
+        }
         cost += match self.cfg.mode {
             VisualMode::PoseOnly => self.pose_only_visual(&mut ne, est_td, est_ext)?,
             VisualMode::InverseDepth => self.inverse_depth_visual(&mut ne, est_td, est_ext)?,
