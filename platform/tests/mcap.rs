@@ -6,7 +6,6 @@ use common::{assert_same, shared, synthetic};
 use povins_platform::cdr::CdrReader;
 use povins_platform::mcap_io::{self, read_dataset, write_dataset};
 use povins_platform::ros2::msgs;
-use povins_platform::ros2::undistort::distort_to_pixel;
 use povins_platform::{euroc, IoError};
 use std::collections::BTreeMap;
 
@@ -89,7 +88,11 @@ fn messages_follow_the_documented_ros_conventions() {
     for (k, o) in obs.iter().enumerate() {
         let p = pc.points[k];
         assert_eq!(p[2], 1.0);
-        let (u, v) = distort_to_pixel(&ds.calib.camera, p[0] as f64, p[1] as f64);
+        let px = ds
+            .calib
+            .camera
+            .distort(&povins_core::camera::Vec2::new(p[0] as f64, p[1] as f64));
+        let (u, v) = (px.x, px.y);
         // float32 normalized coordinates: ~1e-7 * 460 px.
         assert!(
             (u - o.u_px).abs() < 1e-3 && (v - o.v_px).abs() < 1e-3,

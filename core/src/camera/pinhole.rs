@@ -11,6 +11,22 @@ use crate::Error;
 const MIN_Z: f64 = 1e-9;
 
 impl PinholeCamera {
+    /// EuRoC MAV cam0 (MT9M034, `mav0/cam0/sensor.yaml`): 752x480, radial-tangential.
+    pub const EUROC_CAM0: PinholeCamera = PinholeCamera {
+        width: 752,
+        height: 480,
+        fx: 458.654,
+        fy: 457.296,
+        cx: 367.215,
+        cy: 248.375,
+        distortion: super::Distortion::RadTan {
+            k1: -0.28340811,
+            k2: 0.07395907,
+            p1: 0.00019359,
+            p2: 1.76187114e-05,
+        },
+    };
+
     /// Focal lengths `(fx, fy)`, px.
     #[inline]
     pub fn focal(&self) -> Vec2 {

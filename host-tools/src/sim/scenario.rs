@@ -6,7 +6,7 @@ use super::imu::ImuPreset;
 use super::lidar::LidarPattern;
 use super::scene::{Placement, SceneParams};
 use super::trajectory::{quat_from_euler, Sinusoid, TimeWarp, Trajectory};
-use povins_core::camera::{Distortion, PinholeCamera};
+use povins_core::camera::PinholeCamera;
 use povins_core::math::{quat_exp, Quat, Vec3};
 use povins_platform::dataset::Extrinsic;
 
@@ -72,20 +72,7 @@ pub struct Preset {
 
 /// EuRoC cam0 intrinsics (MAV0 `sensor.yaml`), 752x480 radtan.
 pub fn euroc_camera() -> PinholeCamera {
-    PinholeCamera {
-        width: 752,
-        height: 480,
-        fx: 458.654,
-        fy: 457.296,
-        cx: 367.215,
-        cy: 248.375,
-        distortion: Distortion::RadTan {
-            k1: -0.28340811,
-            k2: 0.07395907,
-            p1: 0.00019359,
-            p2: 1.76187114e-05,
-        },
-    }
+    PinholeCamera::EUROC_CAM0
 }
 
 /// Forward-looking camera: optical axis along body x, image x along -body y, image y along -body z,

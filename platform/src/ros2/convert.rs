@@ -27,7 +27,6 @@ use super::msgs::{
     ChannelFloat32, Image, Imu, Odometry, PointCloud, PointCloud2, PointField, POINT_FIELD_FLOAT32,
     POINT_FIELD_UINT32,
 };
-use super::undistort::undistort_normalized;
 use super::Header;
 use crate::dataset::{FeatureFrame, ImageFrame, LidarScan};
 use nalgebra::Quaternion;
@@ -333,7 +332,17 @@ pub fn features_to_msgs(
                     o.id, fr.t_ns
                 ));
             }
-            let (x, y) = undistort_normalized(cam, o.u_px, o.v_px);
+            // The core's camera model, so the published points are exactly what the estimator
+            // computes from the raw pixels.
+            let (x, y) = match cam.undistort(o.u_px, o.v_px) {
+                Ok(p) => (p.x, p.y),
+                Err(e) => {
+                    return Err(format!(
+                        "feature {} at {} ns ({}, {}) px cannot be undistorted: {e}",
+                        o.id, fr.t_ns, o.u_px, o.v_px
+                    ))
+                }
+            };
             let (vx, vy) = match (prev.get(&o.id), dt_s) {
                 (Some(&(px, py)), Some(dt)) if dt > 0.0 => ((x - px) / dt, (y - py) / dt),
                 _ => (0.0, 0.0),

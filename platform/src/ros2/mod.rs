@@ -7,7 +7,6 @@
 
 pub mod convert;
 pub mod msgs;
-pub mod undistort;
 
 use crate::cdr::{CdrError, CdrReader, CdrWriter};
 
