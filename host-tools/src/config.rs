@@ -13,6 +13,8 @@
 //! cull_obs_px = 4.5
 //! chi2_threshold = 5.991
 //! lm_max_iterations = 6
+//! lm_initial_lambda = 1e-4      # Marquardt damping relative to diag(H)
+//! lm_function_tolerance = 1e-3  # stop when the cost decreases by less than this fraction
 //! marginalize_visual = true     # fold anchored landmarks into the prior (VINS-Mono)
 //! reuse_marginalized_landmarks = true  # re-anchor them and keep using them (VINS-Mono)
 //! estimate_td = false
@@ -108,6 +110,8 @@ pub struct RunConfigFile {
     cull_obs_px: Option<f64>,
     chi2_threshold: Option<f64>,
     lm_max_iterations: Option<usize>,
+    lm_initial_lambda: Option<f64>,
+    lm_function_tolerance: Option<f64>,
     estimate_td: Option<bool>,
     marginalize_visual: Option<bool>,
     reuse_marginalized_landmarks: Option<bool>,
@@ -156,6 +160,14 @@ impl RunConfigFile {
         if let Some(n) = self.lm_max_iterations {
             cfg.lm_first.max_iterations = n;
             cfg.lm_second.max_iterations = n;
+        }
+        if let Some(l) = self.lm_initial_lambda {
+            cfg.lm_first.initial_lambda = l;
+            cfg.lm_second.initial_lambda = l;
+        }
+        if let Some(t) = self.lm_function_tolerance {
+            cfg.lm_first.function_tolerance = t;
+            cfg.lm_second.function_tolerance = t;
         }
         set(&mut cfg.estimate_td, self.estimate_td);
         set(&mut cfg.marginalize_visual, self.marginalize_visual);
