@@ -585,3 +585,44 @@ fn huge_finite_imu_values_keep_the_output_finite() {
         assert_finite(&r, "IMU values of 1e300");
     });
 }
+
+/// Timestamps at the ends of the `i64` range (a wrapped clock, a corrupt stamp) must be rejected
+/// or absorbed without arithmetic overflow (the test profile checks overflow): a stream that
+/// starts near `i64::MIN` and jumps to `i64::MAX`, with frames at both ends.
+#[test]
+fn extreme_timestamps_do_not_overflow() {
+    big_stack(|| {
+        let (ds, frames) = euroc();
+        let mut est =
+            Box::new(PoVins::new(euroc_config(&ds, VisualMode::PoseOnly)).expect("config"));
+        let t0 = i64::MIN + 1_000;
+        let g0 = interpolate_state(&ds.ground_truth, ds.imu[1200].t_ns).expect("gt");
+        est.initialize(NavState { t_ns: t0, ..g0 }).expect("init");
+        let obs = frames[0].1.clone();
+        let dt = 5_000_000;
+        for (k, s) in ds.imu[1200..1300].iter().enumerate() {
+            let t = t0 + k as i64 * dt;
+            if k % 10 == 5 {
+                let _ = est.push_frame(t, &obs);
+            }
+            let _ = est.push_imu(&ImuSample { t_ns: t, ..*s });
+        }
+        let _ = est.push_frame(i64::MAX, &obs);
+        let _ = est.push_frame(i64::MIN, &obs);
+        for t in [i64::MAX - 10, i64::MAX, i64::MIN] {
+            let _ = est.push_imu(&ImuSample {
+                t_ns: t,
+                ..ds.imu[1300]
+            });
+        }
+        let c = est.counters();
+        println!("extreme stamps: {c:?}");
+        assert!(c.keyframes > 0, "{c:?}");
+        assert_eq!(
+            c.frames_rejected_time, 1,
+            "the frame at i64::MAX is far ahead: {c:?}"
+        );
+        assert_eq!(c.imu_rejected_time, 1, "i64::MIN after i64::MAX: {c:?}");
+        assert_eq!(c.resets, 1, "the jump to i64::MAX is a gap: {c:?}");
+    });
+}

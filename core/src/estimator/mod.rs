@@ -283,7 +283,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 self.counters.imu_rejected_time += 1;
                 return Err(Error::TimeNotIncreasing);
             }
-            if (s.t_ns - last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s
+            if s.t_ns.saturating_sub(last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s
                 && self.status == Status::Running
             {
                 self.reset();
@@ -324,7 +324,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let frame_due = self
             .pending
             .as_ref()
-            .map(|p| p.t_cam_ns + (self.current_td() * 1e9) as i64)
+            .map(|p| p.t_cam_ns.saturating_add((self.current_td() * 1e9) as i64))
             .filter(|t_f| *t_f <= s.t_ns);
         if let Some(t_f) = frame_due {
             // The keyframe sample: the real one at t_f, or one interpolated at t_f, or (right
@@ -414,7 +414,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let decision = match self.window.last() {
             None => KeyframeDecision::First,
             Some(last) => {
-                let dt_s = (nav.t_ns - last.state.t_ns) as f64 * 1e-9;
+                let dt_s = nav.t_ns.saturating_sub(last.state.t_ns) as f64 * 1e-9;
                 let dp = (nav.p_wb - last.state.p_wb).norm();
                 let dr = log_so3(&(last.state.q_wb.inverse() * nav.q_wb)).norm();
                 let parallax = self.mean_parallax_px();
@@ -1009,9 +1009,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 
 /// Linear interpolation of an IMU sample at `t_ns` between `a` and `b` (`a.t < t <= b.t`).
 fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
-    let span = (b.t_ns - a.t_ns) as f64;
+    let span = b.t_ns.saturating_sub(a.t_ns) as f64;
     let w = if span > 0.0 {
-        (t_ns - a.t_ns) as f64 / span
+        t_ns.saturating_sub(a.t_ns) as f64 / span
     } else {
         1.0
     };

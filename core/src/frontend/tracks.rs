@@ -122,7 +122,7 @@ impl<const F: usize> TrackTable<F> {
         }
         out.truncate(k);
 
-        let dt_ns = self.prev_t_ns.map(|p| t_ns - p);
+        let dt_ns = self.prev_t_ns.map(|p| t_ns.saturating_sub(p));
         if let Some(dt_ns) = dt_ns.filter(|d| *d <= self.max_gap_ns) {
             let dt_s = dt_ns as f64 * 1e-9;
             for o in out.iter_mut() {
