@@ -101,7 +101,8 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         .map(|r| f64::from(r.landmarks_used))
         .collect();
     used.sort_by(f64::total_cmp);
-    let total_ms: f64 = ms.iter().sum();
+    // `sum` of no f64 is -0.0; start from +0.0 so an empty run prints 0.000.
+    let total_ms: f64 = 0.0 + ms.iter().sum::<f64>();
     let frames = out.camera_frames.max(1) as f64;
     let mut s = Summary {
         dataset: ds.name.clone(),
@@ -207,12 +208,19 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "keyframes {} of {} camera frames",
         s.keyframes, s.camera_frames
     );
+    if s.keyframes == 0 && s.init == InitMode::Static {
+        eprintln!(
+            "warning: the estimator never initialized: no static period met the static-init \
+             thresholds (a vibrating platform needs looser ones, see [static_init] in \
+             configs/euroc.toml), or start from the true state with --init groundtruth"
+        );
+    }
     match (s.ate_pos_rmse_m, s.ate_rot_rmse_deg) {
         (Some(p), Some(r)) => println!(
             "ATE       {p:.4} m, {r:.3} deg (posyaw-aligned, {} poses)",
             s.matched_poses.unwrap_or(0)
         ),
-        _ => println!("ATE       n/a (no ground truth)"),
+        _ => println!("ATE       n/a (no ground truth, or no estimate to compare)"),
     }
     println!(
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
