@@ -10,20 +10,7 @@ use povins_core::Error;
 use vision_common::{data_dir, num_jac, Rng};
 
 fn euroc_cam0() -> PinholeCamera {
-    PinholeCamera {
-        width: 752,
-        height: 480,
-        fx: 458.654,
-        fy: 457.296,
-        cx: 367.215,
-        cy: 248.375,
-        distortion: Distortion::RadTan {
-            k1: -0.28340811,
-            k2: 0.07395907,
-            p1: 0.00019359,
-            p2: 1.76187114e-05,
-        },
-    }
+    PinholeCamera::EUROC_CAM0
 }
 
 /// TUM-VI cam0 (512x512, Kalibr equidistant): a real fisheye calibration.

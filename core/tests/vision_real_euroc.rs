@@ -7,7 +7,7 @@ mod vision_common;
 use std::collections::{BTreeMap, HashMap};
 
 use nalgebra::{Quaternion, UnitQuaternion};
-use povins_core::camera::{CameraExtrinsic, CameraPose, Distortion, PinholeCamera, Vec2};
+use povins_core::camera::{CameraExtrinsic, CameraPose, PinholeCamera, Vec2};
 use povins_core::factors::pose_only_visual::PoseOnlyVisualFactor;
 use povins_core::factors::{sqrt_info_from_pixels, KeyframePose, TimedObs};
 use povins_core::landmarks::{pose_only_depth, select_anchor};
@@ -17,20 +17,7 @@ use vision_common::{data_dir, euroc_extrinsic};
 const SIGMA_PX: f64 = 1.5;
 
 fn cam0() -> PinholeCamera {
-    PinholeCamera {
-        width: 752,
-        height: 480,
-        fx: 458.654,
-        fy: 457.296,
-        cx: 367.215,
-        cy: 248.375,
-        distortion: Distortion::RadTan {
-            k1: -0.28340811,
-            k2: 0.07395907,
-            p1: 0.00019359,
-            p2: 1.76187114e-05,
-        },
-    }
+    PinholeCamera::EUROC_CAM0
 }
 
 struct Data {

@@ -330,6 +330,19 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         Ok(cost)
     }
 
+    /// Body poses of the window's keyframes (unused slots stay at the identity).
+    fn window_poses(&self) -> Result<[KeyframePose; N], Error> {
+        let mut poses = [KeyframePose {
+            p_wb: Vec3::zeros(),
+            q_wb: crate::math::Quat::identity(),
+            td: 0.0,
+        }; N];
+        for (k, p) in poses.iter_mut().enumerate().take(self.window.len()) {
+            *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
+        }
+        Ok(poses)
+    }
+
     fn pose_only_visual(
         &mut self,
         ne: &mut Option<&mut NormalEquations<D>>,
@@ -341,14 +354,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let l = self.layout;
         let count = self.window.len();
         let ext = *self.ext;
-        let mut poses = [KeyframePose {
-            p_wb: Vec3::zeros(),
-            q_wb: crate::math::Quat::identity(),
-            td: 0.0,
-        }; N];
-        for (k, p) in poses.iter_mut().enumerate().take(count) {
-            *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
-        }
+        let poses = self.window_poses()?;
         // Camera frames once per keyframe rather than three times per residual.
         let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
         let mut cost = 0.0;
@@ -507,14 +513,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let l = self.layout;
         let count = self.window.len();
         let ext = *self.ext;
-        let mut poses = [KeyframePose {
-            p_wb: Vec3::zeros(),
-            q_wb: crate::math::Quat::identity(),
-            td: 0.0,
-        }; N];
-        for (k, p) in poses.iter_mut().enumerate().take(count) {
-            *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
-        }
+        let poses = self.window_poses()?;
         let mut cost = 0.0;
         for li in 0..self.lms.len() {
             let Some(lm) = self.lms.landmarks().get(li) else {
