@@ -73,6 +73,10 @@ fn evo_ape(
     tag: &str,
 ) -> (serde_json::Value, usize) {
     let bin = evo_bin();
+    // evo creates ~/.evo on its first run with a plain mkdir: two test threads starting evo at
+    // once race on it (FileExistsError), so evo runs one at a time.
+    static EVO: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one_at_a_time = EVO.lock().unwrap_or_else(|e| e.into_inner());
     let home = bin.join("../home");
     std::fs::create_dir_all(&home).unwrap();
     let zip = dir.join(format!("{tag}.zip"));
