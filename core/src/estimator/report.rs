@@ -47,8 +47,46 @@ pub struct KeyframeReport {
     pub solve_ns: u64,
     /// Time of the marginalization, ns.
     pub marginalization_ns: u64,
-    /// Whole back-end step (landmark preparation, solve, marginalization, culling), ns.
+    /// Whole back-end step (landmark preparation, solve, marginalization, culling, LiDAR
+    /// association), ns.
     pub total_ns: u64,
+    /// LiDAR points (inside the association span) seen by the depth association.
+    pub lidar_points: u32,
+    /// Features of this keyframe given a LiDAR depth.
+    pub depths_associated: u32,
+    /// LiDAR depths removed by the uncertainty-based rejection (paper IV.C) in this step.
+    pub depths_rejected: u32,
+    /// Landmarks entering the final solve with a LiDAR-depth measurement.
+    pub ldm_count: u32,
+    /// Time of the depth association (grid build and per-feature plane fits), ns.
+    pub association_ns: u64,
+    /// Time of the uncertainty-based rejection, ns.
+    pub rejection_ns: u64,
+    /// Time of the depth-only optimization, ns.
+    pub depth_opt_ns: u64,
+}
+
+/// What happened to a landmark's LiDAR depth (for evaluation against ground truth).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DepthEventKind {
+    /// A depth was associated in the landmark's anchor keyframe (the keyframe of the report).
+    Associated,
+    /// The uncertainty-based test rejected the depth (the visual feature stays).
+    Rejected,
+    /// Outlier culling dropped the landmark together with its depth.
+    Culled,
+}
+
+/// One LiDAR-depth event of a keyframe step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthEvent {
+    /// Track id of the landmark.
+    pub id: u64,
+    /// What happened.
+    pub kind: DepthEventKind,
+    /// The LiDAR depth (z in the anchor camera), m.
+    pub depth_m: f64,
 }
 
 /// Running counters of everything the estimator rejected, dropped or reset.
@@ -87,4 +125,17 @@ pub struct Counters {
     pub resets: u64,
     /// Of the resets: those caused by a non-finite or implausibly fast INS state.
     pub divergence_resets: u64,
+    /// LiDAR sweeps offered.
+    pub lidar_scans: u64,
+    /// LiDAR sweeps refused whole (LiDAR disabled, not initialized, or larger than the buffer
+    /// can take in one piece is *not* a refusal: the oldest points are evicted instead).
+    pub lidar_scans_refused: u64,
+    /// LiDAR points offered.
+    pub lidar_points_received: u64,
+    /// LiDAR points stored.
+    pub lidar_points_accepted: u64,
+    /// LiDAR points rejected (non-finite, range, time outside the INS window).
+    pub lidar_points_rejected: u64,
+    /// LiDAR points evicted from the full buffer before use.
+    pub lidar_points_evicted: u64,
 }

@@ -1,4 +1,25 @@
-//! LiDAR points and (later) depth association.
+//! LiDAR enhancement (paper III, IV.C, V.C-V.D): a bounded buffer of de-skewed points and the
+//! depth association of visual features on the unit sphere of the keyframe camera.
+//!
+//! Pipeline (driven by [`crate::estimator`]):
+//! 1. [`PointBuffer::push_scan`]: every point of a sweep is de-skewed with the INS pose at its
+//!    own time (`t_imu = t_lidar + td_l_s`) and the LiDAR-IMU extrinsic `T_bl`, and stored in the
+//!    INS world frame `w`. The buffer keeps the latest points up to its capacity and time span.
+//! 2. At a keyframe, [`SphereGrid::build`] expresses the buffered points in the keyframe camera
+//!    and keeps the nearest point per angular cell (foreground only).
+//! 3. [`SphereGrid::associate`] gives a feature's LiDAR depth: neighbours of its bearing, plane
+//!    fit with plane and range-spread checks, ray-plane intersection, depth = z in the camera.
+//!
+//! Frames: `l` LiDAR, `b` body (IMU), `w` world, `c` camera; `T_bl` maps LiDAR points into the
+//! body (`P_b = R_bl P_l + p_bl`).
+
+pub mod association;
+pub mod buffer;
+pub mod config;
+
+pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
+pub use buffer::{PointBuffer, ScanStats, WorldPoint};
+pub use config::{AssociationConfig, LdmMode, LidarConfig, LidarExtrinsic};
 
 /// One LiDAR return in the LiDAR frame `l`, with its own timestamp (so motion distortion can be
 /// removed). Stored as `f32` to keep point buffers small; the math converts to `f64`.

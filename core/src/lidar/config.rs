@@ -1,0 +1,148 @@
+//! LiDAR configuration: extrinsic, association parameters and the run-time switches of the
+//! paper's ablations (Table VI).
+
+use crate::math::{Quat, Vec3};
+use crate::Error;
+
+/// LiDAR in the body frame: `P_b = R_bl P_l + p_bl`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LidarExtrinsic {
+    /// Rotation LiDAR -> body.
+    pub q_bl: Quat,
+    /// LiDAR origin in the body frame, m.
+    pub p_bl: Vec3,
+}
+
+impl LidarExtrinsic {
+    /// The identity (LiDAR frame = body frame).
+    pub fn identity() -> Self {
+        LidarExtrinsic {
+            q_bl: Quat::identity(),
+            p_bl: Vec3::zeros(),
+        }
+    }
+}
+
+/// Which LiDAR-depth measurement the solver uses (paper V.C).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LdmMode {
+    /// MSC-based LDM (eq. 25-30): the landmark's observations and depth in one measurement with
+    /// the inverse depth projected out; no separate visual measurement (PO-VINS).
+    Msc,
+    /// Direct LDM (eq. 24): `d_s(poses) - d_r` beside the landmark's visual measurements.
+    Direct,
+}
+
+/// Depth association on the camera's unit sphere (LE-VINS).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AssociationConfig {
+    /// Angular size of a grid cell, rad.
+    pub cell_rad: f64,
+    /// Neighbours used for the plane fit (3 ..= [`AssociationConfig::MAX_NEIGHBOURS`]).
+    pub neighbours: usize,
+    /// Largest angle between the feature bearing and a neighbour's bearing, rad.
+    pub max_neighbour_rad: f64,
+    /// Largest distance of a neighbour from the fitted plane, m.
+    pub max_plane_dist_m: f64,
+    /// Largest spread of the neighbours' ranges relative to their mean range (foreground and
+    /// background mixed in one fit fail this).
+    pub max_range_spread: f64,
+    /// Smallest cosine between the ray and the plane normal (grazing planes are unreliable).
+    pub min_incidence_cos: f64,
+    /// Accepted depth range (z in the camera), m.
+    pub depth_range_m: (f64, f64),
+    /// Points older than this before the keyframe are not used, s.
+    pub span_s: f64,
+}
+
+impl AssociationConfig {
+    /// Capacity of the neighbour search.
+    pub const MAX_NEIGHBOURS: usize = 8;
+}
+
+impl Default for AssociationConfig {
+    fn default() -> Self {
+        AssociationConfig {
+            cell_rad: 0.5f64.to_radians(),
+            neighbours: 5,
+            max_neighbour_rad: 2.0f64.to_radians(),
+            max_plane_dist_m: 0.10,
+            max_range_spread: 0.10,
+            min_incidence_cos: 0.2,
+            depth_range_m: (0.5, 80.0),
+            span_s: 0.5,
+        }
+    }
+}
+
+/// LiDAR enhancement settings. `enabled = false` is PO-VINS-WO (LiDAR ignored).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LidarConfig {
+    /// Use LiDAR depths at all.
+    pub enabled: bool,
+    /// LiDAR-depth measurement model.
+    pub ldm: LdmMode,
+    /// Uncertainty-based rejection of LiDAR depths (paper IV.C).
+    pub depth_outlier_rejection: bool,
+    /// Depth-only optimization of LiDAR landmarks after each solve (paper V.D).
+    pub depth_only_opt: bool,
+    /// Standard deviation of an associated LiDAR depth, m (paper: 0.1).
+    pub sigma_dr_m: f64,
+    /// Feature noise used in the rejection's depth uncertainty, px (paper: 1.5).
+    pub rejection_sigma_px: f64,
+    /// Rejection gate in standard deviations of `d_v - d_r` (paper: 3).
+    pub rejection_sigmas: f64,
+    /// LiDAR-IMU extrinsic.
+    pub extrinsic: LidarExtrinsic,
+    /// LiDAR-IMU time offset, `t_imu = t_lidar + td_l_s`.
+    pub td_l_s: f64,
+    /// Association parameters.
+    pub association: AssociationConfig,
+}
+
+impl Default for LidarConfig {
+    fn default() -> Self {
+        LidarConfig {
+            enabled: false,
+            ldm: LdmMode::Msc,
+            depth_outlier_rejection: true,
+            depth_only_opt: true,
+            sigma_dr_m: 0.1,
+            rejection_sigma_px: 1.5,
+            rejection_sigmas: 3.0,
+            extrinsic: LidarExtrinsic::identity(),
+            td_l_s: 0.0,
+            association: AssociationConfig::default(),
+        }
+    }
+}
+
+impl LidarConfig {
+    /// [`Error::InvalidConfig`] for non-positive or non-finite parameters.
+    pub fn validate(&self) -> Result<(), Error> {
+        let a = &self.association;
+        let pos = |x: f64| x > 0.0 && x.is_finite();
+        let ok = pos(self.sigma_dr_m)
+            && pos(self.rejection_sigma_px)
+            && pos(self.rejection_sigmas)
+            && self.td_l_s.is_finite()
+            && self.extrinsic.p_bl.iter().all(|x| x.is_finite())
+            && self.extrinsic.q_bl.coords.iter().all(|x| x.is_finite())
+            && pos(a.cell_rad)
+            && (3..=AssociationConfig::MAX_NEIGHBOURS).contains(&a.neighbours)
+            && pos(a.max_neighbour_rad)
+            && pos(a.max_plane_dist_m)
+            && pos(a.max_range_spread)
+            && a.min_incidence_cos.is_finite()
+            && pos(a.depth_range_m.0)
+            && a.depth_range_m.1 > a.depth_range_m.0
+            && a.depth_range_m.1.is_finite()
+            && pos(a.span_s);
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::InvalidConfig)
+        }
+    }
+}
