@@ -59,8 +59,7 @@ fn hash_state(h: &mut Fnv, s: &NavState) {
     h.f64s(s.ba.iter());
 }
 
-/// Every number of the report except the timings (`solve_ns`, `marginalization_ns`,
-/// `total_ns`), which depend on the machine's load.
+/// Every number of the report except the timings (`*_ns`), which depend on the machine's load.
 fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
     let KeyframeReport {
         t_ns,
@@ -83,6 +82,13 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         solve_ns: _,
         marginalization_ns: _,
         total_ns: _,
+        lidar_points,
+        depths_associated,
+        depths_rejected,
+        ldm_count,
+        association_ns: _,
+        rejection_ns: _,
+        depth_opt_ns: _,
     } = r;
     h.u64(*t_ns as u64);
     h.u64(*t_cam_ns as u64);
@@ -99,6 +105,10 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         disabled_landmarks,
         marginalized_rank_deficiency,
         prior_rank_deficiency,
+        lidar_points,
+        depths_associated,
+        depths_rejected,
+        ldm_count,
     ] {
         h.u64(u64::from(*n));
     }
