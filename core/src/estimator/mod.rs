@@ -19,8 +19,10 @@
 //! buffer (about 1.5 MB for `N = 10`, `L = 200`): put it in a `Box` or a `static`.
 
 pub mod config;
+mod lidar;
 pub mod prior;
 pub mod problem;
+mod problem_lidar;
 pub mod report;
 pub mod window;
 
@@ -29,12 +31,16 @@ pub use report::{Counters, DepthEvent, DepthEventKind, KeyframeReport};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::pose_only_visual::PoseOnlyVisualFactor;
-use crate::factors::{KeyframePose, TimedObs};
+use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::frontend::{KeyframeDecision, KeyframeSelector, NormalizedObs, TrackTable};
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
+use crate::inertial::window::InsWindow;
 use crate::inertial::{ImuSample, NavState};
 use crate::landmarks::{depth_std, pose_only_depth, TwoView};
+use crate::lidar::association::{GRID_H, GRID_W};
+use crate::lidar::buffer::MAX_LIDAR_POINTS;
+use crate::lidar::{LdmMode, PointBuffer, SphereGrid};
 use crate::math::{log_so3, Vec3};
 use crate::solver::{
     schur_complement_in_place, sqrt_prior, FactorReport, LandmarkSchur, Ldlt, LmWorkspace,
@@ -50,6 +56,10 @@ use window::{Block, Keyframe, Layout, Preint, Window, MAX_INTERVAL_SAMPLES};
 pub const MAX_FEATURES: usize = 512;
 /// IMU samples the static initializer can hold (must cover `min_static_s` at the IMU rate).
 pub const INIT_SAMPLES: usize = 1024;
+/// INS states kept for LiDAR de-skewing (2.5 s at 200 Hz; a sweep must end within it).
+pub const INS_WINDOW: usize = 512;
+/// LiDAR-depth events one keyframe step can report.
+pub const MAX_EVENTS: usize = 1024;
 
 /// The PO-VINS configuration of the paper: 10 keyframes, 200 landmarks.
 pub type PoVins = Estimator<10, 200, 166>;
@@ -105,6 +115,10 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     saved: Saved<N, L>,
     counters: Counters,
     last_marg: Option<(FactorReport, FactorReport)>,
+    ins_window: InsWindow<INS_WINDOW>,
+    points: PointBuffer<MAX_LIDAR_POINTS>,
+    grid: SphereGrid<GRID_W, GRID_H>,
+    events: HVec<DepthEvent, MAX_EVENTS>,
 }
 
 fn now(cfg: &EstimatorConfig) -> u64 {
@@ -148,6 +162,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             saved: Saved::new(),
             counters: Counters::default(),
             last_marg: None,
+            ins_window: InsWindow::new(),
+            points: PointBuffer::new(),
+            grid: SphereGrid::new(),
+            events: HVec::new(),
             cfg,
         })
     }
@@ -211,6 +229,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.pending = None;
         self.tracks.clear();
         self.ext = self.cfg.extrinsic;
+        // Buffered INS states and points belong to the INS run that ends here.
+        self.ins_window.clear();
+        self.points.clear();
     }
 
     /// Drops everything and waits for a new initialization (counted).
@@ -260,25 +281,6 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         Ok(())
     }
 
-    /// Offers one LiDAR sweep (points in the LiDAR frame with their own times). Push a sweep once
-    /// the IMU has reached its last point: points without an INS pose to de-skew with are
-    /// rejected and counted. Ignored (counted in `lidar_scans_refused`) when LiDAR is disabled
-    /// or the estimator is not initialized.
-    pub fn push_lidar(&mut self, points: &[crate::lidar::LidarPoint]) -> crate::lidar::ScanStats {
-        self.counters.lidar_scans += 1;
-        self.counters.lidar_points_received += points.len() as u64;
-        self.counters.lidar_scans_refused += 1;
-        crate::lidar::ScanStats {
-            received: points.len() as u32,
-            ..Default::default()
-        }
-    }
-
-    /// LiDAR-depth events of the last keyframe step.
-    pub fn lidar_events(&self) -> &[DepthEvent] {
-        &[]
-    }
-
     fn current_td(&self) -> f64 {
         self.window.last().map_or(self.cfg.td_s, |k| k.td_s)
     }
@@ -319,7 +321,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                     let ins = Ins::new(self.ins_config(), state)?;
                     self.ins = Some(ins);
                     if let Some(ins) = self.ins.as_mut() {
-                        ins.propagate(s)?;
+                        let st = *ins.propagate(s)?;
+                        self.record_ins(&st);
                     }
                     self.status = Status::Running;
                 }
@@ -377,7 +380,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let Some(ins) = self.ins.as_mut() else {
             return Err(Error::NotInitialized);
         };
-        match ins.propagate(s) {
+        match ins.propagate(s).copied() {
             Ok(st) => {
                 let finite = st.p_wb.iter().chain(st.v_wb.iter()).all(|x| x.is_finite())
                     && st.q_wb.coords.iter().all(|x| x.is_finite());
@@ -387,6 +390,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                     self.reset();
                     return Ok(());
                 }
+                self.record_ins(&st);
             }
             Err(Error::TimeGap) => {
                 self.reset();
@@ -517,6 +521,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             rejection_ns: 0,
             depth_opt_ns: 0,
         };
+        self.events.clear();
         // 1. Marginalize the oldest keyframe at the last optimized state.
         if self.window.is_full() {
             let tm = now(&self.cfg);
@@ -580,6 +585,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         );
         self.lms.add_keyframe_obs(pos, &self.frame_obs, td);
         self.counters.keyframes += 1;
+        self.associate_depths(pos, &nav, &mut report);
 
         // 3-5. Optimize and cull.
         let ts = now(&self.cfg);
@@ -592,6 +598,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         // re-linearized at its biases (it holds only the keyframe sample so far).
         if let Some(last) = self.window.last() {
             let st = last.state;
+            self.correct_ins_window(&nav, &st);
             if let Some(ins) = self.ins.as_mut() {
                 ins.set_state(st)?;
             }
@@ -627,8 +634,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         })
     }
 
-    /// Chooses anchors and gates every landmark for the coming solve.
-    fn prepare_landmarks(&mut self) {
+    /// Chooses anchors and gates every landmark for the coming solve. With `reject`, also runs
+    /// the uncertainty-based test on LiDAR depths (see [`lidar`]); returns (depths rejected,
+    /// time spent on the test in ns).
+    fn prepare_landmarks(&mut self, reject: bool) -> (u32, u64) {
         let count = self.window.len();
         let ext = self.ext;
         let mut cams = [crate::camera::CameraPose {
@@ -646,8 +655,16 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let sigma_px = self.cfg.sigma_px;
         let focal = crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy);
         let mode = self.cfg.mode;
+        let lc = self.cfg.lidar;
+        let test_depths = reject && lc.enabled && lc.depth_outlier_rejection;
+        let clock = self.cfg.clock;
+        let (mut rejected, mut reject_ns) = (0u32, 0u64);
         for lm in self.lms.landmarks_mut() {
             lm.usable = false;
+            if !lc.enabled {
+                // PO-VINS-WO: depths may exist (associated before a switch) but are never used.
+                lm.lidar = None;
+            }
             let s = lm.anchor_s as usize;
             let (Some(Some(os)), Some(cs)) = (lm.obs.get(s), cams.get(s)) else {
                 continue;
@@ -685,29 +702,64 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 continue;
             };
             lm.anchor_e = Some(e as u8);
+            let Some(ce) = cams.get(e) else { continue };
+            let (r_es, t_es) = ce.relative_from(cs);
+            // The pose-only depth from (s, e) and its analytic uncertainty (paper IV.A-B).
+            let visual = pose_only_depth(&x_s, &x_e, &r_es, &t_es, 0.0)
+                .ok()
+                .filter(|d| d.d_s > 0.0 && d.d_s.is_finite())
+                .map(|d| (d.d_s, TwoView::new(&x_s, &x_e, &r_es, &t_es)));
+
+            if let (true, Some(ld), Some((d_v, two))) = (test_depths, lm.lidar, visual.as_ref()) {
+                let t0 = clock.map_or(0, |c| c());
+                let sd_v = depth_std(two, lc.rejection_sigma_px, &focal).unwrap_or(f64::INFINITY);
+                let gate = lc.rejection_sigmas * libm::sqrt(sd_v * sd_v + ld.sigma_m * ld.sigma_m);
+                // An untestable depth (infinite sigma_dv) passes: no evidence against it.
+                if libm::fabs(d_v - ld.depth_m) > gate {
+                    lm.lidar = None;
+                    lm.inv_depth = 0.0;
+                    rejected += 1;
+                    let _ = self.events.push(DepthEvent {
+                        id: lm.id,
+                        kind: DepthEventKind::Rejected,
+                        depth_m: ld.depth_m,
+                    });
+                }
+                reject_ns += clock.map_or(0, |c| c()).saturating_sub(t0);
+            }
+
+            if let Some(ld) = lm.lidar {
+                let in_range = ld.depth_m >= dmin && ld.depth_m <= dmax;
+                // MSC (and the inverse-depth baseline) take the depth from the LiDAR: no
+                // parallax needed. The direct LDM rides on the pose-only visual measurements,
+                // so it needs their gates.
+                if in_range && (lc.ldm == LdmMode::Msc || mode == VisualMode::InverseDepth) {
+                    lm.usable = true;
+                    if !(lm.inv_depth > 0.0 && lm.inv_depth.is_finite()) {
+                        lm.inv_depth = 1.0 / ld.depth_m;
+                    }
+                    continue;
+                }
+            }
             if theta < min_par {
                 continue;
             }
-            let Some(ce) = cams.get(e) else { continue };
-            let (r_es, t_es) = ce.relative_from(cs);
-            let Ok(d) = pose_only_depth(&x_s, &x_e, &r_es, &t_es, min_par) else {
-                continue;
-            };
-            if !(d.d_s >= dmin && d.d_s <= dmax) {
+            let Some((d_s, two)) = visual else { continue };
+            if !(d_s >= dmin && d_s <= dmax) {
                 continue;
             }
             // The pose-only residuals treat the depth from (s, e) as exact: admit a landmark only
             // once its analytic depth uncertainty (paper IV.B) is a small fraction of the depth.
-            let two = TwoView::new(&x_s, &x_e, &r_es, &t_es);
             match depth_std(&two, sigma_px, &focal) {
-                Ok(sd) if sd <= max_rel * d.d_s => {}
+                Ok(sd) if sd <= max_rel * d_s => {}
                 _ => continue,
             }
             lm.usable = true;
             if mode == VisualMode::InverseDepth && (lm.inv_depth.is_nan() || lm.inv_depth <= 0.0) {
-                lm.inv_depth = 1.0 / d.d_s;
+                lm.inv_depth = 1.0 / d_s;
             }
         }
+        (rejected, reject_ns)
     }
 
     /// The window's least-squares problem over `layout`, beside the LM workspace and the
@@ -751,6 +803,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let res = lm.solve(&mut problem, cfg);
         report.disabled_landmarks += problem.counts.disabled;
         report.landmarks_used = problem.counts.landmarks;
+        report.ldm_count = problem.counts.ldm;
         report.observations_used = problem.counts.observations;
         match res {
             Ok(sum) => {
@@ -783,16 +836,23 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 }
             }
         }
-        self.prepare_landmarks();
+        let (rej, rej_ns) = self.prepare_landmarks(true);
+        report.depths_rejected = rej;
+        report.rejection_ns = rej_ns;
         let first = self.cfg.lm_first;
         if !self.run_lm(&first, report) {
             return;
         }
         report.culled_chi2 = self.chi2_cull();
         if report.culled_chi2 > 0 {
-            self.prepare_landmarks();
+            self.prepare_landmarks(false);
             let second = self.cfg.lm_second;
             self.run_lm(&second, report);
+        }
+        if self.cfg.lidar.enabled && self.cfg.lidar.depth_only_opt {
+            let t0 = now(&self.cfg);
+            self.depth_only_optimization();
+            report.depth_opt_ns = now(&self.cfg).saturating_sub(t0);
         }
         let (obs, lms, rms) = self.reprojection_cull();
         report.culled_observations = obs;
@@ -801,9 +861,33 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     }
 
     /// Whitened pose-only residual of observation `j` of landmark `li`, if defined.
-    fn obs_residual(&self, li: usize, j: usize) -> Option<crate::camera::Vec2> {
+    /// Body poses and camera frames of the window, computed once for a culling pass.
+    fn window_frames(&self) -> ([KeyframePose; N], [CamFrame; N]) {
+        let mut poses = [KeyframePose {
+            p_wb: Vec3::zeros(),
+            q_wb: crate::math::Quat::identity(),
+            td: 0.0,
+        }; N];
+        for (k, p) in poses.iter_mut().enumerate().take(self.window.len()) {
+            if let Some(kp) = self.kf_pose(k) {
+                *p = kp;
+            }
+        }
+        let ext = self.ext;
+        let frames = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
+        (poses, frames)
+    }
+
+    fn obs_residual(
+        &self,
+        li: usize,
+        j: usize,
+        wf: &([KeyframePose; N], [CamFrame; N]),
+    ) -> Option<crate::camera::Vec2> {
+        let (poses, frames) = wf;
         let lm = self.lms.landmarks().get(li)?;
-        let (s, e) = (lm.anchor_s as usize, lm.anchor_e? as usize);
+        let s = lm.anchor_s as usize;
+        let e = lm.anchor_e.map_or(j, usize::from);
         let to = |o: &crate::landmarks::KfObs| TimedObs {
             x_n: crate::camera::Vec2::new(o.x_n[0], o.x_n[1]),
             vel: crate::camera::Vec2::new(o.vel[0], o.vel[1]),
@@ -819,12 +903,20 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             sqrt_info: crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy)
                 / self.cfg.sigma_px,
         };
-        match self.cfg.mode {
-            VisualMode::PoseOnly => f
-                .residual(
-                    &self.kf_pose(s)?,
-                    &self.kf_pose(e)?,
-                    &self.kf_pose(j)?,
+        let lc = &self.cfg.lidar;
+        // A LiDAR landmark's depth comes from the depth-only optimization (paper V.D), so that
+        // culling sees the depth the LiDAR pulled it to; without it, the pose-only depth.
+        let lidar_tau = lc.enabled && lc.depth_only_opt && lm.lidar.is_some() && lm.inv_depth > 0.0;
+        let mode = if lidar_tau {
+            VisualMode::InverseDepth
+        } else {
+            self.cfg.mode
+        };
+        match mode {
+            VisualMode::PoseOnly if lm.anchor_e.is_some() => f
+                .residual_with_frames(
+                    [poses.get(s)?, poses.get(e)?, poses.get(j)?],
+                    &[*frames.get(s)?, *frames.get(e)?, *frames.get(j)?],
                     &self.ext,
                 )
                 .ok(),
@@ -836,20 +928,17 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                     obs_j: f.obs_j,
                     sqrt_info: f.sqrt_info,
                 }
-                .residual(
-                    &self.kf_pose(s)?,
-                    &self.kf_pose(j)?,
-                    &self.ext,
-                    lm.inv_depth,
-                )
+                .residual(poses.get(s)?, poses.get(j)?, &self.ext, lm.inv_depth)
                 .ok()
             }
+            VisualMode::PoseOnly => None,
         }
     }
 
     /// Removes observations whose whitened squared residual exceeds the chi-square threshold.
     fn chi2_cull(&mut self) -> u32 {
         let count = self.window.len();
+        let wf = self.window_frames();
         let mut culled = 0;
         for li in 0..self.lms.len() {
             let usable = self.lms.landmarks().get(li).is_some_and(|l| l.usable);
@@ -866,7 +955,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                     continue;
                 }
                 let bad = self
-                    .obs_residual(li, j)
+                    .obs_residual(li, j, &wf)
                     .is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
                 if bad {
                     if let Some(o) = self
@@ -910,6 +999,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// single observations above `cull_obs_px`. Returns (observations, landmarks, rms px).
     fn reprojection_cull(&mut self) -> (u32, u32, f64) {
         let count = self.window.len();
+        let wf = self.window_frames();
         let sigma = self.cfg.sigma_px;
         let (mut n_obs, mut n_lm) = (0u32, 0u32);
         let (mut sq_sum, mut sq_n) = (0.0, 0u32);
@@ -928,7 +1018,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 if j == s {
                     continue;
                 }
-                if let Some(r) = self.obs_residual(li, j) {
+                if let Some(r) = self.obs_residual(li, j, &wf) {
                     *e = libm::sqrt(r.norm_squared()) * sigma;
                     sum += *e;
                     n += 1;
@@ -941,6 +1031,13 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
             if sum / f64::from(n) > self.cfg.cull_mean_px {
                 let _ = drop_lm.push(id);
+                if let Some(d) = self.lms.landmarks().get(li).and_then(|l| l.lidar) {
+                    let _ = self.events.push(DepthEvent {
+                        id,
+                        kind: DepthEventKind::Culled,
+                        depth_m: d.depth_m,
+                    });
+                }
                 continue;
             }
             if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
@@ -972,7 +1069,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let count = self.window.len();
         let (ext, td) = (self.cfg.estimate_extrinsic, self.cfg.estimate_td);
         let layout = Layout::marginalize_oldest(count, ext, td);
-        self.prepare_landmarks();
+        self.prepare_landmarks(false);
         self.marg_ne.reset(layout.dim())?;
         {
             let (mut problem, _, marg_ne) = self.split(layout, FactorSet::Oldest);
@@ -1055,7 +1152,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// Meant for tests and diagnostics (it evaluates the cost `2 n` times).
     pub fn gradient_check(&mut self, h: f64) -> Result<f64, Error> {
         use crate::solver::LmProblem;
-        self.prepare_landmarks();
+        self.prepare_landmarks(false);
         let layout = self.solve_layout();
         let n = layout.dim();
         let (mut problem, lm, _) = self.split(layout, FactorSet::All);

@@ -20,6 +20,7 @@ use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::inertial::preintegration::{Mat15, Vec15};
 use crate::inertial::NavState;
 use crate::landmarks::{KfObs, LandmarkManager};
+use crate::lidar::LdmMode;
 use crate::math::{jr_inv_so3, quat_exp, Vec3};
 use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations};
 use crate::Error;
@@ -66,6 +67,8 @@ pub struct AssemblyCounts {
     pub observations: u32,
     /// Landmarks disabled because a residual was degenerate at linearization.
     pub disabled: u32,
+    /// LiDAR-depth measurements (MSC blocks or direct depth rows).
+    pub ldm: u32,
 }
 
 /// Saved copy of the optimized variables (for LM trial steps).
@@ -131,7 +134,10 @@ fn timed(o: &KfObs) -> TimedObs {
 }
 
 /// Copies a column-major nalgebra matrix into a row-major slice.
-fn row_major<const R: usize, const C: usize>(m: &nalgebra::SMatrix<f64, R, C>, out: &mut [f64]) {
+pub(super) fn row_major<const R: usize, const C: usize>(
+    m: &nalgebra::SMatrix<f64, R, C>,
+    out: &mut [f64],
+) {
     for (r, row) in out.chunks_mut(C).take(R).enumerate() {
         for (c, o) in row.iter_mut().enumerate() {
             *o = m[(r, c)];
@@ -156,7 +162,7 @@ fn sink<const D: usize>(
 }
 
 impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
-    fn sqrt_info(&self) -> Vec2 {
+    pub(super) fn sqrt_info(&self) -> Vec2 {
         Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px
     }
 
@@ -366,12 +372,31 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             if !lm.usable {
                 continue;
             }
+            if self.set == FactorSet::Oldest && lm.anchor_s != 0 {
+                continue;
+            }
+            let lidar = lm.lidar.is_some() && self.cfg.lidar.enabled;
+            if lidar && self.cfg.lidar.ldm == LdmMode::Msc {
+                match self.msc_landmark(li, ne, &poses, &ext, &huber, est_td, est_ext) {
+                    Ok((c, n)) => {
+                        cost += c;
+                        self.counts.landmarks += 1;
+                        self.counts.observations += n;
+                        self.counts.ldm += 1;
+                    }
+                    Err(_) if linearize => {
+                        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
+                            lm.usable = false;
+                        }
+                        self.counts.disabled += 1;
+                    }
+                    Err(_) => return Err(Error::Degenerate),
+                }
+                continue;
+            }
             let (s, Some(e)) = (lm.anchor_s as usize, lm.anchor_e.map(usize::from)) else {
                 continue;
             };
-            if self.set == FactorSet::Oldest && s != 0 {
-                continue;
-            }
             let (Some(Some(os)), Some(Some(oe))) = (lm.obs.get(s), lm.obs.get(e)) else {
                 continue;
             };
@@ -491,6 +516,18 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     self.counts.disabled += 1;
                 } else {
                     return Err(Error::Degenerate);
+                }
+            }
+            if lidar && !failed {
+                // Direct LDM beside the visual measurements; a degenerate depth geometry only
+                // drops the depth measurement (the visual ones were fine).
+                match self.direct_depth(li, ne, &poses, &ext, &huber, est_td, est_ext) {
+                    Ok(c) => {
+                        lm_cost += c;
+                        self.counts.ldm += 1;
+                    }
+                    Err(_) if linearize => {}
+                    Err(_) => return Err(Error::Degenerate),
                 }
             }
             if n_obs > 0 {
@@ -617,6 +654,23 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     self.counts.disabled += 1;
                 } else {
                     return Err(Error::Degenerate);
+                }
+            }
+            // LE-VINS: a LiDAR depth is a prior on the landmark's own inverse depth.
+            let depth = self
+                .lms
+                .landmarks()
+                .get(li)
+                .and_then(|lm| lm.lidar)
+                .filter(|_| self.cfg.lidar.enabled);
+            if let (false, Some(d)) = (failed, depth) {
+                let rd = (1.0 / tau - d.depth_m) / d.sigma_m;
+                let jd = -1.0 / (tau * tau * d.sigma_m);
+                lm_cost += huber.rho(rd * rd)[0];
+                self.counts.ldm += 1;
+                if let (Some(ne_ref), Some(sc)) = (ne.as_deref_mut(), self.schur.get_mut(li)) {
+                    let w = huber.sqrt_weight(rd * rd);
+                    sc.add_residual(ne_ref, &[rd * w], &[], &[jd * w])?;
                 }
             }
             if let (false, Some(ne_ref), Some(sc)) = (failed, ne.as_deref_mut(), self.schur.get(li))

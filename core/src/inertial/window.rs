@@ -46,6 +46,18 @@ impl<const N: usize> InsWindow<N> {
         self.states.clear();
     }
 
+    /// Moves every buffered state by the rigid correction that takes `from` onto `to` (the
+    /// INS restarting from an optimized state): `p' = R (p - p_from) + p_to`, `q' = q q_wb`,
+    /// `v' = R v` with `q = q_to q_from^-1`. Keeps the window continuous across the restart.
+    pub fn apply_correction(&mut self, from: &NavState, to: &NavState) {
+        let q = super::ins::renormalize(to.q_wb * from.q_wb.inverse());
+        for s in self.states.iter_mut() {
+            s.p_wb = q * (s.p_wb - from.p_wb) + to.p_wb;
+            s.v_wb = q * s.v_wb;
+            s.q_wb = super::ins::renormalize(q * s.q_wb);
+        }
+    }
+
     /// Oldest buffered state.
     pub fn oldest(&self) -> Option<&NavState> {
         self.states.front()

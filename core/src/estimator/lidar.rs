@@ -1,0 +1,155 @@
+//! The estimator's LiDAR steps (paper III, IV.C, V.D): sweep intake, depth association at a
+//! keyframe, the uncertainty-based rejection test and the depth-only optimization.
+//!
+//! Rejection (paper eq. 14-15): with the pose-only depth `d_v` of the landmark from its anchors
+//! `(s, e)` and its analytic standard deviation `sigma_dv` (paper eq. 13, evaluated with
+//! `rejection_sigma_px`), a LiDAR depth `d_r` is an outlier when
+//! `|d_v - d_r| > k sqrt(sigma_dv^2 + sigma_dr^2)` (`k = 3`). The test runs at every solve while
+//! the landmark lives (its parallax, hence its power, grows as the window moves); a landmark
+//! without parallax yet cannot be tested and keeps its depth. A rejected depth is dropped for
+//! good; the visual feature stays.
+
+use super::{DepthEvent, DepthEventKind, Estimator, KeyframeReport};
+use crate::camera::Vec2;
+use crate::factors::KeyframePose;
+use crate::inertial::NavState;
+use crate::landmarks::LidarDepth;
+use crate::lidar::ScanStats;
+use crate::math::Vec3;
+
+use super::problem_lidar::LidarLandmark;
+
+impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+    /// Offers one LiDAR sweep (points in the LiDAR frame with their own times). Push a sweep once
+    /// the IMU has reached its last point: points without an INS pose to de-skew with are
+    /// rejected and counted. A sweep is refused whole (counted in `lidar_scans_refused`) when
+    /// LiDAR is disabled or the estimator is not running.
+    pub fn push_lidar(&mut self, points: &[crate::lidar::LidarPoint]) -> ScanStats {
+        self.counters.lidar_scans += 1;
+        self.counters.lidar_points_received += points.len() as u64;
+        if !self.cfg.lidar.enabled || self.status != super::Status::Running {
+            self.counters.lidar_scans_refused += 1;
+            return ScanStats {
+                received: points.len() as u32,
+                ..Default::default()
+            };
+        }
+        let st = self
+            .points
+            .push_scan(points, &self.ins_window, &self.cfg.lidar);
+        let c = &mut self.counters;
+        c.lidar_points_accepted += u64::from(st.accepted);
+        c.lidar_points_rejected += u64::from(st.rejected_nonfinite)
+            + u64::from(st.rejected_range)
+            + u64::from(st.rejected_time);
+        c.lidar_points_evicted += u64::from(st.evicted);
+        st
+    }
+
+    /// LiDAR-depth events of the last keyframe step.
+    pub fn lidar_events(&self) -> &[DepthEvent] {
+        &self.events
+    }
+
+    pub(super) fn push_event(&mut self, id: u64, kind: DepthEventKind, depth_m: f64) {
+        // Capacity covers one association per feature plus one rejection or cull per landmark.
+        let _ = self.events.push(DepthEvent { id, kind, depth_m });
+    }
+
+    /// Buffers the INS state of a propagated sample for de-skewing.
+    pub(super) fn record_ins(&mut self, st: &NavState) {
+        if self.cfg.lidar.enabled {
+            let _ = self.ins_window.push(*st);
+        }
+    }
+
+    /// The INS restarts from the optimized keyframe `to` (it was at `from`): move the buffered
+    /// INS states with it so sweeps straddling the keyframe de-skew on a continuous path.
+    pub(super) fn correct_ins_window(&mut self, from: &NavState, to: &NavState) {
+        if self.cfg.lidar.enabled {
+            self.ins_window.apply_correction(from, to);
+        }
+    }
+
+    /// Associates LiDAR depths with the landmarks anchored at the new keyframe `pos` (their
+    /// first observation), in the keyframe camera at the INS pose `nav`.
+    pub(super) fn associate_depths(
+        &mut self,
+        pos: usize,
+        nav: &NavState,
+        report: &mut KeyframeReport,
+    ) {
+        if !self.cfg.lidar.enabled || self.points.is_empty() {
+            return;
+        }
+        let t0 = super::now(&self.cfg);
+        let cfg = self.cfg.lidar;
+        let cam = self.ext.camera_pose(&nav.p_wb, &nav.q_wb);
+        let t_l_ns = nav
+            .t_ns
+            .saturating_sub(libm::round(cfg.td_l_s * 1e9) as i64);
+        let gs = self
+            .grid
+            .build(&self.points, &cam.p_wc, &cam.q_wc, t_l_ns, &cfg.association);
+        report.lidar_points = gs.points;
+        let mut n = 0u32;
+        for li in 0..self.lms.len() {
+            let Some(lm) = self.lms.landmarks().get(li) else {
+                break;
+            };
+            if lm.anchor_s as usize != pos || lm.lidar.is_some() {
+                continue;
+            }
+            let Some(Some(o)) = lm.obs.get(pos) else {
+                continue;
+            };
+            let x_n = Vec2::new(o.x_n[0], o.x_n[1]);
+            let Ok(d) = self.grid.associate(&x_n, &cfg.association) else {
+                continue;
+            };
+            let id = lm.id;
+            if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
+                lm.lidar = Some(LidarDepth {
+                    depth_m: d.depth_m,
+                    sigma_m: cfg.sigma_dr_m,
+                });
+                lm.inv_depth = 1.0 / d.depth_m;
+            }
+            self.push_event(id, DepthEventKind::Associated, d.depth_m);
+            n += 1;
+        }
+        report.depths_associated = n;
+        report.association_ns = super::now(&self.cfg).saturating_sub(t0);
+    }
+
+    /// Depth-only optimization (paper V.D): the inverse depth of every LiDAR landmark re-solved
+    /// for the optimized poses (poses and extrinsic fixed).
+    pub(super) fn depth_only_optimization(&mut self) {
+        let count = self.window.len();
+        let mut poses = [KeyframePose {
+            p_wb: Vec3::zeros(),
+            q_wb: crate::math::Quat::identity(),
+            td: 0.0,
+        }; N];
+        for (k, p) in poses.iter_mut().enumerate().take(count) {
+            if let Some(kp) = self.kf_pose(k) {
+                *p = kp;
+            }
+        }
+        let ext = self.ext;
+        let sqrt_info = Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px;
+        for lm in self.lms.landmarks_mut() {
+            let (Some(d), true) = (lm.lidar, lm.usable) else {
+                continue;
+            };
+            let Some(m) =
+                LidarLandmark::<N>::new(&lm.obs, lm.anchor_s as usize, d, sqrt_info, count)
+            else {
+                continue;
+            };
+            if let Ok(tau) = m.best_tau(&poses, &ext, lm.inv_depth) {
+                lm.inv_depth = tau;
+            }
+        }
+    }
+}

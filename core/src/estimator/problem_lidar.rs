@@ -1,0 +1,527 @@
+//! LiDAR-depth measurements of the window's problem (paper V.C).
+//!
+//! **MSC-based LDM.** A landmark with an accepted LiDAR depth `d_r` (z in its anchor camera `s`)
+//! contributes one measurement made of its whitened inverse-depth reprojections `j != s`
+//! (LE-VINS form, [`InverseDepthVisualFactor`]) and the depth row `(1/tau - d_r) / sigma_dr`, with
+//! the inverse depth `tau` projected out (math notes sec. 5). At each linearization `tau*` is
+//! re-solved for the current poses (1-D Gauss–Newton from the last value: variable projection),
+//! and the block is added through the landmark's Schur accumulator:
+//!
+//! ```text
+//! H += J_Y^T J_Y - J_Y^T J_tau J_tau^T J_Y / |J_tau|^2 ,   b += -J_Y^T e + J_Y^T J_tau (J_tau^T e) / |J_tau|^2
+//! ```
+//!
+//! which is exactly `A^T`-projected system of eq. (29)-(30) for any orthonormal basis `A` of
+//! the left nullspace of `J_tau` (`A A^T = I - J_tau J_tau^T / |J_tau|^2`): the Givens form in
+//! [`crate::factors::lidar_depth::MscLidarDepth`] builds the same normal equations row by row (a
+//! test checks they agree), at a cost of `O(n^2)` dense rows instead of `n` sparse ones. The
+//! cost is `min_tau |e(tau)|^2` at the current poses, so the LM gain ratio compares the
+//! projected cost the linear model predicts. No separate visual measurement is added for such a
+//! landmark. Huber acts on the block: `n rho(|e|^2 / n)` for `n` observations, i.e. per
+//! observation on average, so an inlier block is weighted like its `n` visual measurements.
+//!
+//! **Direct LDM** (eq. 24, the ablation): `(d_s(poses) - d_r) / sigma_dr` beside the landmark's
+//! pose-only visual measurements, Huber on its square.
+
+use super::problem::{row_major, Problem, SCHUR_COLS};
+use super::window::Layout;
+use crate::camera::CameraExtrinsic;
+use crate::factors::inverse_depth_visual::InverseDepthJacobians;
+use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
+use crate::factors::lidar_depth::DirectLidarDepthFactor;
+use crate::factors::robust::Huber;
+use crate::factors::{KeyframePose, TimedObs};
+use crate::landmarks::{KfObs, LidarDepth};
+use crate::solver::LandmarkSchur;
+use crate::solver::{JacobianBlock, NormalEquations};
+use crate::Error;
+use heapless::Vec as HVec;
+
+use super::window::Block;
+
+/// Iterations of the 1-D inverse-depth solve (it starts from the last solution, so two or three
+/// are normally enough; an unconverged `tau` still gives the exact Schur complement at that
+/// `tau`, only a slightly higher cost).
+const TAU_ITERS: usize = 10;
+/// Relative step at which the 1-D solve stops.
+const TAU_TOL: f64 = 1e-10;
+
+fn timed(o: &KfObs) -> TimedObs {
+    TimedObs {
+        x_n: crate::camera::Vec2::new(o.x_n[0], o.x_n[1]),
+        vel: crate::camera::Vec2::new(o.vel[0], o.vel[1]),
+        td0: o.td0_s,
+    }
+}
+
+/// Inverse-depth reprojections `j != s` of one landmark, ready to evaluate.
+pub(super) struct LidarLandmark<const N: usize> {
+    /// Anchor position.
+    pub s: usize,
+    /// `(position j, factor)` per observation.
+    pub obs: HVec<(usize, InverseDepthVisualFactor), N>,
+    /// The LiDAR depth.
+    pub depth: LidarDepth,
+}
+
+impl<const N: usize> LidarLandmark<N> {
+    /// The landmark's measurements, or `None` without an anchor observation or any `j != s`.
+    pub fn new(
+        obs: &[Option<KfObs>; N],
+        s: usize,
+        depth: LidarDepth,
+        sqrt_info: crate::camera::Vec2,
+        count: usize,
+    ) -> Option<Self> {
+        let obs_s = timed(obs.get(s)?.as_ref()?);
+        let mut out = HVec::new();
+        for (j, o) in obs.iter().enumerate().take(count) {
+            if let (Some(o), true) = (o, j != s) {
+                let f = InverseDepthVisualFactor {
+                    kf_s: s,
+                    kf_j: j,
+                    obs_s,
+                    obs_j: timed(o),
+                    sqrt_info,
+                };
+                let _ = out.push((j, f));
+            }
+        }
+        if out.is_empty() {
+            return None;
+        }
+        Some(LidarLandmark { s, obs: out, depth })
+    }
+
+    fn depth_row(&self, tau: f64) -> (f64, f64) {
+        let sd = self.depth.sigma_m;
+        (
+            (1.0 / tau - self.depth.depth_m) / sd,
+            -1.0 / (tau * tau * sd),
+        )
+    }
+
+    /// `tau*` = argmin of the stacked cost for the given poses, from `tau0` (or `1/d_r`).
+    pub fn best_tau(
+        &self,
+        poses: &[KeyframePose; N],
+        ext: &CameraExtrinsic,
+        tau0: f64,
+    ) -> Result<f64, Error> {
+        let ps = poses.get(self.s).ok_or(Error::DimensionMismatch)?;
+        let mut tau = if tau0 > 0.0 && tau0.is_finite() {
+            tau0
+        } else {
+            1.0 / self.depth.depth_m
+        };
+        for _ in 0..TAU_ITERS {
+            let (rd, jd) = self.depth_row(tau);
+            let (mut g, mut h) = (jd * rd, jd * jd);
+            for (j, f) in self.obs.iter() {
+                let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
+                let (r, jt) = f.residual_and_d_tau(ps, pj, ext, tau)?;
+                g += jt.dot(&r);
+                h += jt.norm_squared();
+            }
+            if !(h > 0.0 && g.is_finite() && h.is_finite()) {
+                return Err(Error::NonFinite);
+            }
+            let step = -g / h;
+            let next = tau + step;
+            // The inverse depth stays positive: halve toward zero instead of crossing it.
+            tau = if next > 0.0 { next } else { 0.5 * tau };
+            if libm::fabs(step) <= TAU_TOL * tau {
+                break;
+            }
+        }
+        Ok(tau)
+    }
+
+    /// Stacked squared norm `|e(tau)|^2`.
+    pub fn stacked_sq(
+        &self,
+        poses: &[KeyframePose; N],
+        ext: &CameraExtrinsic,
+        tau: f64,
+    ) -> Result<f64, Error> {
+        let ps = poses.get(self.s).ok_or(Error::DimensionMismatch)?;
+        let rd = self.depth_row(tau).0;
+        let mut sq = rd * rd;
+        for (j, f) in self.obs.iter() {
+            let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
+            sq += f.residual(ps, pj, ext, tau)?.norm_squared();
+        }
+        Ok(sq)
+    }
+}
+
+/// Robust cost of an MSC block of `n` observations with stacked squared norm `sq`, and the
+/// square root of its IRLS weight.
+pub(super) fn msc_robust(huber: &Huber, sq: f64, n: usize) -> (f64, f64) {
+    let n = n.max(1) as f64;
+    let per = sq / n;
+    (n * huber.rho(per)[0], huber.sqrt_weight(per))
+}
+
+/// Linearizes the MSC block of `m` at `tau` and adds it to `ne` through the Schur
+/// accumulator `sc` (projection of `tau`). Returns the block's robust cost.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn accumulate_msc<const N: usize, const D: usize>(
+    m: &LidarLandmark<N>,
+    poses: &[KeyframePose; N],
+    ext: &CameraExtrinsic,
+    tau: f64,
+    huber: &Huber,
+    l: &Layout<N>,
+    est_td: bool,
+    est_ext: bool,
+    sc: &mut LandmarkSchur<SCHUR_COLS>,
+    ne: &mut NormalEquations<D>,
+) -> Result<f64, Error> {
+    let ps = poses.get(m.s).ok_or(Error::DimensionMismatch)?;
+    let mut jacs: HVec<(usize, InverseDepthJacobians), N> = HVec::new();
+    let (rd, jd) = m.depth_row(tau);
+    let mut sq = rd * rd;
+    for (j, f) in m.obs.iter() {
+        let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
+        let jac = f.evaluate(ps, pj, ext, tau)?;
+        sq += jac.r.norm_squared();
+        let _ = jacs.push((*j, jac));
+    }
+    let (cost, w) = msc_robust(huber, sq, m.obs.len());
+    let s = m.s;
+    sc.clear();
+    for (j, jac) in jacs.iter() {
+        let j = *j;
+        let r = [jac.r.x * w, jac.r.y * w];
+        let (mut a, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12]);
+        row_major(&(jac.d_pose_s * w), &mut a);
+        row_major(&(jac.d_pose_j * w), &mut c);
+        row_major(&(jac.d_ext * w), &mut x);
+        let tds = [
+            [jac.d_td[0].x * w, jac.d_td[0].y * w],
+            [jac.d_td[1].x * w, jac.d_td[1].y * w],
+        ];
+        let jl = [jac.d_tau.x * w, jac.d_tau.y * w];
+        let mut blocks: HVec<JacobianBlock<'_>, 6> = HVec::new();
+        let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
+        let _ = blocks.push(JacobianBlock::new(col(Block::Kf(s as u8))?, 6, &a));
+        let _ = blocks.push(JacobianBlock::new(col(Block::Kf(j as u8))?, 6, &c));
+        if est_ext {
+            let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
+        }
+        if est_td {
+            let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
+            let _ = blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[1]));
+        }
+        sc.add_residual(ne, &r, &blocks, &jl)?;
+    }
+    sc.add_residual(ne, &[rd * w], &[], &[jd * w])?;
+    sc.fold_into(ne, 0.0)?;
+    Ok(cost)
+}
+
+impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
+    /// MSC-based LDM of landmark `li` (see the module docs). Returns its robust cost; with `ne`,
+    /// also stores `tau*` in the landmark and accumulates the projected block.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn msc_landmark(
+        &mut self,
+        li: usize,
+        ne: &mut Option<&mut NormalEquations<D>>,
+        poses: &[KeyframePose; N],
+        ext: &CameraExtrinsic,
+        huber: &Huber,
+        est_td: bool,
+        est_ext: bool,
+    ) -> Result<(f64, u32), Error> {
+        let count = self.window.len();
+        let sqrt_info = self.sqrt_info();
+        let lm = self
+            .lms
+            .landmarks()
+            .get(li)
+            .ok_or(Error::DimensionMismatch)?;
+        let depth = lm.lidar.ok_or(Error::NotEnoughData)?;
+        let m = LidarLandmark::new(&lm.obs, lm.anchor_s as usize, depth, sqrt_info, count)
+            .ok_or(Error::NotEnoughData)?;
+        let tau = m.best_tau(poses, ext, lm.inv_depth)?;
+        let n_obs = m.obs.len();
+        let Some(ne) = ne.as_deref_mut() else {
+            let sq = m.stacked_sq(poses, ext, tau)?;
+            return Ok((msc_robust(huber, sq, n_obs).0, n_obs as u32));
+        };
+        let l = self.layout;
+        let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
+        let cost = accumulate_msc(&m, poses, ext, tau, huber, &l, est_td, est_ext, sc, ne)?;
+        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
+            lm.inv_depth = tau;
+        }
+        Ok((cost, n_obs as u32))
+    }
+
+    /// Direct LDM of landmark `li` with anchors `s`, `e` (see the module docs): robust cost,
+    /// accumulated into `ne` when given.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn direct_depth(
+        &self,
+        li: usize,
+        ne: &mut Option<&mut NormalEquations<D>>,
+        poses: &[KeyframePose; N],
+        ext: &CameraExtrinsic,
+        huber: &Huber,
+        est_td: bool,
+        est_ext: bool,
+    ) -> Result<f64, Error> {
+        let lm = self
+            .lms
+            .landmarks()
+            .get(li)
+            .ok_or(Error::DimensionMismatch)?;
+        let depth = lm.lidar.ok_or(Error::NotEnoughData)?;
+        let (s, e) = (
+            lm.anchor_s as usize,
+            lm.anchor_e.ok_or(Error::NotEnoughData)? as usize,
+        );
+        let (Some(Some(os)), Some(Some(oe))) = (lm.obs.get(s), lm.obs.get(e)) else {
+            return Err(Error::NotEnoughData);
+        };
+        let f = DirectLidarDepthFactor {
+            kf_s: s,
+            kf_e: e,
+            obs_s: timed(os),
+            obs_e: timed(oe),
+            d_r: depth.depth_m,
+            sigma_dr: depth.sigma_m,
+        };
+        let (ps, pe) = (
+            poses.get(s).ok_or(Error::DimensionMismatch)?,
+            poses.get(e).ok_or(Error::DimensionMismatch)?,
+        );
+        let jac = f.evaluate(ps, pe, ext)?;
+        let sq = jac.r * jac.r;
+        let cost = huber.rho(sq)[0];
+        let Some(ne) = ne.as_deref_mut() else {
+            return Ok(cost);
+        };
+        let w = huber.sqrt_weight(sq);
+        let l = self.layout;
+        let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
+        let (a, b, x) = (jac.d_pose_s * w, jac.d_pose_e * w, jac.d_ext * w);
+        let td = [jac.d_td[0] * w, jac.d_td[1] * w];
+        let mut blocks: HVec<JacobianBlock<'_>, 5> = HVec::new();
+        let _ = blocks.push(JacobianBlock::new(
+            col(Block::Kf(s as u8))?,
+            6,
+            a.as_slice(),
+        ));
+        let _ = blocks.push(JacobianBlock::new(
+            col(Block::Kf(e as u8))?,
+            6,
+            b.as_slice(),
+        ));
+        if est_ext {
+            let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, x.as_slice()));
+        }
+        if est_td {
+            let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &td[..1]));
+            let _ = blocks.push(JacobianBlock::new(col(Block::Td(e as u8))?, 1, &td[1..]));
+        }
+        ne.add_blocks(&[jac.r * w], &blocks)?;
+        Ok(cost)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Vec2;
+    use crate::factors::lidar_depth::MscLidarDepth;
+    use crate::math::{quat_exp, Quat, Vec3};
+
+    const N: usize = 4;
+    const D: usize = 16 * N + 6;
+
+    fn pose(p: [f64; 3], r: [f64; 3]) -> KeyframePose {
+        KeyframePose {
+            p_wb: Vec3::new(p[0], p[1], p[2]),
+            q_wb: quat_exp(&Vec3::new(r[0], r[1], r[2])),
+            td: 0.0,
+        }
+    }
+
+    /// A landmark seen from three keyframes, a LiDAR depth 5 cm off the truth, pixel noise.
+    fn scene() -> (
+        [KeyframePose; N],
+        CameraExtrinsic,
+        LidarLandmark<N>,
+        MscLidarDepth<N>,
+    ) {
+        let ext = CameraExtrinsic {
+            p_bc: Vec3::new(0.05, -0.02, 0.01),
+            q_bc: quat_exp(&Vec3::new(-1.5, 0.02, -1.55)),
+        };
+        let poses = [
+            pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+            pose([0.3, 0.1, 0.02], [0.01, -0.02, 0.05]),
+            pose([0.7, 0.15, -0.03], [0.02, 0.01, 0.12]),
+            pose([0.0; 3], [0.0; 3]),
+        ];
+        let p_w = Vec3::new(4.0, 1.0, 0.5);
+        let noise = [[0.0, 0.0], [0.002, -0.001], [-0.0015, 0.0025]];
+        let obs: [Vec2; 3] = core::array::from_fn(|k| {
+            let c = ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb);
+            let p_c = c.q_wc.inverse() * (p_w - c.p_wc);
+            Vec2::new(p_c.x / p_c.z + noise[k][0], p_c.y / p_c.z + noise[k][1])
+        });
+        let c0 = ext.camera_pose(&poses[0].p_wb, &poses[0].q_wb);
+        let d_true = (c0.q_wc.inverse() * (p_w - c0.p_wc)).z;
+        let depth = LidarDepth {
+            depth_m: d_true + 0.05,
+            sigma_m: 0.1,
+        };
+        let sqrt_info = Vec2::new(460.0, 460.0) / 1.5;
+        let obs_s = TimedObs::still(obs[0]);
+        let mut m = LidarLandmark {
+            s: 0,
+            obs: HVec::new(),
+            depth,
+        };
+        let mut g = MscLidarDepth::<N>::new(0, obs_s, depth.depth_m, 0.1, sqrt_info).unwrap();
+        for (j, o) in obs.iter().enumerate().skip(1) {
+            let f = InverseDepthVisualFactor {
+                kf_s: 0,
+                kf_j: j,
+                obs_s,
+                obs_j: TimedObs::still(*o),
+                sqrt_info,
+            };
+            m.obs.push((j, f)).unwrap();
+            g.push(j, TimedObs::still(*o)).unwrap();
+        }
+        (poses, ext, m, g)
+    }
+
+    #[test]
+    fn schur_projection_equals_givens_nullspace_projection() {
+        let (poses, ext, m, mut g) = scene();
+        let huber = Huber::new(1e6).unwrap();
+        let l = Layout::<N>::solve(3, true, false);
+        let n = l.dim();
+        let tau = m.best_tau(&poses, &ext, 0.0).unwrap();
+
+        let mut ne_schur = NormalEquations::<D>::new();
+        ne_schur.reset(n).unwrap();
+        let mut sc = LandmarkSchur::<SCHUR_COLS>::new();
+        let cost = accumulate_msc(
+            &m,
+            &poses,
+            &ext,
+            tau,
+            &huber,
+            &l,
+            false,
+            true,
+            &mut sc,
+            &mut ne_schur,
+        )
+        .unwrap();
+
+        // Givens: the 2n projected rows, each over (pose s, poses j, extrinsic).
+        g.linearize(&poses[0], &[poses[1], poses[2]], &ext).unwrap();
+        assert!(
+            (g.tau() - tau).abs() <= 1e-9 * tau,
+            "same tau*: {} vs {tau}",
+            g.tau()
+        );
+        let mut ne_givens = NormalEquations::<D>::new();
+        ne_givens.reset(n).unwrap();
+        for row in g.rows() {
+            let mut blocks: HVec<JacobianBlock<'_>, 4> = HVec::new();
+            blocks
+                .push(JacobianBlock::new(
+                    l.col(Block::Kf(0)).unwrap(),
+                    6,
+                    row.d_pose_s.as_slice(),
+                ))
+                .unwrap();
+            for (k, j) in [1usize, 2].iter().enumerate() {
+                blocks
+                    .push(JacobianBlock::new(
+                        l.col(Block::Kf(*j as u8)).unwrap(),
+                        6,
+                        row.d_pose_j[k].as_slice(),
+                    ))
+                    .unwrap();
+            }
+            blocks
+                .push(JacobianBlock::new(
+                    l.col(Block::Ext).unwrap(),
+                    6,
+                    row.d_ext.as_slice(),
+                ))
+                .unwrap();
+            ne_givens.add_blocks(&[row.r], &blocks).unwrap();
+        }
+        // Same cost (min over tau of the stack) ...
+        let rel = (cost - g.projected_cost()).abs() / g.projected_cost();
+        assert!(rel < 1e-6, "cost {cost} vs {}", g.projected_cost());
+        assert!(
+            cost > 0.5,
+            "the test scene must have a visible residual: {cost}"
+        );
+        // ... and the same normal equations.
+        let (mut h_max, mut b_max) = (0.0f64, 0.0f64);
+        for i in 0..n {
+            b_max = b_max.max(ne_givens.b[i].abs());
+            for j in i..n {
+                h_max = h_max.max(ne_givens.get(i, j).unwrap().abs());
+            }
+        }
+        assert!(h_max > 1.0 && b_max > 1e-3);
+        for i in 0..n {
+            let db = (ne_schur.b[i] - ne_givens.b[i]).abs();
+            assert!(
+                db <= 1e-7 * b_max.max(1.0),
+                "b[{i}]: {} vs {}",
+                ne_schur.b[i],
+                ne_givens.b[i]
+            );
+            for j in i..n {
+                let (a, b) = (ne_schur.get(i, j).unwrap(), ne_givens.get(i, j).unwrap());
+                assert!((a - b).abs() <= 1e-8 * h_max, "H[{i},{j}]: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn best_tau_minimizes_the_stack() {
+        let (poses, ext, m, _) = scene();
+        let tau = m.best_tau(&poses, &ext, 0.0).unwrap();
+        let c = m.stacked_sq(&poses, &ext, tau).unwrap();
+        for d in [1e-4, -1e-4, 1e-3, -1e-3] {
+            assert!(m.stacked_sq(&poses, &ext, tau * (1.0 + d)).unwrap() > c);
+        }
+        // The LiDAR depth pulls tau*: with a depth 1 m further the solution moves.
+        let mut far = LidarLandmark {
+            s: m.s,
+            obs: m.obs.clone(),
+            depth: m.depth,
+        };
+        far.depth.depth_m += 1.0;
+        let tau_far = far.best_tau(&poses, &ext, 0.0).unwrap();
+        assert!(tau_far < tau);
+    }
+
+    #[test]
+    fn robust_block_cost_is_per_observation_huber() {
+        let h = Huber::new(1.0).unwrap();
+        // Inlier block: quadratic.
+        let (c, w) = msc_robust(&h, 1.5, 3);
+        assert!((c - 1.5).abs() < 1e-12 && (w - 1.0).abs() < 1e-12);
+        // Outlier block: linear growth, down-weighted.
+        let (c, w) = msc_robust(&h, 300.0, 3);
+        assert!(c < 300.0 && w < 1.0);
+        let _ = Quat::identity();
+    }
+}
