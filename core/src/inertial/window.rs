@@ -112,6 +112,41 @@ impl<const N: usize> InsWindow<N> {
         let a = self.states.get(lo - 1).ok_or(Error::OutOfRange)?;
         Ok(interpolate(a, b, t_ns))
     }
+
+    /// The buffered states bracketing `t_ns`: `(i, a, b)` with `a` state `i`, `b` state `i + 1` and
+    /// `a.t_ns <= t_ns <= b.t_ns` (`a` and `b` are the same state when the window holds one state
+    /// and `t_ns` is its time). Interval `hint`, then its successor, are tried before a binary
+    /// search, so time-sorted queries (LiDAR de-skew) cost O(1) each: pass the `i` of the
+    /// previous answer. [`Error::OutOfRange`] outside `[oldest, newest]`.
+    pub fn bracket(&self, t_ns: i64, hint: usize) -> Result<(usize, &NavState, &NavState), Error> {
+        let n = self.len();
+        let first = self.states.front().ok_or(Error::OutOfRange)?;
+        let last = self.states.back().ok_or(Error::OutOfRange)?;
+        if t_ns < first.t_ns || t_ns > last.t_ns {
+            return Err(Error::OutOfRange);
+        }
+        if n == 1 {
+            return Ok((0, first, first));
+        }
+        let fits = |i: usize| match (self.states.get(i), self.states.get(i.wrapping_add(1))) {
+            (Some(a), Some(b)) if a.t_ns <= t_ns && t_ns <= b.t_ns => Some((i, a, b)),
+            _ => None,
+        };
+        if let Some(r) = fits(hint).or_else(|| fits(hint.wrapping_add(1))) {
+            return Ok(r);
+        }
+        // Largest i in [0, n - 2] with t_i <= t_ns (exists: t_0 <= t_ns).
+        let (mut lo, mut hi) = (0usize, n - 2);
+        while lo < hi {
+            let mid = lo + (hi - lo).div_ceil(2);
+            if self.states.get(mid).ok_or(Error::OutOfRange)?.t_ns <= t_ns {
+                lo = mid;
+            } else {
+                hi = mid - 1;
+            }
+        }
+        fits(lo).ok_or(Error::OutOfRange)
+    }
 }
 
 fn finite3(v: &Vec3) -> bool {
@@ -160,6 +195,30 @@ mod tests {
             let (p, _) = w.pose_at(k * 100).unwrap();
             assert_eq!(p.x, k as f64);
         }
+    }
+
+    #[test]
+    fn bracket_finds_the_interval_whatever_the_hint() {
+        let mut w = InsWindow::<8>::new();
+        assert_eq!(w.bracket(0, 0).err(), Some(Error::OutOfRange));
+        w.push(st(100, 0.0, 0.0)).unwrap();
+        // One state: only its own time is inside.
+        assert_eq!(w.bracket(100, 5).map(|r| r.0), Ok(0));
+        assert_eq!(w.bracket(101, 0).err(), Some(Error::OutOfRange));
+        for k in 2..8i64 {
+            w.push(st(k * 100, k as f64, 0.0)).unwrap();
+        }
+        // States at 100, 200, ..., 700: interval i spans [100 (i + 1), 100 (i + 2)].
+        for t in [100i64, 150, 199, 200, 201, 450, 699, 700] {
+            for hint in [0usize, 1, 3, 5, 6, 7, 100, usize::MAX] {
+                let (i, a, b) = w.bracket(t, hint).unwrap();
+                assert!(a.t_ns <= t && t <= b.t_ns, "t {t} hint {hint}");
+                assert_eq!(b.t_ns - a.t_ns, 100);
+                assert_eq!(a.t_ns, 100 * (i as i64 + 1));
+            }
+        }
+        assert_eq!(w.bracket(99, 0).err(), Some(Error::OutOfRange));
+        assert_eq!(w.bracket(701, 5).err(), Some(Error::OutOfRange));
     }
 
     #[test]

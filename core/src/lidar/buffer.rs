@@ -1,14 +1,43 @@
-//! Bounded buffer of de-skewed LiDAR points in the INS world frame.
+//! Bounded buffer of de-skewed LiDAR points in the INS world frame `w`.
 //!
-//! SKELETON: the public API is fixed; the implementation is being written.
+//! De-skew: a return `p_l` stamped `t` (LiDAR clock) is taken with the body pose at its own
+//! time `t + td_l_s` on the IMU clock, `p_w = R_wb(t) (R_bl p_l + p_bl) + p_wb(t)`, the pose
+//! interpolated from the INS window (see [`super::deskew`]).
+//!
+//! Storage (16 bytes a point): points are a ring of `P` entries holding `f32` offsets from a
+//! per-segment origin and an `i32` time offset from the segment's start time. A segment is a
+//! run of consecutive ring entries sharing one `f64` origin (the body position at its first
+//! point) and one `i64` start time; each scan opens one, and a scan opens another when a point
+//! falls more than [`MAX_OFFSET_M`] from the origin or its time more than `i32` nanoseconds
+//! (2.1 s) from the start. Offsets are at most a few hundred metres (range <= 500 m), where an
+//! `f32` rounds to 3e-5 m or better (2e-6 m at 30 m): below LiDAR noise, which plain `f32`
+//! world coordinates would not be after a few kilometres of travel. The ring evicts the oldest
+//! point when full; [`MAX_SEGMENTS`] bounds the segments, evicting the oldest segment whole.
 
 use super::config::LidarConfig;
+use super::deskew::InterpCursor;
 use super::LidarPoint;
 use crate::inertial::window::InsWindow;
 use crate::math::Vec3;
+use heapless::Deque;
 
 /// Most points the estimator's buffer holds (about 0.5 s of a Livox Mid-70).
 pub const MAX_LIDAR_POINTS: usize = 65_536;
+
+/// Most segments (scans, or pieces of scans) a [`PointBuffer`] tracks; the oldest is evicted
+/// whole to open a new one. 256 sweeps cover 25 s of a 10 Hz LiDAR; at 48 bytes a segment the
+/// table costs 12 kB beside the 1 MB of points.
+pub const MAX_SEGMENTS: usize = 256;
+
+/// Largest distance of a stored point from its segment origin along any axis, m (keeps the
+/// `f32` rounding of the offset below 1.3e-4 m, and far above the 500 m range gate, so only an
+/// absurd motion inside one scan opens a segment for it).
+pub const MAX_OFFSET_M: f64 = 2048.0;
+
+/// Returns nearer than this are rejected (includes all-zero "no return" points), m.
+pub const MIN_RANGE_M: f64 = 0.1;
+/// Returns farther than this are rejected, m.
+pub const MAX_RANGE_M: f64 = 500.0;
 
 /// A de-skewed point: its time and position in the INS world frame `w`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -20,6 +49,9 @@ pub struct WorldPoint {
 }
 
 /// What one [`PointBuffer::push_scan`] did with the points it was given.
+/// `received = accepted + rejected_nonfinite + rejected_range + rejected_time` (saturating at
+/// `u32::MAX`); `evicted` counts stored points dropped to make room, including points of this
+/// very scan when it holds more than the capacity.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ScanStats {
@@ -37,9 +69,49 @@ pub struct ScanStats {
     pub evicted: u32,
 }
 
-/// Ring buffer of the latest `P` de-skewed points.
+/// One stored point: offset from its segment's origin (`w` axes, m) and time offset from the
+/// segment's start (LiDAR clock, ns).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Packed {
+    pub(crate) d_w: [f32; 3],
+    pub(crate) dt_ns: i32,
+}
+
+impl Packed {
+    const ZERO: Packed = Packed {
+        d_w: [0.0; 3],
+        dt_ns: 0,
+    };
+}
+
+/// A run of consecutive ring entries sharing an origin and a start time.
+#[derive(Debug, Clone, Copy)]
+struct Segment {
+    origin_w: Vec3,
+    t0_ns: i64,
+    /// Bounds of the points' `dt_ns` (conservative after evictions), to skip whole segments.
+    dt_min: i32,
+    dt_max: i32,
+    len: usize,
+}
+
+/// The points of one segment as (at most) two slices of the ring, oldest first.
+pub(crate) struct SegmentView<'a> {
+    pub(crate) origin_w: Vec3,
+    pub(crate) t0_ns: i64,
+    pub(crate) dt_min: i32,
+    pub(crate) dt_max: i32,
+    pub(crate) parts: [&'a [Packed]; 2],
+}
+
+/// Ring buffer of the latest `P` de-skewed points (`P = 0` does not compile). About
+/// `16 P + 12 k` bytes: keep it in a `static` or a `Box` for `P` = [`MAX_LIDAR_POINTS`].
 #[derive(Debug, Clone)]
 pub struct PointBuffer<const P: usize> {
+    pts: [Packed; P],
+    segs: Deque<Segment, MAX_SEGMENTS>,
+    /// Ring index of the oldest point.
+    head: usize,
     len: usize,
 }
 
@@ -50,13 +122,23 @@ impl<const P: usize> Default for PointBuffer<P> {
 }
 
 impl<const P: usize> PointBuffer<P> {
+    const NONZERO: () = assert!(P > 0, "PointBuffer needs a capacity P > 0");
+
     /// An empty buffer.
     pub fn new() -> Self {
-        PointBuffer { len: 0 }
+        let () = Self::NONZERO;
+        PointBuffer {
+            pts: [Packed::ZERO; P],
+            segs: Deque::new(),
+            head: 0,
+            len: 0,
+        }
     }
 
     /// Drops every point.
     pub fn clear(&mut self) {
+        self.segs.clear();
+        self.head = 0;
         self.len = 0;
     }
 
@@ -72,23 +154,194 @@ impl<const P: usize> PointBuffer<P> {
 
     /// De-skews and stores a sweep: each point with the INS pose at `t + td_l_s` interpolated
     /// from `ins`, and the extrinsic of `cfg`. Invalid points are rejected and counted; never
-    /// panics, whatever the input.
+    /// panics, whatever the input. Point times may come in any order (sorted is fastest).
     pub fn push_scan<const K: usize>(
         &mut self,
         points: &[LidarPoint],
         ins: &InsWindow<K>,
         cfg: &LidarConfig,
     ) -> ScanStats {
-        let _ = (ins, cfg);
-        ScanStats {
-            received: points.len() as u32,
+        let mut st = ScanStats {
+            received: sat_u32(points.len()),
             ..ScanStats::default()
+        };
+        let td_ns = seconds_to_ns(cfg.td_l_s);
+        let r_bl = cfg.extrinsic.q_bl.to_rotation_matrix().into_inner();
+        let p_bl = cfg.extrinsic.p_bl;
+        let mut cursor = InterpCursor::new();
+        // Whether the newest segment was opened by this scan.
+        let mut open = false;
+        for pt in points {
+            let [x, y, z] = pt.p_l;
+            if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+                st.rejected_nonfinite = st.rejected_nonfinite.saturating_add(1);
+                continue;
+            }
+            let p_l = Vec3::new(f64::from(x), f64::from(y), f64::from(z));
+            let r2 = p_l.norm_squared();
+            if !((MIN_RANGE_M * MIN_RANGE_M..=MAX_RANGE_M * MAX_RANGE_M).contains(&r2)) {
+                st.rejected_range = st.rejected_range.saturating_add(1);
+                continue;
+            }
+            let Some((p_wb, q_wb)) = cursor.pose_at(ins, pt.t_ns.saturating_add(td_ns)) else {
+                st.rejected_time = st.rejected_time.saturating_add(1);
+                continue;
+            };
+            let p_w = q_wb * (r_bl * p_l + p_bl) + p_wb;
+            // Finite INS states and a finite extrinsic give a finite point; an extrinsic that
+            // is not (unvalidated config) is rejected here rather than stored.
+            if !p_w.iter().all(|v| v.is_finite()) {
+                st.rejected_nonfinite = st.rejected_nonfinite.saturating_add(1);
+                continue;
+            }
+            match self.store(pt.t_ns, &p_w, &p_wb, &mut open) {
+                Some(evicted) => {
+                    st.evicted = st.evicted.saturating_add(sat_u32(evicted));
+                    st.accepted = st.accepted.saturating_add(1);
+                }
+                None => st.rejected_range = st.rejected_range.saturating_add(1),
+            }
         }
+        st
     }
 
-    /// Stored points with time `>= t_min_ns`.
+    /// Stored points with time `>= t_min_ns` (LiDAR clock), oldest stored first.
     pub fn iter_since(&self, t_min_ns: i64) -> impl Iterator<Item = WorldPoint> + '_ {
-        let _ = t_min_ns;
-        core::iter::empty()
+        self.segments()
+            .filter(move |s| s.t0_ns.saturating_add(i64::from(s.dt_max)) >= t_min_ns)
+            .flat_map(move |s| {
+                let (origin, t0) = (s.origin_w, s.t0_ns);
+                let [a, b] = s.parts;
+                a.iter().chain(b.iter()).filter_map(move |q| {
+                    let t_ns = t0.saturating_add(i64::from(q.dt_ns));
+                    (t_ns >= t_min_ns).then(|| WorldPoint {
+                        t_ns,
+                        p_w: origin + unpack(q),
+                    })
+                })
+            })
     }
+
+    /// The segments, oldest first, with their points as ring slices.
+    pub(crate) fn segments(&self) -> impl Iterator<Item = SegmentView<'_>> + '_ {
+        self.segs.iter().scan(self.head, move |start, seg| {
+            let s = *start;
+            let end = s + seg.len;
+            *start = if end >= P { end - P } else { end };
+            let parts = if end <= P {
+                [self.pts.get(s..end).unwrap_or(&[]), &[][..]]
+            } else {
+                [
+                    self.pts.get(s..).unwrap_or(&[]),
+                    self.pts.get(..end - P).unwrap_or(&[]),
+                ]
+            };
+            Some(SegmentView {
+                origin_w: seg.origin_w,
+                t0_ns: seg.t0_ns,
+                dt_min: seg.dt_min,
+                dt_max: seg.dt_max,
+                parts,
+            })
+        })
+    }
+
+    /// Appends one de-skewed point (`p_wb`: body position, the origin if a segment opens).
+    /// Returns the points evicted for it, or `None` (nothing changed) when the point is more than
+    /// [`MAX_OFFSET_M`] from the body, which only an absurd extrinsic offset can cause.
+    fn store(&mut self, t_ns: i64, p_w: &Vec3, p_wb: &Vec3, open: &mut bool) -> Option<usize> {
+        let pack = |seg: &Segment| -> Option<Packed> {
+            let dt_ns = i32::try_from(t_ns.checked_sub(seg.t0_ns)?).ok()?;
+            let d = p_w - seg.origin_w;
+            (d.amax() <= MAX_OFFSET_M).then_some(Packed {
+                d_w: [d.x as f32, d.y as f32, d.z as f32],
+                dt_ns,
+            })
+        };
+        let fresh = Segment {
+            origin_w: *p_wb,
+            t0_ns: t_ns,
+            dt_min: 0,
+            dt_max: 0,
+            len: 0,
+        };
+        let fresh_packed = pack(&fresh)?;
+        let mut evicted = 0;
+        if self.len == P {
+            self.evict_oldest_point();
+            evicted += 1;
+        }
+        // Append to this scan's segment if it is still there (only P == 1 evicts it whole
+        // above) and the point fits it; otherwise open a segment at the body.
+        let packed = match self.segs.back().filter(|_| *open).and_then(pack) {
+            Some(p) => p,
+            None => {
+                if self.segs.is_full() {
+                    evicted += self.evict_oldest_segment();
+                }
+                // Cannot fail: there is room now. Nothing is stored if it did.
+                if self.segs.push_back(fresh).is_err() {
+                    return Some(evicted);
+                }
+                *open = true;
+                fresh_packed
+            }
+        };
+        let tail = self.ring(self.head + self.len);
+        if let (Some(slot), Some(seg)) = (self.pts.get_mut(tail), self.segs.back_mut()) {
+            *slot = packed;
+            seg.dt_min = seg.dt_min.min(packed.dt_ns);
+            seg.dt_max = seg.dt_max.max(packed.dt_ns);
+            seg.len += 1;
+            self.len += 1;
+        }
+        Some(evicted)
+    }
+
+    fn evict_oldest_point(&mut self) {
+        if let Some(front) = self.segs.front_mut() {
+            front.len = front.len.saturating_sub(1);
+            if front.len == 0 {
+                self.segs.pop_front();
+            }
+        }
+        self.head = self.ring(self.head + 1);
+        self.len = self.len.saturating_sub(1);
+    }
+
+    fn evict_oldest_segment(&mut self) -> usize {
+        let n = self.segs.pop_front().map_or(0, |s| s.len.min(self.len));
+        self.head = self.ring(self.head + n);
+        self.len -= n;
+        n
+    }
+
+    /// `i mod P` for `i < 2 P`.
+    #[inline]
+    fn ring(&self, i: usize) -> usize {
+        if i >= P {
+            i - P
+        } else {
+            i
+        }
+    }
+}
+
+/// The stored offset as `f64`.
+#[inline]
+pub(crate) fn unpack(q: &Packed) -> Vec3 {
+    Vec3::new(
+        f64::from(q.d_w[0]),
+        f64::from(q.d_w[1]),
+        f64::from(q.d_w[2]),
+    )
+}
+
+/// Seconds to integer nanoseconds, rounded, saturating (NaN gives 0).
+pub(crate) fn seconds_to_ns(s: f64) -> i64 {
+    libm::round(s * 1e9) as i64
+}
+
+fn sat_u32(n: usize) -> u32 {
+    u32::try_from(n).unwrap_or(u32::MAX)
 }

@@ -13,9 +13,12 @@
 //! Frames: `l` LiDAR, `b` body (IMU), `w` world, `c` camera; `T_bl` maps LiDAR points into the
 //! body (`P_b = R_bl P_l + p_bl`).
 
+mod angle_index;
 pub mod association;
 pub mod buffer;
 pub mod config;
+mod deskew;
+mod plane;
 
 pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
 pub use buffer::{PointBuffer, ScanStats, WorldPoint};
