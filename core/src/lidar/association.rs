@@ -211,14 +211,24 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
         if !(z > MIN_Z_M) {
             return false;
         }
-        let Some(col) = cell_of(x / z, &self.tan_col, self.tan_col_end, bin.inv_cell, bin.half_w)
-        else {
+        let Some(col) = cell_of(
+            x / z,
+            &self.tan_col,
+            self.tan_col_end,
+            bin.inv_cell,
+            bin.half_w,
+        ) else {
             return false;
         };
         let h2 = x * x + z * z;
         let tan_el = y / libm::sqrt(h2);
-        let Some(row) = cell_of(tan_el, &self.tan_row, self.tan_row_end, bin.inv_cell, bin.half_h)
-        else {
+        let Some(row) = cell_of(
+            tan_el,
+            &self.tan_row,
+            self.tan_row_end,
+            bin.inv_cell,
+            bin.half_h,
+        ) else {
             return false;
         };
         let r2 = (h2 + y * y) as f32;
@@ -311,8 +321,8 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
         let half_rows = (libm::ceil(radius / c) + 1.0).min(MAX_SEARCH_HALF_CELLS);
         // Columns narrow with elevation: an angle r spans r / cos(el) of azimuth.
         let el_far = (el.abs() + radius).min(FRAC_PI_2);
-        let half_cols = (libm::ceil(radius / (c * libm::cos(el_far))) + 1.0)
-            .min(MAX_SEARCH_HALF_CELLS);
+        let half_cols =
+            (libm::ceil(radius / (c * libm::cos(el_far))) + 1.0).min(MAX_SEARCH_HALF_CELLS);
         let Some(rows) = window(el / c + H as f64 * 0.5, half_rows, H) else {
             return out;
         };
