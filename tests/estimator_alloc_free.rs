@@ -129,3 +129,44 @@ fn simulated_robot_gt_init_does_not_allocate() {
         assert_eq!(allocs, 0, "the estimator allocated {allocs} times");
     });
 }
+
+/// LiDAR enhancement on (sweep intake and de-skew, association, rejection, MSC and direct
+/// LDM, depth-only optimization): still no heap.
+fn lidar_alloc_free(ldm: povins::core::lidar::LdmMode) {
+    big_stack(move || {
+        let ds = simulate_with_lidar(povins::host_tools::sim::Scenario::Robot, 3, 15.0);
+        let mut cfg = sim_lidar_config(&ds, true);
+        cfg.lidar.ldm = ldm;
+        let (start, s0) = gt_start(&ds, &mut cfg);
+        let frames = frames_of(&ds);
+        let sweeps = sweeps_of(&ds);
+        let mut est = new_estimator(cfg);
+        let (mut keyframes, mut ldm_used) = (0usize, 0u64);
+        let allocs = count_allocs(|| {
+            est.initialize(s0).expect("initialize from ground truth");
+            drive_lidar(&mut est, &ds.imu[start..], &frames, &sweeps, |_, _, o| {
+                if let Some(r) = o.keyframe {
+                    keyframes += 1;
+                    ldm_used += u64::from(r.ldm_count);
+                }
+                true
+            });
+        });
+        let c = est.counters();
+        println!("robot with LiDAR ({ldm:?}): {keyframes} keyframes, {ldm_used} LDMs, {allocs} allocations, {c:?}");
+        assert!(keyframes > 40, "only {keyframes} keyframes");
+        assert!(c.lidar_points_accepted > 100_000, "{c:?}");
+        assert!(ldm_used > 100, "LiDAR depths were not used: {ldm_used}");
+        assert_eq!(allocs, 0, "the estimator allocated {allocs} times");
+    });
+}
+
+#[test]
+fn simulated_robot_with_lidar_msc_does_not_allocate() {
+    lidar_alloc_free(povins::core::lidar::LdmMode::Msc);
+}
+
+#[test]
+fn simulated_robot_with_lidar_direct_does_not_allocate() {
+    lidar_alloc_free(povins::core::lidar::LdmMode::Direct);
+}

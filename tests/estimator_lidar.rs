@@ -6,17 +6,9 @@ mod common;
 use common::*;
 use povins::core::estimator::{DepthEventKind, EstimatorConfig, KeyframeReport, PoVins};
 use povins::core::inertial::NavState;
-use povins::core::lidar::{LdmMode, LidarExtrinsic};
-use povins::host_tools::runner::config_for;
-use povins::host_tools::sim::{simulate, Scenario, SimConfig};
+use povins::core::lidar::LdmMode;
+use povins::host_tools::sim::Scenario;
 use povins::platform::dataset::Dataset;
-
-pub fn simulate_with_lidar(sc: Scenario, seed: u64, secs: f64) -> Dataset {
-    let cfg = SimConfig::new(sc, seed, secs);
-    simulate(&cfg, &|_, _, _| {})
-        .unwrap_or_else(|e| panic!("simulation failed: {e:#}"))
-        .dataset
-}
 
 struct Run {
     states: Vec<NavState>,
@@ -26,17 +18,10 @@ struct Run {
 }
 
 fn lidar_config(ds: &Dataset, on: bool, ldm: LdmMode, reject: bool, dopt: bool) -> EstimatorConfig {
-    let mut cfg = config_for(ds);
-    cfg.clock = None;
-    let t_bl = ds.calib.t_bl.expect("the simulated robot has a LiDAR");
-    cfg.lidar.enabled = on;
+    let mut cfg = sim_lidar_config(ds, on);
     cfg.lidar.ldm = ldm;
     cfg.lidar.depth_outlier_rejection = reject;
     cfg.lidar.depth_only_opt = dopt;
-    cfg.lidar.extrinsic = LidarExtrinsic {
-        q_bl: t_bl.q_ab,
-        p_bl: t_bl.p_ab,
-    };
     cfg
 }
 
@@ -47,29 +32,14 @@ fn run(ds: &Dataset, mut cfg: EstimatorConfig) -> Run {
     let mut est: Box<PoVins> = new_estimator(cfg);
     est.initialize(s0).unwrap();
     let frames = frames_of(ds);
-    let sweeps: Vec<(i64, usize)> = {
-        let mut v: Vec<(i64, usize)> = ds
-            .lidar
-            .iter()
-            .enumerate()
-            .map(|(i, s)| (s.points.iter().map(|p| p.t_ns).max().unwrap_or(s.t_ns), i))
-            .collect();
-        v.sort();
-        v
-    };
-    let mut li = sweeps.partition_point(|s| s.0 < ds.imu[start].t_ns);
+    let sweeps = sweeps_of(ds);
     let mut out = Run {
         states: Vec::new(),
         reports: Vec::new(),
         associated: 0,
         rejected: 0,
     };
-    drive(&mut est, &ds.imu[start..], &frames, |est, s, o| {
-        while let Some(&(t_end, i)) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
-            let _ = t_end;
-            est.push_lidar(&ds.lidar[i].points);
-            li += 1;
-        }
+    drive_lidar(&mut est, &ds.imu[start..], &frames, &sweeps, |est, _, o| {
         if let Some(r) = o.keyframe {
             out.reports.push(r);
             for e in est.lidar_events() {

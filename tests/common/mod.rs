@@ -8,6 +8,7 @@
 
 use povins::core::estimator::{EstimatorConfig, ImuOutput, PoVins, VisualMode};
 use povins::core::inertial::{ImuSample, NavState};
+use povins::core::lidar::LidarPoint;
 use povins::host_tools::config::RunConfigFile;
 use povins::host_tools::eval::{evaluate, EvalOptions};
 use povins::host_tools::progress::Progress;
@@ -122,6 +123,72 @@ pub fn drive(
             }
         }
     }
+}
+
+/// [`drive`] with LiDAR sweeps `(t_last_point_ns, points)` (sorted by time): a sweep is pushed
+/// right after the first IMU sample at or past its last point, as `runner::replay` does.
+pub fn drive_lidar(
+    est: &mut PoVins,
+    imu: &[ImuSample],
+    frames: &[(i64, &[povins::core::camera::FeatureObs])],
+    sweeps: &[(i64, &[LidarPoint])],
+    mut on_out: impl FnMut(&mut PoVins, &ImuSample, &ImuOutput) -> bool,
+) {
+    let t0 = imu.first().map_or(i64::MIN, |s| s.t_ns);
+    let mut fi = frames.partition_point(|f| f.0 < t0);
+    let mut li = sweeps.partition_point(|w| w.0 < t0);
+    for s in imu {
+        while let Some(f) = frames.get(fi).filter(|f| f.0 <= s.t_ns) {
+            let _ = est.push_frame(f.0, f.1);
+            fi += 1;
+        }
+        let out = est.push_imu(s);
+        while let Some(w) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
+            est.push_lidar(w.1);
+            li += 1;
+        }
+        if let Ok(o) = out {
+            if !on_out(est, s, &o) {
+                return;
+            }
+        }
+    }
+}
+
+/// The LiDAR sweeps of a data set as `(time of the last point, points)`, sorted, for
+/// [`drive_lidar`].
+pub fn sweeps_of(ds: &Dataset) -> Vec<(i64, &[LidarPoint])> {
+    let mut v: Vec<(i64, &[LidarPoint])> = ds
+        .lidar
+        .iter()
+        .map(|s| {
+            let t = s.points.iter().map(|p| p.t_ns).max().unwrap_or(s.t_ns);
+            (t, s.points.as_slice())
+        })
+        .collect();
+    v.sort_by_key(|w| w.0);
+    v
+}
+
+/// A simulated run with the scenario's default LiDAR (edge outliers on).
+pub fn simulate_with_lidar(sc: Scenario, seed: u64, secs: f64) -> Dataset {
+    simulate(&SimConfig::new(sc, seed, secs), &|_, _, _| {})
+        .unwrap_or_else(|e| panic!("simulation failed: {e:#}"))
+        .dataset
+}
+
+/// The configuration for a simulated data set with LiDAR enhancement on or off (the paper's
+/// defaults: MSC LDM, rejection and depth-only optimization on), without a clock.
+pub fn sim_lidar_config(ds: &Dataset, on: bool) -> EstimatorConfig {
+    let mut cfg = config_for(ds);
+    cfg.clock = None;
+    let t_bl = ds.calib.t_bl.expect("the simulated data set has a LiDAR");
+    cfg.lidar.enabled = on;
+    cfg.lidar.extrinsic = povins::core::lidar::LidarExtrinsic {
+        q_bl: t_bl.q_ab,
+        p_bl: t_bl.p_ab,
+    };
+    cfg
 }
 
 /// The frames of a data set as `(t_cam_ns, observations)` slices for [`drive`].
