@@ -11,6 +11,7 @@ use povins::host_tools::sim::Scenario;
 use povins::platform::dataset::Dataset;
 
 struct Run {
+    counters: povins::core::estimator::Counters,
     states: Vec<NavState>,
     reports: Vec<KeyframeReport>,
     associated: usize,
@@ -27,19 +28,28 @@ fn lidar_config(ds: &Dataset, on: bool, ldm: LdmMode, reject: bool, dopt: bool) 
 
 /// Replays IMU, frames and sweeps in time order; a sweep is pushed after the first IMU sample
 /// at or past its last point.
-fn run(ds: &Dataset, mut cfg: EstimatorConfig) -> Run {
+fn run(ds: &Dataset, cfg: EstimatorConfig) -> Run {
+    run_sweeps(ds, cfg, &sweeps_of(ds))
+}
+
+/// [`run`] with the sweeps given as `(push time, points)`.
+fn run_sweeps(
+    ds: &Dataset,
+    mut cfg: EstimatorConfig,
+    sweeps: &[(i64, &[povins::core::lidar::LidarPoint])],
+) -> Run {
     let (start, s0) = gt_start(ds, &mut cfg);
     let mut est: Box<PoVins> = new_estimator(cfg);
     est.initialize(s0).unwrap();
     let frames = frames_of(ds);
-    let sweeps = sweeps_of(ds);
     let mut out = Run {
+        counters: Default::default(),
         states: Vec::new(),
         reports: Vec::new(),
         associated: 0,
         rejected: 0,
     };
-    drive_lidar(&mut est, &ds.imu[start..], &frames, &sweeps, |est, _, o| {
+    drive_lidar(&mut est, &ds.imu[start..], &frames, sweeps, |est, _, o| {
         if let Some(r) = o.keyframe {
             out.reports.push(r);
             for e in est.lidar_events() {
@@ -55,6 +65,7 @@ fn run(ds: &Dataset, mut cfg: EstimatorConfig) -> Run {
         }
         true
     });
+    out.counters = est.counters();
     out
 }
 
@@ -83,5 +94,70 @@ fn lidar_depths_are_associated_used_and_improve_accuracy() {
         assert!(ldm > 0);
         assert_eq!(off.associated, 0);
         assert!(a_on < a_off, "LiDAR on {a_on} vs off {a_off}");
+    });
+}
+
+/// Corrupt or absurd sweeps (NaN, inf, all zeros, a huge count, reversed and far-off times)
+/// are rejected and counted, never panic, and do not spoil the estimate.
+#[test]
+fn corrupt_sweeps_are_rejected_and_counted() {
+    use povins::core::lidar::LidarPoint;
+    big_stack(|| {
+        let ds = simulate_with_lidar(Scenario::Robot, 4, 15.0);
+        let clean = run(&ds, lidar_config(&ds, true, LdmMode::Msc, true, true));
+        let mut bad = ds.clone();
+        // Push times stay those of the clean sweeps: the estimator must cope with the content.
+        let push_t: Vec<i64> = sweeps_of(&ds).iter().map(|w| w.0).collect();
+        let mut n_invalid = 0u64;
+        for (k, scan) in bad.lidar.iter_mut().enumerate() {
+            match k % 10 {
+                1 => scan.points.iter_mut().for_each(|p| p.p_l[0] = f32::NAN),
+                3 => scan
+                    .points
+                    .iter_mut()
+                    .for_each(|p| p.p_l[2] = f32::INFINITY),
+                5 => scan.points.iter_mut().for_each(|p| p.p_l = [0.0; 3]),
+                7 => scan
+                    .points
+                    .iter_mut()
+                    .for_each(|p| p.t_ns += 3_600_000_000_000),
+                9 => scan
+                    .points
+                    .iter_mut()
+                    .for_each(|p| p.t_ns -= 3_600_000_000_000),
+                _ => continue,
+            }
+            n_invalid += scan.points.len() as u64;
+        }
+        let mut sweeps: Vec<(i64, &[LidarPoint])> = push_t
+            .iter()
+            .zip(bad.lidar.iter())
+            .map(|(t, s)| (*t, s.points.as_slice()))
+            .collect();
+        // A huge sweep (4x the buffer) with times in reverse order.
+        let mut huge: Vec<LidarPoint> = ds.lidar[20..30]
+            .iter()
+            .flat_map(|s| s.points.iter().copied())
+            .collect();
+        huge.extend(huge.clone());
+        huge.extend(huge.clone());
+        huge.reverse();
+        let t_huge = push_t[29];
+        sweeps.insert(30, (t_huge, huge.as_slice()));
+        let out = run_sweeps(
+            &bad,
+            lidar_config(&bad, true, LdmMode::Msc, true, true),
+            &sweeps,
+        );
+        let (a_clean, a_bad) = (ate_m(&ds, &clean.states), ate_m(&bad, &out.states));
+        eprintln!(
+            "clean ATE {a_clean:.3} m, with corrupt sweeps {a_bad:.3} m; rejected {} of {} invalid",
+            out.counters.lidar_points_rejected, n_invalid
+        );
+        assert!(out.counters.lidar_points_rejected >= n_invalid);
+        assert!(out.counters.lidar_points_evicted > 0);
+        assert!(out.reports.len() > 40);
+        assert!(out.states.iter().all(state_is_finite));
+        assert!(a_bad < 2.0 * a_clean + 0.05, "{a_bad} vs {a_clean}");
     });
 }
