@@ -11,7 +11,7 @@
 
 use super::{DepthEvent, DepthEventKind, Estimator, KeyframeReport};
 use crate::camera::Vec2;
-use crate::factors::KeyframePose;
+use crate::factors::{CamFrame, KeyframePose};
 use crate::inertial::NavState;
 use crate::landmarks::LidarDepth;
 use crate::lidar::ScanStats;
@@ -137,6 +137,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
         }
         let ext = self.ext;
+        let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
         let sqrt_info = Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px;
         for lm in self.lms.landmarks_mut() {
             let (Some(d), true) = (lm.lidar, lm.usable) else {
@@ -147,7 +148,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             else {
                 continue;
             };
-            if let Ok(tau) = m.best_tau(&poses, &ext, lm.inv_depth) {
+            if let Ok((tau, _)) = m.solve(&poses, &frames, lm.inv_depth) {
                 lm.inv_depth = tau;
             }
         }

@@ -377,7 +377,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             }
             let lidar = lm.lidar.is_some() && self.cfg.lidar.enabled;
             if lidar && self.cfg.lidar.ldm == LdmMode::Msc {
-                match self.msc_landmark(li, ne, &poses, &ext, &huber, est_td, est_ext) {
+                match self.msc_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext) {
                     Ok((c, n)) => {
                         cost += c;
                         self.counts.landmarks += 1;

@@ -26,12 +26,14 @@
 use super::problem::{row_major, Problem, SCHUR_COLS};
 use super::window::Layout;
 use crate::camera::CameraExtrinsic;
+use crate::camera::Vec2;
 use crate::factors::inverse_depth_visual::InverseDepthJacobians;
 use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
 use crate::factors::lidar_depth::DirectLidarDepthFactor;
 use crate::factors::robust::Huber;
-use crate::factors::{KeyframePose, TimedObs};
+use crate::factors::{CamFrame, KeyframePose, TimedObs, MIN_Z_REL};
 use crate::landmarks::{KfObs, LidarDepth};
+use crate::math::Vec3;
 use crate::solver::LandmarkSchur;
 use crate::solver::{JacobianBlock, NormalEquations};
 use crate::Error;
@@ -48,8 +50,8 @@ const TAU_TOL: f64 = 1e-10;
 
 fn timed(o: &KfObs) -> TimedObs {
     TimedObs {
-        x_n: crate::camera::Vec2::new(o.x_n[0], o.x_n[1]),
-        vel: crate::camera::Vec2::new(o.vel[0], o.vel[1]),
+        x_n: Vec2::new(o.x_n[0], o.x_n[1]),
+        vel: Vec2::new(o.vel[0], o.vel[1]),
         td0: o.td0_s,
     }
 }
@@ -70,7 +72,7 @@ impl<const N: usize> LidarLandmark<N> {
         obs: &[Option<KfObs>; N],
         s: usize,
         depth: LidarDepth,
-        sqrt_info: crate::camera::Vec2,
+        sqrt_info: Vec2,
         count: usize,
     ) -> Option<Self> {
         let obs_s = timed(obs.get(s)?.as_ref()?);
@@ -101,7 +103,98 @@ impl<const N: usize> LidarLandmark<N> {
         )
     }
 
+    /// The observations as rays in `tau`: camera `j` sees the landmark at `P_j ~ a + tau b`
+    /// with `a = R_jw R_ws x_s`, `b = R_jw (p_ws - p_wj)` (`P_j = (a + tau b) / tau`, and the
+    /// projection is scale-free), so once `(a, b)` are known every 1-D step costs a few flops.
+    fn rays(
+        &self,
+        poses: &[KeyframePose; N],
+        frames: &[CamFrame; N],
+    ) -> Result<HVec<Ray, N>, Error> {
+        let ps = poses.get(self.s).ok_or(Error::DimensionMismatch)?;
+        let fs = frames.get(self.s).ok_or(Error::DimensionMismatch)?;
+        let mut out = HVec::new();
+        for (j, f) in self.obs.iter() {
+            let (pj, fj) = (
+                poses.get(*j).ok_or(Error::DimensionMismatch)?,
+                frames.get(*j).ok_or(Error::DimensionMismatch)?,
+            );
+            let x_s = f.obs_s.corrected(ps.td);
+            let x_j = f.obs_j.corrected(pj.td);
+            let r_jw = fj.r_wc.transpose();
+            let a = r_jw * (fs.r_wc * x_s);
+            let b = r_jw * (fs.p_wc - fj.p_wc);
+            let ok = a
+                .iter()
+                .chain(b.iter())
+                .chain(x_j.iter())
+                .all(|v| v.is_finite());
+            if !ok {
+                return Err(Error::NonFinite);
+            }
+            let _ = out.push(Ray {
+                a,
+                b,
+                x_j: Vec2::new(x_j.x, x_j.y),
+                w: f.sqrt_info,
+            });
+        }
+        Ok(out)
+    }
+
+    /// `tau*` by 1-D Gauss–Newton on precomputed rays (same minimizer as [`Self::best_tau`]).
+    pub fn best_tau_rays(&self, rays: &[Ray], tau0: f64) -> Result<f64, Error> {
+        let mut tau = if tau0 > 0.0 && tau0.is_finite() {
+            tau0
+        } else {
+            1.0 / self.depth.depth_m
+        };
+        for _ in 0..TAU_ITERS {
+            let (rd, jd) = self.depth_row(tau);
+            let (mut g, mut h) = (jd * rd, jd * jd);
+            for ray in rays {
+                let (r, jt) = ray.residual_and_d_tau(tau)?;
+                g += jt.dot(&r);
+                h += jt.norm_squared();
+            }
+            if !(h > 0.0 && g.is_finite() && h.is_finite()) {
+                return Err(Error::NonFinite);
+            }
+            let step = -g / h;
+            let next = tau + step;
+            tau = if next > 0.0 { next } else { 0.5 * tau };
+            if libm::fabs(step) <= TAU_TOL * tau {
+                break;
+            }
+        }
+        Ok(tau)
+    }
+
+    /// `|e(tau)|^2` on precomputed rays.
+    pub fn stacked_sq_rays(&self, rays: &[Ray], tau: f64) -> Result<f64, Error> {
+        let rd = self.depth_row(tau).0;
+        let mut sq = rd * rd;
+        for ray in rays {
+            sq += ray.residual_and_d_tau(tau)?.0.norm_squared();
+        }
+        Ok(sq)
+    }
+
+    /// `tau*` and the rays for the given poses and camera frames.
+    pub fn solve(
+        &self,
+        poses: &[KeyframePose; N],
+        frames: &[CamFrame; N],
+        tau0: f64,
+    ) -> Result<(f64, HVec<Ray, N>), Error> {
+        let rays = self.rays(poses, frames)?;
+        let tau = self.best_tau_rays(&rays, tau0)?;
+        Ok((tau, rays))
+    }
+
     /// `tau*` = argmin of the stacked cost for the given poses, from `tau0` (or `1/d_r`).
+    /// Reference form through the full factor chain (tests).
+    #[cfg(test)]
     pub fn best_tau(
         &self,
         poses: &[KeyframePose; N],
@@ -138,6 +231,7 @@ impl<const N: usize> LidarLandmark<N> {
     }
 
     /// Stacked squared norm `|e(tau)|^2`.
+    #[cfg(test)]
     pub fn stacked_sq(
         &self,
         poses: &[KeyframePose; N],
@@ -152,6 +246,35 @@ impl<const N: usize> LidarLandmark<N> {
             sq += f.residual(ps, pj, ext, tau)?.norm_squared();
         }
         Ok(sq)
+    }
+}
+
+/// One observation as a function of the inverse depth (see [`LidarLandmark::solve`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Ray {
+    a: Vec3,
+    b: Vec3,
+    x_j: Vec2,
+    w: Vec2,
+}
+
+impl Ray {
+    /// Whitened residual `w (pi(a + tau b) - x_j)` and its derivative in `tau`.
+    #[inline]
+    fn residual_and_d_tau(&self, tau: f64) -> Result<(Vec2, Vec2), Error> {
+        let q = self.a + self.b * tau;
+        // `q` points like P_j (tau > 0): the landmark must be in front of camera j.
+        if q.z <= MIN_Z_REL * q.norm() || tau <= 0.0 {
+            return Err(Error::Degenerate);
+        }
+        let iz = 1.0 / q.z;
+        let (u, v) = (q.x * iz, q.y * iz);
+        let r = Vec2::new((u - self.x_j.x) * self.w.x, (v - self.x_j.y) * self.w.y);
+        let d = Vec2::new(
+            (self.b.x - u * self.b.z) * iz * self.w.x,
+            (self.b.y - v * self.b.z) * iz * self.w.y,
+        );
+        Ok((r, d))
     }
 }
 
@@ -230,6 +353,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         li: usize,
         ne: &mut Option<&mut NormalEquations<D>>,
         poses: &[KeyframePose; N],
+        frames: &[CamFrame; N],
         ext: &CameraExtrinsic,
         huber: &Huber,
         est_td: bool,
@@ -245,10 +369,10 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let depth = lm.lidar.ok_or(Error::NotEnoughData)?;
         let m = LidarLandmark::new(&lm.obs, lm.anchor_s as usize, depth, sqrt_info, count)
             .ok_or(Error::NotEnoughData)?;
-        let tau = m.best_tau(poses, ext, lm.inv_depth)?;
+        let (tau, rays) = m.solve(poses, frames, lm.inv_depth)?;
         let n_obs = m.obs.len();
         let Some(ne) = ne.as_deref_mut() else {
-            let sq = m.stacked_sq(poses, ext, tau)?;
+            let sq = m.stacked_sq_rays(&rays, tau)?;
             return Ok((msc_robust(huber, sq, n_obs).0, n_obs as u32));
         };
         let l = self.layout;
@@ -492,6 +616,47 @@ mod tests {
                 assert!((a - b).abs() <= 1e-8 * h_max, "H[{i},{j}]: {a} vs {b}");
             }
         }
+    }
+
+    #[test]
+    fn rays_agree_with_the_factor_chain() {
+        let (poses, ext, m, _) = scene();
+        let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
+        let (tau, rays) = m.solve(&poses, &frames, 0.0).unwrap();
+        let tau_ref = m.best_tau(&poses, &ext, 0.0).unwrap();
+        assert!((tau - tau_ref).abs() <= 1e-10 * tau, "{tau} vs {tau_ref}");
+        for t in [0.5 * tau, tau, 2.0 * tau] {
+            let (a, b) = (
+                m.stacked_sq_rays(&rays, t).unwrap(),
+                m.stacked_sq(&poses, &ext, t).unwrap(),
+            );
+            assert!((a - b).abs() <= 1e-9 * b.max(1.0), "{a} vs {b}");
+            for (ray, (j, f)) in rays.iter().zip(m.obs.iter()) {
+                let (r, d) = ray.residual_and_d_tau(t).unwrap();
+                let (r2, d2) = f
+                    .residual_and_d_tau(&poses[0], &poses[*j], &ext, t)
+                    .unwrap();
+                assert!((r - r2).norm() <= 1e-9 * (1.0 + r2.norm()));
+                assert!((d - d2).norm() <= 1e-9 * (1.0 + d2.norm()));
+                // And against a central difference.
+                let h = 1e-6 * t;
+                let num = (ray.residual_and_d_tau(t + h).unwrap().0
+                    - ray.residual_and_d_tau(t - h).unwrap().0)
+                    / (2.0 * h);
+                assert!((num - d).norm() <= 1e-6 * (1.0 + d.norm()), "{num} vs {d}");
+            }
+        }
+        // Behind camera j: an error, not a number.
+        let behind = Ray {
+            a: Vec3::new(0.0, 0.0, -1.0),
+            b: Vec3::zeros(),
+            x_j: Vec2::zeros(),
+            w: Vec2::new(1.0, 1.0),
+        };
+        assert_eq!(
+            behind.residual_and_d_tau(1.0).err(),
+            Some(Error::Degenerate)
+        );
     }
 
     #[test]
