@@ -15,7 +15,7 @@
 //! - association quality ([`crate::eval::lidar_assoc`]): counts pooled over all runs.
 //!
 //! Accuracy and association numbers are deterministic and do not depend on `jobs`; timings
-//! are wall-clock and do (parallel runs share the cores).
+//! are wall-clock and do (parallel runs share the cores; `--jobs 1` gives the cleanest times).
 
 use crate::cmd::run::summarize;
 use crate::config::RunConfigFile;
@@ -29,7 +29,8 @@ use povins_core::lidar::{LdmMode, LidarConfig};
 use povins_platform::Dataset;
 use serde::Serialize;
 use std::fmt::Write as _;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 
 /// One estimator configuration of the ablation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -242,72 +243,6 @@ fn run_one(
     })
 }
 
-/// Runs every variant on `ds` over `jobs` threads; results in [`Variant::ALL`] order.
-fn run_variants(
-    ds: &Dataset,
-    base: &EstimatorConfig,
-    scenario: Scenario,
-    seed: u64,
-    jobs: usize,
-    progress: &Progress,
-) -> Result<Vec<RunResult>> {
-    let next = AtomicUsize::new(0);
-    let n = Variant::ALL.len();
-    let mut slots: Vec<Option<Result<RunResult>>> = (0..n).map(|_| None).collect();
-    std::thread::scope(|sc| -> Result<()> {
-        let mut workers = Vec::new();
-        for _ in 0..jobs.clamp(1, n) {
-            let next = &next;
-            // The estimator is built on the stack before it is boxed: give it room.
-            let h = std::thread::Builder::new()
-                .stack_size(64 << 20)
-                .spawn_scoped(sc, move || {
-                    let mut done = Vec::new();
-                    loop {
-                        let k = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(&v) = Variant::ALL.get(k) else { break };
-                        let r = run_one(ds, base, scenario, seed, v);
-                        if let Ok(r) = &r {
-                            progress.note(&format!(
-                                "{} seed {} {:<12} ATE {} m, {} keyframes, back end median {:.2} ms",
-                                r.scenario,
-                                r.seed,
-                                v.name(),
-                                r.ate_pos_rmse_m
-                                    .map_or("n/a".to_string(), |a| format!("{a:.4}")),
-                                r.keyframes,
-                                r.backend_ms_median
-                            ));
-                        }
-                        progress.inc(1);
-                        done.push((k, r));
-                    }
-                    done
-                })?;
-            workers.push(h);
-        }
-        for h in workers {
-            let done = h
-                .join()
-                .map_err(|_| anyhow!("an ablation worker panicked"))?;
-            for (k, r) in done {
-                if let Some(s) = slots.get_mut(k) {
-                    *s = Some(r);
-                }
-            }
-        }
-        Ok(())
-    })?;
-    slots
-        .into_iter()
-        .zip(Variant::ALL)
-        .map(|(s, v)| {
-            s.unwrap_or_else(|| Err(anyhow!("{} was not run", v.name())))
-                .map_err(|e| e.context(format!("{} seed {seed} {}", scenario.name(), v.name())))
-        })
-        .collect()
-}
-
 fn mean(v: &[f64]) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
@@ -381,8 +316,72 @@ fn aggregate(scenarios: &[Scenario], runs: &[RunResult]) -> Vec<VariantRow> {
     rows
 }
 
+/// One simulated sequence and its base configuration, shared by the runs of its variants.
+type Prepared = Arc<(Dataset, EstimatorConfig)>;
+
+/// A (scenario, seed) pair: simulated by the first run that needs it, dropped after its last.
+struct Pair {
+    scenario: Scenario,
+    seed: u64,
+    data: Mutex<Option<Result<Prepared, String>>>,
+    remaining: AtomicUsize,
+}
+
+impl Pair {
+    fn prepared(
+        &self,
+        duration_s: f64,
+        overrides: Option<&RunConfigFile>,
+        progress: &Progress,
+    ) -> Result<Prepared, String> {
+        let mut slot = self.data.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(d) = slot.as_ref() {
+            return d.clone();
+        }
+        progress.set_message(format!(
+            "{} seed {}: simulating",
+            self.scenario.name(),
+            self.seed
+        ));
+        // One thread: the other workers keep estimating meanwhile (the output does not
+        // depend on the thread count).
+        let mut sim_cfg = SimConfig::new(self.scenario, self.seed, duration_s);
+        sim_cfg.threads = 1;
+        let d = sim::simulate(&sim_cfg, &|_, _, _| {})
+            .map_err(|e| format!("{e:#}"))
+            .and_then(|s| {
+                let ds = s.dataset;
+                if ds.lidar.is_empty() {
+                    return Err(format!(
+                        "{}: the simulator produced no LiDAR sweeps",
+                        ds.name
+                    ));
+                }
+                let mut base = config_for(&ds);
+                if let Some(f) = overrides {
+                    f.apply(&mut base);
+                }
+                Ok(Arc::new((ds, base)))
+            });
+        *slot = Some(d.clone());
+        d
+    }
+
+    /// Called after each run of this pair: the last one frees the sequence.
+    fn release(&self) {
+        if self.remaining.fetch_sub(1, Ordering::AcqRel) == 1 {
+            self.data.lock().unwrap_or_else(|e| e.into_inner()).take();
+        }
+    }
+}
+
 /// Runs the whole ablation. `overrides` (a `--config` file) is applied to every variant before
 /// the variant's LiDAR switches.
+///
+/// The runs are units of one queue (pair-major) pulled by `jobs` workers, so the workers stay
+/// busy across pairs and every run shares the machine alike; within a pair the variant order
+/// rotates with the pair index so no variant is always the one overlapping a simulation.
+/// Results are stored by (pair, variant): the report does not depend on `jobs` (timings aside).
 pub fn run_ablation(
     cfg: &AblationConfig,
     overrides: Option<&RunConfigFile>,
@@ -401,29 +400,92 @@ pub fn run_ablation(
     for (i, s) in cfg.seeds.iter().enumerate() {
         ensure!(!cfg.seeds[..i].contains(s), "seed {s} given twice");
     }
-    let mut runs = Vec::new();
-    for &scenario in &cfg.scenarios {
-        for &seed in &cfg.seeds {
-            progress.set_message(format!("{} seed {seed}: simulating", scenario.name()));
-            let mut sim_cfg = SimConfig::new(scenario, seed, cfg.duration_s);
-            sim_cfg.threads = cfg.jobs;
-            let ds = sim::simulate(&sim_cfg, &|_, _, _| {})?.dataset;
-            ensure!(
-                !ds.lidar.is_empty(),
-                "{}: the simulator produced no LiDAR sweeps",
-                ds.name
-            );
-            let mut base = config_for(&ds);
-            if let Some(f) = overrides {
-                f.apply(&mut base);
-            }
-            progress.set_message(format!("{} seed {seed}: estimating", scenario.name()));
-            runs.extend(run_variants(
-                &ds, &base, scenario, seed, cfg.jobs, progress,
-            )?);
+    let nv = Variant::ALL.len();
+    let pairs: Vec<Pair> = cfg
+        .scenarios
+        .iter()
+        .flat_map(|&scenario| {
+            cfg.seeds.iter().map(move |&seed| Pair {
+                scenario,
+                seed,
+                data: Mutex::new(None),
+                remaining: AtomicUsize::new(nv),
+            })
+        })
+        .collect();
+    let units = pairs.len() * nv;
+    let next = AtomicUsize::new(0);
+    let failed = AtomicBool::new(false);
+    let mut slots: Vec<Option<Result<RunResult>>> = (0..units).map(|_| None).collect();
+    std::thread::scope(|sc| -> Result<()> {
+        let mut workers = Vec::new();
+        for _ in 0..cfg.jobs.min(units) {
+            let (pairs, next, failed) = (&pairs, &next, &failed);
+            // The estimator is built on the stack before it is boxed: give it room.
+            let h = std::thread::Builder::new()
+                .stack_size(64 << 20)
+                .spawn_scoped(sc, move || {
+                    let mut done = Vec::new();
+                    while !failed.load(Ordering::Relaxed) {
+                        let u = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(pair) = pairs.get(u / nv) else { break };
+                        let vi = (u % nv + u / nv) % nv;
+                        let v = Variant::ALL[vi];
+                        let r = pair
+                            .prepared(cfg.duration_s, overrides, progress)
+                            .map_err(|e| anyhow!(e))
+                            .and_then(|d| run_one(&d.0, &d.1, pair.scenario, pair.seed, v))
+                            .map_err(|e| {
+                                e.context(format!(
+                                    "{} seed {} {}",
+                                    pair.scenario.name(),
+                                    pair.seed,
+                                    v.name()
+                                ))
+                            });
+                        pair.release();
+                        match &r {
+                            Ok(r) => progress.note(&format!(
+                                "{} seed {} {:<12} ATE {} m, {} keyframes, back end median {:.2} ms",
+                                r.scenario,
+                                r.seed,
+                                v.name(),
+                                r.ate_pos_rmse_m
+                                    .map_or("n/a".to_string(), |a| format!("{a:.4}")),
+                                r.keyframes,
+                                r.backend_ms_median
+                            )),
+                            Err(_) => failed.store(true, Ordering::Relaxed),
+                        }
+                        progress.inc(1);
+                        done.push((u / nv * nv + vi, r));
+                    }
+                    done
+                })?;
+            workers.push(h);
         }
-    }
+        for h in workers {
+            let done = h
+                .join()
+                .map_err(|_| anyhow!("an ablation worker panicked"))?;
+            for (k, r) in done {
+                if let Some(s) = slots.get_mut(k) {
+                    *s = Some(r);
+                }
+            }
+        }
+        Ok(())
+    })?;
     progress.finish();
+    let mut runs = Vec::with_capacity(units);
+    for r in slots.into_iter().flatten() {
+        runs.push(r?);
+    }
+    ensure!(
+        runs.len() == units,
+        "only {} of {units} runs finished",
+        runs.len()
+    );
     Ok(AblationReport {
         scenarios: cfg.scenarios.iter().map(|s| s.name().to_string()).collect(),
         seeds: cfg.seeds.clone(),

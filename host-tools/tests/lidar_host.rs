@@ -471,16 +471,19 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
     let run = |jobs| {
         let cfg = AblationConfig {
             scenarios: vec![Scenario::Handheld],
-            seeds: vec![2],
-            duration_s: 6.0,
+            seeds: vec![2, 4],
+            duration_s: 5.0,
             jobs,
         };
         run_ablation(&cfg, None, &quiet()).expect("ablation")
     };
     let (a, b) = (run(1), run(3));
-    assert_eq!(a.runs.len(), 5);
-    for (x, y) in a.runs.iter().zip(&b.runs) {
-        assert_eq!(x.variant, y.variant);
+    assert_eq!(a.runs.len(), 10);
+    // Stored seed-major in variant order whatever order the workers ran them in.
+    for (k, (x, y)) in a.runs.iter().zip(&b.runs).enumerate() {
+        assert_eq!(x.variant, Variant::ALL[k % 5]);
+        assert_eq!(x.seed, [2, 4][k / 5]);
+        assert_eq!((x.variant, x.seed), (y.variant, y.seed));
         assert_eq!(x.keyframes, y.keyframes);
         assert_eq!(
             x.ate_pos_rmse_m.map(f64::to_bits),
@@ -494,6 +497,8 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
             (y.depths_associated, y.depths_rejected, y.ldm_total)
         );
     }
+    // A mix-up of the result slots would show: the seeds' sequences differ.
+    assert_ne!(a.runs[0].ate_pos_rmse_m, a.runs[5].ate_pos_rmse_m);
     for (x, y) in a.rows.iter().zip(&b.rows) {
         assert_eq!(
             x.ate_mean_m.map(f64::to_bits),

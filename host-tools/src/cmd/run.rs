@@ -1,7 +1,9 @@
 //! `povins run <dataset> --out DIR`: replays an EuRoC folder (with `features0`) or an MCAP file
 //! through the estimator and writes `trajectory.tum` (IMU rate), `keyframes.tum`, `stats.csv`
 //! (a row per keyframe) and `summary.json`; with ground truth in the dataset it also evaluates
-//! (ATE, position + yaw alignment) and prints the result.
+//! (ATE, position + yaw alignment) and prints the result. LiDAR sweeps in the dataset are used
+//! by default (`--no-lidar`, `--ldm`, `--no-depth-outlier-rejection`, `--no-depth-only-opt`
+//! switch parts off); with simulator truth the LiDAR depth association is checked against it.
 
 use crate::config::{ldm_name, LidarArgs, ModeArg, RunConfigFile};
 use crate::eval::lidar_assoc::{self, AssocQuality};
