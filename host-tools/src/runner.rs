@@ -110,7 +110,8 @@ pub struct RunOutput {
     pub estimator_wall_s: f64,
 }
 
-/// Replays `ds` through a new estimator with `cfg`.
+/// Replays `ds` through a new estimator with `cfg`. LiDAR sweeps are offered whatever
+/// `cfg.lidar.enabled` says: a disabled estimator refuses (and counts) them.
 pub fn replay(
     ds: &Dataset,
     mut cfg: EstimatorConfig,

@@ -398,6 +398,12 @@ pub fn run(args: Args) -> Result<()> {
     if ds.lidar.is_empty() && args.lidar.any() {
         eprintln!("note: no LiDAR in dataset; the LiDAR switches change nothing");
     }
+    if !ds.lidar.is_empty() && ds.calib.t_bl.is_none() && !cfg.lidar.enabled {
+        eprintln!(
+            "note: the dataset has LiDAR sweeps but no LiDAR extrinsic T_bl, so LiDAR is off \
+             (set enabled, p_bl_m and q_bl_xyzw in the config's [lidar] section to use it)"
+        );
+    }
     let mode = format!("{:?}", cfg.mode);
     let progress = Progress::new(ds.imu.len() as u64, "run");
     let out = replay(&ds, cfg, args.init, &progress)?;
