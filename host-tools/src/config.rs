@@ -39,11 +39,37 @@
 //! accel_std_max_mps2 = 0.05
 //! gyro_std_max_rps = 0.005
 //! min_static_s = 1.0
+//!
+//! [lidar]                       # LiDAR enhancement (on by default when the dataset has LiDAR)
+//! enabled = true                # false = PO-VINS-WO (`--no-lidar`)
+//! ldm = "msc"                   # or "direct" (`--ldm`): LiDAR-depth measurement model
+//! depth_outlier_rejection = true  # uncertainty-based rejection (`--no-depth-outlier-rejection`)
+//! depth_only_opt = true         # depth-only optimization (`--no-depth-only-opt`)
+//! sigma_dr_m = 0.1              # std of an associated LiDAR depth
+//! rejection_sigma_px = 1.5      # feature noise in the rejection's depth uncertainty
+//! rejection_sigmas = 3.0        # rejection gate, in std of d_v - d_r
+//! p_bl_m = [0.0, 0.0, 0.1]      # LiDAR origin in the body (replaces the dataset's T_bl)
+//! q_bl_xyzw = [0.0, 0.0, 0.0, 1.0]  # LiDAR -> body rotation (normalized; |q| must be 1 +- 1e-3)
+//! td_l_s = 0.0                  # LiDAR-IMU time offset, t_imu = t_lidar + td_l_s
+//!
+//! [lidar.association]           # depth association on the camera's unit sphere
+//! cell_deg = 0.5                # angular grid cell
+//! neighbours = 5                # points in the plane fit (3..=8)
+//! max_neighbour_deg = 2.0       # largest angle between the feature and a neighbour
+//! max_plane_dist_m = 0.1        # largest neighbour distance from the fitted plane
+//! max_range_spread = 0.1        # largest neighbour range spread / mean range
+//! min_incidence_cos = 0.2       # smallest cos(ray, plane normal)
+//! depth_range_m = [0.5, 80.0]   # accepted depth (z in the camera)
+//! span_s = 0.5                  # points older than this before the keyframe are not used
 //! ```
+//!
+//! The command-line switches of `povins run` ([`LidarArgs`]) override the file.
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use povins_core::estimator::{EstimatorConfig, VisualMode};
 use povins_core::inertial::ImuNoise;
+use povins_core::lidar::{LdmMode, LidarConfig};
+use povins_core::math::{Quat, Vec3};
 use serde::Deserialize;
 use std::path::Path;
 
@@ -62,6 +88,76 @@ impl From<ModeArg> for VisualMode {
         match m {
             ModeArg::PoseOnly => VisualMode::PoseOnly,
             ModeArg::InverseDepth => VisualMode::InverseDepth,
+        }
+    }
+}
+
+/// LiDAR-depth measurement names on the command line and in TOML.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum LdmArg {
+    /// MSC-based LiDAR-depth measurement (PO-VINS, paper eq. 25-30).
+    Msc,
+    /// Direct LiDAR-depth measurement (paper eq. 24).
+    Direct,
+}
+
+impl From<LdmArg> for LdmMode {
+    fn from(m: LdmArg) -> Self {
+        match m {
+            LdmArg::Msc => LdmMode::Msc,
+            LdmArg::Direct => LdmMode::Direct,
+        }
+    }
+}
+
+/// The command-line / JSON name of an LDM mode.
+pub fn ldm_name(m: LdmMode) -> &'static str {
+    match m {
+        LdmMode::Msc => "msc",
+        LdmMode::Direct => "direct",
+    }
+}
+
+/// Run-time LiDAR switches (paper Table VI ablations); they override the TOML file.
+#[derive(clap::Args, Debug, Clone, Default, PartialEq, Eq)]
+pub struct LidarArgs {
+    /// Ignore the LiDAR (PO-VINS-WO).
+    #[arg(long)]
+    pub no_lidar: bool,
+    /// LiDAR-depth measurement model.
+    #[arg(long, value_enum)]
+    pub ldm: Option<LdmArg>,
+    /// Keep every associated LiDAR depth (no uncertainty-based rejection).
+    #[arg(long)]
+    pub no_depth_outlier_rejection: bool,
+    /// Skip the depth-only optimization of LiDAR landmarks.
+    #[arg(long)]
+    pub no_depth_only_opt: bool,
+}
+
+impl LidarArgs {
+    /// Whether any switch was given.
+    pub fn any(&self) -> bool {
+        self.no_lidar
+            || self.ldm.is_some()
+            || self.no_depth_outlier_rejection
+            || self.no_depth_only_opt
+    }
+
+    /// Applies the switches to `cfg`.
+    pub fn apply(&self, cfg: &mut LidarConfig) {
+        if self.no_lidar {
+            cfg.enabled = false;
+        }
+        if let Some(m) = self.ldm {
+            cfg.ldm = m.into();
+        }
+        if self.no_depth_outlier_rejection {
+            cfg.depth_outlier_rejection = false;
+        }
+        if self.no_depth_only_opt {
+            cfg.depth_only_opt = false;
         }
     }
 }
@@ -96,6 +192,44 @@ struct StaticSection {
     min_static_s: Option<f64>,
 }
 
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AssociationSection {
+    cell_deg: Option<f64>,
+    neighbours: Option<usize>,
+    max_neighbour_deg: Option<f64>,
+    max_plane_dist_m: Option<f64>,
+    max_range_spread: Option<f64>,
+    min_incidence_cos: Option<f64>,
+    depth_range_m: Option<[f64; 2]>,
+    span_s: Option<f64>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LidarSection {
+    enabled: Option<bool>,
+    ldm: Option<LdmArg>,
+    depth_outlier_rejection: Option<bool>,
+    depth_only_opt: Option<bool>,
+    sigma_dr_m: Option<f64>,
+    rejection_sigma_px: Option<f64>,
+    rejection_sigmas: Option<f64>,
+    p_bl_m: Option<[f64; 3]>,
+    q_bl_xyzw: Option<[f64; 4]>,
+    td_l_s: Option<f64>,
+    #[serde(default)]
+    association: AssociationSection,
+}
+
+/// A quaternion given as `[x, y, z, w]`, normalized; `None` unless its norm is 1 within 1e-3
+/// (a typo should not silently become some other rotation).
+fn unit_quat_xyzw(q: [f64; 4]) -> Option<Quat> {
+    let [x, y, z, w] = q;
+    let n = (x * x + y * y + z * z + w * w).sqrt();
+    ((n - 1.0).abs() <= 1e-3).then(|| Quat::from_quaternion(nalgebra::Quaternion::new(w, x, y, z)))
+}
+
 /// The TOML file.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -122,6 +256,8 @@ pub struct RunConfigFile {
     keyframe: KeyframeSection,
     #[serde(default)]
     static_init: StaticSection,
+    #[serde(default)]
+    lidar: LidarSection,
 }
 
 impl RunConfigFile {
@@ -129,7 +265,18 @@ impl RunConfigFile {
     pub fn read(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read config {}", path.display()))?;
-        toml::from_str(&text).with_context(|| format!("invalid config {}", path.display()))
+        Self::parse(&text).with_context(|| format!("invalid config {}", path.display()))
+    }
+
+    /// Parses TOML text (unknown keys and malformed values are errors).
+    pub fn parse(text: &str) -> Result<Self> {
+        let f: Self = toml::from_str(text)?;
+        if let Some(q) = f.lidar.q_bl_xyzw {
+            if unit_quat_xyzw(q).is_none() {
+                bail!("lidar.q_bl_xyzw = {q:?} is not a unit quaternion [x, y, z, w]");
+            }
+        }
+        Ok(f)
     }
 
     /// The visual mode the file asks for, if any.
@@ -210,5 +357,159 @@ impl RunConfigFile {
         );
         set(&mut cfg.static_init.gyro_std_max_rps, s.gyro_std_max_rps);
         set(&mut cfg.static_init.min_static_s, s.min_static_s);
+        let l = &self.lidar;
+        let c = &mut cfg.lidar;
+        set(&mut c.enabled, l.enabled);
+        if let Some(m) = l.ldm {
+            c.ldm = m.into();
+        }
+        set(&mut c.depth_outlier_rejection, l.depth_outlier_rejection);
+        set(&mut c.depth_only_opt, l.depth_only_opt);
+        set(&mut c.sigma_dr_m, l.sigma_dr_m);
+        set(&mut c.rejection_sigma_px, l.rejection_sigma_px);
+        set(&mut c.rejection_sigmas, l.rejection_sigmas);
+        if let Some(p) = l.p_bl_m {
+            c.extrinsic.p_bl = Vec3::from(p);
+        }
+        if let Some(q) = l.q_bl_xyzw.and_then(unit_quat_xyzw) {
+            c.extrinsic.q_bl = q;
+        }
+        set(&mut c.td_l_s, l.td_l_s);
+        let a = &l.association;
+        let ca = &mut c.association;
+        if let Some(d) = a.cell_deg {
+            ca.cell_rad = d.to_radians();
+        }
+        set(&mut ca.neighbours, a.neighbours);
+        if let Some(d) = a.max_neighbour_deg {
+            ca.max_neighbour_rad = d.to_radians();
+        }
+        set(&mut ca.max_plane_dist_m, a.max_plane_dist_m);
+        set(&mut ca.max_range_spread, a.max_range_spread);
+        set(&mut ca.min_incidence_cos, a.min_incidence_cos);
+        if let Some([lo, hi]) = a.depth_range_m {
+            ca.depth_range_m = (lo, hi);
+        }
+        set(&mut ca.span_s, a.span_s);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use povins_core::camera::{CameraExtrinsic, PinholeCamera};
+
+    fn base() -> EstimatorConfig {
+        let cam = PinholeCamera::EUROC_CAM0;
+        let ext = CameraExtrinsic {
+            p_bc: Vec3::zeros(),
+            q_bc: Quat::identity(),
+        };
+        EstimatorConfig::new(cam, ext, ImuNoise::EUROC_ADIS16448)
+    }
+
+    #[test]
+    fn every_lidar_key_parses_and_reaches_the_config() {
+        let f = RunConfigFile::parse(
+            r#"
+            [lidar]
+            enabled = true
+            ldm = "direct"
+            depth_outlier_rejection = false
+            depth_only_opt = false
+            sigma_dr_m = 0.2
+            rejection_sigma_px = 2.5
+            rejection_sigmas = 4.0
+            p_bl_m = [0.1, -0.2, 0.3]
+            q_bl_xyzw = [0.0, 0.0, 0.7071067811865476, 0.7071067811865476]
+            td_l_s = -0.004
+
+            [lidar.association]
+            cell_deg = 1.0
+            neighbours = 6
+            max_neighbour_deg = 3.0
+            max_plane_dist_m = 0.05
+            max_range_spread = 0.2
+            min_incidence_cos = 0.3
+            depth_range_m = [1.0, 50.0]
+            span_s = 0.25
+            "#,
+        )
+        .expect("valid file");
+        let mut cfg = base();
+        f.apply(&mut cfg);
+        let l = &cfg.lidar;
+        assert!(l.enabled);
+        assert_eq!(l.ldm, LdmMode::Direct);
+        assert!(!l.depth_outlier_rejection && !l.depth_only_opt);
+        assert_eq!(
+            (l.sigma_dr_m, l.rejection_sigma_px, l.rejection_sigmas),
+            (0.2, 2.5, 4.0)
+        );
+        assert_eq!(l.extrinsic.p_bl, Vec3::new(0.1, -0.2, 0.3));
+        // 90 deg about z: x_l maps to y_b.
+        let x_b = l.extrinsic.q_bl * Vec3::x();
+        assert!((x_b - Vec3::y()).norm() < 1e-12, "{x_b:?}");
+        assert_eq!(l.td_l_s, -0.004);
+        let a = &l.association;
+        assert!((a.cell_rad - 1f64.to_radians()).abs() < 1e-15);
+        assert_eq!(a.neighbours, 6);
+        assert!((a.max_neighbour_rad - 3f64.to_radians()).abs() < 1e-15);
+        assert_eq!(
+            (a.max_plane_dist_m, a.max_range_spread, a.min_incidence_cos),
+            (0.05, 0.2, 0.3)
+        );
+        assert_eq!(a.depth_range_m, (1.0, 50.0));
+        assert_eq!(a.span_s, 0.25);
+        assert!(cfg.validate().is_ok());
+    }
+
+    #[test]
+    fn omitted_lidar_keys_keep_the_defaults() {
+        let f = RunConfigFile::parse("[lidar]\nldm = \"msc\"\n").expect("valid file");
+        let mut cfg = base();
+        f.apply(&mut cfg);
+        assert_eq!(cfg.lidar, LidarConfig::default());
+    }
+
+    #[test]
+    fn unknown_or_malformed_lidar_keys_are_errors() {
+        for bad in [
+            "[lidar]\nenable = true\n",
+            "[lidar]\nldm = \"msc-based\"\n",
+            "[lidar.association]\nneighbors = 5\n",
+            "[lidar]\nq_bl_xyzw = [0.0, 0.0, 0.0, 0.5]\n",
+            "[lidar]\np_bl_m = [0.0, 0.0]\n",
+            "[lidar_association]\ncell_deg = 1.0\n",
+        ] {
+            let e = RunConfigFile::parse(bad);
+            assert!(e.is_err(), "accepted {bad:?}");
+        }
+        let msg = format!(
+            "{:#}",
+            RunConfigFile::parse("[lidar]\nenable = true\n").unwrap_err()
+        );
+        assert!(msg.contains("enable"), "{msg}");
+    }
+
+    #[test]
+    fn switches_override_the_file() {
+        let f =
+            RunConfigFile::parse("[lidar]\nenabled = true\nldm = \"msc\"\ndepth_only_opt = true\n")
+                .expect("valid file");
+        let mut cfg = base();
+        f.apply(&mut cfg);
+        let sw = LidarArgs {
+            no_lidar: true,
+            ldm: Some(LdmArg::Direct),
+            no_depth_outlier_rejection: true,
+            no_depth_only_opt: true,
+        };
+        assert!(sw.any());
+        assert!(!LidarArgs::default().any());
+        sw.apply(&mut cfg.lidar);
+        assert!(!cfg.lidar.enabled);
+        assert_eq!(cfg.lidar.ldm, LdmMode::Direct);
+        assert!(!cfg.lidar.depth_outlier_rejection && !cfg.lidar.depth_only_opt);
     }
 }

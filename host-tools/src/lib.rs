@@ -1,9 +1,11 @@
 //! # povins-host-tools
 //!
-//! Library behind the `povins` command: dataset replay, simulation, evaluation and plots. Each
-//! subcommand lives in [`cmd`]; the reusable pieces (evaluation math, simulator, plotting) in
-//! their own modules so tests and benches can call them directly.
+//! Library behind the `povins` command: dataset replay, simulation, evaluation, plots and the
+//! LiDAR ablation. Each subcommand lives in [`cmd`]; the reusable pieces (evaluation math,
+//! simulator, plotting, ablation) in their own modules so tests and benches can call them
+//! directly.
 
+pub mod ablation;
 pub mod cmd;
 pub mod config;
 pub mod eval;

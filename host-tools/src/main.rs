@@ -26,6 +26,8 @@ enum Cmd {
     Plot(cmd::plot::Args),
     /// Replay a dataset through the estimator and evaluate it.
     Run(cmd::run::Args),
+    /// LiDAR ablation on simulated sequences (PO-VINS vs -WO, rejection, LDM, depth-only opt).
+    Ablation(cmd::ablation::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -35,5 +37,6 @@ fn main() -> anyhow::Result<()> {
         Cmd::Eval(a) => cmd::eval::run(a),
         Cmd::Plot(a) => cmd::plot::run(a),
         Cmd::Run(a) => cmd::run::run(a),
+        Cmd::Ablation(a) => cmd::ablation::run(a),
     }
 }

@@ -61,6 +61,15 @@ impl Progress {
         self.bar.set_message(msg.into());
     }
 
+    /// Prints a line on stderr (above the bar when it is drawn).
+    pub fn note(&self, line: &str) {
+        if self.is_visible() {
+            self.bar.println(line);
+        } else {
+            eprintln!("{line}");
+        }
+    }
+
     /// Removes the bar from the terminal.
     pub fn finish(&self) {
         self.bar.finish_and_clear();

@@ -1,12 +1,15 @@
 //! Replay of a [`Dataset`] through the estimator, in time order, exactly as a live system would
 //! feed it: each camera frame is offered when its stamp is reached and processed by the core at
-//! the first IMU sample past `t_cam + td`.
+//! the first IMU sample past `t_cam + td`; each LiDAR sweep is pushed right after the first IMU
+//! sample at or past its last point (`max t_point + td_l`), when the INS can de-skew every
+//! point of it (see [`lidar_schedule`]).
 
 use crate::progress::Progress;
 use anyhow::{bail, Result};
 use povins_core::camera::CameraExtrinsic;
-use povins_core::estimator::{Counters, EstimatorConfig, KeyframeReport, PoVins};
+use povins_core::estimator::{Counters, DepthEvent, EstimatorConfig, KeyframeReport, PoVins};
 use povins_core::inertial::NavState;
+use povins_core::lidar::{LidarConfig, LidarExtrinsic};
 use povins_platform::trajectory::StampedPose;
 use povins_platform::Dataset;
 use std::collections::BTreeMap;
@@ -41,7 +44,47 @@ pub fn config_for(ds: &Dataset) -> EstimatorConfig {
     cfg.gravity_mps2 = c.gravity_mps2;
     cfg.td_s = c.td_s;
     cfg.clock = Some(monotonic_ns);
+    if let (false, Some(t_bl)) = (ds.lidar.is_empty(), c.t_bl) {
+        cfg.lidar.enabled = true;
+        cfg.lidar.extrinsic = LidarExtrinsic {
+            q_bl: t_bl.q_ab,
+            p_bl: t_bl.p_ab,
+        };
+    }
     cfg
+}
+
+/// When each LiDAR sweep of `ds` is due: `(trigger_ns, index into ds.lidar)` in push order.
+/// The trigger is the sweep's last point time on the IMU clock (`max t_point + td_l_s`; the
+/// sweep stamp for a sweep without points): the INS must have reached it to de-skew the whole
+/// sweep. Ties keep the dataset order.
+pub fn lidar_schedule(ds: &Dataset, td_l_s: f64) -> Vec<(i64, usize)> {
+    let td_ns = (td_l_s * 1e9).round() as i64;
+    let mut due: Vec<(i64, usize)> = ds
+        .lidar
+        .iter()
+        .enumerate()
+        .map(|(k, scan)| {
+            let last = scan
+                .points
+                .iter()
+                .map(|p| p.t_ns)
+                .max()
+                .unwrap_or(scan.t_ns);
+            (last.saturating_add(td_ns), k)
+        })
+        .collect();
+    due.sort_unstable();
+    due
+}
+
+/// The LiDAR-depth events of one keyframe step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeyframeDepthEvents {
+    /// Camera time of the keyframe: `Associated` depths are z in this keyframe's camera, ns.
+    pub t_cam_ns: i64,
+    /// The events, in the core's order.
+    pub events: Vec<DepthEvent>,
 }
 
 /// Everything a replay produced.
@@ -53,15 +96,22 @@ pub struct RunOutput {
     pub keyframes: Vec<StampedPose>,
     /// One report per keyframe.
     pub reports: Vec<KeyframeReport>,
+    /// LiDAR-depth events, one entry per report (same order).
+    pub lidar_events: Vec<KeyframeDepthEvents>,
     /// Rejection counters.
     pub counters: Counters,
     /// Camera frames in the dataset.
     pub camera_frames: usize,
+    /// LiDAR sweeps in the dataset.
+    pub lidar_scans: usize,
+    /// The LiDAR settings of the run.
+    pub lidar: LidarConfig,
     /// Wall time of the whole replay (estimator calls only), s.
     pub estimator_wall_s: f64,
 }
 
-/// Replays `ds` through a new estimator with `cfg`.
+/// Replays `ds` through a new estimator with `cfg`. LiDAR sweeps are offered whatever
+/// `cfg.lidar.enabled` says: a disabled estimator refuses (and counts) them.
 pub fn replay(
     ds: &Dataset,
     mut cfg: EstimatorConfig,
@@ -102,6 +152,7 @@ pub fn replay(
             ..gt0
         });
     }
+    let lidar = cfg.lidar;
     let mut est: Box<PoVins> = Box::new(
         PoVins::new(cfg).map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?,
     );
@@ -113,27 +164,45 @@ pub fn replay(
         imu_rate: Vec::with_capacity(ds.imu.len()),
         keyframes: Vec::new(),
         reports: Vec::new(),
+        lidar_events: Vec::new(),
         counters: Counters::default(),
         camera_frames: ds.features.len(),
+        lidar_scans: ds.lidar.len(),
+        lidar,
         estimator_wall_s: 0.0,
     };
     let mut kf_poses: BTreeMap<i64, StampedPose> = BTreeMap::new();
-    let mut fi = ds.features.partition_point(|f| f.t_ns < ds.imu[start].t_ns);
+    let t_start_ns = ds.imu[start].t_ns;
+    let mut fi = ds.features.partition_point(|f| f.t_ns < t_start_ns);
+    // Sweeps due before the first replayed IMU sample are skipped, like frames before it.
+    let scans = lidar_schedule(ds, lidar.td_l_s);
+    let mut li = scans.partition_point(|&(t, _)| t < t_start_ns);
     let t_run = Instant::now();
     for (i, s) in ds.imu.iter().enumerate().skip(start) {
         while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
             let _ = est.push_frame(f.t_ns, &f.obs);
             fi += 1;
         }
-        let Ok(o) = est.push_imu(s) else { continue };
-        if let Some(r) = o.keyframe {
-            out.reports.push(r);
-            for kf in est.keyframes() {
-                kf_poses.insert(kf.state.t_ns, StampedPose::from(&kf.state));
+        if let Ok(o) = est.push_imu(s) {
+            if let Some(r) = o.keyframe {
+                out.lidar_events.push(KeyframeDepthEvents {
+                    t_cam_ns: r.t_cam_ns,
+                    events: est.lidar_events().to_vec(),
+                });
+                out.reports.push(r);
+                for kf in est.keyframes() {
+                    kf_poses.insert(kf.state.t_ns, StampedPose::from(&kf.state));
+                }
+            }
+            if let Some(nav) = o.nav {
+                out.imu_rate.push(nav);
             }
         }
-        if let Some(nav) = o.nav {
-            out.imu_rate.push(nav);
+        while let Some(&(_, k)) = scans.get(li).filter(|(t, _)| *t <= s.t_ns) {
+            if let Some(scan) = ds.lidar.get(k) {
+                let _ = est.push_lidar(&scan.points);
+            }
+            li += 1;
         }
         if i % 1000 == 0 {
             progress.set_position(i as u64);
@@ -165,6 +234,13 @@ pub fn interpolate_state(gt: &[NavState], t_ns: i64) -> Option<NavState> {
         bg: a.bg.lerp(&b.bg, w),
         ba: a.ba.lerp(&b.ba, w),
     })
+}
+
+/// One of the reports' `_ns` timings per keyframe, in ms, sorted ascending.
+pub fn sorted_ms(reports: &[KeyframeReport], f: impl Fn(&KeyframeReport) -> u64) -> Vec<f64> {
+    let mut v: Vec<f64> = reports.iter().map(|r| f(r) as f64 * 1e-6).collect();
+    v.sort_by(f64::total_cmp);
+    v
 }
 
 /// Percentile (nearest rank) of a sorted slice.

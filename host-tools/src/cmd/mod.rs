@@ -1,5 +1,6 @@
 //! One module per `povins` subcommand: its clap `Args` and its `run`.
 
+pub mod ablation;
 pub mod demo;
 pub mod eval;
 pub mod plot;

@@ -1,13 +1,17 @@
 //! `povins run <dataset> --out DIR`: replays an EuRoC folder (with `features0`) or an MCAP file
 //! through the estimator and writes `trajectory.tum` (IMU rate), `keyframes.tum`, `stats.csv`
 //! (a row per keyframe) and `summary.json`; with ground truth in the dataset it also evaluates
-//! (ATE, position + yaw alignment) and prints the result.
+//! (ATE, position + yaw alignment) and prints the result. LiDAR sweeps in the dataset are used
+//! by default (`--no-lidar`, `--ldm`, `--no-depth-outlier-rejection`, `--no-depth-only-opt`
+//! switch parts off); with simulator truth the LiDAR depth association is checked against it.
 
-use crate::config::{ModeArg, RunConfigFile};
+use crate::config::{ldm_name, LidarArgs, ModeArg, RunConfigFile};
+use crate::eval::lidar_assoc::{self, AssocQuality};
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::progress::Progress;
-use crate::runner::{config_for, percentile, replay, InitMode, RunOutput};
+use crate::runner::{config_for, percentile, replay, sorted_ms, InitMode, RunOutput};
 use anyhow::{Context, Result};
+use povins_core::estimator::{EstimatorConfig, KeyframeReport};
 use povins_platform::trajectory::{write_tum, StampedPose};
 use povins_platform::Dataset;
 use std::io::Write;
@@ -30,6 +34,23 @@ pub struct Args {
     /// TOML file of estimator settings (see the `config` module docs / docs/formats.md).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// LiDAR switches (override the config file).
+    #[command(flatten)]
+    pub lidar: LidarArgs,
+}
+
+/// The estimator configuration of a run: dataset calibration, then `--config`, then the
+/// command-line switches.
+pub fn estimator_config(args: &Args, ds: &Dataset) -> Result<EstimatorConfig> {
+    let mut cfg = config_for(ds);
+    if let Some(path) = &args.config {
+        RunConfigFile::read(path)?.apply(&mut cfg);
+    }
+    if let Some(m) = args.mode {
+        cfg.mode = m.into();
+    }
+    args.lidar.apply(&mut cfg.lidar);
+    Ok(cfg)
 }
 
 /// Loads a dataset from a folder (EuRoC) or an `.mcap` file.
@@ -83,18 +104,80 @@ pub struct Summary {
     pub keyframe_ate_pos_rmse_m: Option<f64>,
     /// Matched poses of the IMU-rate ATE.
     pub matched_poses: Option<usize>,
+    /// LiDAR enhancement active: enabled and the dataset has LiDAR sweeps.
+    pub lidar: bool,
+    /// LiDAR-depth measurement model (`msc` or `direct`).
+    pub ldm: String,
+    /// Uncertainty-based rejection of LiDAR depths on.
+    pub depth_outlier_rejection: bool,
+    /// Depth-only optimization on.
+    pub depth_only_opt: bool,
+    /// LiDAR sweeps in the dataset.
+    pub lidar_scans: usize,
+    /// Mean LiDAR depths associated per keyframe.
+    pub depths_associated_per_kf: f64,
+    /// Mean LiDAR depths rejected per keyframe.
+    pub depths_rejected_per_kf: f64,
+    /// Mean landmarks with a LiDAR-depth measurement in the final solve, per keyframe.
+    pub ldm_per_kf: f64,
+    /// Depth association time per keyframe, median, ms.
+    pub association_ms_median: f64,
+    /// Uncertainty-based rejection time per keyframe, median, ms.
+    pub rejection_ms_median: f64,
+    /// Maximum, ms.
+    pub rejection_ms_max: f64,
+    /// Depth-only optimization time per keyframe, median, ms.
+    pub depth_opt_ms_median: f64,
+    /// Maximum, ms.
+    pub depth_opt_ms_max: f64,
+    /// Association quality against the simulator's truth (only with simulator truth).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub assoc: Option<AssocSummary>,
     /// Rejection counters of the core.
     pub counters: serde_json::Value,
 }
 
+/// LiDAR association quality in `summary.json` (see [`lidar_assoc`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct AssocSummary {
+    /// Associated depths checked against the true depth.
+    pub assoc_checked: usize,
+    /// Share within `3 sigma_dr` of the true depth, all associated depths.
+    pub assoc_within_3sigma_before: Option<f64>,
+    /// Share within `3 sigma_dr`, depths not rejected later.
+    pub assoc_within_3sigma_after: Option<f64>,
+    /// Share of checked depths on the simulator's edge features.
+    pub edge_share_before: Option<f64>,
+    /// The same after rejection.
+    pub edge_share_after: Option<f64>,
+}
+
+impl From<&AssocQuality> for AssocSummary {
+    fn from(q: &AssocQuality) -> Self {
+        AssocSummary {
+            assoc_checked: q.checked,
+            assoc_within_3sigma_before: q.within_3sigma_before(),
+            assoc_within_3sigma_after: q.within_3sigma_after(),
+            edge_share_before: q.edge_share_before(),
+            edge_share_after: q.edge_share_after(),
+        }
+    }
+}
+
+/// Mean per keyframe of a report count.
+fn per_kf(reports: &[KeyframeReport], f: impl Fn(&KeyframeReport) -> u32) -> f64 {
+    if reports.is_empty() {
+        return 0.0;
+    }
+    reports.iter().map(|r| f64::from(f(r))).sum::<f64>() / reports.len() as f64
+}
+
 /// Computes the summary of a run (and its evaluation when ground truth exists).
 pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> Result<Summary> {
-    let mut ms: Vec<f64> = out
-        .reports
-        .iter()
-        .map(|r| r.total_ns as f64 * 1e-6)
-        .collect();
-    ms.sort_by(f64::total_cmp);
+    let ms = sorted_ms(&out.reports, |r| r.total_ns);
+    let association_ms = sorted_ms(&out.reports, |r| r.association_ns);
+    let rejection_ms = sorted_ms(&out.reports, |r| r.rejection_ns);
+    let depth_opt_ms = sorted_ms(&out.reports, |r| r.depth_opt_ns);
     let mut used: Vec<f64> = out
         .reports
         .iter()
@@ -125,6 +208,21 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         ate_rot_rmse_deg: None,
         keyframe_ate_pos_rmse_m: None,
         matched_poses: None,
+        lidar: out.lidar.enabled && out.lidar_scans > 0,
+        ldm: ldm_name(out.lidar.ldm).to_string(),
+        depth_outlier_rejection: out.lidar.depth_outlier_rejection,
+        depth_only_opt: out.lidar.depth_only_opt,
+        lidar_scans: out.lidar_scans,
+        depths_associated_per_kf: per_kf(&out.reports, |r| r.depths_associated),
+        depths_rejected_per_kf: per_kf(&out.reports, |r| r.depths_rejected),
+        ldm_per_kf: per_kf(&out.reports, |r| r.ldm_count),
+        association_ms_median: percentile(&association_ms, 50.0),
+        rejection_ms_median: percentile(&rejection_ms, 50.0),
+        rejection_ms_max: rejection_ms.last().copied().unwrap_or(0.0),
+        depth_opt_ms_median: percentile(&depth_opt_ms, 50.0),
+        depth_opt_ms_max: depth_opt_ms.last().copied().unwrap_or(0.0),
+        assoc: lidar_assoc::assess(ds, &out.lidar_events, out.lidar.sigma_dr_m)
+            .map(|q| AssocSummary::from(&q)),
         counters: serde_json::to_value(format!("{:?}", out.counters))?,
     };
     if !ds.ground_truth.is_empty() && !out.imu_rate.is_empty() {
@@ -149,6 +247,10 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
     Ok(s)
 }
 
+/// The LiDAR columns appended to `stats.csv` (one row per keyframe).
+pub const STATS_LIDAR_COLUMNS: &str =
+    "lidar_points,depths_associated,depths_rejected,ldm_count,association_ms,rejection_ms,depth_opt_ms";
+
 /// Writes the run's files into `dir`.
 pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -161,12 +263,12 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
     );
     writeln!(
         f,
-        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination"
+        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS}"
     )?;
     for r in &out.reports {
         writeln!(
             f,
-            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{}",
+            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4}",
             povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
             r.total_ns as f64 * 1e-6,
             r.solve_ns as f64 * 1e-6,
@@ -188,6 +290,13 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
             r.decision,
             r.termination
                 .map_or("none".to_string(), |t| format!("{t:?}")),
+            r.lidar_points,
+            r.depths_associated,
+            r.depths_rejected,
+            r.ldm_count,
+            r.association_ns as f64 * 1e-6,
+            r.rejection_ns as f64 * 1e-6,
+            r.depth_opt_ns as f64 * 1e-6,
         )?;
     }
     f.flush()?;
@@ -226,18 +335,74 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
         s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
     );
+    for line in lidar_lines(s) {
+        println!("{line}");
+    }
     println!("output    {}", out_dir.display());
+}
+
+fn pct(x: Option<f64>) -> String {
+    x.map_or("n/a".to_string(), |v| format!("{:.1}%", 100.0 * v))
+}
+
+/// The LiDAR lines of [`print_summary`].
+pub fn lidar_lines(s: &Summary) -> Vec<String> {
+    if s.lidar_scans == 0 {
+        return vec!["LiDAR     none in the dataset".to_string()];
+    }
+    if !s.lidar {
+        return vec![format!(
+            "LiDAR     off ({} sweeps in the dataset ignored)",
+            s.lidar_scans
+        )];
+    }
+    let on = |b: bool| if b { "on" } else { "off" };
+    let mut v = vec![
+        format!(
+            "LiDAR     {} sweeps, {} LDM, rejection {}, depth-only opt {}",
+            s.lidar_scans,
+            s.ldm.to_uppercase(),
+            on(s.depth_outlier_rejection),
+            on(s.depth_only_opt)
+        ),
+        format!(
+            "depths    {:.1} associated, {:.1} rejected, {:.1} LDM per keyframe",
+            s.depths_associated_per_kf, s.depths_rejected_per_kf, s.ldm_per_kf
+        ),
+        format!(
+            "LiDAR ms  association {:.3}, rejection {:.3} (max {:.3}), depth-only opt {:.3} (max {:.3}) median per keyframe",
+            s.association_ms_median,
+            s.rejection_ms_median,
+            s.rejection_ms_max,
+            s.depth_opt_ms_median,
+            s.depth_opt_ms_max
+        ),
+    ];
+    if let Some(a) = &s.assoc {
+        v.push(format!(
+            "assoc     {} checked vs truth: {} within 3 sigma_dr before rejection, {} after; edge features {} -> {}",
+            a.assoc_checked,
+            pct(a.assoc_within_3sigma_before),
+            pct(a.assoc_within_3sigma_after),
+            pct(a.edge_share_before),
+            pct(a.edge_share_after)
+        ));
+    }
+    v
 }
 
 /// Runs the command.
 pub fn run(args: Args) -> Result<()> {
     let ds = load_dataset(&args.dataset)?;
-    let mut cfg = config_for(&ds);
-    if let Some(path) = &args.config {
-        RunConfigFile::read(path)?.apply(&mut cfg);
+    let cfg = estimator_config(&args, &ds)?;
+    if ds.lidar.is_empty() && args.lidar.any() {
+        eprintln!("note: no LiDAR in dataset; the LiDAR switches change nothing");
     }
-    if let Some(m) = args.mode {
-        cfg.mode = m.into();
+    if !ds.lidar.is_empty() && ds.calib.t_bl.is_none() && !cfg.lidar.enabled {
+        eprintln!(
+            "note: the dataset has LiDAR sweeps but no LiDAR extrinsic T_bl, so LiDAR is off \
+             (set enabled, p_bl_m and q_bl_xyzw in the config's [lidar] section to use it)"
+        );
     }
     let mode = format!("{:?}", cfg.mode);
     let progress = Progress::new(ds.imu.len() as u64, "run");

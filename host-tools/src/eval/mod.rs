@@ -9,12 +9,15 @@
 //!    ([`stats`]).
 //! 4. [`rte`]: OpenVINS-style relative errors over travelled-distance segments.
 //!
+//! [`lidar_assoc`] checks LiDAR-depth associations against the simulator's truth.
+//!
 //! Frames: the ground truth lives in world `w`, the estimate in its own world `v`; both give
 //! the pose of the body `b` ([`StampedPose`]: `p_wb`, `q_wb`).
 
 pub mod align;
 pub mod associate;
 pub mod ate;
+pub mod lidar_assoc;
 pub mod report;
 pub mod rte;
 pub mod stats;
