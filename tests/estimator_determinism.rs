@@ -137,10 +137,23 @@ fn hashes(out: &RunOutput) -> Hashes {
         .iter()
         .map(|s| one(&|h| hash_state(h, s)))
         .collect();
+    let no_events = Vec::new();
     let reports = out
         .reports
         .iter()
-        .map(|r| one(&|h| hash_report(h, r)))
+        .enumerate()
+        .map(|(i, r)| {
+            let ev = out.lidar_events.get(i).map_or(&no_events, |e| &e.events);
+            one(&|h| {
+                hash_report(h, r);
+                // Empty for runs without LiDAR, so their hashes are unchanged.
+                for e in ev {
+                    h.u64(e.id);
+                    h.bytes(format!("{:?}", e.kind).as_bytes());
+                    h.f64s([&e.depth_m]);
+                }
+            })
+        })
         .collect();
     Hashes {
         total: total.0,
@@ -330,6 +343,29 @@ fn simulated_robot_20s_gt_init_is_deterministic_and_golden() {
         let ds = simulate_robot(2, 20.0);
         let out = run_twice(&ds, config_for(&ds), InitMode::Groundtruth);
         check_golden("sim-robot-seed2-20s-gt", &out);
+    });
+}
+
+/// LiDAR on (sweep de-skew, association, rejection, MSC LDM, depth-only optimization): the
+/// same bits run after run, and against the golden file. The LiDAR events are part of the hash.
+#[test]
+fn simulated_robot_20s_with_lidar_is_deterministic_and_golden() {
+    big_stack(|| {
+        let ds = simulate_with_lidar(povins::host_tools::sim::Scenario::Robot, 2, 20.0);
+        let cfg = config_for(&ds);
+        assert!(
+            cfg.lidar.enabled,
+            "config_for enables LiDAR for a data set with sweeps"
+        );
+        let out = run_twice(&ds, cfg, InitMode::Groundtruth);
+        let ldm: u32 = out.reports.iter().map(|r| r.ldm_count).sum();
+        assert!(ldm > 1000, "LiDAR depths were not used ({ldm})");
+        let a = replay(&ds, cfg, InitMode::Groundtruth, &quiet()).expect("replay");
+        assert_eq!(
+            a.lidar_events, out.lidar_events,
+            "LiDAR events differ between runs"
+        );
+        check_golden("sim-robot-seed2-20s-gt-lidar", &out);
     });
 }
 

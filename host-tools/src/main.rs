@@ -30,13 +30,26 @@ enum Cmd {
     Ablation(cmd::ablation::Args),
 }
 
+/// Stack of the thread that runs a command: the estimator (several MB of fixed-capacity
+/// buffers) is built by value before it is boxed, which the 8 MB main stack does not survive
+/// in unoptimized builds. Only the pages actually touched are committed.
+const COMMAND_STACK_BYTES: usize = 256 << 20;
+
 fn main() -> anyhow::Result<()> {
-    match Cli::parse().cmd {
-        Cmd::Demo(a) => cmd::demo::run(a),
-        Cmd::Simulate(a) => cmd::simulate::run(a),
-        Cmd::Eval(a) => cmd::eval::run(a),
-        Cmd::Plot(a) => cmd::plot::run(a),
-        Cmd::Run(a) => cmd::run::run(a),
-        Cmd::Ablation(a) => cmd::ablation::run(a),
+    let cli = Cli::parse();
+    let worker = std::thread::Builder::new()
+        .name("povins".into())
+        .stack_size(COMMAND_STACK_BYTES)
+        .spawn(move || match cli.cmd {
+            Cmd::Demo(a) => cmd::demo::run(a),
+            Cmd::Simulate(a) => cmd::simulate::run(a),
+            Cmd::Eval(a) => cmd::eval::run(a),
+            Cmd::Plot(a) => cmd::plot::run(a),
+            Cmd::Run(a) => cmd::run::run(a),
+            Cmd::Ablation(a) => cmd::ablation::run(a),
+        })?;
+    match worker.join() {
+        Ok(r) => r,
+        Err(p) => std::panic::resume_unwind(p),
     }
 }
