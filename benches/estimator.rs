@@ -2,6 +2,9 @@
 //! landmarks per window, as the speed bar asks): one whole keyframe step (marginalization, both LM
 //! passes, culling) in the pose-only and the inverse-depth mode, from the same snapshot.
 //!
+//! And the same step on the simulated robot (Livox rosette) with LiDAR enhancement off, with the
+//! MSC LDM and with the direct LDM (association, rejection, LDM, depth-only optimization).
+//!
 //! Run: `cargo bench --bench estimator` (needs ../shared/data).
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
@@ -82,9 +85,89 @@ fn bench_keyframe(c: &mut Criterion) {
     }
 }
 
+/// The simulated robot replayed with LiDAR up to just before keyframe `k`'s IMU sample.
+fn snapshot_lidar(
+    ds: &Dataset,
+    lidar: Option<povins::core::lidar::LdmMode>,
+    k: usize,
+) -> (Box<PoVins>, usize) {
+    let run = |stop: Option<usize>| -> (Box<PoVins>, Vec<usize>) {
+        let mut cfg = config_for(ds);
+        cfg.clock = None;
+        cfg.lidar.enabled = lidar.is_some();
+        if let Some(m) = lidar {
+            cfg.lidar.ldm = m;
+        }
+        let mut est = Box::new(PoVins::new(cfg).expect("config"));
+        let g0 = ds.ground_truth[0];
+        let start = ds.imu.partition_point(|s| s.t_ns < g0.t_ns);
+        est.initialize(povins::core::inertial::NavState {
+            t_ns: ds.imu[start].t_ns,
+            ..g0
+        })
+        .expect("init");
+        let sweeps = povins::host_tools::runner::lidar_schedule(ds, 0.0);
+        let mut fi = ds.features.partition_point(|f| f.t_ns < ds.imu[start].t_ns);
+        let mut li = sweeps.partition_point(|w| w.0 < ds.imu[start].t_ns);
+        let mut kf_at = Vec::new();
+        for (i, s) in ds.imu.iter().enumerate().skip(start) {
+            while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
+                let _ = est.push_frame(f.t_ns, &f.obs);
+                fi += 1;
+            }
+            if Some(i) == stop {
+                break;
+            }
+            let out = est.push_imu(s);
+            while let Some(w) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
+                est.push_lidar(&ds.lidar[w.1].points);
+                li += 1;
+            }
+            if out.is_ok_and(|o| o.keyframe.is_some()) {
+                kf_at.push(i);
+                if kf_at.len() == k && stop.is_none() {
+                    break;
+                }
+            }
+        }
+        (est, kf_at)
+    };
+    let (_, kf_at) = run(None);
+    let i = *kf_at.last().expect("keyframes");
+    let (est, _) = run(Some(i));
+    (est, i)
+}
+
+fn bench_keyframe_lidar(c: &mut Criterion) {
+    use povins::core::lidar::LdmMode;
+    use povins::host_tools::sim::{simulate, Scenario, SimConfig};
+    let ds = simulate(&SimConfig::new(Scenario::Robot, 1, 30.0), &|_, _, _| {})
+        .expect("simulate")
+        .dataset;
+    for (name, lidar) in [
+        ("no_lidar", None),
+        ("lidar_msc", Some(LdmMode::Msc)),
+        ("lidar_direct", Some(LdmMode::Direct)),
+    ] {
+        let (est, i) = snapshot_lidar(&ds, lidar, 60);
+        let sample = ds.imu[i];
+        c.bench_function(&format!("estimator/keyframe_step_{name}_sim_robot"), |b| {
+            b.iter_batched(
+                || Box::new((*est).clone()),
+                |mut e| {
+                    let out = e.push_imu(&sample).expect("sample");
+                    assert!(out.keyframe.is_some());
+                    e
+                },
+                BatchSize::LargeInput,
+            )
+        });
+    }
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(30);
-    targets = bench_keyframe
+    targets = bench_keyframe, bench_keyframe_lidar
 }
 criterion_main!(benches);

@@ -45,7 +45,8 @@
 //! ldm = "msc"                   # or "direct" (`--ldm`): LiDAR-depth measurement model
 //! depth_outlier_rejection = true  # uncertainty-based rejection (`--no-depth-outlier-rejection`)
 //! depth_only_opt = true         # depth-only optimization (`--no-depth-only-opt`)
-//! sigma_dr_m = 0.1              # std of an associated LiDAR depth
+//! sigma_dr_m = 0.1              # std of an associated LiDAR depth at short range
+//! sigma_dr_rel = 0.0            # plus this fraction of the depth (sqrt of the sum of squares)
 //! rejection_sigma_px = 1.5      # feature noise in the rejection's depth uncertainty
 //! rejection_sigmas = 3.0        # rejection gate, in std of d_v - d_r
 //! p_bl_m = [0.0, 0.0, 0.1]      # LiDAR origin in the body (replaces the dataset's T_bl)
@@ -213,6 +214,7 @@ struct LidarSection {
     depth_outlier_rejection: Option<bool>,
     depth_only_opt: Option<bool>,
     sigma_dr_m: Option<f64>,
+    sigma_dr_rel: Option<f64>,
     rejection_sigma_px: Option<f64>,
     rejection_sigmas: Option<f64>,
     p_bl_m: Option<[f64; 3]>,
@@ -366,6 +368,7 @@ impl RunConfigFile {
         set(&mut c.depth_outlier_rejection, l.depth_outlier_rejection);
         set(&mut c.depth_only_opt, l.depth_only_opt);
         set(&mut c.sigma_dr_m, l.sigma_dr_m);
+        set(&mut c.sigma_dr_rel, l.sigma_dr_rel);
         set(&mut c.rejection_sigma_px, l.rejection_sigma_px);
         set(&mut c.rejection_sigmas, l.rejection_sigmas);
         if let Some(p) = l.p_bl_m {

@@ -111,7 +111,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
                 lm.lidar = Some(LidarDepth {
                     depth_m: d.depth_m,
-                    sigma_m: cfg.sigma_dr_m,
+                    sigma_m: cfg.sigma_dr(d.depth_m),
                 });
                 lm.inv_depth = 1.0 / d.depth_m;
             }

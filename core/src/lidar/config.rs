@@ -87,8 +87,13 @@ pub struct LidarConfig {
     pub depth_outlier_rejection: bool,
     /// Depth-only optimization of LiDAR landmarks after each solve (paper V.D).
     pub depth_only_opt: bool,
-    /// Standard deviation of an associated LiDAR depth, m (paper: 0.1).
+    /// Standard deviation of an associated LiDAR depth at short range, m (paper: 0.1).
     pub sigma_dr_m: f64,
+    /// Range-proportional part of the LiDAR-depth standard deviation: the depth's sigma is
+    /// `sqrt(sigma_dr_m^2 + (sigma_dr_rel d)^2)`. A LiDAR-camera rotation error of `a` rad shifts
+    /// the LiDAR points under a feature by `a d` (more on oblique surfaces), so far depths are
+    /// less certain than the paper's fixed 0.1 m says; 0 gives the paper's model.
+    pub sigma_dr_rel: f64,
     /// Feature noise used in the rejection's depth uncertainty, px (paper: 1.5).
     pub rejection_sigma_px: f64,
     /// Rejection gate in standard deviations of `d_v - d_r` (paper: 3).
@@ -109,6 +114,7 @@ impl Default for LidarConfig {
             depth_outlier_rejection: true,
             depth_only_opt: true,
             sigma_dr_m: 0.1,
+            sigma_dr_rel: 0.0,
             rejection_sigma_px: 1.5,
             rejection_sigmas: 3.0,
             extrinsic: LidarExtrinsic::identity(),
@@ -119,11 +125,19 @@ impl Default for LidarConfig {
 }
 
 impl LidarConfig {
+    /// Standard deviation of a LiDAR depth `depth_m`, m.
+    pub fn sigma_dr(&self, depth_m: f64) -> f64 {
+        let rel = self.sigma_dr_rel * depth_m;
+        libm::sqrt(self.sigma_dr_m * self.sigma_dr_m + rel * rel)
+    }
+
     /// [`Error::InvalidConfig`] for non-positive or non-finite parameters.
     pub fn validate(&self) -> Result<(), Error> {
         let a = &self.association;
         let pos = |x: f64| x > 0.0 && x.is_finite();
         let ok = pos(self.sigma_dr_m)
+            && self.sigma_dr_rel >= 0.0
+            && self.sigma_dr_rel.is_finite()
             && pos(self.rejection_sigma_px)
             && pos(self.rejection_sigmas)
             && self.td_l_s.is_finite()
