@@ -32,7 +32,13 @@ pub(crate) fn fill_tan_table(lower: &mut [f64], cell_rad: f64) -> f64 {
 /// Cell of tangent `u` on the axis tabulated by [`fill_tan_table`]; `None` outside (and NaN).
 /// `inv_cell = 1 / c`, `half = N / 2`.
 #[inline]
-pub(crate) fn cell_of(u: f64, lower: &[f64], upper: f64, inv_cell: f64, half: f64) -> Option<usize> {
+pub(crate) fn cell_of(
+    u: f64,
+    lower: &[f64],
+    upper: f64,
+    inv_cell: f64,
+    half: f64,
+) -> Option<usize> {
     let first = *lower.first()?;
     if !(u >= first && u < upper) {
         return None;

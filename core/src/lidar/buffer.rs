@@ -410,7 +410,10 @@ mod tests {
         assert_eq!((st.received, st.accepted, st.evicted), (4000, 4000, 0));
         let out = stored(&buf);
         assert_eq!(out.len(), 4000);
-        let worst = out.iter().map(|w| room().distance(&w.p_w)).fold(0.0, f64::max);
+        let worst = out
+            .iter()
+            .map(|w| room().distance(&w.p_w))
+            .fold(0.0, f64::max);
         assert!(worst < 1e-4, "de-skewed point {worst} m off the wall");
         // Times are kept on the LiDAR clock, in push order.
         assert!(out.iter().zip(&pts).all(|(w, p)| w.t_ns == p.t_ns));
@@ -436,7 +439,10 @@ mod tests {
         let pts = box_sweep(&m, &cfg);
         let mut buf = PointBuffer::<8192>::new();
         buf.push_scan(&pts, &ins, &LidarConfig { td_l_s: 0.0, ..cfg });
-        let worst = stored(&buf).iter().map(|w| room().distance(&w.p_w)).fold(0.0, f64::max);
+        let worst = stored(&buf)
+            .iter()
+            .map(|w| room().distance(&w.p_w))
+            .fold(0.0, f64::max);
         assert!(worst > 0.01, "td ignored? {worst}");
     }
 
@@ -453,7 +459,10 @@ mod tests {
         let st = buf.push_scan(&shuffled, &ins, &cfg);
         assert_eq!((st.received, st.accepted), (4400, 4400));
         let out = stored(&buf);
-        let worst = out.iter().map(|w| room().distance(&w.p_w)).fold(0.0, f64::max);
+        let worst = out
+            .iter()
+            .map(|w| room().distance(&w.p_w))
+            .fold(0.0, f64::max);
         assert!(worst < 1e-4, "{worst}");
         // Each stored point equals the sorted push's point with the same time.
         let mut sorted_buf = PointBuffer::<8192>::new();
@@ -547,14 +556,20 @@ mod tests {
         let st = buf.push_scan(&pts, &ins, &cfg);
         assert_eq!(buf.len(), P);
         assert_eq!(st.received, 192);
-        assert_eq!((st.accepted, st.rejected_nonfinite, st.rejected_range), (190, 1, 1));
+        assert_eq!(
+            (st.accepted, st.rejected_nonfinite, st.rejected_range),
+            (190, 1, 1)
+        );
         assert_eq!(
             st.received,
             st.accepted + st.rejected_nonfinite + st.rejected_range + st.rejected_time
         );
         assert_eq!(st.evicted, 190 - P as u32);
         // The last P valid ones: indices 127..=191 without 190.
-        let want: Vec<i64> = (127..192).filter(|&i| i != 190).map(|i| 20 * MS + i * MS).collect();
+        let want: Vec<i64> = (127..192)
+            .filter(|&i| i != 190)
+            .map(|i| 20 * MS + i * MS)
+            .collect();
         let got: Vec<i64> = buf.iter_since(i64::MIN).map(|w| w.t_ns).collect();
         assert_eq!(got, want);
         // A further scan evicts as many as it stores.
@@ -581,7 +596,9 @@ mod tests {
         assert_eq!(buf.len(), MAX_SEGMENTS);
         assert_eq!(evicted as usize, 300 - MAX_SEGMENTS);
         let got: Vec<i64> = buf.iter_since(i64::MIN).map(|w| w.t_ns).collect();
-        let want: Vec<i64> = (300 - MAX_SEGMENTS as i64..300).map(|i| one(i).t_ns).collect();
+        let want: Vec<i64> = (300 - MAX_SEGMENTS as i64..300)
+            .map(|i| one(i).t_ns)
+            .collect();
         assert_eq!(got, want);
         // The ring wraps inside a segment: still every point in order.
         let scan: Vec<LidarPoint> = (300..1300).map(one).collect();
@@ -595,9 +612,15 @@ mod tests {
         let scan: Vec<LidarPoint> = (0..5).map(one).collect();
         let st = buf.push_scan(&scan, &ins, &cfg);
         assert_eq!((st.accepted, st.evicted, buf.len()), (5, 4, 1));
-        assert_eq!(buf.iter_since(i64::MIN).next().map(|w| w.t_ns), Some(one(4).t_ns));
+        assert_eq!(
+            buf.iter_since(i64::MIN).next().map(|w| w.t_ns),
+            Some(one(4).t_ns)
+        );
         buf.push_scan(&scan[..2], &ins, &cfg);
-        assert_eq!(buf.iter_since(i64::MIN).next().map(|w| w.t_ns), Some(one(1).t_ns));
+        assert_eq!(
+            buf.iter_since(i64::MIN).next().map(|w| w.t_ns),
+            Some(one(1).t_ns)
+        );
     }
 
     #[test]
@@ -619,7 +642,10 @@ mod tests {
         let dirs = spiral_cap(4000, &-Vec3::z(), 1.0);
         // Directions are in l: rotate them so they point down in w.
         let q_lw = cfg.extrinsic.q_bl.inverse();
-        let rays = dirs.iter().enumerate().map(|(i, d)| (20 * MS + i as i64 * 990_000, q_lw * d));
+        let rays = dirs
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (20 * MS + i as i64 * 990_000, q_lw * d));
         let pts = sweep(&m, &cfg, &[plane], rays);
         assert!(pts.len() > 3000);
         let mut buf = PointBuffer::<8192>::new();
@@ -635,8 +661,8 @@ mod tests {
 
     #[test]
     fn storage_is_compact() {
-        let per_point = core::mem::size_of::<PointBuffer<MAX_LIDAR_POINTS>>() as f64
-            / MAX_LIDAR_POINTS as f64;
+        let per_point =
+            core::mem::size_of::<PointBuffer<MAX_LIDAR_POINTS>>() as f64 / MAX_LIDAR_POINTS as f64;
         assert!(per_point <= 16.5, "{per_point} bytes a point");
         assert_eq!(core::mem::size_of::<Packed>(), 16);
     }

@@ -90,7 +90,8 @@ fn exp_small(phi: &Vec3) -> Quat {
     // cos(h) and sin(h) / (2 h) in Horner form.
     let w = 1.0 - h2 * (0.5 - h2 * (1.0 / 24.0 - h2 * (1.0 / 720.0 - h2 * (1.0 / 40320.0))));
     let k = 0.5
-        * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0 - h2 * (1.0 / 5040.0 - h2 * (1.0 / 362880.0)))));
+        * (1.0
+            - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0 - h2 * (1.0 / 5040.0 - h2 * (1.0 / 362880.0)))));
     Quat::new_unchecked(Quaternion::new(w, k * phi.x, k * phi.y, k * phi.z))
 }
 
@@ -123,8 +124,17 @@ mod tests {
         let mut c = InterpCursor::new();
         // Forward, backward, jumps, repeats, both ends, and outside.
         let times = [
-            0i64, 1, 4_999_999, 5_000_000, 123_456_789, 7_000_000, 7_000_000, 245_000_000,
-            100_000_000, 0, 244_999_999,
+            0i64,
+            1,
+            4_999_999,
+            5_000_000,
+            123_456_789,
+            7_000_000,
+            7_000_000,
+            245_000_000,
+            100_000_000,
+            0,
+            244_999_999,
         ];
         for &t in &times {
             let (p, q) = c.pose_at(&w, t).unwrap();

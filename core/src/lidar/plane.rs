@@ -43,7 +43,11 @@ pub(crate) fn fit_plane(pts: &[Vec3]) -> Option<Plane> {
     if !(ev[i_max] > 0.0 && ev[i_mid] > MIN_PLANARITY * ev[i_max]) {
         return None;
     }
-    let normal = eig.eigenvectors.column(i_min).into_owned().try_normalize(0.0)?;
+    let normal = eig
+        .eigenvectors
+        .column(i_min)
+        .into_owned()
+        .try_normalize(0.0)?;
     let (mut max_d, mut sum2) = (0.0f64, 0.0);
     for p in pts {
         let d = normal.dot(&(p - c));
@@ -79,7 +83,11 @@ mod tests {
         assert!(pl.normal.dot(&n_true).abs() > 1.0 - 1e-3);
         // Offsets are symmetric and small: the fit is close to the true plane.
         assert!((pl.max_dist_m - 0.02).abs() < 0.005, "{}", pl.max_dist_m);
-        assert!((pl.rms_m - libm::sqrt(0.001 / 5.0)).abs() < 0.003, "{}", pl.rms_m);
+        assert!(
+            (pl.rms_m - libm::sqrt(0.001 / 5.0)).abs() < 0.003,
+            "{}",
+            pl.rms_m
+        );
         // Exact points: zero residual.
         let exact: [Vec3; 4] = [c0, c0 + u, c0 + v, c0 + u * 0.3 - v * 2.0];
         let pl = fit_plane(&exact).unwrap();

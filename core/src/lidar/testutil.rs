@@ -40,7 +40,12 @@ impl Motion {
     }
 
     /// INS window with states every `dt_ns` over `[t0_ns, t1_ns]`.
-    pub(crate) fn window<const K: usize>(&self, t0_ns: i64, t1_ns: i64, dt_ns: i64) -> InsWindow<K> {
+    pub(crate) fn window<const K: usize>(
+        &self,
+        t0_ns: i64,
+        t1_ns: i64,
+        dt_ns: i64,
+    ) -> InsWindow<K> {
         let mut w = InsWindow::new();
         let mut t = t0_ns;
         while t <= t1_ns {
@@ -67,6 +72,14 @@ pub(crate) enum Shape {
     RoomBox { min: Vec3, max: Vec3 },
     /// Infinite cylinder around the line `c + s axis` (unit `axis`).
     Cylinder { c: Vec3, axis: Vec3, radius: f64 },
+    /// Rectangle `c + a u + b v`, `|a| <= half_u`, `|b| <= half_v` (unit, orthogonal `u`, `v`).
+    Rect {
+        c: Vec3,
+        u: Vec3,
+        v: Vec3,
+        half_u: f64,
+        half_v: f64,
+    },
 }
 
 impl Shape {
@@ -96,7 +109,11 @@ impl Shape {
                 let oc = o - c;
                 let dp = dir - axis * axis.dot(dir);
                 let op = oc - axis * axis.dot(&oc);
-                let (a, b, cc) = (dp.dot(&dp), 2.0 * dp.dot(&op), op.dot(&op) - radius * radius);
+                let (a, b, cc) = (
+                    dp.dot(&dp),
+                    2.0 * dp.dot(&op),
+                    op.dot(&op) - radius * radius,
+                );
                 let disc = b * b - 4.0 * a * cc;
                 if a == 0.0 || disc < 0.0 {
                     return None;
@@ -105,6 +122,18 @@ impl Shape {
                 [(-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)]
                     .into_iter()
                     .find(|&t| t > 1e-9)
+            }
+            Shape::Rect {
+                c,
+                u,
+                v,
+                half_u,
+                half_v,
+            } => {
+                let n = u.cross(&v);
+                let t = Shape::Plane { n, d: n.dot(&c) }.cast(o, dir)?;
+                let q = o + dir * t - c;
+                (q.dot(&u).abs() <= half_u && q.dot(&v).abs() <= half_v).then_some(t)
             }
         }
     }
@@ -120,6 +149,7 @@ impl Shape {
                 let q = p - c;
                 ((q - axis * axis.dot(&q)).norm() - radius).abs()
             }
+            Shape::Rect { c, u, v, .. } => u.cross(&v).dot(&(p - c)).abs(),
         }
     }
 }
@@ -140,14 +170,26 @@ pub(crate) fn sweep(
     scene: &[Shape],
     rays: impl IntoIterator<Item = (i64, Vec3)>,
 ) -> Vec<LidarPoint> {
+    sweep_noisy(motion, cfg, scene, rays, 0.0)
+}
+
+/// [`sweep`] with Gaussian range noise of `sigma_m` (deterministic pseudo-random sequence).
+pub(crate) fn sweep_noisy(
+    motion: &Motion,
+    cfg: &LidarConfig,
+    scene: &[Shape],
+    rays: impl IntoIterator<Item = (i64, Vec3)>,
+    sigma_m: f64,
+) -> Vec<LidarPoint> {
     let td_ns = libm::round(cfg.td_l_s * 1e9) as i64;
     let LidarExtrinsic { q_bl, p_bl } = cfg.extrinsic;
+    let mut rng = SplitMix(0x5eed);
     rays.into_iter()
         .filter_map(|(t_ns, d_l)| {
             let (p_wb, q_wb) = motion.pose(t_ns + td_ns);
             let (p_wl, q_wl) = (p_wb + q_wb * p_bl, q_wb * q_bl);
             let d_w = q_wl * d_l.normalize();
-            let t = cast(scene, &p_wl, &d_w)?;
+            let t = cast(scene, &p_wl, &d_w)? + sigma_m * rng.gauss();
             let p_l = q_wl.inverse() * (d_w * t);
             Some(LidarPoint {
                 t_ns,
@@ -158,10 +200,32 @@ pub(crate) fn sweep(
         .collect()
 }
 
+/// SplitMix64 with Box-Muller normals.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    fn gauss(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        libm::sqrt(-2.0 * libm::log(u1)) * libm::cos(2.0 * core::f64::consts::PI * u2)
+    }
+}
+
 /// Livox-style rosette (two counter-rotating prisms): direction in `l` (x forward) at time
 /// `t`, polar angle up to `half_fov_rad` from the x axis.
 pub(crate) fn rosette_dir(t_s: f64, half_fov_rad: f64) -> Vec3 {
-    let (w1, w2) = (2.0 * core::f64::consts::PI * 121.57, 2.0 * core::f64::consts::PI * 77.73);
+    let (w1, w2) = (
+        2.0 * core::f64::consts::PI * 121.57,
+        2.0 * core::f64::consts::PI * 77.73,
+    );
     let zx = 0.5 * half_fov_rad * (libm::cos(w1 * t_s) + libm::cos(w2 * t_s));
     let zy = 0.5 * half_fov_rad * (libm::sin(w1 * t_s) - libm::sin(w2 * t_s));
     let rho = libm::sqrt(zx * zx + zy * zy);
@@ -176,7 +240,13 @@ pub(crate) fn rosette_dir(t_s: f64, half_fov_rad: f64) -> Vec3 {
 /// Directions of a golden-angle spiral covering the cap of `half_angle_rad` around `axis`.
 pub(crate) fn spiral_cap(n: usize, axis: &Vec3, half_angle_rad: f64) -> Vec<Vec3> {
     let a = axis.normalize();
-    let u = a.cross(&if a.x.abs() < 0.9 { Vec3::x() } else { Vec3::y() }).normalize();
+    let u = a
+        .cross(&if a.x.abs() < 0.9 {
+            Vec3::x()
+        } else {
+            Vec3::y()
+        })
+        .normalize();
     let v = a.cross(&u);
     let cos_max = libm::cos(half_angle_rad);
     let golden = core::f64::consts::PI * (3.0 - libm::sqrt(5.0));
