@@ -211,7 +211,8 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
     #[inline]
     fn insert(&mut self, p_c: &Vec3, bin: &Binner) -> bool {
         let (x, y, z) = (p_c.x, p_c.y, p_c.z);
-        if !(z > MIN_Z_M) {
+        let in_front = z > MIN_Z_M; // false for NaN too
+        if !in_front {
             return false;
         }
         let Some(col) = cell_of(
@@ -262,7 +263,8 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
         }
         let k = cfg.neighbours.clamp(3, AssociationConfig::MAX_NEIGHBOURS);
         let radius = cfg.max_neighbour_rad;
-        if self.filled == 0 || !(self.cell_rad > 0.0) || !(radius > 0.0) {
+        let searchable = self.filled > 0 && self.cell_rad > 0.0 && radius > 0.0;
+        if !searchable {
             return Err(AssocReject::NoNeighbours);
         }
         let b = Vec3::new(x_n.x, x_n.y, 1.0).normalize();
@@ -284,16 +286,20 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
             r_sum += r;
         }
         let r_mean = r_sum / k as f64;
-        if !((r_max - r_min) <= cfg.max_range_spread * r_mean) {
+        // Every gate is written so that a NaN fails it.
+        let one_surface = r_max - r_min <= cfg.max_range_spread * r_mean;
+        if !one_surface {
             return Err(AssocReject::RangeSpread);
         }
 
         let plane = fit_plane(pts).ok_or(AssocReject::PlaneFit)?;
-        if !(plane.max_dist_m <= cfg.max_plane_dist_m) {
+        let planar = plane.max_dist_m <= cfg.max_plane_dist_m;
+        if !planar {
             return Err(AssocReject::PlaneFit);
         }
         let n_dot_b = plane.normal.dot(&b);
-        if !(n_dot_b.abs() >= cfg.min_incidence_cos) {
+        let steep_enough = n_dot_b.abs() >= cfg.min_incidence_cos;
+        if !steep_enough {
             return Err(AssocReject::Incidence);
         }
         let range_m = plane.normal.dot(&plane.centroid) / n_dot_b;
@@ -346,7 +352,8 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
                     f64::from(cell.p_c[2]),
                 );
                 let cos_a = b.dot(&p) / p.norm();
-                if !(cos_a >= cos_r) {
+                let within = cos_a >= cos_r;
+                if !within {
                     continue;
                 }
                 if out.len() >= k {
