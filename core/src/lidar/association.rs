@@ -224,20 +224,24 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
             *y = o.y + r.m21 * dx + r.m22 * dy + r.m23 * dz;
             *z = o.z + r.m31 * dx + r.m32 * dy + r.m33 * dz;
         }
-        // Tangents x/z and y/z, their table coordinates, squared range. (Indices below CHUNK
-        // into CHUNK-long arrays: no bounds checks remain, and the loop vectorizes.)
+        // Tangents x/z and y/z, their table bins, squared range.
         let mut us = [0.0f32; CHUNK];
         let mut vs = [0.0f32; CHUNK];
         let mut bus = [0i32; CHUNK];
         let mut bvs = [0i32; CHUNK];
         let mut r2s = [0.0f32; CHUNK];
-        for k in 0..CHUNK {
-            let (x, y, z) = (xs[k], ys[k], zs[k]);
-            us[k] = x / z;
-            vs[k] = y / z;
-            bus[k] = self.cols.bin(us[k]);
-            bvs[k] = self.rows.bin(vs[k]);
-            r2s[k] = x * x + y * y + z * z;
+        let outs = us
+            .iter_mut()
+            .zip(vs.iter_mut())
+            .zip(bus.iter_mut())
+            .zip(bvs.iter_mut());
+        let ins = xs.iter().zip(&ys).zip(&zs);
+        for (((((u, v), bu), bv), r2), ((&x, &y), &z)) in outs.zip(r2s.iter_mut()).zip(ins) {
+            *u = x / z;
+            *v = y / z;
+            *bu = self.cols.bin(*u);
+            *bv = self.rows.bin(*v);
+            *r2 = x * x + y * y + z * z;
         }
         // Offsets outside i32 cannot occur: the span is clamped to them.
         let (lo, hi) = span.map_or((i32::MIN, i32::MAX), |(lo, hi)| {
