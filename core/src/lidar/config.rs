@@ -69,7 +69,7 @@ impl Default for AssociationConfig {
             // five nearest cells are often one scan line (collinear: no plane), and with 2 cm
             // range noise five points 5 cm apart give normals too noisy for the incidence gate.
             // Bearings given a depth, noise-free / 2 cm noise (RMS, worst error with noise):
-            // 5 -> 95% / 88% (2.4 cm, 12 cm); 8 -> 100% / 99% (1.8 cm, 8.7 cm).
+            // 5 -> 95% / 87% (2.4 cm, 11 cm); 8 -> 100% / 98% (1.8 cm, 9.9 cm).
             neighbours: 8,
             max_neighbour_rad: 2.0f64.to_radians(),
             max_plane_dist_m: 0.10,
