@@ -345,3 +345,325 @@ pub(crate) fn seconds_to_ns(s: f64) -> i64 {
 fn sat_u32(n: usize) -> u32 {
     u32::try_from(n).unwrap_or(u32::MAX)
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::lidar::testutil::{spiral_cap, sweep, Motion, Shape};
+    use crate::lidar::LidarExtrinsic;
+    use crate::math::{quat_exp, Quat};
+    use std::vec::Vec;
+
+    const MS: i64 = 1_000_000;
+
+    fn room() -> Shape {
+        Shape::RoomBox {
+            min: Vec3::new(-6.0, -5.0, -2.0),
+            max: Vec3::new(8.0, 7.0, 4.0),
+        }
+    }
+
+    /// Walking at 1.8 m/s and turning at 0.8 rad/s, slightly tilted.
+    fn moving() -> Motion {
+        Motion {
+            p0: Vec3::new(0.2, -0.3, 0.5),
+            v: Vec3::new(1.5, 0.8, 0.1),
+            q0: quat_exp(&Vec3::new(0.1, -0.05, 0.3)),
+            yaw_rate: 0.8,
+        }
+    }
+
+    fn lidar_cfg() -> LidarConfig {
+        LidarConfig {
+            extrinsic: LidarExtrinsic {
+                q_bl: quat_exp(&Vec3::new(0.2, -0.1, 1.3)),
+                p_bl: Vec3::new(0.3, -0.1, 0.2),
+            },
+            td_l_s: -0.012,
+            ..LidarConfig::default()
+        }
+    }
+
+    /// 4000 returns over 0.1 s (LiDAR clock 100..200 ms), directions over the whole sphere.
+    fn box_sweep(m: &Motion, cfg: &LidarConfig) -> Vec<LidarPoint> {
+        let dirs = spiral_cap(4000, &Vec3::z(), core::f64::consts::PI);
+        let rays = dirs
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (100 * MS + i as i64 * 25_000, *d));
+        sweep(m, cfg, &[room()], rays)
+    }
+
+    fn stored(buf: &PointBuffer<8192>) -> Vec<WorldPoint> {
+        buf.iter_since(i64::MIN).collect()
+    }
+
+    #[test]
+    fn deskew_puts_every_point_on_the_walls_and_ignoring_motion_would_not() {
+        let (m, cfg) = (moving(), lidar_cfg());
+        let ins = m.window::<128>(0, 300 * MS, 5 * MS); // 200 Hz
+        let pts = box_sweep(&m, &cfg);
+        assert_eq!(pts.len(), 4000);
+        let mut buf = PointBuffer::<8192>::new();
+        let st = buf.push_scan(&pts, &ins, &cfg);
+        assert_eq!((st.received, st.accepted, st.evicted), (4000, 4000, 0));
+        let out = stored(&buf);
+        assert_eq!(out.len(), 4000);
+        let worst = out
+            .iter()
+            .map(|w| room().distance(&w.p_w))
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-4, "de-skewed point {worst} m off the wall");
+        // Times are kept on the LiDAR clock, in push order.
+        assert!(out.iter().zip(&pts).all(|(w, p)| w.t_ns == p.t_ns));
+
+        // Same sweep with one pose (the sweep's middle, IMU clock) for every point.
+        let (p_wb, q_wb) = m.pose(150 * MS - 12 * MS);
+        let ext = cfg.extrinsic;
+        let skewed = pts
+            .iter()
+            .map(|p| {
+                let p_l = Vec3::new(p.p_l[0].into(), p.p_l[1].into(), p.p_l[2].into());
+                room().distance(&(q_wb * (ext.q_bl * p_l + ext.p_bl) + p_wb))
+            })
+            .fold(0.0, f64::max);
+        assert!(skewed > 0.05, "motion distortion only {skewed} m");
+    }
+
+    #[test]
+    fn td_shifts_the_pose_used() {
+        // The same sweep read with td = 0 instead of -12 ms is off the walls by centimetres.
+        let (m, cfg) = (moving(), lidar_cfg());
+        let ins = m.window::<128>(0, 300 * MS, 5 * MS);
+        let pts = box_sweep(&m, &cfg);
+        let mut buf = PointBuffer::<8192>::new();
+        buf.push_scan(&pts, &ins, &LidarConfig { td_l_s: 0.0, ..cfg });
+        let worst = stored(&buf)
+            .iter()
+            .map(|w| room().distance(&w.p_w))
+            .fold(0.0, f64::max);
+        assert!(worst > 0.01, "td ignored? {worst}");
+    }
+
+    #[test]
+    fn unsorted_and_repeated_times_give_the_same_points() {
+        let (m, cfg) = (moving(), lidar_cfg());
+        let ins = m.window::<128>(0, 300 * MS, 5 * MS);
+        let pts = box_sweep(&m, &cfg);
+        // A permutation (7919 is prime to 4000) plus every 10th point repeated.
+        let n = pts.len();
+        let mut shuffled: Vec<LidarPoint> = (0..n).map(|i| pts[(i * 7919) % n]).collect();
+        shuffled.extend(pts.iter().step_by(10).copied());
+        let mut buf = PointBuffer::<8192>::new();
+        let st = buf.push_scan(&shuffled, &ins, &cfg);
+        assert_eq!((st.received, st.accepted), (4400, 4400));
+        let out = stored(&buf);
+        let worst = out
+            .iter()
+            .map(|w| room().distance(&w.p_w))
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-4, "{worst}");
+        // Each stored point equals the sorted push's point with the same time.
+        let mut sorted_buf = PointBuffer::<8192>::new();
+        sorted_buf.push_scan(&pts, &ins, &cfg);
+        let reference = stored(&sorted_buf);
+        for (w, p) in out.iter().zip(&shuffled) {
+            assert_eq!(w.t_ns, p.t_ns);
+            let k = ((p.t_ns - 100 * MS) / 25_000) as usize;
+            assert!((w.p_w - reference[k].p_w).amax() < 2e-6);
+        }
+    }
+
+    #[test]
+    fn rejects_and_counts_bad_points() {
+        let m = moving();
+        let cfg = lidar_cfg(); // t_imu = t_lidar - 12 ms
+        let ins = m.window::<128>(0, 300 * MS, 5 * MS);
+        let p = |t_ms: i64, p_l: [f32; 3]| LidarPoint {
+            t_ns: t_ms * MS,
+            p_l,
+            intensity: 0.0,
+        };
+        let ok = [3.0f32, 1.0, -0.5];
+        let pts = [
+            p(100, [f32::NAN, 1.0, 1.0]),
+            p(100, [1.0, f32::INFINITY, 1.0]),
+            p(100, [1.0, 1.0, f32::NEG_INFINITY]),
+            p(100, [0.0, 0.0, 0.0]),
+            p(100, [0.05, 0.05, 0.0]),
+            p(100, [400.0, 300.0, 10.0]), // 500.1 m
+            p(11, ok),                    // IMU time -1 ms: before the window
+            p(313, ok),                   // 301 ms: after
+            LidarPoint {
+                t_ns: i64::MIN,
+                ..p(0, ok)
+            },
+            LidarPoint {
+                t_ns: i64::MAX,
+                ..p(0, ok)
+            },
+            p(12, ok),  // IMU time 0: first state
+            p(312, ok), // IMU time 300 ms: last state
+            p(150, [0.1, 0.0, 0.0]),
+            p(150, [499.0, 0.0, 0.0]),
+            p(150, ok),
+            p(150, ok), // repeated time
+            p(120, ok), // out of order
+        ];
+        let mut buf = PointBuffer::<64>::new();
+        let st = buf.push_scan(&pts, &ins, &cfg);
+        let want = ScanStats {
+            received: 17,
+            accepted: 7,
+            rejected_nonfinite: 3,
+            rejected_range: 3,
+            rejected_time: 4,
+            evicted: 0,
+        };
+        assert_eq!(st, want);
+        assert_eq!(buf.len(), 7);
+        let times: Vec<i64> = buf.iter_since(i64::MIN).map(|w| w.t_ns / MS).collect();
+        assert_eq!(times, [12, 312, 150, 150, 150, 150, 120]);
+        assert_eq!(buf.iter_since(150 * MS).count(), 5);
+        assert_eq!(buf.iter_since(313 * MS).count(), 0);
+
+        // No INS state at all: everything valid is a time rejection.
+        let empty = InsWindow::<4>::new();
+        let st = buf.push_scan(&pts, &empty, &cfg);
+        assert_eq!((st.accepted, st.rejected_time), (0, 11));
+        assert_eq!(buf.len(), 7);
+        buf.clear();
+        assert!(buf.is_empty() && buf.iter_since(i64::MIN).next().is_none());
+    }
+
+    #[test]
+    fn a_scan_of_three_times_the_capacity_keeps_its_last_points() {
+        const P: usize = 64;
+        let m = moving();
+        let cfg = lidar_cfg();
+        let ins = m.window::<128>(0, 300 * MS, 5 * MS);
+        let mut pts: Vec<LidarPoint> = (0..3 * P as i64)
+            .map(|i| LidarPoint {
+                t_ns: 20 * MS + i * MS,
+                p_l: [2.0 + i as f32 * 0.01, 1.0, 0.5],
+                intensity: 0.0,
+            })
+            .collect();
+        pts[5].p_l[0] = f32::NAN;
+        pts[190].p_l = [0.0; 3];
+        let mut buf = PointBuffer::<P>::new();
+        let st = buf.push_scan(&pts, &ins, &cfg);
+        assert_eq!(buf.len(), P);
+        assert_eq!(st.received, 192);
+        assert_eq!(
+            (st.accepted, st.rejected_nonfinite, st.rejected_range),
+            (190, 1, 1)
+        );
+        assert_eq!(
+            st.received,
+            st.accepted + st.rejected_nonfinite + st.rejected_range + st.rejected_time
+        );
+        assert_eq!(st.evicted, 190 - P as u32);
+        // The last P valid ones: indices 127..=191 without 190.
+        let want: Vec<i64> = (127..192)
+            .filter(|&i| i != 190)
+            .map(|i| 20 * MS + i * MS)
+            .collect();
+        let got: Vec<i64> = buf.iter_since(i64::MIN).map(|w| w.t_ns).collect();
+        assert_eq!(got, want);
+        // A further scan evicts as many as it stores.
+        let st = buf.push_scan(&pts[..10], &ins, &cfg);
+        assert_eq!((st.accepted, st.evicted, buf.len()), (9, 9, P));
+    }
+
+    #[test]
+    fn segment_table_and_tiny_capacity_stay_consistent() {
+        let m = moving();
+        let cfg = lidar_cfg();
+        let ins = m.window::<128>(0, 300 * MS, 5 * MS);
+        let one = |i: i64| LidarPoint {
+            t_ns: 20 * MS + i * 100_000,
+            p_l: [2.0, 1.0, 0.5 + i as f32 * 0.001],
+            intensity: 0.0,
+        };
+        // 300 one-point scans: only MAX_SEGMENTS segments (= points) survive.
+        let mut buf = PointBuffer::<1024>::new();
+        let mut evicted = 0;
+        for i in 0..300 {
+            evicted += buf.push_scan(&[one(i)], &ins, &cfg).evicted;
+        }
+        assert_eq!(buf.len(), MAX_SEGMENTS);
+        assert_eq!(evicted as usize, 300 - MAX_SEGMENTS);
+        let got: Vec<i64> = buf.iter_since(i64::MIN).map(|w| w.t_ns).collect();
+        let want: Vec<i64> = (300 - MAX_SEGMENTS as i64..300)
+            .map(|i| one(i).t_ns)
+            .collect();
+        assert_eq!(got, want);
+        // The ring wraps inside a segment: still every point in order.
+        let scan: Vec<LidarPoint> = (300..1300).map(one).collect();
+        buf.push_scan(&scan, &ins, &cfg);
+        let got: Vec<i64> = buf.iter_since(i64::MIN).map(|w| w.t_ns).collect();
+        let want: Vec<i64> = (276..1300).map(|i| one(i).t_ns).collect();
+        assert_eq!(got, want);
+
+        // Capacity 1: the last valid point of each scan.
+        let mut buf = PointBuffer::<1>::new();
+        let scan: Vec<LidarPoint> = (0..5).map(one).collect();
+        let st = buf.push_scan(&scan, &ins, &cfg);
+        assert_eq!((st.accepted, st.evicted, buf.len()), (5, 4, 1));
+        assert_eq!(
+            buf.iter_since(i64::MIN).next().map(|w| w.t_ns),
+            Some(one(4).t_ns)
+        );
+        buf.push_scan(&scan[..2], &ins, &cfg);
+        assert_eq!(
+            buf.iter_since(i64::MIN).next().map(|w| w.t_ns),
+            Some(one(1).t_ns)
+        );
+    }
+
+    #[test]
+    fn far_travel_and_long_scans_open_segments_without_losing_precision() {
+        // 10 km from the origin at 630 m/s for 4 s: offsets beyond MAX_OFFSET_M and time
+        // offsets beyond i32 nanoseconds inside one scan.
+        let m = Motion {
+            p0: Vec3::new(10_000.0, -7_000.0, 30.0),
+            v: Vec3::new(600.0, 200.0, 0.0),
+            q0: Quat::identity(),
+            yaw_rate: 0.1,
+        };
+        let cfg = lidar_cfg();
+        let ins = m.window::<1024>(0, 4_000 * MS, 5 * MS);
+        let plane = Shape::Plane {
+            n: Vec3::new(0.0, 0.0, 1.0),
+            d: 0.0,
+        };
+        let dirs = spiral_cap(4000, &-Vec3::z(), 1.0);
+        // Directions are in l: rotate them so they point down in w.
+        let q_lw = cfg.extrinsic.q_bl.inverse();
+        let rays = dirs
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (20 * MS + i as i64 * 990_000, q_lw * d));
+        let pts = sweep(&m, &cfg, &[plane], rays);
+        assert!(pts.len() > 3000);
+        let mut buf = PointBuffer::<8192>::new();
+        let st = buf.push_scan(&pts, &ins, &cfg);
+        assert_eq!(st.accepted as usize, pts.len());
+        assert!(buf.segs.len() > 1, "one segment for a 1 km, 4 s scan");
+        let worst = buf
+            .iter_since(i64::MIN)
+            .map(|w| plane.distance(&w.p_w))
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-4, "{worst}");
+    }
+
+    #[test]
+    fn storage_is_compact() {
+        let per_point =
+            core::mem::size_of::<PointBuffer<MAX_LIDAR_POINTS>>() as f64 / MAX_LIDAR_POINTS as f64;
+        assert!(per_point <= 16.5, "{per_point} bytes a point");
+        assert_eq!(core::mem::size_of::<Packed>(), 16);
+    }
+}

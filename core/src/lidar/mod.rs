@@ -19,6 +19,8 @@ pub mod buffer;
 pub mod config;
 mod deskew;
 mod plane;
+#[cfg(test)]
+mod testutil;
 
 pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
 pub use buffer::{PointBuffer, ScanStats, WorldPoint};
