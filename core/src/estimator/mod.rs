@@ -714,8 +714,12 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 let t0 = clock.map_or(0, |c| c());
                 let sd_v = depth_std(two, lc.rejection_sigma_px, &focal).unwrap_or(f64::INFINITY);
                 let gate = lc.rejection_sigmas * libm::sqrt(sd_v * sd_v + ld.sigma_m * ld.sigma_m);
-                // An untestable depth (infinite sigma_dv) passes: no evidence against it.
-                if libm::fabs(d_v - ld.depth_m) > gate {
+                // The first-order sigma_dv holds only for a well-triangulated landmark (near the
+                // epipole or at low parallax the pose-only depth is far off while sigma_dv stays
+                // small): test with the visual gates passed, otherwise there is no evidence.
+                let testable =
+                    theta >= min_par && *d_v >= dmin && *d_v <= dmax && sd_v <= max_rel * *d_v;
+                if testable && libm::fabs(d_v - ld.depth_m) > gate {
                     lm.lidar = None;
                     lm.inv_depth = 0.0;
                     rejected += 1;
