@@ -7,7 +7,7 @@
 //!
 //! Run: `cargo bench --bench estimator` (needs ../shared/data).
 
-use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
+use criterion::{criterion_group, BatchSize, Criterion};
 use povins::core::estimator::{PoVins, VisualMode};
 use povins::host_tools::runner::config_for;
 use povins::platform::Dataset;
@@ -170,4 +170,16 @@ criterion_group! {
     config = Criterion::default().sample_size(30);
     targets = bench_keyframe, bench_keyframe_lidar
 }
-criterion_main!(benches);
+// The estimator (several MB) is built by value before it is boxed: run on a big stack.
+fn main() {
+    let worker = std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(|| {
+            benches();
+            Criterion::default().configure_from_args().final_summary();
+        })
+        .expect("spawn the bench thread");
+    if let Err(p) = worker.join() {
+        std::panic::resume_unwind(p);
+    }
+}

@@ -93,6 +93,9 @@ pub struct AblationConfig {
     pub duration_s: f64,
     /// Worker threads for the runs (and the LiDAR simulation).
     pub jobs: usize,
+    /// Camera-LiDAR rotation error of the simulated calibration, deg (the simulator's default
+    /// is 0.5): larger values put more feature depths on the background at object edges.
+    pub lidar_extrinsic_error_deg: f64,
 }
 
 /// One replay.
@@ -199,6 +202,8 @@ pub struct AblationReport {
     pub duration_s: f64,
     /// Worker threads (timings depend on it).
     pub jobs: usize,
+    /// Simulated camera-LiDAR rotation error, deg.
+    pub lidar_extrinsic_error_deg: f64,
     /// One row per variant, in [`Variant::ALL`] order.
     pub rows: Vec<VariantRow>,
     /// Every run, scenario-major, then seed, then variant.
@@ -331,6 +336,7 @@ impl Pair {
     fn prepared(
         &self,
         duration_s: f64,
+        lidar_extrinsic_error_deg: f64,
         overrides: Option<&RunConfigFile>,
         progress: &Progress,
     ) -> Result<Prepared, String> {
@@ -347,6 +353,7 @@ impl Pair {
         // depend on the thread count).
         let mut sim_cfg = SimConfig::new(self.scenario, self.seed, duration_s);
         sim_cfg.threads = 1;
+        sim_cfg.lidar_extrinsic_error_deg = lidar_extrinsic_error_deg;
         let d = sim::simulate(&sim_cfg, &|_, _, _| {})
             .map_err(|e| format!("{e:#}"))
             .and_then(|s| {
@@ -432,7 +439,12 @@ pub fn run_ablation(
                         let vi = (u % nv + u / nv) % nv;
                         let v = Variant::ALL[vi];
                         let r = pair
-                            .prepared(cfg.duration_s, overrides, progress)
+                            .prepared(
+                                cfg.duration_s,
+                                cfg.lidar_extrinsic_error_deg,
+                                overrides,
+                                progress,
+                            )
                             .map_err(|e| anyhow!(e))
                             .and_then(|d| run_one(&d.0, &d.1, pair.scenario, pair.seed, v))
                             .map_err(|e| {
@@ -491,6 +503,7 @@ pub fn run_ablation(
         seeds: cfg.seeds.clone(),
         duration_s: cfg.duration_s,
         jobs: cfg.jobs,
+        lidar_extrinsic_error_deg: cfg.lidar_extrinsic_error_deg,
         rows: aggregate(&cfg.scenarios, &runs),
         runs,
     })
@@ -515,10 +528,12 @@ pub fn render_markdown(r: &AblationReport) -> String {
     let seeds: Vec<String> = r.seeds.iter().map(u64::to_string).collect();
     let _ = writeln!(
         s,
-        "# LiDAR ablation (simulated: {}; seeds {}; {} s each; ground-truth init; {} job{})\n",
+        "# LiDAR ablation (simulated: {}; seeds {}; {} s each; camera-LiDAR rotation error {} deg; \
+         ground-truth init; {} job{})\n",
         r.scenarios.join(", "),
         seeds.join(", "),
         r.duration_s,
+        r.lidar_extrinsic_error_deg,
         r.jobs,
         if r.jobs == 1 { "" } else { "s" }
     );
@@ -686,6 +701,7 @@ mod tests {
             scenarios: vec!["robot".into(), "vehicle".into()],
             seeds: vec![1, 2],
             duration_s: 8.0,
+            lidar_extrinsic_error_deg: 0.5,
             jobs: 2,
             rows,
             runs,

@@ -13,6 +13,7 @@
 //! cull_obs_px = 4.5
 //! chi2_threshold = 5.991
 //! lm_max_iterations = 6
+//! lm_second_max_iterations = 6  # the pass after the chi-square cull (overrides the above)
 //! lm_initial_lambda = 1e-4      # Marquardt damping relative to diag(H)
 //! lm_function_tolerance = 1e-3  # stop when the cost decreases by less than this fraction
 //! marginalize_visual = true     # fold anchored landmarks into the prior (VINS-Mono)
@@ -46,7 +47,7 @@
 //! depth_outlier_rejection = true  # uncertainty-based rejection (`--no-depth-outlier-rejection`)
 //! depth_only_opt = true         # depth-only optimization (`--no-depth-only-opt`)
 //! sigma_dr_m = 0.1              # std of an associated LiDAR depth at short range
-//! sigma_dr_rel = 0.0            # plus this fraction of the depth (sqrt of the sum of squares)
+//! sigma_dr_rel = 0.01           # plus this fraction of the depth (sqrt of the sum of squares)
 //! rejection_sigma_px = 1.5      # feature noise in the rejection's depth uncertainty
 //! rejection_sigmas = 3.0        # rejection gate, in std of d_v - d_r
 //! p_bl_m = [0.0, 0.0, 0.1]      # LiDAR origin in the body (replaces the dataset's T_bl)
@@ -246,6 +247,7 @@ pub struct RunConfigFile {
     cull_obs_px: Option<f64>,
     chi2_threshold: Option<f64>,
     lm_max_iterations: Option<usize>,
+    lm_second_max_iterations: Option<usize>,
     lm_initial_lambda: Option<f64>,
     lm_function_tolerance: Option<f64>,
     estimate_td: Option<bool>,
@@ -308,6 +310,9 @@ impl RunConfigFile {
         set(&mut cfg.chi2_threshold, self.chi2_threshold);
         if let Some(n) = self.lm_max_iterations {
             cfg.lm_first.max_iterations = n;
+            cfg.lm_second.max_iterations = n;
+        }
+        if let Some(n) = self.lm_second_max_iterations {
             cfg.lm_second.max_iterations = n;
         }
         if let Some(l) = self.lm_initial_lambda {

@@ -474,6 +474,7 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
             seeds: vec![2, 4],
             duration_s: 5.0,
             jobs,
+            lidar_extrinsic_error_deg: 0.5,
         };
         run_ablation(&cfg, None, &quiet()).expect("ablation")
     };
@@ -511,6 +512,7 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
             seeds: vec![1],
             duration_s: 2.0,
             jobs: 1,
+            lidar_extrinsic_error_deg: 0.5,
         },
         None,
         &quiet()

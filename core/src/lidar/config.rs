@@ -103,7 +103,9 @@ pub struct LidarConfig {
     /// Range-proportional part of the LiDAR-depth standard deviation: the depth's sigma is
     /// `sqrt(sigma_dr_m^2 + (sigma_dr_rel d)^2)`. A LiDAR-camera rotation error of `a` rad shifts
     /// the LiDAR points under a feature by `a d` (more on oblique surfaces), so far depths are
-    /// less certain than the paper's fixed 0.1 m says; 0 gives the paper's model.
+    /// less certain than the paper's fixed 0.1 m says; 0 gives the paper's model. Default 0.01
+    /// (measured on the simulator, 0.5 deg calibration error, 40 s x 3 scenarios x 3 seeds: mean
+    /// ATE 0.209 m against 0.243 m with 0).
     pub sigma_dr_rel: f64,
     /// Feature noise used in the rejection's depth uncertainty, px (paper: 1.5).
     pub rejection_sigma_px: f64,
@@ -125,7 +127,7 @@ impl Default for LidarConfig {
             depth_outlier_rejection: true,
             depth_only_opt: true,
             sigma_dr_m: 0.1,
-            sigma_dr_rel: 0.0,
+            sigma_dr_rel: 0.01,
             rejection_sigma_px: 1.5,
             rejection_sigmas: 3.0,
             extrinsic: LidarExtrinsic::identity(),

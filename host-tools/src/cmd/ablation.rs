@@ -38,6 +38,10 @@ pub struct Args {
     /// TOML estimator settings applied to every variant (the variants then set their switches).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Camera-LiDAR rotation error of the simulated calibration, deg: the source of the edge
+    /// outliers (features on object edges picking up background depths).
+    #[arg(long, default_value_t = 0.5)]
+    pub lidar_extrinsic_error_deg: f64,
 }
 
 /// Runs the command.
@@ -52,6 +56,7 @@ pub fn run(args: Args) -> Result<()> {
         seeds: args.seeds,
         duration_s: args.duration,
         jobs: args.jobs,
+        lidar_extrinsic_error_deg: args.lidar_extrinsic_error_deg,
     };
     let progress = Progress::new(run_count(&cfg) as u64, "ablation");
     let report = run_ablation(&cfg, overrides.as_ref(), &progress)?;
