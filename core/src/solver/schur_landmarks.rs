@@ -27,6 +27,17 @@
 use super::normal_equations::{all_finite, JacobianBlock, NormalEquations};
 use crate::Error;
 
+/// Where a Jacobian block's columns are stored in the accumulator.
+#[derive(Debug, Clone, Copy)]
+enum Slot {
+    /// Contiguously from this index.
+    Existing(usize),
+    /// Not yet: appended contiguously.
+    New,
+    /// Some columns present, not as one run: per-column search.
+    Partial,
+}
+
 /// Accumulator of one landmark's `H_ll`, `b_l` and sparse `H_lp` over at most `P` pose columns.
 #[derive(Debug, Clone)]
 pub struct LandmarkSchur<const P: usize> {
@@ -100,14 +111,21 @@ impl<const P: usize> LandmarkSchur<P> {
         if !all_finite(j_l) {
             return Err(Error::NonFinite);
         }
-        let new_cols: usize = pose_blocks
-            .iter()
-            .map(|blk| {
-                (blk.col..blk.col.saturating_add(blk.width))
-                    .filter(|&c| self.find(c).is_none())
-                    .count()
-            })
-            .sum();
+        // Where each block's columns live: a block seen before sits contiguously from the index
+        // of its first column (blocks are inserted whole); a new block is appended whole. Only a
+        // block that partly overlaps earlier ones needs the per-column search.
+        let mut new_cols = 0usize;
+        for blk in pose_blocks {
+            match self.block_start(blk.col, blk.width) {
+                Slot::Existing(_) => {}
+                Slot::New => new_cols += blk.width,
+                Slot::Partial => {
+                    new_cols += (blk.col..blk.col.saturating_add(blk.width))
+                        .filter(|&c| self.find(c).is_none())
+                        .count();
+                }
+            }
+        }
         if self.len + new_cols > P {
             return Err(Error::CapacityExceeded);
         }
@@ -117,6 +135,7 @@ impl<const P: usize> LandmarkSchur<P> {
             self.b_l -= jl * ri;
         }
         for blk in pose_blocks {
+            let slot = self.block_start(blk.col, blk.width);
             for i in 0..blk.width {
                 let col = blk.col + i;
                 // H_lp,col = sum_rows j_l[row] * J[row][i]
@@ -125,7 +144,12 @@ impl<const P: usize> LandmarkSchur<P> {
                     .enumerate()
                     .map(|(row, jl)| jl * blk.jac.get(row * blk.width + i).copied().unwrap_or(0.0))
                     .sum();
-                let idx = match self.find(col) {
+                let found = match slot {
+                    Slot::Existing(start) => Some(start + i),
+                    Slot::New => None,
+                    Slot::Partial => self.find(col),
+                };
+                let idx = match found {
                     Some(idx) => idx,
                     None => {
                         let idx = self.len;
@@ -145,6 +169,22 @@ impl<const P: usize> LandmarkSchur<P> {
             }
         }
         Ok(())
+    }
+
+    /// Where the columns `col..col + width` are stored (see [`Self::add_residual`]).
+    fn block_start(&self, col: usize, width: usize) -> Slot {
+        if width == 0 {
+            return Slot::Existing(0);
+        }
+        let last = col.saturating_add(width - 1);
+        match self.find(col) {
+            Some(start) if self.cols.get(start + width - 1) == Some(&last) => {
+                Slot::Existing(start)
+            }
+            Some(_) => Slot::Partial,
+            None if self.find(last).is_none() => Slot::New,
+            None => Slot::Partial,
+        }
     }
 
     fn effective_h_ll(&self, lambda: f64) -> Option<f64> {
