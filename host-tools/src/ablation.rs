@@ -241,7 +241,7 @@ fn run_one(
         lidar_scans_pushed: out.counters.lidar_scans,
         assoc: lidar_assoc::assess(ds, &out.lidar_events, cfg.lidar.sigma_dr_m),
         timings: Timings {
-            backend_ms: sorted_ms(&out.reports, |r| r.total_ns),
+            backend_ms: sorted_ms(&out.reports, |r| r.backend_ns()),
             rejection_ms: sorted_ms(&out.reports, |r| r.rejection_ns),
             depth_opt_ms: sorted_ms(&out.reports, |r| r.depth_opt_ns),
         },

@@ -66,6 +66,14 @@ pub struct KeyframeReport {
     pub depth_opt_ns: u64,
 }
 
+impl KeyframeReport {
+    /// The back end proper, ns: the whole step but the LiDAR depth association, which the
+    /// paper counts as LiDAR front-end processing (reported in `association_ns`).
+    pub fn backend_ns(&self) -> u64 {
+        self.total_ns.saturating_sub(self.association_ns)
+    }
+}
+
 /// What happened to a landmark's LiDAR depth (for evaluation against ground truth).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -178,9 +178,7 @@ impl<const P: usize> LandmarkSchur<P> {
         }
         let last = col.saturating_add(width - 1);
         match self.find(col) {
-            Some(start) if self.cols.get(start + width - 1) == Some(&last) => {
-                Slot::Existing(start)
-            }
+            Some(start) if self.cols.get(start + width - 1) == Some(&last) => Slot::Existing(start),
             Some(_) => Slot::Partial,
             None if self.find(last).is_none() => Slot::New,
             None => Slot::Partial,

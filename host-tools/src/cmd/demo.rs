@@ -59,7 +59,7 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .map(|r| BackendSample {
             t_s: r.t_ns as f64 * 1e-9,
-            backend_ms: r.total_ns as f64 * 1e-6,
+            backend_ms: r.backend_ns() as f64 * 1e-6,
         })
         .collect();
     let png = args.out.join("demo.png");

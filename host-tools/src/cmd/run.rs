@@ -174,7 +174,7 @@ fn per_kf(reports: &[KeyframeReport], f: impl Fn(&KeyframeReport) -> u32) -> f64
 
 /// Computes the summary of a run (and its evaluation when ground truth exists).
 pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> Result<Summary> {
-    let ms = sorted_ms(&out.reports, |r| r.total_ns);
+    let ms = sorted_ms(&out.reports, |r| r.backend_ns());
     let association_ms = sorted_ms(&out.reports, |r| r.association_ns);
     let rejection_ms = sorted_ms(&out.reports, |r| r.rejection_ns);
     let depth_opt_ms = sorted_ms(&out.reports, |r| r.depth_opt_ns);
@@ -270,7 +270,7 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
             f,
             "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4}",
             povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
-            r.total_ns as f64 * 1e-6,
+            r.backend_ns() as f64 * 1e-6,
             r.solve_ns as f64 * 1e-6,
             r.marginalization_ns as f64 * 1e-6,
             r.window_len,
