@@ -14,6 +14,7 @@
 //! chi2_threshold = 5.991
 //! lm_max_iterations = 6
 //! lm_second_max_iterations = 6  # the pass after the chi-square cull (overrides the above)
+//! second_pass_min_culled_frac = 0.0 # run that pass only if the cull removed this share of obs
 //! lm_initial_lambda = 1e-4      # Marquardt damping relative to diag(H)
 //! lm_function_tolerance = 1e-3  # stop when the cost decreases by less than this fraction
 //! marginalize_visual = true     # fold anchored landmarks into the prior (VINS-Mono)
@@ -250,6 +251,7 @@ pub struct RunConfigFile {
     chi2_threshold: Option<f64>,
     lm_max_iterations: Option<usize>,
     lm_second_max_iterations: Option<usize>,
+    second_pass_min_culled_frac: Option<f64>,
     lm_initial_lambda: Option<f64>,
     lm_function_tolerance: Option<f64>,
     estimate_td: Option<bool>,
@@ -313,6 +315,9 @@ impl RunConfigFile {
         if let Some(n) = self.lm_max_iterations {
             cfg.lm_first.max_iterations = n;
             cfg.lm_second.max_iterations = n;
+        }
+        if let Some(f) = self.second_pass_min_culled_frac {
+            cfg.second_pass_min_culled_frac = f;
         }
         if let Some(n) = self.lm_second_max_iterations {
             cfg.lm_second.max_iterations = n;

@@ -83,6 +83,10 @@ pub struct EstimatorConfig {
     pub depth_range_m: (f64, f64),
     /// Chi-square threshold (2 dof, 95%) of the cull between the two LM passes.
     pub chi2_threshold: f64,
+    /// The second LM pass runs when the chi-square cull removed at least this fraction of the
+    /// observations (and at least one): removing a few Huber-weighted outliers barely moves the
+    /// optimum, and the next keyframe's solve starts from there anyway.
+    pub second_pass_min_culled_frac: f64,
     /// Drop a landmark whose mean reprojection error exceeds this after the solve, px.
     pub cull_mean_px: f64,
     /// Drop a single observation whose reprojection error exceeds this, px.
@@ -157,6 +161,7 @@ impl EstimatorConfig {
             max_rel_depth_std: 0.1,
             depth_range_m: (0.1, 200.0),
             chi2_threshold: 5.991,
+            second_pass_min_culled_frac: 0.0,
             cull_mean_px: 4.5,
             cull_obs_px: 4.5,
             lm_first: lm,
@@ -191,6 +196,7 @@ impl EstimatorConfig {
             && pos(self.depth_range_m.0)
             && self.depth_range_m.1 > self.depth_range_m.0
             && pos(self.chi2_threshold)
+            && (0.0..=1.0).contains(&self.second_pass_min_culled_frac)
             && pos(self.cull_mean_px)
             && pos(self.cull_obs_px)
             && pos(self.td_rw_s_per_sqrt_s)

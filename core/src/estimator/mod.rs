@@ -851,7 +851,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             return;
         }
         report.culled_chi2 = self.chi2_cull();
-        if report.culled_chi2 > 0 {
+        let min_culled = self.cfg.second_pass_min_culled_frac * f64::from(report.observations_used);
+        if report.culled_chi2 > 0 && f64::from(report.culled_chi2) >= min_culled {
             self.prepare_landmarks(false);
             let second = self.cfg.lm_second;
             self.run_lm(&second, report);
