@@ -14,7 +14,7 @@
 //! chi2_threshold = 5.991
 //! lm_max_iterations = 6
 //! lm_second_max_iterations = 6  # the pass after the chi-square cull (overrides the above)
-//! second_pass_min_culled_frac = 0.0 # run that pass only if the cull removed this share of obs
+//! second_pass_min_culled_frac = 0.02 # run that pass only if the cull removed this share of obs
 //! lm_initial_lambda = 1e-4      # Marquardt damping relative to diag(H)
 //! lm_function_tolerance = 1e-3  # stop when the cost decreases by less than this fraction
 //! marginalize_visual = true     # fold anchored landmarks into the prior (VINS-Mono)

@@ -161,7 +161,7 @@ impl EstimatorConfig {
             max_rel_depth_std: 0.1,
             depth_range_m: (0.1, 200.0),
             chi2_threshold: 5.991,
-            second_pass_min_culled_frac: 0.0,
+            second_pass_min_culled_frac: 0.02,
             cull_mean_px: 4.5,
             cull_obs_px: 4.5,
             lm_first: lm,
