@@ -1,6 +1,7 @@
 //! Criterion benches of the estimator's back end on the OpenVINS corridor sequence (150-250
-//! landmarks per window, as the speed bar asks): one whole keyframe step (marginalization, both LM
-//! passes, culling) in the pose-only and the inverse-depth mode, from the same snapshot.
+//! landmarks per window, as the speed bar asks), from the same snapshot in the pose-only and the
+//! inverse-depth mode: one LM iteration, one marginalization, and one whole keyframe step
+//! (marginalization, both LM passes, culling).
 //!
 //! And the same step on the simulated robot (Livox rosette) with LiDAR enhancement off, with the
 //! MSC LDM and with the direct LDM (association, rejection, LDM, depth-only optimization).
@@ -71,6 +72,26 @@ fn bench_keyframe(c: &mut Criterion) {
     ] {
         let (est, i) = snapshot(&ds, mode, 200);
         let sample = ds.imu[i];
+        c.bench_function(&format!("estimator/lm_iteration_{name}_corridor"), |b| {
+            b.iter_batched(
+                || Box::new((*est).clone()),
+                |mut e| {
+                    e.lm_iteration().expect("one LM iteration");
+                    e
+                },
+                BatchSize::LargeInput,
+            )
+        });
+        c.bench_function(&format!("estimator/marginalization_{name}_corridor"), |b| {
+            b.iter_batched(
+                || Box::new((*est).clone()),
+                |mut e| {
+                    e.marginalize_oldest_now().expect("marginalization");
+                    e
+                },
+                BatchSize::LargeInput,
+            )
+        });
         c.bench_function(&format!("estimator/keyframe_step_{name}_corridor"), |b| {
             b.iter_batched(
                 || Box::new((*est).clone()),

@@ -58,3 +58,32 @@ fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
         assert!(ate < 0.2, "ATE {ate:.4} m");
     });
 }
+
+/// The diagnostics the benches use: one LM iteration never increases the cost and runs exactly
+/// one iteration; an explicit marginalization shortens the window by one and the estimator keeps
+/// running afterwards.
+#[test]
+fn lm_iteration_and_explicit_marginalization() {
+    big_stack(|| {
+        let ds = load(EUROC_30S);
+        let cfg = euroc_config(&ds, povins::core::estimator::VisualMode::PoseOnly);
+        let frames = frames_of(&ds);
+        let mut est = new_estimator(cfg);
+        let half = ds.imu.len() / 2;
+        drive(&mut est, &ds.imu[..half], &frames, |_, _, _| true);
+        let n = est.keyframes().count();
+        assert_eq!(n, 10, "a full window at mid-run");
+        let s = est.lm_iteration().expect("an LM iteration");
+        assert_eq!(s.iterations, 1);
+        assert!(s.final_cost <= s.initial_cost, "{s:?}");
+        est.marginalize_oldest_now().expect("marginalization");
+        assert_eq!(est.keyframes().count(), n - 1);
+        let mut kfs = 0;
+        drive(&mut est, &ds.imu[half..], &frames, |_, _, o| {
+            kfs += usize::from(o.keyframe.is_some());
+            true
+        });
+        assert!(kfs > 10, "{kfs} keyframes after the explicit marginalization");
+        assert!(est.keyframes().all(|k| state_is_finite(&k.state)));
+    });
+}

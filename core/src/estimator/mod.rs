@@ -1154,6 +1154,33 @@ fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
 }
 
 impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+    /// One Levenberg-Marquardt iteration on the current window (landmark preparation,
+    /// linearization, damping, factorization, solve, evaluation of the step, accepted or not),
+    /// with the first pass's settings. For benchmarks and diagnostics: a keyframe step runs a
+    /// few of these per pass.
+    pub fn lm_iteration(&mut self) -> Result<crate::solver::LmSummary, Error> {
+        if self.window.len() < 2 {
+            return Err(Error::NotEnoughData);
+        }
+        self.prepare_landmarks(false);
+        let cfg = crate::solver::LmConfig {
+            max_iterations: 1,
+            ..self.cfg.lm_first
+        };
+        let layout = self.solve_layout();
+        let (mut problem, lm, _) = self.split(layout, FactorSet::All);
+        lm.solve(&mut problem, &cfg)
+    }
+
+    /// Marginalizes the oldest keyframe now, as the next keyframe of a full window would (Schur
+    /// complement into the square-root prior, window shifted). For benchmarks and diagnostics.
+    pub fn marginalize_oldest_now(&mut self) -> Result<(), Error> {
+        if self.window.len() < 2 {
+            return Err(Error::NotEnoughData);
+        }
+        self.marginalize_oldest()
+    }
+
     /// Self-check of the assembled problem at the current state: compares the analytic gradient
     /// `-2 b` of the normal equations with central differences of the cost along every
     /// error-state column (step `h`), and returns the worst relative error. Restores the state.
