@@ -83,7 +83,10 @@ fn lm_iteration_and_explicit_marginalization() {
             kfs += usize::from(o.keyframe.is_some());
             true
         });
-        assert!(kfs > 10, "{kfs} keyframes after the explicit marginalization");
+        assert!(
+            kfs > 10,
+            "{kfs} keyframes after the explicit marginalization"
+        );
         assert!(est.keyframes().all(|k| state_is_finite(&k.state)));
     });
 }
