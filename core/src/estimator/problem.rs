@@ -10,6 +10,7 @@
 
 use super::config::{EstimatorConfig, VisualMode};
 use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
+use super::problem_lidar::add_inverse_depth_obs;
 use super::window::{Block, Layout, Window, KF_DIM};
 use crate::camera::{CameraExtrinsic, Vec2};
 use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
@@ -619,31 +620,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     let w = huber.sqrt_weight(sq);
                     lm_cost += huber.rho(sq)[0];
                     n_obs += 1;
-                    let r = [jac.r.x * w, jac.r.y * w];
-                    let (mut a, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12]);
-                    row_major(&(jac.d_pose_s * w), &mut a);
-                    row_major(&(jac.d_pose_j * w), &mut c);
-                    row_major(&(jac.d_ext * w), &mut x);
-                    let tds = [
-                        [jac.d_td[0].x * w, jac.d_td[0].y * w],
-                        [jac.d_td[1].x * w, jac.d_td[1].y * w],
-                    ];
-                    let jl = [jac.d_tau.x * w, jac.d_tau.y * w];
-                    let mut blocks: HVec<JacobianBlock<'_>, 6> = HVec::new();
-                    let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
-                    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(s as u8))?, 6, &a));
-                    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(j as u8))?, 6, &c));
-                    if est_ext {
-                        let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
-                    }
-                    if est_td {
-                        let _ =
-                            blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
-                        let _ =
-                            blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[1]));
-                    }
                     let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
-                    sc.add_residual(ne_ref, &r, &blocks, &jl)?;
+                    add_inverse_depth_obs(sc, ne_ref, jac, w, s, j, &l, est_td, est_ext)?;
                 }
             }
             if failed {

@@ -286,6 +286,44 @@ pub(super) fn msc_robust(huber: &Huber, sq: f64, n: usize) -> (f64, f64) {
     (n * huber.rho(per)[0], huber.sqrt_weight(per))
 }
 
+/// Adds one inverse-depth reprojection `s -> j` (weighted by `w`) to `ne`, its inverse-depth
+/// column to the landmark's Schur accumulator `sc`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn add_inverse_depth_obs<const N: usize, const D: usize>(
+    sc: &mut LandmarkSchur<SCHUR_COLS>,
+    ne: &mut NormalEquations<D>,
+    jac: &InverseDepthJacobians,
+    w: f64,
+    s: usize,
+    j: usize,
+    l: &Layout<N>,
+    est_td: bool,
+    est_ext: bool,
+) -> Result<(), Error> {
+    let r = [jac.r.x * w, jac.r.y * w];
+    let (mut a, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12]);
+    row_major(&(jac.d_pose_s * w), &mut a);
+    row_major(&(jac.d_pose_j * w), &mut c);
+    row_major(&(jac.d_ext * w), &mut x);
+    let tds = [
+        [jac.d_td[0].x * w, jac.d_td[0].y * w],
+        [jac.d_td[1].x * w, jac.d_td[1].y * w],
+    ];
+    let jl = [jac.d_tau.x * w, jac.d_tau.y * w];
+    let mut blocks: HVec<JacobianBlock<'_>, 6> = HVec::new();
+    let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
+    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(s as u8))?, 6, &a));
+    let _ = blocks.push(JacobianBlock::new(col(Block::Kf(j as u8))?, 6, &c));
+    if est_ext {
+        let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
+    }
+    if est_td {
+        let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
+        let _ = blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[1]));
+    }
+    sc.add_residual(ne, &r, &blocks, &jl)
+}
+
 /// Linearizes the MSC block of `m` at `tau` and adds it to `ne` through the Schur
 /// accumulator `sc` (projection of `tau`). Returns the block's robust cost.
 #[allow(clippy::too_many_arguments)]
@@ -315,29 +353,7 @@ pub(super) fn accumulate_msc<const N: usize, const D: usize>(
     let s = m.s;
     sc.clear();
     for (j, jac) in jacs.iter() {
-        let j = *j;
-        let r = [jac.r.x * w, jac.r.y * w];
-        let (mut a, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12]);
-        row_major(&(jac.d_pose_s * w), &mut a);
-        row_major(&(jac.d_pose_j * w), &mut c);
-        row_major(&(jac.d_ext * w), &mut x);
-        let tds = [
-            [jac.d_td[0].x * w, jac.d_td[0].y * w],
-            [jac.d_td[1].x * w, jac.d_td[1].y * w],
-        ];
-        let jl = [jac.d_tau.x * w, jac.d_tau.y * w];
-        let mut blocks: HVec<JacobianBlock<'_>, 6> = HVec::new();
-        let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
-        let _ = blocks.push(JacobianBlock::new(col(Block::Kf(s as u8))?, 6, &a));
-        let _ = blocks.push(JacobianBlock::new(col(Block::Kf(j as u8))?, 6, &c));
-        if est_ext {
-            let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, &x));
-        }
-        if est_td {
-            let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &tds[0]));
-            let _ = blocks.push(JacobianBlock::new(col(Block::Td(j as u8))?, 1, &tds[1]));
-        }
-        sc.add_residual(ne, &r, &blocks, &jl)?;
+        add_inverse_depth_obs(sc, ne, jac, w, s, *j, l, est_td, est_ext)?;
     }
     sc.add_residual(ne, &[rd * w], &[], &[jd * w])?;
     sc.fold_into(ne, 0.0)?;
