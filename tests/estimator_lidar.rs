@@ -161,3 +161,39 @@ fn corrupt_sweeps_are_rejected_and_counted() {
         assert!(a_bad < 2.0 * a_clean + 0.05, "{a_bad} vs {a_clean}");
     });
 }
+
+/// The whole problem's analytic gradient (MSC blocks with the inverse depth projected out at
+/// tau*, direct LDM rows, visual, IMU and prior factors) against central differences of its
+/// cost, after 30 keyframes of the robot with LiDAR.
+#[test]
+fn gradient_check_with_lidar_depths() {
+    big_stack(|| {
+        let ds = simulate_with_lidar(Scenario::Robot, 5, 12.0);
+        for ldm in [LdmMode::Msc, LdmMode::Direct] {
+            let mut cfg = lidar_config(&ds, true, ldm, true, true);
+            let (start, s0) = gt_start(&ds, &mut cfg);
+            let mut est = new_estimator(cfg);
+            est.initialize(s0).unwrap();
+            let frames = frames_of(&ds);
+            let sweeps = sweeps_of(&ds);
+            let mut ldm_used = 0;
+            drive_lidar(&mut est, &ds.imu[start..], &frames, &sweeps, |e, _, o| {
+                if let Some(r) = o.keyframe {
+                    ldm_used = r.ldm_count;
+                }
+                e.counters().keyframes < 30
+            });
+            assert_eq!(est.counters().keyframes, 30);
+            assert!(
+                ldm_used > 10,
+                "{ldm:?}: only {ldm_used} LiDAR-depth measurements"
+            );
+            let worst = est.gradient_check(1e-6).expect("gradient check");
+            println!("{ldm:?}: worst relative gradient error {worst:.3e}");
+            assert!(
+                worst < 1e-4,
+                "{ldm:?}: worst relative gradient error {worst:.3e}"
+            );
+        }
+    });
+}
