@@ -1,22 +1,28 @@
 //! The estimator: the only module that knows the order of the steps.
 //!
 //! Per IMU sample: INS mechanization (the INS-centric design), preintegration into the open
-//! keyframe interval. Per camera frame (processed when the IMU reaches its time
-//! `t_cam + td`): track validation and undistortion, keyframe decision from the INS-predicted
-//! motion. Per keyframe:
+//! keyframe interval, and (with LiDAR) the INS state into the de-skew window. Per LiDAR sweep:
+//! de-skew and store its points ([`crate::lidar::PointBuffer`]). Per camera frame (processed when
+//! the IMU reaches its time `t_cam + td`): track validation and undistortion, keyframe decision
+//! from the INS-predicted motion. Per keyframe:
 //! 1. marginalize the oldest keyframe if the window is full (Schur complement into the
 //!    square-root prior, at the last optimized state);
 //! 2. append the keyframe (INS state at the image time, the closed preintegration) and its
-//!    observations to the landmark manager;
+//!    observations to the landmark manager; associate LiDAR depths with its new landmarks
+//!    ([`crate::lidar::SphereGrid`]);
 //! 3. prepare landmarks: anchor `e` of largest parallax, pose-only depth, parallax and depth gates
-//!    (inverse-depth mode: initialize the inverse depth);
-//! 4. LM pass 1, chi-square cull of observations, LM pass 2;
-//! 5. outlier culling by reprojection (paper V.E);
-//! 6. restart the INS from the newest optimized keyframe.
+//!    (inverse-depth mode: initialize the inverse depth), the uncertainty-based rejection of
+//!    LiDAR depths (paper IV.C; `estimator/lidar.rs`);
+//! 4. LM pass 1, chi-square cull of observations, LM pass 2 when the cull removed enough; LiDAR
+//!    landmarks enter as MSC (or direct) LiDAR-depth measurements (`estimator/problem_lidar.rs`);
+//! 5. depth-only optimization of the LiDAR landmarks (paper V.D), then outlier culling by
+//!    reprojection (paper V.E);
+//! 6. restart the INS from the newest optimized keyframe (moving the de-skew window with it).
 //!
 //! Capacities are const generics: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state
 //! dimensions (15 per keyframe, 6 extrinsic, 1 delay per keyframe). The struct holds every
-//! buffer (about 1.5 MB for `N = 10`, `L = 200`): put it in a `Box` or a `static`.
+//! buffer (about 4.6 MB for `N = 10`, `L = 200`, LiDAR buffers included): put it in a `Box` or a
+//! `static`.
 
 pub mod config;
 mod lidar;

@@ -11,7 +11,7 @@
 //! `beta` (and `c cos(beta)` along `alpha`), 0.77 c at 40 deg. Each cell keeps only its
 //! nearest point (the foreground: a background point seen past an edge by the LiDAR is dropped
 //! when a nearer one shares its cell). The angles are never computed per point:
-//! [`super::angle_index`] maps the tangents to cells exactly with tabulated boundaries.
+//! `super::angle_index` maps the tangents to cells exactly with tabulated boundaries.
 //!
 //! **Association** of a feature at normalized coordinates `x_n`, bearing `b = (x, y, 1)/|.|`:
 //! 1. the `k` points of largest `cos(b, p)` among the cells around `b`, no farther than
@@ -20,7 +20,7 @@
 //!    sizes the searched window;
 //! 2. range spread `(max |p| - min |p|) / mean |p| <= max_range_spread` (else
 //!    [`AssocReject::RangeSpread`]): a foreground and a background surface in one set;
-//! 3. total-least-squares plane `n . (p - c) = 0` ([`super::plane`]); every point within
+//! 3. total-least-squares plane `n . (p - c) = 0` (`super::plane`); every point within
 //!    `max_plane_dist_m` of it, and the set not collinear (else [`AssocReject::PlaneFit`]);
 //! 4. `|n . b| >= min_incidence_cos` (else [`AssocReject::Incidence`]);
 //! 5. ray-plane intersection `P = t b`, `t = (n . c) / (n . b)`: range `t`, **depth = z = t b_z**

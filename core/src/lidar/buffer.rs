@@ -2,7 +2,7 @@
 //!
 //! De-skew: a return `p_l` stamped `t` (LiDAR clock) is taken with the body pose at its own
 //! time `t + td_l_s` on the IMU clock, `p_w = R_wb(t) (R_bl p_l + p_bl) + p_wb(t)`, the pose
-//! interpolated from the INS window (see [`super::deskew`]).
+//! interpolated from the INS window (see `super::deskew`).
 //!
 //! Storage (16 bytes a point): points are a ring of `P` entries holding `f32` offsets from a
 //! per-segment origin and an `i32` time offset from the segment's start time. A segment is a
