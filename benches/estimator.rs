@@ -9,7 +9,7 @@
 //! Run: `cargo bench --bench estimator` (needs ../shared/data).
 
 use criterion::{criterion_group, BatchSize, Criterion};
-use povins::core::estimator::{PoVins, VisualMode};
+use povins::core::estimator::{EstimatorConfig, PoVins, VisualMode};
 use povins::host_tools::runner::config_for;
 use povins::platform::Dataset;
 use std::path::Path;
@@ -22,13 +22,11 @@ fn load() -> Dataset {
     povins::platform::euroc::read_dataset(&dir).expect("corridor dataset")
 }
 
-/// Replays until just before the IMU sample that produces keyframe `k` (frames due at that
-/// sample already offered); returns the estimator and that sample's index.
-fn snapshot(ds: &Dataset, mode: VisualMode, k: usize) -> (Box<PoVins>, usize) {
+/// Replays `ds` (IMU, frames and LiDAR sweeps in time order, from the ground-truth start) with
+/// `cfg` until just before the IMU sample that produces keyframe `k` (frames due at that sample
+/// already offered); returns the estimator and that sample's index.
+fn snapshot(ds: &Dataset, cfg: EstimatorConfig, k: usize) -> (Box<PoVins>, usize) {
     let run = |stop: Option<usize>| -> (Box<PoVins>, Vec<usize>) {
-        let mut cfg = config_for(ds);
-        cfg.mode = mode;
-        cfg.clock = None;
         let mut est = Box::new(PoVins::new(cfg).expect("config"));
         let g0 = ds.ground_truth[0];
         let start = ds.imu.partition_point(|s| s.t_ns < g0.t_ns);
@@ -37,7 +35,9 @@ fn snapshot(ds: &Dataset, mode: VisualMode, k: usize) -> (Box<PoVins>, usize) {
             ..g0
         })
         .expect("init");
+        let sweeps = povins::host_tools::runner::lidar_schedule(ds, cfg.lidar.td_l_s);
         let mut fi = ds.features.partition_point(|f| f.t_ns < ds.imu[start].t_ns);
+        let mut li = sweeps.partition_point(|w| w.0 < ds.imu[start].t_ns);
         let mut kf_at = Vec::new();
         for (i, s) in ds.imu.iter().enumerate().skip(start) {
             while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
@@ -47,12 +47,15 @@ fn snapshot(ds: &Dataset, mode: VisualMode, k: usize) -> (Box<PoVins>, usize) {
             if Some(i) == stop {
                 break;
             }
-            if let Ok(o) = est.push_imu(s) {
-                if o.keyframe.is_some() {
-                    kf_at.push(i);
-                    if kf_at.len() == k && stop.is_none() {
-                        break;
-                    }
+            let out = est.push_imu(s);
+            while let Some(w) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
+                est.push_lidar(&ds.lidar[w.1].points);
+                li += 1;
+            }
+            if out.is_ok_and(|o| o.keyframe.is_some()) {
+                kf_at.push(i);
+                if kf_at.len() == k && stop.is_none() {
+                    break;
                 }
             }
         }
@@ -70,7 +73,10 @@ fn bench_keyframe(c: &mut Criterion) {
         ("pose_only", VisualMode::PoseOnly),
         ("inverse_depth", VisualMode::InverseDepth),
     ] {
-        let (est, i) = snapshot(&ds, mode, 200);
+        let mut cfg = config_for(&ds);
+        cfg.mode = mode;
+        cfg.clock = None;
+        let (est, i) = snapshot(&ds, cfg, 200);
         let sample = ds.imu[i];
         c.bench_function(&format!("estimator/lm_iteration_{name}_corridor"), |b| {
             b.iter_batched(
@@ -106,59 +112,6 @@ fn bench_keyframe(c: &mut Criterion) {
     }
 }
 
-/// The simulated robot replayed with LiDAR up to just before keyframe `k`'s IMU sample.
-fn snapshot_lidar(
-    ds: &Dataset,
-    lidar: Option<povins::core::lidar::LdmMode>,
-    k: usize,
-) -> (Box<PoVins>, usize) {
-    let run = |stop: Option<usize>| -> (Box<PoVins>, Vec<usize>) {
-        let mut cfg = config_for(ds);
-        cfg.clock = None;
-        cfg.lidar.enabled = lidar.is_some();
-        if let Some(m) = lidar {
-            cfg.lidar.ldm = m;
-        }
-        let mut est = Box::new(PoVins::new(cfg).expect("config"));
-        let g0 = ds.ground_truth[0];
-        let start = ds.imu.partition_point(|s| s.t_ns < g0.t_ns);
-        est.initialize(povins::core::inertial::NavState {
-            t_ns: ds.imu[start].t_ns,
-            ..g0
-        })
-        .expect("init");
-        let sweeps = povins::host_tools::runner::lidar_schedule(ds, 0.0);
-        let mut fi = ds.features.partition_point(|f| f.t_ns < ds.imu[start].t_ns);
-        let mut li = sweeps.partition_point(|w| w.0 < ds.imu[start].t_ns);
-        let mut kf_at = Vec::new();
-        for (i, s) in ds.imu.iter().enumerate().skip(start) {
-            while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
-                let _ = est.push_frame(f.t_ns, &f.obs);
-                fi += 1;
-            }
-            if Some(i) == stop {
-                break;
-            }
-            let out = est.push_imu(s);
-            while let Some(w) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
-                est.push_lidar(&ds.lidar[w.1].points);
-                li += 1;
-            }
-            if out.is_ok_and(|o| o.keyframe.is_some()) {
-                kf_at.push(i);
-                if kf_at.len() == k && stop.is_none() {
-                    break;
-                }
-            }
-        }
-        (est, kf_at)
-    };
-    let (_, kf_at) = run(None);
-    let i = *kf_at.last().expect("keyframes");
-    let (est, _) = run(Some(i));
-    (est, i)
-}
-
 fn bench_keyframe_lidar(c: &mut Criterion) {
     use povins::core::lidar::LdmMode;
     use povins::host_tools::sim::{simulate, Scenario, SimConfig};
@@ -170,7 +123,13 @@ fn bench_keyframe_lidar(c: &mut Criterion) {
         ("lidar_msc", Some(LdmMode::Msc)),
         ("lidar_direct", Some(LdmMode::Direct)),
     ] {
-        let (est, i) = snapshot_lidar(&ds, lidar, 60);
+        let mut cfg = config_for(&ds);
+        cfg.clock = None;
+        cfg.lidar.enabled = lidar.is_some();
+        if let Some(m) = lidar {
+            cfg.lidar.ldm = m;
+        }
+        let (est, i) = snapshot(&ds, cfg, 60);
         let sample = ds.imu[i];
         c.bench_function(&format!("estimator/keyframe_step_{name}_sim_robot"), |b| {
             b.iter_batched(
