@@ -43,7 +43,7 @@ use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
 use crate::inertial::window::InsWindow;
 use crate::inertial::{ImuSample, NavState};
-use crate::landmarks::{depth_std, pose_only_depth, TwoView};
+use crate::landmarks::{depth_std, TwoView};
 use crate::lidar::association::{GRID_H, GRID_W};
 use crate::lidar::buffer::MAX_LIDAR_POINTS;
 use crate::lidar::{LdmMode, PointBuffer, SphereGrid};
@@ -711,10 +711,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             let Some(ce) = cams.get(e) else { continue };
             let (r_es, t_es) = ce.relative_from(cs);
             // The pose-only depth from (s, e) and its analytic uncertainty (paper IV.A-B).
-            let visual = pose_only_depth(&x_s, &x_e, &r_es, &t_es, 0.0)
-                .ok()
-                .filter(|d| d.d_s > 0.0 && d.d_s.is_finite())
-                .map(|d| (d.d_s, TwoView::new(&x_s, &x_e, &r_es, &t_es)));
+            let two = TwoView::new(&x_s, &x_e, &r_es, &t_es);
+            let d_v = two.signed_depth();
+            let visual = (d_v > 0.0 && d_v.is_finite()).then_some((d_v, two));
 
             if let (true, Some(ld), Some((d_v, two))) = (test_depths, lm.lidar, visual.as_ref()) {
                 let t0 = clock.map_or(0, |c| c());
