@@ -36,7 +36,7 @@ pub use config::{EstimatorConfig, FirstStatePrior, VisualMode};
 pub use report::{Counters, DepthEvent, DepthEventKind, KeyframeReport};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
-use crate::factors::pose_only_visual::PoseOnlyVisualFactor;
+use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::frontend::{KeyframeDecision, KeyframeSelector, NormalizedObs, TrackTable};
 use crate::inertial::init::StaticInitializer;
@@ -891,61 +891,82 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         (poses, frames)
     }
 
-    fn obs_residual(
+    /// Whitened residuals of the observations `j != s` of landmark `li` (`None` where not
+    /// defined), with the anchors' geometry formed once for all of them.
+    fn landmark_residuals(
         &self,
         li: usize,
-        j: usize,
         wf: &([KeyframePose; N], [CamFrame; N]),
-    ) -> Option<crate::camera::Vec2> {
+    ) -> [Option<crate::camera::Vec2>; N] {
+        let mut out = [None; N];
         let (poses, frames) = wf;
-        let lm = self.lms.landmarks().get(li)?;
+        let Some(lm) = self.lms.landmarks().get(li) else {
+            return out;
+        };
         let s = lm.anchor_s as usize;
-        let e = lm.anchor_e.map_or(j, usize::from);
         let to = |o: &crate::landmarks::KfObs| TimedObs {
             x_n: crate::camera::Vec2::new(o.x_n[0], o.x_n[1]),
             vel: crate::camera::Vec2::new(o.vel[0], o.vel[1]),
             td0: o.td0_s,
         };
-        let f = PoseOnlyVisualFactor {
-            kf_s: s,
-            kf_e: e,
-            kf_j: j,
-            obs_s: to(lm.obs.get(s)?.as_ref()?),
-            obs_e: to(lm.obs.get(e)?.as_ref()?),
-            obs_j: to(lm.obs.get(j)?.as_ref()?),
-            sqrt_info: crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy)
-                / self.cfg.sigma_px,
+        let (Some(Some(os)), Some(ps), Some(fs)) = (lm.obs.get(s), poses.get(s), frames.get(s))
+        else {
+            return out;
         };
+        let obs_s = to(os);
+        let sqrt_info =
+            crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px;
         let lc = &self.cfg.lidar;
         // A LiDAR landmark's depth comes from the depth-only optimization (paper V.D), so that
         // culling sees the depth the LiDAR pulled it to; without it, the pose-only depth.
         let lidar_tau = lc.enabled && lc.depth_only_opt && lm.lidar.is_some() && lm.inv_depth > 0.0;
-        let mode = if lidar_tau {
-            VisualMode::InverseDepth
-        } else {
-            self.cfg.mode
-        };
-        match mode {
-            VisualMode::PoseOnly if lm.anchor_e.is_some() => f
-                .residual_with_frames(
-                    [poses.get(s)?, poses.get(e)?, poses.get(j)?],
-                    &[*frames.get(s)?, *frames.get(e)?, *frames.get(j)?],
-                    &self.ext,
-                )
-                .ok(),
-            VisualMode::InverseDepth => {
-                crate::factors::inverse_depth_visual::InverseDepthVisualFactor {
+        let observed = lm
+            .obs
+            .iter()
+            .zip(poses.iter().zip(frames.iter()))
+            .enumerate()
+            .take(self.window.len())
+            .filter(|(j, _)| *j != s)
+            .filter_map(|(j, (o, pf))| o.as_ref().map(|o| (j, to(o), pf)));
+        if lidar_tau || self.cfg.mode == VisualMode::InverseDepth {
+            for (j, obs_j, (pj, _)) in observed {
+                let f = crate::factors::inverse_depth_visual::InverseDepthVisualFactor {
                     kf_s: s,
                     kf_j: j,
-                    obs_s: f.obs_s,
-                    obs_j: f.obs_j,
-                    sqrt_info: f.sqrt_info,
+                    obs_s,
+                    obs_j,
+                    sqrt_info,
+                };
+                if let Some(o) = out.get_mut(j) {
+                    *o = f.residual(ps, pj, &self.ext, lm.inv_depth).ok();
                 }
-                .residual(poses.get(s)?, poses.get(j)?, &self.ext, lm.inv_depth)
-                .ok()
             }
-            VisualMode::PoseOnly => None,
+            return out;
         }
+        let Some(e) = lm.anchor_e.map(usize::from) else {
+            return out;
+        };
+        let (Some(Some(oe)), Some(pe), Some(fe)) = (lm.obs.get(e), poses.get(e), frames.get(e))
+        else {
+            return out;
+        };
+        let Ok(anchors) = PoseOnlyAnchors::new(
+            (s, e),
+            obs_s,
+            to(oe),
+            sqrt_info,
+            (ps, pe),
+            (fs, fe),
+            &self.ext,
+        ) else {
+            return out;
+        };
+        for (j, obs_j, (pj, fj)) in observed {
+            if let Some(o) = out.get_mut(j) {
+                *o = anchors.residual(j, &obs_j, pj, fj).ok();
+            }
+        }
+        out
     }
 
     /// Removes observations whose whitened squared residual exceeds the chi-square threshold.
@@ -963,13 +984,12 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 .landmarks()
                 .get(li)
                 .map_or(0, |l| l.anchor_s as usize);
-            for j in 0..count {
+            let res = self.landmark_residuals(li, &wf);
+            for (j, r) in res.iter().enumerate().take(count) {
                 if j == s {
                     continue;
                 }
-                let bad = self
-                    .obs_residual(li, j, &wf)
-                    .is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
+                let bad = r.is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
                 if bad {
                     if let Some(o) = self
                         .lms
@@ -1027,11 +1047,12 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             let (id, s) = (lm.id, lm.anchor_s as usize);
             let mut errs = [0.0f64; N];
             let (mut sum, mut n) = (0.0, 0u32);
-            for (j, e) in errs.iter_mut().enumerate().take(count) {
+            let res = self.landmark_residuals(li, &wf);
+            for (j, (e, r)) in errs.iter_mut().zip(res.iter()).enumerate().take(count) {
                 if j == s {
                     continue;
                 }
-                if let Some(r) = self.obs_residual(li, j, &wf) {
+                if let Some(r) = r {
                     *e = libm::sqrt(r.norm_squared()) * sigma;
                     sum += *e;
                     n += 1;

@@ -14,7 +14,7 @@ use super::problem_lidar::add_inverse_depth_obs;
 use super::window::{Block, Layout, Window, KF_DIM};
 use crate::camera::{CameraExtrinsic, Vec2};
 use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
-use crate::factors::pose_only_visual::PoseOnlyVisualFactor;
+use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::robust::Huber;
 use crate::factors::td::TdRandomWalk;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
@@ -218,6 +218,17 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 return Err(Error::NotEnoughData);
             };
             let pre = b.preint.as_ref().ok_or(Error::NotEnoughData)?;
+            if ne.is_none() {
+                r = pre.residual_whitened(&a.state, &b.state, g)?;
+                cost += sink(&mut ne, r.as_slice(), &[])?;
+                if est_td {
+                    let dt = pre.dt_s().max(1e-3);
+                    let q = self.cfg.td_rw_s_per_sqrt_s * self.cfg.td_rw_s_per_sqrt_s;
+                    let (rt, _) = TdRandomWalk::new(q, dt)?.evaluate(a.td_s, b.td_s)?;
+                    cost += sink(&mut ne, &[rt], &[])?;
+                }
+                continue;
+            }
             pre.evaluate(&a.state, &b.state, g, &mut r, &mut ji, &mut jj)?;
             let (ca, cb) = (
                 l.col(Block::Kf((k - 1) as u8))
@@ -404,47 +415,51 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let (Some(ps), Some(pe)) = (poses.get(s), poses.get(e)) else {
                 continue;
             };
-            let (obs_s, obs_e) = (timed(os), timed(oe));
             let (Some(fs), Some(fe)) = (frames.get(s), frames.get(e)) else {
                 continue;
             };
-            let fr = |j: usize| [*fs, *fe, frames.get(j).copied().unwrap_or(*fe)];
             let mut lm_cost = 0.0;
             let mut n_obs = 0;
             let mut failed = false;
             // Evaluate every observation first: a landmark enters the system whole or not at all.
             let mut jacs: HVec<(usize, crate::factors::pose_only_visual::PoseOnlyJacobians), N> =
                 HVec::new();
-            for (j, oj) in lm.obs.iter().enumerate().take(count) {
-                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else {
-                    continue;
-                };
-                if j == s {
-                    continue;
-                }
-                let f = PoseOnlyVisualFactor {
-                    kf_s: s,
-                    kf_e: e,
-                    kf_j: j,
-                    obs_s,
-                    obs_e,
-                    obs_j: timed(oj),
-                    sqrt_info,
-                };
-                if linearize {
-                    match f.evaluate_with_frames([ps, pe, pj], &fr(j), &ext) {
-                        Ok(jac) => {
-                            let _ = jacs.push((j, jac));
+            match PoseOnlyAnchors::new(
+                (s, e),
+                timed(os),
+                timed(oe),
+                sqrt_info,
+                (ps, pe),
+                (fs, fe),
+                &ext,
+            ) {
+                Err(_) => failed = true,
+                Ok(anchors) => {
+                    for (j, oj) in lm.obs.iter().enumerate().take(count) {
+                        let (Some(oj), Some(pj), Some(fj)) = (oj, poses.get(j), frames.get(j))
+                        else {
+                            continue;
+                        };
+                        if j == s {
+                            continue;
                         }
-                        Err(_) => failed = true,
-                    }
-                } else {
-                    match f.residual_with_frames([ps, pe, pj], &fr(j), &ext) {
-                        Ok(r) => {
-                            lm_cost += huber.rho(r.norm_squared())[0];
-                            n_obs += 1;
+                        let obs_j = timed(oj);
+                        if linearize {
+                            match anchors.evaluate(j, &obs_j, pj, fj) {
+                                Ok(jac) => {
+                                    let _ = jacs.push((j, jac));
+                                }
+                                Err(_) => failed = true,
+                            }
+                        } else {
+                            match anchors.residual(j, &obs_j, pj, fj) {
+                                Ok(r) => {
+                                    lm_cost += huber.rho(r.norm_squared())[0];
+                                    n_obs += 1;
+                                }
+                                Err(_) => failed = true,
+                            }
                         }
-                        Err(_) => failed = true,
                     }
                 }
             }

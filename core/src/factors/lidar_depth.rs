@@ -112,8 +112,8 @@ impl DirectLidarDepthFactor {
         }
         let (g_a, g_b) = two.depth_grad_ab();
         let ab = two.chain_ab::<1>(&g_a.transpose(), &g_b.transpose(), &ce.r_wc.transpose());
-        let (bs, xs) = cam_to_body_ext::<1>(&ab.d_p_s, &ab.d_th_s, &cs, ext);
-        let (be, xe) = cam_to_body_ext::<1>(&ab.d_p_e, &ab.d_th_e, &ce, ext);
+        let (bs, xs) = cam_to_body_ext::<1>(&ab.d_p_s, &ab.d_th_s, &cs);
+        let (be, xe) = cam_to_body_ext::<1>(&ab.d_p_e, &ab.d_th_e, &ce);
         let w = 1.0 / self.sigma_dr;
         Ok(DirectDepthJacobians {
             r: (d_s - self.d_r) * w,

@@ -101,6 +101,10 @@ pub struct CamFrame {
     pub r_wc: Mat3,
     /// Camera position `p_wc`, m.
     pub p_wc: Vec3,
+    /// `R_bc^T` (the extrinsic's rotation, camera <- body), kept for the Jacobian chain.
+    pub r_cb: Mat3,
+    /// `R_wb [p_bc]x`, kept for the Jacobian chain.
+    pub r_wb_pbc_x: Mat3,
 }
 
 impl CamFrame {
@@ -112,6 +116,8 @@ impl CamFrame {
             r_wb,
             r_wc: r_wb * r_bc,
             p_wc: kf.p_wb + r_wb * ext.p_bc,
+            r_cb: r_bc.transpose(),
+            r_wb_pbc_x: r_wb * skew(&ext.p_bc),
         }
     }
 
@@ -132,13 +138,11 @@ pub(crate) fn cam_to_body_ext<const R: usize>(
     d_p: &SMatrix<f64, R, 3>,
     d_th: &SMatrix<f64, R, 3>,
     cam: &CamFrame,
-    ext: &CameraExtrinsic,
 ) -> (SMatrix<f64, R, 6>, SMatrix<f64, R, 6>) {
-    let r_bc = ext.q_bc.to_rotation_matrix().into_inner();
     let mut body = SMatrix::<f64, R, 6>::zeros();
     body.fixed_columns_mut::<3>(0).copy_from(d_p);
     body.fixed_columns_mut::<3>(3)
-        .copy_from(&(-(d_p * cam.r_wb * skew(&ext.p_bc)) + d_th * r_bc.transpose()));
+        .copy_from(&(-(d_p * cam.r_wb_pbc_x) + d_th * cam.r_cb));
     let mut e = SMatrix::<f64, R, 6>::zeros();
     e.fixed_columns_mut::<3>(0).copy_from(&(d_p * cam.r_wb));
     e.fixed_columns_mut::<3>(3).copy_from(d_th);

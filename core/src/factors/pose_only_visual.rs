@@ -27,9 +27,11 @@ use super::{
     MIN_Z_REL,
 };
 use crate::camera::{CameraExtrinsic, Vec2};
+use crate::landmarks::pose_only::AbChainPre;
 use crate::landmarks::TwoView;
 use crate::math::{skew, Mat3, Vec3};
 use crate::Error;
+use core::cell::OnceCell;
 use nalgebra::{Matrix2x6, SMatrix};
 
 /// Residual and Jacobians of one pose-only reprojection.
@@ -68,16 +70,218 @@ pub struct PoseOnlyVisualFactor {
     pub sqrt_info: Vec2,
 }
 
-/// Geometry shared by the evaluation paths.
-struct Eval {
+/// The part of the pose-only reprojection that depends only on a landmark's anchors `s` and `e`
+/// (their observations, camera frames and the two-view geometry). A landmark forms it once per
+/// linearization or cost evaluation and then evaluates every observing keyframe `j` against it.
+#[derive(Debug, Clone)]
+pub struct PoseOnlyAnchors<'f> {
+    kf_s: usize,
+    kf_e: usize,
+    obs_s: TimedObs,
+    obs_e: TimedObs,
+    sqrt_info: Vec2,
+    td_e: f64,
+    cs: &'f CamFrame,
+    ce: &'f CamFrame,
     two: TwoView,
-    r_ew: Mat3,
-    r_jw: Mat3,
+    /// `a.a`.
+    alpha: f64,
+    /// `-(a.b)` (`= alpha d_s`).
+    dd: f64,
+    /// The chain through `a` and `b`, formed on the first [`Self::evaluate`] (a cost-only
+    /// evaluation never needs it).
+    pre: OnceCell<AbChainPre>,
+}
+
+/// Geometry of one observation `j` against the anchors.
+struct InJ<'a> {
+    cj: &'a CamFrame,
     r_js: Mat3,
     t_js: Vec3,
     u_j: Vec3,
+    /// `P~_j = dd u_j + alpha t_js`.
     p: Vec3,
     x_j: Vec3,
+}
+
+impl<'f> PoseOnlyAnchors<'f> {
+    /// Anchors `s` (`kf_s`, observation `obs_s`, pose `s`, camera frame `cs`) and `e`; the
+    /// frames must be `CamFrame::new` of the poses with `ext`.
+    ///
+    /// Errors: [`Error::Degenerate`] when `kf_s == kf_e` or the landmark is not in front of
+    /// camera `s` (zero parallax included), [`Error::NonFinite`] for non-finite input,
+    /// [`Error::InvalidConfig`] for a non-positive whitening.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        (kf_s, kf_e): (usize, usize),
+        obs_s: TimedObs,
+        obs_e: TimedObs,
+        sqrt_info: Vec2,
+        (s, e): (&KeyframePose, &KeyframePose),
+        (cs, ce): (&'f CamFrame, &'f CamFrame),
+        ext: &CameraExtrinsic,
+    ) -> Result<Self, Error> {
+        if kf_s == kf_e {
+            return Err(Error::Degenerate);
+        }
+        if !(obs_s.is_finite() && obs_e.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        if !(sqrt_info.x > 0.0 && sqrt_info.y > 0.0) {
+            return Err(Error::InvalidConfig);
+        }
+        if !(all_finite_pose(s) && all_finite_pose(e) && all_finite_ext(ext)) {
+            return Err(Error::NonFinite);
+        }
+        let x_s = obs_s.corrected(s.td);
+        let x_e = obs_e.corrected(e.td);
+        let (r_es, t_es) = ce.relative_from(cs);
+        let two = TwoView::new(&x_s, &x_e, &r_es, &t_es);
+        let alpha = two.a.norm_squared();
+        let dd = -two.a.dot(&two.b);
+        // dd = alpha * d_s: the landmark must be in front of camera s.
+        let in_front_of_s = alpha > 0.0 && dd > 0.0;
+        if !in_front_of_s {
+            return Err(Error::Degenerate);
+        }
+        Ok(PoseOnlyAnchors {
+            kf_s,
+            kf_e,
+            obs_s,
+            obs_e,
+            sqrt_info,
+            td_e: e.td,
+            cs,
+            ce,
+            two,
+            alpha,
+            dd,
+            pre: OnceCell::new(),
+        })
+    }
+
+    fn in_j<'a>(
+        &'a self,
+        kf_j: usize,
+        obs_j: &TimedObs,
+        j: &KeyframePose,
+        cj: &'a CamFrame,
+    ) -> Result<InJ<'a>, Error> {
+        if kf_j == self.kf_s {
+            return Err(Error::Degenerate);
+        }
+        if !obs_j.is_finite() {
+            return Err(Error::NonFinite);
+        }
+        let (cj, td_j) = if kf_j == self.kf_e {
+            (self.ce, self.td_e)
+        } else {
+            if !all_finite_pose(j) {
+                return Err(Error::NonFinite);
+            }
+            (cj, j.td)
+        };
+        let (r_js, t_js) = cj.relative_from(self.cs);
+        let u_j = r_js * self.two.x_s;
+        let p = u_j * self.dd + t_js * self.alpha;
+        if !p.iter().all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        if p.z <= MIN_Z_REL * p.norm() {
+            return Err(Error::Degenerate);
+        }
+        Ok(InJ {
+            cj,
+            r_js,
+            t_js,
+            u_j,
+            p,
+            x_j: obs_j.corrected(td_j),
+        })
+    }
+
+    fn whitened(&self, g: &InJ<'_>) -> Vec2 {
+        let pi = Vec2::new(g.p.x / g.p.z, g.p.y / g.p.z);
+        (pi - g.x_j.xy()).component_mul(&self.sqrt_info)
+    }
+
+    /// Whitened residual of observation `obs_j` in keyframe `kf_j` (pose `j`, camera frame `cj`;
+    /// both ignored when `kf_j` is the anchor `e`).
+    ///
+    /// Errors: [`Error::Degenerate`] when `kf_j == kf_s` or the landmark is not in front of
+    /// camera `j`; [`Error::NonFinite`] for non-finite input.
+    pub fn residual(
+        &self,
+        kf_j: usize,
+        obs_j: &TimedObs,
+        j: &KeyframePose,
+        cj: &CamFrame,
+    ) -> Result<Vec2, Error> {
+        let g = self.in_j(kf_j, obs_j, j, cj)?;
+        Ok(self.whitened(&g))
+    }
+
+    /// Whitened residual and all Jacobians of observation `j` (see [`Self::residual`]). When
+    /// `kf_j == kf_e` the shared pose's blocks are summed into `d_pose_e` / `d_td[1]`.
+    ///
+    /// Every block is formed with the two rows of `W dpi/dP~` applied first, so the chain runs
+    /// on `2 x 3` rather than `3 x 3` matrices.
+    pub fn evaluate(
+        &self,
+        kf_j: usize,
+        obs_j: &TimedObs,
+        j: &KeyframePose,
+        cj: &CamFrame,
+    ) -> Result<PoseOnlyJacobians, Error> {
+        let g = self.in_j(kf_j, obs_j, j, cj)?;
+        let (alpha, dd) = (self.alpha, self.dd);
+        let w = Mat2x2::from_diagonal(&self.sqrt_info);
+        let h: SMatrix<f64, 2, 3> = w * d_pi(&g.p);
+        let (hu, ht) = (h * g.u_j, h * g.t_js);
+        // h M_a and h M_b with M_a = 2 t_js a^T - u_j b^T, M_b = -u_j a^T.
+        let hm_a = ht * (self.two.a.transpose() * 2.0) - hu * self.two.b.transpose();
+        let hm_b = -(hu * self.two.a.transpose());
+        let pre = self
+            .pre
+            .get_or_init(|| AbChainPre::new(&self.two, &self.ce.r_wc.transpose()));
+        let ab = pre.apply::<2>(&hm_a, &hm_b);
+
+        // Terms through u_j and t_js; dd [u_j]x + alpha [t_js]x = [P~_j]x.
+        let h_rjs = h * g.r_js;
+        let h_rjw = h * g.cj.r_wc.transpose();
+        let d_th_s = ab.d_th_s - h_rjs * skew(&self.two.x_s) * dd;
+        let d_p_s = ab.d_p_s + h_rjw * alpha;
+        let d_th_j = h * skew(&g.p);
+        let d_p_j = -(h_rjw * alpha);
+        let d_xs = ab.d_xs + h_rjs * dd;
+
+        let (bs, es) = cam_to_body_ext::<2>(&d_p_s, &d_th_s, self.cs);
+        let (be, ee) = cam_to_body_ext::<2>(&ab.d_p_e, &ab.d_th_e, self.ce);
+        let (bj, ej) = cam_to_body_ext::<2>(&d_p_j, &d_th_j, g.cj);
+
+        let d_td_s = d_xs * self.obs_s.d_corrected_d_td();
+        let d_td_e = ab.d_xe * self.obs_e.d_corrected_d_td();
+        // r contains -W x_j' and d x_j'/d td_j = -v_j.
+        let d_td_j = obs_j.vel.component_mul(&self.sqrt_info);
+
+        let (d_pose_e, d_pose_j, d_td) = if kf_j == self.kf_e {
+            (
+                be + bj,
+                Matrix2x6::zeros(),
+                [d_td_s, d_td_e + d_td_j, Vec2::zeros()],
+            )
+        } else {
+            (be, bj, [d_td_s, d_td_e, d_td_j])
+        };
+        Ok(PoseOnlyJacobians {
+            r: self.whitened(&g),
+            d_pose_s: bs,
+            d_pose_e,
+            d_pose_j,
+            d_ext: es + ee + ej,
+            d_td,
+        })
+    }
 }
 
 impl PoseOnlyVisualFactor {
@@ -96,71 +300,27 @@ impl PoseOnlyVisualFactor {
         Ok(())
     }
 
-    fn j_is_e(&self) -> bool {
-        self.kf_j == self.kf_e
-    }
-
-    fn geometry(
+    fn anchors<'f>(
         &self,
-        s: &KeyframePose,
-        e: &KeyframePose,
-        j: &KeyframePose,
+        (s, e): (&KeyframePose, &KeyframePose),
         ext: &CameraExtrinsic,
-        frames: Option<&[CamFrame; 3]>,
-    ) -> Result<(Eval, [CamFrame; 3]), Error> {
+        frames: &'f [CamFrame; 3],
+    ) -> Result<PoseOnlyAnchors<'f>, Error> {
         self.validate()?;
-        let j = if self.j_is_e() { e } else { j };
-        if !(all_finite_pose(s) && all_finite_pose(e) && all_finite_pose(j) && all_finite_ext(ext))
-        {
-            return Err(Error::NonFinite);
-        }
-        let (cs, ce, cj) = match frames {
-            Some([cs, ce, cj]) => (*cs, *ce, if self.j_is_e() { *ce } else { *cj }),
-            None => (
-                CamFrame::new(s, ext),
-                CamFrame::new(e, ext),
-                CamFrame::new(j, ext),
-            ),
-        };
-        let x_s = self.obs_s.corrected(s.td);
-        let x_e = self.obs_e.corrected(e.td);
-        let x_j = self.obs_j.corrected(j.td);
-        let (r_es, t_es) = ce.relative_from(&cs);
-        let (r_js, t_js) = cj.relative_from(&cs);
-        let two = TwoView::new(&x_s, &x_e, &r_es, &t_es);
-        let alpha = two.a.norm_squared();
-        let dd = -two.a.dot(&two.b);
-        // dd = alpha * d_s: the landmark must be in front of camera s.
-        let in_front_of_s = alpha > 0.0 && dd > 0.0;
-        if !in_front_of_s {
-            return Err(Error::Degenerate);
-        }
-        let u_j = r_js * x_s;
-        let p = u_j * dd + t_js * alpha;
-        if !p.iter().all(|v| v.is_finite()) {
-            return Err(Error::NonFinite);
-        }
-        if p.z <= MIN_Z_REL * p.norm() {
-            return Err(Error::Degenerate);
-        }
-        Ok((
-            Eval {
-                two,
-                r_ew: ce.r_wc.transpose(),
-                r_jw: cj.r_wc.transpose(),
-                r_js,
-                t_js,
-                u_j,
-                p,
-                x_j,
-            },
-            [cs, ce, cj],
-        ))
+        let [cs, ce, _] = frames;
+        PoseOnlyAnchors::new(
+            (self.kf_s, self.kf_e),
+            self.obs_s,
+            self.obs_e,
+            self.sqrt_info,
+            (s, e),
+            (cs, ce),
+            ext,
+        )
     }
 
-    fn whitened(&self, ev: &Eval) -> Vec2 {
-        let pi = Vec2::new(ev.p.x / ev.p.z, ev.p.y / ev.p.z);
-        (pi - ev.x_j.xy()).component_mul(&self.sqrt_info)
+    fn frames(kfs: [&KeyframePose; 3], ext: &CameraExtrinsic) -> [CamFrame; 3] {
+        kfs.map(|k| CamFrame::new(k, ext))
     }
 
     /// Whitened residual only. When `kf_j == kf_e`, `j` is ignored (pass `e` twice).
@@ -174,8 +334,9 @@ impl PoseOnlyVisualFactor {
         j: &KeyframePose,
         ext: &CameraExtrinsic,
     ) -> Result<Vec2, Error> {
-        let (ev, _) = self.geometry(s, e, j, ext, None)?;
-        Ok(self.whitened(&ev))
+        let frames = Self::frames([s, e, j], ext);
+        let a = self.anchors((s, e), ext, &frames)?;
+        a.residual(self.kf_j, &self.obs_j, j, &frames[2])
     }
 
     /// [`Self::residual`] with the camera frames of `s`, `e`, `j` precomputed (`CamFrame::new`
@@ -186,8 +347,8 @@ impl PoseOnlyVisualFactor {
         frames: &[CamFrame; 3],
         ext: &CameraExtrinsic,
     ) -> Result<Vec2, Error> {
-        let (ev, _) = self.geometry(kfs[0], kfs[1], kfs[2], ext, Some(frames))?;
-        Ok(self.whitened(&ev))
+        let a = self.anchors((kfs[0], kfs[1]), ext, frames)?;
+        a.residual(self.kf_j, &self.obs_j, kfs[2], &frames[2])
     }
 
     /// [`Self::evaluate`] with the camera frames precomputed (bit-identical result).
@@ -197,7 +358,8 @@ impl PoseOnlyVisualFactor {
         frames: &[CamFrame; 3],
         ext: &CameraExtrinsic,
     ) -> Result<PoseOnlyJacobians, Error> {
-        self.evaluate_inner(kfs[0], kfs[1], kfs[2], ext, Some(frames))
+        let a = self.anchors((kfs[0], kfs[1]), ext, frames)?;
+        a.evaluate(self.kf_j, &self.obs_j, kfs[2], &frames[2])
     }
 
     /// Whitened residual and all Jacobians. When `kf_j == kf_e`, `j` is ignored (pass `e`
@@ -211,64 +373,9 @@ impl PoseOnlyVisualFactor {
         j: &KeyframePose,
         ext: &CameraExtrinsic,
     ) -> Result<PoseOnlyJacobians, Error> {
-        self.evaluate_inner(s, e, j, ext, None)
-    }
-
-    fn evaluate_inner(
-        &self,
-        s: &KeyframePose,
-        e: &KeyframePose,
-        j: &KeyframePose,
-        ext: &CameraExtrinsic,
-        frames: Option<&[CamFrame; 3]>,
-    ) -> Result<PoseOnlyJacobians, Error> {
-        let (ev, [cs, ce, cj]) = self.geometry(s, e, j, ext, frames)?;
-        let two = &ev.two;
-        let alpha = two.a.norm_squared();
-        let dd = -two.a.dot(&two.b);
-
-        let m_a = ev.t_js * (two.a.transpose() * 2.0) - ev.u_j * two.b.transpose();
-        let m_b = -(ev.u_j * two.a.transpose());
-        let ab = two.chain_ab::<3>(&m_a, &m_b, &ev.r_ew);
-
-        // Terms through u_j and t_js.
-        let d_th_s = ab.d_th_s - ev.r_js * skew(&two.x_s) * dd;
-        let d_p_s = ab.d_p_s + ev.r_jw * alpha;
-        let d_th_j = skew(&ev.u_j) * dd + skew(&ev.t_js) * alpha;
-        let d_p_j = -(ev.r_jw * alpha);
-        let d_xs = ab.d_xs + ev.r_js * dd;
-        let d_xe = ab.d_xe;
-
-        let w = Mat2x2::from_diagonal(&self.sqrt_info);
-        let h: SMatrix<f64, 2, 3> = w * d_pi(&ev.p);
-
-        let (bs, es) = cam_to_body_ext::<3>(&d_p_s, &d_th_s, &cs, ext);
-        let (be, ee) = cam_to_body_ext::<3>(&ab.d_p_e, &ab.d_th_e, &ce, ext);
-        let (bj, ej) = cam_to_body_ext::<3>(&d_p_j, &d_th_j, &cj, ext);
-
-        let d_td_s = h * (d_xs * self.obs_s.d_corrected_d_td());
-        let d_td_e = h * (d_xe * self.obs_e.d_corrected_d_td());
-        // r contains -W x_j' and d x_j'/d td_j = -v_j.
-        let d_td_j = self.obs_j.vel.component_mul(&self.sqrt_info);
-
-        let d_ext = h * (es + ee + ej);
-        let (d_pose_e, d_pose_j, d_td) = if self.j_is_e() {
-            (
-                h * (be + bj),
-                Matrix2x6::zeros(),
-                [d_td_s, d_td_e + d_td_j, Vec2::zeros()],
-            )
-        } else {
-            (h * be, h * bj, [d_td_s, d_td_e, d_td_j])
-        };
-        Ok(PoseOnlyJacobians {
-            r: self.whitened(&ev),
-            d_pose_s: h * bs,
-            d_pose_e,
-            d_pose_j,
-            d_ext,
-            d_td,
-        })
+        let frames = Self::frames([s, e, j], ext);
+        let a = self.anchors((s, e), ext, &frames)?;
+        a.evaluate(self.kf_j, &self.obs_j, j, &frames[2])
     }
 }
 

@@ -505,6 +505,33 @@ impl<const M: usize> Preintegration<M> {
         self.whiten(r, j_i, j_j)
     }
 
+    /// Whitened residual only (`L^-1 r`), for cost evaluations: the Jacobians are formed by the
+    /// shared code path but never whitened, which is where the cost of [`Self::evaluate`] lies.
+    pub fn residual_whitened(
+        &self,
+        xi: &NavState,
+        xj: &NavState,
+        gravity_mps2: f64,
+    ) -> Result<Vec15, Error> {
+        let (mut r, mut j_i, mut j_j) = (Vec15::zeros(), Mat15::zeros(), Mat15::zeros());
+        self.evaluate_raw(xi, xj, gravity_mps2, &mut r, &mut j_i, &mut j_j)?;
+        let computed;
+        let l = match &self.chol_l {
+            Some(l) => l,
+            None => {
+                computed = self.cholesky()?;
+                &computed
+            }
+        };
+        if !l.solve_lower_triangular_mut(&mut r) {
+            return Err(Error::NotPositiveDefinite);
+        }
+        if !r.iter().all(|x| x.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        Ok(r)
+    }
+
     /// Cholesky factor `L` of the covariance (`P = L L^T`), checked to be usable.
     fn cholesky(&self) -> Result<Mat15, Error> {
         let chol = nalgebra::Cholesky::new(self.cov).ok_or(Error::NotPositiveDefinite)?;
@@ -775,6 +802,8 @@ mod tests {
         let info = ji0.transpose() * pinv * ji0;
         let info_w = ji.transpose() * ji;
         assert!((info - info_w).norm() < 1e-7 * info.norm());
+        // The cost-only path whitens the residual identically.
+        assert_eq!(p.residual_whitened(&xi, &xj, G).unwrap(), r);
         // Covariance sanity: symmetric, velocity variance ~ sa^2 T.
         assert_eq!(*p.covariance(), p.covariance().transpose());
         let var_v = p.covariance()[(RV, RV)];

@@ -124,22 +124,69 @@ impl TwoView {
         m_b: &SMatrix<f64, R, 3>,
         r_ew: &Mat3,
     ) -> AbChain<R> {
-        let xe_x = skew(&self.x_e);
-        let ue_x = skew(&self.u_e);
-        let te_x = skew(&self.t_es);
-        let ma_xe = m_a * xe_x;
-        let mb_xe = m_b * xe_x;
-        // With R_es = R_e^T R_s: R_s <- R_s Exp(dth) moves u_e by -R_es [x_s]x dth;
-        // R_e <- R_e Exp(dth) moves u_e by [u_e]x dth and t_es by [t_es]x dth;
-        // p_wc_s, p_wc_e move t_es by +-R_e^T dp.
-        let ma_xe_res = ma_xe * self.r_es;
+        AbChainPre::new(self, r_ew).apply(m_a, m_b)
+    }
+}
+
+/// The landmark-only 3x3 factors of [`TwoView::chain_ab`]. A landmark chains one `(M_a, M_b)`
+/// pair per observation through the same geometry, so these are formed once per landmark and
+/// each observation then costs a few `R x 3` by `3 x 3` products.
+///
+/// With `R_es = R_e^T R_s`: `R_s <- R_s Exp(dth)` moves `u_e` by `-R_es [x_s]x dth`;
+/// `R_e <- R_e Exp(dth)` moves `u_e` by `[u_e]x dth` and `t_es` by `[t_es]x dth`; `p_wc_s`,
+/// `p_wc_e` move `t_es` by `+-R_e^T dp`. With `delta a = [x_e]x delta u_e - [u_e]x delta x_e` and
+/// `delta b = [x_e]x delta t_es - [t_es]x delta x_e` this gives the products below.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct AbChainPre {
+    /// `-[x_e]x R_es [x_s]x` (rotation of `s`, through `a`).
+    th_s_a: Mat3,
+    /// `[x_e]x R_ew` (position of `s`, through `b`; the position of `e` is its negative).
+    p_s_b: Mat3,
+    /// `[x_e]x [u_e]x` (rotation of `e`, through `a`).
+    th_e_a: Mat3,
+    /// `[x_e]x [t_es]x` (rotation of `e`, through `b`).
+    th_e_b: Mat3,
+    /// `[x_e]x R_es` (observation `x_s`, through `a`).
+    xs_a: Mat3,
+    /// `-[u_e]x` (observation `x_e`, through `a`).
+    xe_a: Mat3,
+    /// `-[t_es]x` (observation `x_e`, through `b`).
+    xe_b: Mat3,
+}
+
+impl AbChainPre {
+    /// Factors of `two`'s chain; `r_ew` is `R_wc_e^T`.
+    pub(crate) fn new(two: &TwoView, r_ew: &Mat3) -> Self {
+        let xe_x = skew(&two.x_e);
+        let ue_x = skew(&two.u_e);
+        let te_x = skew(&two.t_es);
+        let xs_a = xe_x * two.r_es;
+        AbChainPre {
+            th_s_a: -(xs_a * skew(&two.x_s)),
+            p_s_b: xe_x * r_ew,
+            th_e_a: xe_x * ue_x,
+            th_e_b: xe_x * te_x,
+            xs_a,
+            xe_a: -ue_x,
+            xe_b: -te_x,
+        }
+    }
+
+    /// `M_a delta a + M_b delta b` chained to the camera poses and observations.
+    #[inline]
+    pub(crate) fn apply<const R: usize>(
+        &self,
+        m_a: &SMatrix<f64, R, 3>,
+        m_b: &SMatrix<f64, R, 3>,
+    ) -> AbChain<R> {
+        let d_p_s = m_b * self.p_s_b;
         AbChain {
-            d_th_s: -(ma_xe_res * skew(&self.x_s)),
-            d_p_s: mb_xe * r_ew,
-            d_th_e: ma_xe * ue_x + mb_xe * te_x,
-            d_p_e: -(mb_xe * r_ew),
-            d_xs: ma_xe_res,
-            d_xe: -(m_a * ue_x) - m_b * te_x,
+            d_th_s: m_a * self.th_s_a,
+            d_p_s,
+            d_th_e: m_a * self.th_e_a + m_b * self.th_e_b,
+            d_p_e: -d_p_s,
+            d_xs: m_a * self.xs_a,
+            d_xe: m_a * self.xe_a + m_b * self.xe_b,
         }
     }
 }

@@ -417,27 +417,28 @@ impl<const D: usize> NormalEquations<D> {
             return Err(Error::NonFinite);
         }
         self.cost += r.norm_squared();
+        // Column-major storage: column i of a 2x6 block is [row 0, row 1].
         for (a, (ja, &ca)) in jacs.iter().zip(cols).enumerate() {
-            let g = ja.transpose() * r;
-            for (i, gi) in g.iter().enumerate() {
-                if let Some(b) = self.b.get_mut(ca + i) {
-                    *b -= gi;
+            let xa = &ja.data.0;
+            if let Some(b) = self.b.get_mut(ca..ca + 6) {
+                for (bi, c) in b.iter_mut().zip(xa) {
+                    *bi -= c[0] * r.x + c[1] * r.y;
                 }
             }
             for (jb, &cb) in jacs.iter().zip(cols).skip(a) {
                 // Upper triangle: the block with the smaller column range is the row block.
-                let (m, r0, c0) = if ca <= cb {
-                    (ja.transpose() * jb, ca, cb)
+                let (x, y, r0, c0) = if ca <= cb {
+                    (xa, &jb.data.0, ca, cb)
                 } else {
-                    (jb.transpose() * ja, cb, ca)
+                    (&jb.data.0, xa, cb, ca)
                 };
-                for i in 0..6 {
+                for (i, xi) in x.iter().enumerate() {
                     let Some(row) = self.h.get_mut(r0 + i).and_then(|h| h.get_mut(c0..c0 + 6))
                     else {
                         continue;
                     };
-                    for (k, h) in row.iter_mut().enumerate() {
-                        *h += m[(i, k)];
+                    for (h, yk) in row.iter_mut().zip(y) {
+                        *h += xi[0] * yk[0] + xi[1] * yk[1];
                     }
                 }
             }
