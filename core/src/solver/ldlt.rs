@@ -389,6 +389,49 @@ mod tests {
     use super::*;
 
     #[test]
+    fn block_sparse_factorization_matches_a_dense_reference() {
+        // Arrow-plus-band SPD matrix (the window's shape: banded blocks and a dense tail).
+        const NN: usize = 40;
+        let mut ne = NormalEquations::<NN>::new();
+        ne.reset(NN).unwrap();
+        let mut full = nalgebra::SMatrix::<f64, NN, NN>::zeros();
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        for i in 0..NN {
+            for j in i..NN {
+                let band = j - i < 5 && (i / 5 == j / 5 || j - i < 3);
+                let tail = j >= NN - 8;
+                if band || tail {
+                    let v = if i == j { 10.0 + rnd() } else { rnd() };
+                    full[(i, j)] = v;
+                    full[(j, i)] = v;
+                }
+            }
+        }
+        for i in 0..NN {
+            for j in i..NN {
+                ne.h[i][j] = full[(i, j)];
+            }
+        }
+        let x_true: [f64; NN] = core::array::from_fn(|i| libm::sin(i as f64 * 0.37));
+        let b = full * nalgebra::SVector::<f64, NN>::from_column_slice(&x_true);
+        let mut f = Ldlt::<NN>::new();
+        f.load(&ne).unwrap();
+        let rep = f.factorize(PivotFloor::DEFAULT).unwrap();
+        assert_eq!(rep.rank, NN);
+        let mut x: [f64; NN] = core::array::from_fn(|i| b[i]);
+        f.solve_in_place(&mut x).unwrap();
+        for (got, want) in x.iter().zip(x_true.iter()) {
+            assert!((got - want).abs() < 1e-10, "{got} vs {want}");
+        }
+    }
+
+    #[test]
     fn factors_and_solves_a_3x3_closed_form() {
         // A = U^T D U with U = [[1,2,3],[0,1,4],[0,0,1]], D = diag(2,3,5).
         let mut ne = NormalEquations::<4>::new();
