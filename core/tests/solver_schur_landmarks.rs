@@ -162,3 +162,64 @@ fn damping_scales_the_landmark_diagonal() {
         Ok((-2.0 - 2.0 * 0.5) / 8.0)
     );
 }
+
+#[test]
+fn two_block_fast_path_equals_the_general_path() {
+    let mut rng = Rng::new(71);
+    let mut general = Box::new(NormalEquations::<D>::new());
+    let mut fast = Box::new(NormalEquations::<D>::new());
+    general.reset(36).unwrap();
+    fast.reset(36).unwrap();
+    let (mut lg, mut lf) = (LandmarkSchur::<30>::new(), LandmarkSchur::<30>::new());
+    // A host block and three targets, the host sometimes after the target (column order).
+    for (host, target) in [(12, 0), (12, 24), (12, 30), (12, 24)] {
+        let a: Vec<f64> = (0..12).map(|_| rng.uniform()).collect();
+        let c: Vec<f64> = (0..12).map(|_| rng.uniform()).collect();
+        let r = [rng.uniform(), rng.uniform()];
+        let jl = [rng.uniform(), rng.uniform()];
+        lg.add_residual(
+            &mut general,
+            &r,
+            &[
+                JacobianBlock::new(host, 6, &a),
+                JacobianBlock::new(target, 6, &c),
+            ],
+            &jl,
+        )
+        .unwrap();
+        let m = |v: &[f64]| nalgebra::Matrix2x6::from_row_slice(v);
+        lf.add_residual_2x6(
+            &mut fast,
+            &nalgebra::Vector2::new(r[0], r[1]),
+            &[m(&a), m(&c)],
+            [host, target],
+            &nalgebra::Vector2::new(jl[0], jl[1]),
+        )
+        .unwrap();
+    }
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * (1.0 + x.abs());
+    assert!(close(lg.h_ll(), lf.h_ll()) && close(lg.b_l(), lf.b_l()));
+    assert_eq!(lg.coupling().0, lf.coupling().0);
+    for (x, y) in lg.coupling().1.iter().zip(lf.coupling().1) {
+        assert!(close(*x, *y));
+    }
+    for i in 0..36 {
+        assert!(close(general.b[i], fast.b[i]), "b[{i}]");
+        for j in i..36 {
+            assert!(close(general.h[i][j], fast.h[i][j]), "h[{i}][{j}]");
+        }
+    }
+    // A fifth block does not fit a 30-column accumulator: refused, nothing added.
+    let mut small = LandmarkSchur::<12>::new();
+    let z = nalgebra::Matrix2x6::from_element(1.0);
+    let v = nalgebra::Vector2::new(1.0, 1.0);
+    small
+        .add_residual_2x6(&mut fast, &v, &[z, z], [0, 6], &v)
+        .unwrap();
+    let before = fast.h;
+    assert_eq!(
+        small.add_residual_2x6(&mut fast, &v, &[z, z], [18, 24], &v),
+        Err(Error::CapacityExceeded)
+    );
+    assert_eq!(fast.h, before);
+}

@@ -211,8 +211,6 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let mut r = Vec15::zeros();
         let mut ji = Mat15::zeros();
         let mut jj = Mat15::zeros();
-        let mut ji_rm = [0.0; KF_DIM * KF_DIM];
-        let mut jj_rm = [0.0; KF_DIM * KF_DIM];
         for k in 1..last_pair {
             let (Some(a), Some(b)) = (self.window.get(k - 1), self.window.get(k)) else {
                 return Err(Error::NotEnoughData);
@@ -235,16 +233,14 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     .ok_or(Error::DimensionMismatch)?,
                 l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch)?,
             );
-            row_major(&ji, &mut ji_rm);
-            row_major(&jj, &mut jj_rm);
-            cost += sink(
-                &mut ne,
-                r.as_slice(),
-                &[
-                    JacobianBlock::new(ca, KF_DIM, &ji_rm),
-                    JacobianBlock::new(cb, KF_DIM, &jj_rm),
-                ],
-            )?;
+            let c: f64 = r.norm_squared();
+            if !c.is_finite() {
+                return Err(Error::NonFinite);
+            }
+            if let Some(ne) = ne.as_deref_mut() {
+                ne.add_dense_pair(&r, &ji, &jj, ca, cb)?;
+            }
+            cost += c;
             if est_td {
                 let dt = pre.dt_s().max(1e-3);
                 let q = self.cfg.td_rw_s_per_sqrt_s * self.cfg.td_rw_s_per_sqrt_s;

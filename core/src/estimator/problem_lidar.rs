@@ -300,6 +300,16 @@ pub(super) fn add_inverse_depth_obs<const N: usize, const D: usize>(
     est_td: bool,
     est_ext: bool,
 ) -> Result<(), Error> {
+    if !est_td && !est_ext {
+        let col = |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
+        return sc.add_residual_2x6(
+            ne,
+            &(jac.r * w),
+            &[jac.d_pose_s * w, jac.d_pose_j * w],
+            [col(s)?, col(j)?],
+            &(jac.d_tau * w),
+        );
+    }
     let r = [jac.r.x * w, jac.r.y * w];
     let (mut a, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12]);
     row_major(&(jac.d_pose_s * w), &mut a);

@@ -447,9 +447,121 @@ impl<const D: usize> NormalEquations<D> {
     }
 }
 
+/// Fast path for a dense residual over two equally wide blocks: the IMU preintegration factor
+/// (15 whitened rows, two 15-wide keyframe states). The three block products are formed with
+/// fixed-size arithmetic and added once each.
+impl<const D: usize> NormalEquations<D> {
+    /// Adds `r` (`R` rows) with Jacobian blocks `ja`, `jb` (`R x W`) at state columns
+    /// `ca..ca + W` and `cb..cb + W`. The blocks must not overlap. Nothing is accumulated on
+    /// `Err`.
+    pub fn add_dense_pair<const R: usize, const W: usize>(
+        &mut self,
+        r: &nalgebra::SVector<f64, R>,
+        ja: &nalgebra::SMatrix<f64, R, W>,
+        jb: &nalgebra::SMatrix<f64, R, W>,
+        ca: usize,
+        cb: usize,
+    ) -> Result<(), Error> {
+        let fits = |c: usize| c.checked_add(W).is_some_and(|e| e <= self.n);
+        if !(fits(ca) && fits(cb) && (ca + W <= cb || cb + W <= ca)) {
+            return Err(Error::DimensionMismatch);
+        }
+        let finite = r
+            .iter()
+            .chain(ja.iter())
+            .chain(jb.iter())
+            .all(|v| v.is_finite());
+        if !finite {
+            return Err(Error::NonFinite);
+        }
+        self.cost += r.norm_squared();
+        for (c, g) in [(ca, ja.tr_mul(r)), (cb, jb.tr_mul(r))] {
+            if let Some(b) = self.b.get_mut(c..c + W) {
+                for (bi, gi) in b.iter_mut().zip(g.iter()) {
+                    *bi -= gi;
+                }
+            }
+        }
+        // Diagonal blocks: upper triangle only (the lower one is never read).
+        for (c, m) in [(ca, ja.tr_mul(ja)), (cb, jb.tr_mul(jb))] {
+            for i in 0..W {
+                if let Some(row) = self.h.get_mut(c + i).and_then(|h| h.get_mut(c + i..c + W)) {
+                    for (k, h) in row.iter_mut().enumerate() {
+                        *h += m[(i, i + k)];
+                    }
+                }
+            }
+        }
+        let (r0, c0, m) = if ca < cb {
+            (ca, cb, ja.tr_mul(jb))
+        } else {
+            (cb, ca, jb.tr_mul(ja))
+        };
+        for i in 0..W {
+            if let Some(row) = self.h.get_mut(r0 + i).and_then(|h| h.get_mut(c0..c0 + W)) {
+                for (k, h) in row.iter_mut().enumerate() {
+                    *h += m[(i, k)];
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dense_pair_equals_the_block_path() {
+        let mut seed = 5u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        let r = nalgebra::SVector::<f64, 4>::from_fn(|_, _| rnd());
+        let ja = nalgebra::SMatrix::<f64, 4, 3>::from_fn(|_, _| rnd());
+        let jb = nalgebra::SMatrix::<f64, 4, 3>::from_fn(|_, _| rnd());
+        let rm = |m: &nalgebra::SMatrix<f64, 4, 3>| -> [f64; 12] {
+            core::array::from_fn(|k| m[(k / 3, k % 3)])
+        };
+        let (a_rm, b_rm) = (rm(&ja), rm(&jb));
+        // Second block before the first in column order: the cross block lands transposed.
+        let (ca, cb) = (5, 1);
+        let mut fast = NormalEquations::<9>::new();
+        let mut general = NormalEquations::<9>::new();
+        fast.reset(9).unwrap();
+        general.reset(9).unwrap();
+        fast.add_dense_pair(&r, &ja, &jb, ca, cb).unwrap();
+        general
+            .add_blocks(
+                r.as_slice(),
+                &[
+                    JacobianBlock::new(ca, 3, &a_rm),
+                    JacobianBlock::new(cb, 3, &b_rm),
+                ],
+            )
+            .unwrap();
+        for i in 0..9 {
+            assert!((fast.b[i] - general.b[i]).abs() < 1e-14, "b[{i}]");
+            for j in i..9 {
+                assert!(
+                    (fast.h[i][j] - general.h[i][j]).abs() < 1e-14,
+                    "h[{i}][{j}]"
+                );
+            }
+            for j in 0..i {
+                assert_eq!(fast.h[i][j], 0.0, "lower triangle written at ({i},{j})");
+            }
+        }
+        assert!((fast.cost - general.cost).abs() < 1e-14);
+        assert_eq!(
+            fast.add_dense_pair(&r, &ja, &jb, 2, 4),
+            Err(Error::DimensionMismatch)
+        );
+    }
 
     #[test]
     fn block_and_dense_paths_agree_and_skip_lower_triangle() {

@@ -27,6 +27,9 @@
 use super::normal_equations::{all_finite, JacobianBlock, NormalEquations};
 use crate::Error;
 
+/// Widest pose block [`LandmarkSchur::add_residual`] takes (a keyframe state is 15).
+pub const MAX_BLOCK_WIDTH: usize = 16;
+
 /// Where a Jacobian block's columns are stored in the accumulator.
 #[derive(Debug, Clone, Copy)]
 enum Slot {
@@ -105,7 +108,7 @@ impl<const P: usize> LandmarkSchur<P> {
         pose_blocks: &[JacobianBlock<'_>],
         j_l: &[f64],
     ) -> Result<(), Error> {
-        if j_l.len() != r.len() {
+        if j_l.len() != r.len() || pose_blocks.iter().any(|b| b.width > MAX_BLOCK_WIDTH) {
             return Err(Error::DimensionMismatch);
         }
         if !all_finite(j_l) {
@@ -135,40 +138,84 @@ impl<const P: usize> LandmarkSchur<P> {
             self.b_l -= jl * ri;
         }
         for blk in pose_blocks {
-            let slot = self.block_start(blk.col, blk.width);
-            for i in 0..blk.width {
-                let col = blk.col + i;
-                // H_lp,col = sum_rows j_l[row] * J[row][i]
-                let v: f64 = j_l
+            // H_lp,col = sum_rows j_l[row] * J[row][i]
+            let mut v = [0.0; MAX_BLOCK_WIDTH];
+            for (i, vi) in v.iter_mut().enumerate().take(blk.width) {
+                *vi = j_l
                     .iter()
                     .enumerate()
                     .map(|(row, jl)| jl * blk.jac.get(row * blk.width + i).copied().unwrap_or(0.0))
                     .sum();
-                let found = match slot {
-                    Slot::Existing(start) => Some(start + i),
-                    Slot::New => None,
-                    Slot::Partial => self.find(col),
-                };
-                let idx = match found {
-                    Some(idx) => idx,
-                    None => {
-                        let idx = self.len;
-                        if let Some(c) = self.cols.get_mut(idx) {
-                            *c = col;
-                        }
-                        if let Some(h) = self.h_lp.get_mut(idx) {
-                            *h = 0.0;
-                        }
-                        self.len += 1;
-                        idx
-                    }
-                };
-                if let Some(h) = self.h_lp.get_mut(idx) {
-                    *h += v;
-                }
             }
+            self.add_h_lp(blk.col, v.get(..blk.width).unwrap_or(&[]));
         }
         Ok(())
+    }
+
+    /// [`Self::add_residual`] for the commonest residual: two rows over two 6-wide pose blocks
+    /// (an inverse-depth reprojection without time-delay or extrinsic columns), accumulated
+    /// with [`NormalEquations::add_2x6_blocks`].
+    pub fn add_residual_2x6<const D: usize>(
+        &mut self,
+        ne: &mut NormalEquations<D>,
+        r: &nalgebra::Vector2<f64>,
+        jacs: &[nalgebra::Matrix2x6<f64>; 2],
+        cols: [usize; 2],
+        j_l: &nalgebra::Vector2<f64>,
+    ) -> Result<(), Error> {
+        if !j_l.iter().all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        let new_cols: usize = cols
+            .iter()
+            .map(|&c| match self.block_start(c, 6) {
+                Slot::Existing(_) => 0,
+                Slot::New => 6,
+                Slot::Partial => (c..c + 6).filter(|&k| self.find(k).is_none()).count(),
+            })
+            .sum();
+        if self.len + new_cols > P {
+            return Err(Error::CapacityExceeded);
+        }
+        ne.add_2x6_blocks(r, jacs, &cols)?;
+        self.h_ll += j_l.x * j_l.x + j_l.y * j_l.y;
+        self.b_l -= j_l.x * r.x + j_l.y * r.y;
+        for (jac, &c) in jacs.iter().zip(cols.iter()) {
+            let v: [f64; 6] = core::array::from_fn(|i| j_l.x * jac[(0, i)] + j_l.y * jac[(1, i)]);
+            self.add_h_lp(c, &v);
+        }
+        Ok(())
+    }
+
+    /// `H_lp[col + i] += v[i]`, appending the columns this landmark has not touched yet (the
+    /// caller checked the capacity).
+    fn add_h_lp(&mut self, col0: usize, v: &[f64]) {
+        let slot = self.block_start(col0, v.len());
+        for (i, &vi) in v.iter().enumerate() {
+            let col = col0 + i;
+            let found = match slot {
+                Slot::Existing(start) => Some(start + i),
+                Slot::New => None,
+                Slot::Partial => self.find(col),
+            };
+            let idx = match found {
+                Some(idx) => idx,
+                None => {
+                    let idx = self.len;
+                    if let Some(c) = self.cols.get_mut(idx) {
+                        *c = col;
+                    }
+                    if let Some(h) = self.h_lp.get_mut(idx) {
+                        *h = 0.0;
+                    }
+                    self.len += 1;
+                    idx
+                }
+            };
+            if let Some(h) = self.h_lp.get_mut(idx) {
+                *h += vi;
+            }
+        }
     }
 
     /// Where the columns `col..col + width` are stored (see [`Self::add_residual`]).
