@@ -219,7 +219,9 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         }
         // Mapped system M^T H0 M, -M^T q, with M = I except Jr^-1 on the rotation blocks.
         for (row_eff, row) in self.h_eff.iter_mut().zip(self.h0.iter()).take(p) {
-            row_eff.copy_from_slice(row);
+            if let (Some(dst), Some(src)) = (row_eff.get_mut(..p), row.get(..p)) {
+                dst.copy_from_slice(src);
+            }
         }
         let mut b_eff = [0.0; D];
         for (be, qi) in b_eff.iter_mut().zip(q.iter()).take(p) {
@@ -270,14 +272,44 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         if !b_eff.iter().take(p).all(|v| v.is_finite()) {
             return Err(Error::NonFinite);
         }
+        // The prior's columns are runs of consecutive state columns (whole blocks, in layout
+        // order), so each row is added run by run as contiguous slices.
+        let mut runs: HVec<(usize, usize), MAX_PRIOR_BLOCKS> = HVec::new();
+        let mut start = 0;
+        for k in 1..=p {
+            let breaks = k == p || cols.get(k).copied() != cols.get(k - 1).map(|c| c + 1);
+            if breaks {
+                runs.push((start, k)).map_err(|_| Error::CapacityExceeded)?;
+                start = k;
+            }
+        }
+        let ascending = cols.windows(2).all(|w| w[0] < w[1]);
         for (i, (&ci, row)) in cols.iter().zip(self.h_eff.iter()).enumerate() {
             if let Some(b) = ne.b.get_mut(ci) {
                 *b += b_eff.get(i).copied().unwrap_or(0.0);
             }
-            for (&cj, &v) in cols.iter().zip(row.iter()).skip(i) {
-                let (r, c) = if ci <= cj { (ci, cj) } else { (cj, ci) };
-                if let Some(h) = ne.h.get_mut(r).and_then(|h| h.get_mut(c)) {
-                    *h += v;
+            if !ascending {
+                for (&cj, &v) in cols.iter().zip(row.iter()).skip(i) {
+                    let (r, c) = if ci <= cj { (ci, cj) } else { (cj, ci) };
+                    if let Some(h) = ne.h.get_mut(r).and_then(|h| h.get_mut(c)) {
+                        *h += v;
+                    }
+                }
+                continue;
+            }
+            let Some(hrow) = ne.h.get_mut(ci) else {
+                continue;
+            };
+            for &(a, b) in runs.iter() {
+                if b <= i {
+                    continue;
+                }
+                let a = a.max(i);
+                let Some(&c0) = cols.get(a) else { continue };
+                if let (Some(dst), Some(src)) = (hrow.get_mut(c0..c0 + (b - a)), row.get(a..b)) {
+                    for (h, v) in dst.iter_mut().zip(src) {
+                        *h += v;
+                    }
                 }
             }
         }
