@@ -11,11 +11,9 @@
 
 use super::{DepthEvent, DepthEventKind, Estimator, KeyframeReport};
 use crate::camera::Vec2;
-use crate::factors::{CamFrame, KeyframePose};
 use crate::inertial::NavState;
 use crate::landmarks::LidarDepth;
 use crate::lidar::ScanStats;
-use crate::math::Vec3;
 
 use super::problem_lidar::LidarLandmark;
 
@@ -126,18 +124,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// for the optimized poses (poses and extrinsic fixed).
     pub(super) fn depth_only_optimization(&mut self) {
         let count = self.window.len();
-        let mut poses = [KeyframePose {
-            p_wb: Vec3::zeros(),
-            q_wb: crate::math::Quat::identity(),
-            td: 0.0,
-        }; N];
-        for (k, p) in poses.iter_mut().enumerate().take(count) {
-            if let Some(kp) = self.kf_pose(k) {
-                *p = kp;
-            }
-        }
-        let ext = self.ext;
-        let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
+        let (poses, frames) = self.window_frames();
         let sqrt_info = Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px;
         for lm in self.lms.landmarks_mut() {
             let (Some(d), true) = (lm.lidar, lm.usable) else {

@@ -632,29 +632,15 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         }
     }
 
-    fn kf_pose(&self, pos: usize) -> Option<KeyframePose> {
-        self.window.get(pos).map(|k| KeyframePose {
-            p_wb: k.state.p_wb,
-            q_wb: k.state.q_wb,
-            td: k.td_s,
-        })
-    }
-
     /// Chooses anchors and gates every landmark for the coming solve. With `reject`, also runs
     /// the uncertainty-based test on LiDAR depths (see [`lidar`]); returns (depths rejected,
     /// time spent on the test in ns).
     fn prepare_landmarks(&mut self, reject: bool) -> (u32, u64) {
         let count = self.window.len();
         let ext = self.ext;
-        let mut cams = [crate::camera::CameraPose {
-            p_wc: Vec3::zeros(),
-            q_wc: crate::math::Quat::identity(),
-        }; N];
-        for (k, c) in cams.iter_mut().enumerate().take(count) {
-            if let Some(p) = self.kf_pose(k) {
-                *c = ext.camera_pose(&p.p_wb, &p.q_wb);
-            }
-        }
+        let poses = self.window.poses();
+        let cams: [crate::camera::CameraPose; N] =
+            core::array::from_fn(|k| ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb));
         let (dmin, dmax) = self.cfg.depth_range_m;
         let min_par = self.cfg.min_parallax;
         let max_rel = self.cfg.max_rel_depth_std;
@@ -873,19 +859,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         report.residual_rms_px = rms;
     }
 
-    /// Whitened pose-only residual of observation `j` of landmark `li`, if defined.
-    /// Body poses and camera frames of the window, computed once for a culling pass.
+    /// Body poses and camera frames of the window, computed once for a pass over landmarks.
     fn window_frames(&self) -> ([KeyframePose; N], [CamFrame; N]) {
-        let mut poses = [KeyframePose {
-            p_wb: Vec3::zeros(),
-            q_wb: crate::math::Quat::identity(),
-            td: 0.0,
-        }; N];
-        for (k, p) in poses.iter_mut().enumerate().take(self.window.len()) {
-            if let Some(kp) = self.kf_pose(k) {
-                *p = kp;
-            }
-        }
+        let poses = self.window.poses();
         let ext = self.ext;
         let frames = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
         (poses, frames)

@@ -17,7 +17,7 @@ use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::robust::Huber;
 use crate::factors::td::TdRandomWalk;
-use crate::factors::{CamFrame, KeyframePose, TimedObs};
+use crate::factors::{CamFrame, TimedObs};
 use crate::inertial::preintegration::{Mat15, Vec15};
 use crate::inertial::NavState;
 use crate::landmarks::{KfObs, LandmarkManager};
@@ -165,14 +165,6 @@ fn sink<const D: usize>(
 impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
     pub(super) fn sqrt_info(&self) -> Vec2 {
         Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px
-    }
-
-    fn kf_pose(&self, pos: usize) -> Option<KeyframePose> {
-        self.window.get(pos).map(|k| KeyframePose {
-            p_wb: k.state.p_wb,
-            q_wb: k.state.q_wb,
-            td: k.td_s,
-        })
     }
 
     /// Visits the factors of `self.set`, adding them to `ne` (or only summing their cost).
@@ -344,19 +336,6 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         Ok(cost)
     }
 
-    /// Body poses of the window's keyframes (unused slots stay at the identity).
-    fn window_poses(&self) -> Result<[KeyframePose; N], Error> {
-        let mut poses = [KeyframePose {
-            p_wb: Vec3::zeros(),
-            q_wb: crate::math::Quat::identity(),
-            td: 0.0,
-        }; N];
-        for (k, p) in poses.iter_mut().enumerate().take(self.window.len()) {
-            *p = self.kf_pose(k).ok_or(Error::NotEnoughData)?;
-        }
-        Ok(poses)
-    }
-
     fn pose_only_visual(
         &mut self,
         ne: &mut Option<&mut NormalEquations<D>>,
@@ -368,7 +347,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let l = self.layout;
         let count = self.window.len();
         let ext = *self.ext;
-        let poses = self.window_poses()?;
+        let poses = self.window.poses();
         // Camera frames once per keyframe rather than three times per residual.
         let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
         let mut cost = 0.0;
@@ -562,7 +541,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let l = self.layout;
         let count = self.window.len();
         let ext = *self.ext;
-        let poses = self.window_poses()?;
+        let poses = self.window.poses();
         let mut cost = 0.0;
         for li in 0..self.lms.len() {
             let Some(lm) = self.lms.landmarks().get(li) else {

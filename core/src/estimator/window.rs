@@ -4,6 +4,7 @@
 //! (at the IMU time of its image), its camera time delay and the preintegration from the
 //! previous keyframe to it (unused for position 0).
 
+use crate::factors::KeyframePose;
 use crate::inertial::preintegration::Preintegration;
 use crate::inertial::NavState;
 use crate::Error;
@@ -69,6 +70,22 @@ impl<const N: usize> Window<N> {
 
     fn slot(&self, pos: usize) -> Option<usize> {
         (pos < self.count && N > 0).then(|| (self.head + pos) % N)
+    }
+
+    /// Body poses and delays of the keyframes in window order (unused slots: the identity).
+    pub fn poses(&self) -> [KeyframePose; N] {
+        core::array::from_fn(|k| match self.get(k) {
+            Some(kf) => KeyframePose {
+                p_wb: kf.state.p_wb,
+                q_wb: kf.state.q_wb,
+                td: kf.td_s,
+            },
+            None => KeyframePose {
+                p_wb: crate::math::Vec3::zeros(),
+                q_wb: crate::math::Quat::identity(),
+                td: 0.0,
+            },
+        })
     }
 
     /// Keyframe at `pos`.

@@ -515,21 +515,25 @@ impl<const M: usize> Preintegration<M> {
     ) -> Result<Vec15, Error> {
         let (mut r, mut j_i, mut j_j) = (Vec15::zeros(), Mat15::zeros(), Mat15::zeros());
         self.evaluate_raw(xi, xj, gravity_mps2, &mut r, &mut j_i, &mut j_j)?;
-        let computed;
-        let l = match &self.chol_l {
-            Some(l) => l,
-            None => {
-                computed = self.cholesky()?;
-                &computed
-            }
-        };
-        if !l.solve_lower_triangular_mut(&mut r) {
-            return Err(Error::NotPositiveDefinite);
-        }
+        self.solve_with_factor(|l| l.solve_lower_triangular_mut(&mut r))?;
         if !r.iter().all(|x| x.is_finite()) {
             return Err(Error::NonFinite);
         }
         Ok(r)
+    }
+
+    /// Runs `solve` with the Cholesky factor (the cached one, else computed now);
+    /// [`Error::NotPositiveDefinite`] when there is none or `solve` reports a singular factor.
+    fn solve_with_factor(&self, solve: impl FnOnce(&Mat15) -> bool) -> Result<(), Error> {
+        let ok = match &self.chol_l {
+            Some(l) => solve(l),
+            None => solve(&self.cholesky()?),
+        };
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::NotPositiveDefinite)
+        }
     }
 
     /// Cholesky factor `L` of the covariance (`P = L L^T`), checked to be usable.
@@ -553,20 +557,11 @@ impl<const M: usize> Preintegration<M> {
 
     /// Applies `L^-1` (Cholesky factor of the covariance) to a residual and two Jacobians.
     pub fn whiten(&self, r: &mut Vec15, j_i: &mut Mat15, j_j: &mut Mat15) -> Result<(), Error> {
-        let computed;
-        let l = match &self.chol_l {
-            Some(l) => l,
-            None => {
-                computed = self.cholesky()?;
-                &computed
-            }
-        };
-        let ok = l.solve_lower_triangular_mut(r)
-            && l.solve_lower_triangular_mut(j_i)
-            && l.solve_lower_triangular_mut(j_j);
-        if !ok {
-            return Err(Error::NotPositiveDefinite);
-        }
+        self.solve_with_factor(|l| {
+            l.solve_lower_triangular_mut(r)
+                && l.solve_lower_triangular_mut(j_i)
+                && l.solve_lower_triangular_mut(j_j)
+        })?;
         if !r.iter().all(|x| x.is_finite()) {
             return Err(Error::NonFinite);
         }
