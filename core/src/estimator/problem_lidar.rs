@@ -142,8 +142,13 @@ impl<const N: usize> LidarLandmark<N> {
         Ok(out)
     }
 
-    /// `tau*` by 1-D Gauss–Newton on precomputed rays (same minimizer as [`Self::best_tau`]).
-    pub fn best_tau_rays(&self, rays: &[Ray], tau0: f64) -> Result<f64, Error> {
+    /// 1-D Gauss–Newton on the inverse depth from `tau0` (or `1/d_r`): `visual(tau, g, h)`
+    /// adds the visual rows' `J^T r` and `J^T J` to the LiDAR depth row's `(g, h)`.
+    fn gauss_newton_tau(
+        &self,
+        tau0: f64,
+        mut visual: impl FnMut(f64, f64, f64) -> Result<(f64, f64), Error>,
+    ) -> Result<f64, Error> {
         let mut tau = if tau0 > 0.0 && tau0.is_finite() {
             tau0
         } else {
@@ -151,23 +156,31 @@ impl<const N: usize> LidarLandmark<N> {
         };
         for _ in 0..TAU_ITERS {
             let (rd, jd) = self.depth_row(tau);
-            let (mut g, mut h) = (jd * rd, jd * jd);
-            for ray in rays {
-                let (r, jt) = ray.residual_and_d_tau(tau)?;
-                g += jt.dot(&r);
-                h += jt.norm_squared();
-            }
+            let (g, h) = visual(tau, jd * rd, jd * jd)?;
             if !(h > 0.0 && g.is_finite() && h.is_finite()) {
                 return Err(Error::NonFinite);
             }
             let step = -g / h;
             let next = tau + step;
+            // The inverse depth stays positive: halve toward zero instead of crossing it.
             tau = if next > 0.0 { next } else { 0.5 * tau };
             if libm::fabs(step) <= TAU_TOL * tau {
                 break;
             }
         }
         Ok(tau)
+    }
+
+    /// `tau*` on precomputed rays (same minimizer as [`Self::best_tau`]).
+    pub fn best_tau_rays(&self, rays: &[Ray], tau0: f64) -> Result<f64, Error> {
+        self.gauss_newton_tau(tau0, |tau, mut g, mut h| {
+            for ray in rays {
+                let (r, jt) = ray.residual_and_d_tau(tau)?;
+                g += jt.dot(&r);
+                h += jt.norm_squared();
+            }
+            Ok((g, h))
+        })
     }
 
     /// `|e(tau)|^2` on precomputed rays.
@@ -202,32 +215,15 @@ impl<const N: usize> LidarLandmark<N> {
         tau0: f64,
     ) -> Result<f64, Error> {
         let ps = poses.get(self.s).ok_or(Error::DimensionMismatch)?;
-        let mut tau = if tau0 > 0.0 && tau0.is_finite() {
-            tau0
-        } else {
-            1.0 / self.depth.depth_m
-        };
-        for _ in 0..TAU_ITERS {
-            let (rd, jd) = self.depth_row(tau);
-            let (mut g, mut h) = (jd * rd, jd * jd);
+        self.gauss_newton_tau(tau0, |tau, mut g, mut h| {
             for (j, f) in self.obs.iter() {
                 let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
                 let (r, jt) = f.residual_and_d_tau(ps, pj, ext, tau)?;
                 g += jt.dot(&r);
                 h += jt.norm_squared();
             }
-            if !(h > 0.0 && g.is_finite() && h.is_finite()) {
-                return Err(Error::NonFinite);
-            }
-            let step = -g / h;
-            let next = tau + step;
-            // The inverse depth stays positive: halve toward zero instead of crossing it.
-            tau = if next > 0.0 { next } else { 0.5 * tau };
-            if libm::fabs(step) <= TAU_TOL * tau {
-                break;
-            }
-        }
-        Ok(tau)
+            Ok((g, h))
+        })
     }
 
     /// Stacked squared norm `|e(tau)|^2`.
