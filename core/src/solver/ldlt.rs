@@ -395,13 +395,7 @@ mod tests {
         let mut ne = NormalEquations::<NN>::new();
         ne.reset(NN).unwrap();
         let mut full = nalgebra::SMatrix::<f64, NN, NN>::zeros();
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        let mut rnd = crate::solver::test_rng(7);
         for i in 0..NN {
             for j in i..NN {
                 let band = j - i < 5 && (i / 5 == j / 5 || j - i < 3);

@@ -32,3 +32,14 @@ pub use lm::{LmConfig, LmProblem, LmSummary, LmWorkspace, Termination};
 pub use marginalization::{add_prior, schur_complement, schur_complement_in_place, sqrt_prior};
 pub use normal_equations::{JacobianBlock, NormalEquations};
 pub use schur_landmarks::LandmarkSchur;
+
+/// Deterministic uniform numbers in `[-0.5, 0.5)` for the solver's unit tests (a 64-bit LCG).
+#[cfg(test)]
+fn test_rng(mut seed: u64) -> impl FnMut() -> f64 {
+    move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+    }
+}

@@ -514,13 +514,7 @@ mod tests {
 
     #[test]
     fn dense_pair_equals_the_block_path() {
-        let mut seed = 5u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        let mut rnd = crate::solver::test_rng(5);
         let r = nalgebra::SVector::<f64, 4>::from_fn(|_, _| rnd());
         let ja = nalgebra::SMatrix::<f64, 4, 3>::from_fn(|_, _| rnd());
         let jb = nalgebra::SMatrix::<f64, 4, 3>::from_fn(|_, _| rnd());
