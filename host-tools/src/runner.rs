@@ -94,6 +94,8 @@ pub struct RunOutput {
     pub imu_rate: Vec<NavState>,
     /// Keyframe poses, each at its last optimized value (when it left the window, or at the end).
     pub keyframes: Vec<StampedPose>,
+    /// The same keyframes' whole states (velocity and biases included), same order.
+    pub keyframe_states: Vec<NavState>,
     /// One report per keyframe.
     pub reports: Vec<KeyframeReport>,
     /// LiDAR-depth events, one entry per report (same order).
@@ -163,6 +165,7 @@ pub fn replay(
     let mut out = RunOutput {
         imu_rate: Vec::with_capacity(ds.imu.len()),
         keyframes: Vec::new(),
+        keyframe_states: Vec::new(),
         reports: Vec::new(),
         lidar_events: Vec::new(),
         counters: Counters::default(),
@@ -171,7 +174,7 @@ pub fn replay(
         lidar,
         estimator_wall_s: 0.0,
     };
-    let mut kf_poses: BTreeMap<i64, StampedPose> = BTreeMap::new();
+    let mut kf_states: BTreeMap<i64, NavState> = BTreeMap::new();
     let t_start_ns = ds.imu[start].t_ns;
     let mut fi = ds.features.partition_point(|f| f.t_ns < t_start_ns);
     // Sweeps due before the first replayed IMU sample are skipped, like frames before it.
@@ -191,7 +194,7 @@ pub fn replay(
                 });
                 out.reports.push(r);
                 for kf in est.keyframes() {
-                    kf_poses.insert(kf.state.t_ns, StampedPose::from(&kf.state));
+                    kf_states.insert(kf.state.t_ns, kf.state);
                 }
             }
             if let Some(nav) = o.nav {
@@ -210,7 +213,8 @@ pub fn replay(
     }
     out.estimator_wall_s = t_run.elapsed().as_secs_f64();
     progress.finish();
-    out.keyframes = kf_poses.into_values().collect();
+    out.keyframe_states = kf_states.into_values().collect();
+    out.keyframes = out.keyframe_states.iter().map(StampedPose::from).collect();
     out.counters = est.counters();
     Ok(out)
 }

@@ -284,11 +284,59 @@ fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&text).unwrap()
 }
 
+/// `keyframes_state.csv` holds the keyframes of `keyframes.tum` (same stamps and positions) with
+/// velocities and biases; from the true initial state they stay near the simulator's truth.
+fn check_keyframe_states(out: &Path, ds: &Dataset) {
+    let text = std::fs::read_to_string(out.join("keyframes_state.csv")).unwrap();
+    let tum = std::fs::read_to_string(out.join("keyframes.tum")).unwrap();
+    let tum: Vec<Vec<f64>> = tum
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split(' ').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert!(text.starts_with("#timestamp [ns],p_wb_x [m]"), "{text}");
+    assert_eq!(rows.len(), tum.len());
+    assert!(rows.len() > 5);
+    for (r, t) in rows.iter().zip(&tum) {
+        assert_eq!(r.len(), 17);
+        assert!(
+            (r[0] * 1e-9 - t[0]).abs() < 1e-6,
+            "stamps {} vs {}",
+            r[0],
+            t[0]
+        );
+        for k in 0..3 {
+            assert!(
+                (r[1 + k] - t[1 + k]).abs() < 1e-6,
+                "position {r:?} vs {t:?}"
+            );
+        }
+        let g =
+            povins_host_tools::runner::interpolate_state(&ds.ground_truth, r[0] as i64).unwrap();
+        let dv = (Vec3::new(r[8], r[9], r[10]) - g.v_wb).norm();
+        let dba = (Vec3::new(r[14], r[15], r[16]) - g.ba).norm();
+        assert!(dv < 0.1, "velocity error {dv} m/s at {}", r[0]);
+        assert!(
+            dba < 0.1,
+            "accelerometer bias error {dba} m/s^2 at {}",
+            r[0]
+        );
+        // A zero column (e.g. a velocity never written) would not be near a moving truth.
+        assert!(r[8..11].iter().any(|v| *v != 0.0));
+    }
+}
+
 #[test]
 fn run_writes_the_lidar_columns_and_summary_keys() {
     let dir = tempfile::tempdir().unwrap();
     let mcap = dir.path().join("robot.mcap");
-    povins_platform::mcap_io::write_dataset(&mcap, &simulate(Scenario::Robot, 6.0, None)).unwrap();
+    let ds = simulate(Scenario::Robot, 6.0, None);
+    povins_platform::mcap_io::write_dataset(&mcap, &ds).unwrap();
     let out = dir.path().join("out");
     let (ok, stdout, stderr) = povins(&[
         "run",
@@ -335,6 +383,8 @@ fn run_writes_the_lidar_columns_and_summary_keys() {
     // `povins plot` reads it by column name.
     let samples = povins_host_tools::plot::read_stats_csv(&out.join("stats.csv")).unwrap();
     assert_eq!(samples.len(), rows.len());
+
+    check_keyframe_states(&out, &ds);
 
     let s = json(&out.join("summary.json"));
     assert_eq!(s["lidar"], true);

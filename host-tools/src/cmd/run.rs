@@ -12,6 +12,7 @@ use crate::progress::Progress;
 use crate::runner::{config_for, percentile, replay, sorted_ms, InitMode, RunOutput};
 use anyhow::{Context, Result};
 use povins_core::estimator::{EstimatorConfig, KeyframeReport};
+use povins_core::inertial::NavState;
 use povins_platform::trajectory::{write_tum, StampedPose};
 use povins_platform::Dataset;
 use std::io::Write;
@@ -247,6 +248,33 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
     Ok(s)
 }
 
+/// Writes whole navigation states in the EuRoC ground-truth column layout (so the files of a run
+/// and the dataset's `state_groundtruth_estimate0/data.csv` compare column by column).
+fn write_states_csv(path: &Path, states: &[NavState]) -> Result<()> {
+    let mut f = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?,
+    );
+    writeln!(
+        f,
+        "#timestamp [ns],p_wb_x [m],p_wb_y [m],p_wb_z [m],q_wb_w [],q_wb_x [],q_wb_y [],q_wb_z [],v_wb_x [m s^-1],v_wb_y [m s^-1],v_wb_z [m s^-1],bg_x [rad s^-1],bg_y [rad s^-1],bg_z [rad s^-1],ba_x [m s^-2],ba_y [m s^-2],ba_z [m s^-2]"
+    )?;
+    for s in states {
+        let q = s.q_wb.quaternion();
+        write!(f, "{}", s.t_ns)?;
+        for v in [s.p_wb.x, s.p_wb.y, s.p_wb.z, q.w, q.i, q.j, q.k]
+            .into_iter()
+            .chain(s.v_wb.iter().copied())
+            .chain(s.bg.iter().copied())
+            .chain(s.ba.iter().copied())
+        {
+            write!(f, ",{v:.9}")?;
+        }
+        writeln!(f)?;
+    }
+    f.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// The LiDAR columns appended to `stats.csv` (one row per keyframe).
 pub const STATS_LIDAR_COLUMNS: &str =
     "lidar_points,depths_associated,depths_rejected,ldm_count,association_ms,rejection_ms,depth_opt_ms";
@@ -257,6 +285,7 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
     let traj: Vec<StampedPose> = out.imu_rate.iter().map(StampedPose::from).collect();
     write_tum(&dir.join("trajectory.tum"), &traj)?;
     write_tum(&dir.join("keyframes.tum"), &out.keyframes)?;
+    write_states_csv(&dir.join("keyframes_state.csv"), &out.keyframe_states)?;
     let path = dir.join("stats.csv");
     let mut f = std::io::BufWriter::new(
         std::fs::File::create(&path).with_context(|| format!("cannot write {}", path.display()))?,
