@@ -132,9 +132,18 @@ pub(crate) fn max_abs_diag<const D: usize>(
         .fold(0.0_f64, |acc, v| acc.max(libm::fabs(*v)))
 }
 
+/// Pivots per panel of the blocked elimination: the trailing rows are read and written once per
+/// panel instead of once per pivot, and the panel's rows stay in L1.
+const PANEL: usize = 4;
+
 /// Runs elimination steps `steps` on the upper triangle of the active `n x n` block of `a`
 /// (see module docs), storing kept pivots in `d` (0 for dropped ones) and the unit-upper factor
 /// rows in place. Errors only on a non-finite pivot.
+///
+/// Blocked by [`PANEL`] pivots: a panel is eliminated among its own rows first, then every
+/// trailing entry subtracts the panel's terms in pivot order, and only then are the panel rows
+/// normalized. Each entry therefore sees exactly the operations of one-pivot-at-a-time
+/// elimination in the same order (bit-identical results), with a quarter of the memory traffic.
 pub(crate) fn eliminate<const D: usize>(
     a: &mut [[f64; D]; D],
     d: &mut [f64; D],
@@ -143,55 +152,132 @@ pub(crate) fn eliminate<const D: usize>(
     floor: f64,
     stats: &mut PivotStats,
 ) -> Result<(), Error> {
+    eliminate_in_panels(a, d, n, steps, floor, stats, PANEL)
+}
+
+/// [`eliminate`] with panels of `panel` pivots (`1..=PANEL`; 1 is the unblocked order).
+fn eliminate_in_panels<const D: usize>(
+    a: &mut [[f64; D]; D],
+    d: &mut [f64; D],
+    n: usize,
+    steps: core::ops::Range<usize>,
+    floor: f64,
+    stats: &mut PivotStats,
+    panel: usize,
+) -> Result<(), Error> {
     let n = n.min(D);
-    for k in steps.start..steps.end.min(n) {
-        let (top, bottom) = a.split_at_mut(k + 1);
-        let Some(row_k) = top.last_mut() else {
-            continue;
-        };
-        let pivot = row_k.get(k).copied().unwrap_or(0.0);
-        if !pivot.is_finite() {
-            return Err(Error::NonFinite);
-        }
-        stats.n += 1;
-        stats.min = stats.min.min(pivot);
-        stats.max = stats.max.max(pivot);
-        let tail = row_k.get_mut(k + 1..n).unwrap_or(&mut []);
-        if pivot <= floor {
-            if pivot < -floor {
-                stats.negative += 1;
+    let end = steps.end.min(n);
+    let panel = panel.clamp(1, PANEL);
+    let mut k0 = steps.start;
+    while k0 < end {
+        let k1 = (k0 + panel).min(end);
+        // 1/d of each panel pivot, 0 for a dropped one (its row is zeroed: it updates nothing).
+        let mut inv = [0.0; PANEL];
+        for k in k0..k1 {
+            let (top, below) = a.split_at_mut(k + 1);
+            let Some(row_k) = top.last_mut() else {
+                continue;
+            };
+            let pivot = row_k.get(k).copied().unwrap_or(0.0);
+            if !pivot.is_finite() {
+                return Err(Error::NonFinite);
             }
-            if let Some(dk) = d.get_mut(k) {
-                *dk = 0.0;
-            }
-            tail.fill(0.0);
-            continue;
-        }
-        stats.rank += 1;
-        if let Some(dk) = d.get_mut(k) {
-            *dk = pivot;
-        }
-        let inv = 1.0 / pivot;
-        // a_ij -= (a_ki / d_k) a_kj for i in k+1..n, j in i..n: row i is updated with the tail of
-        // row k starting at column i.
-        for (off, row_i) in bottom.iter_mut().take(n - k - 1).enumerate() {
-            let a_ki = tail.get(off).copied().unwrap_or(0.0);
-            if a_ki == 0.0 {
+            stats.n += 1;
+            stats.min = stats.min.min(pivot);
+            stats.max = stats.max.max(pivot);
+            let tail = row_k.get_mut(k + 1..n).unwrap_or(&mut []);
+            if pivot <= floor {
+                if pivot < -floor {
+                    stats.negative += 1;
+                }
+                if let Some(dk) = d.get_mut(k) {
+                    *dk = 0.0;
+                }
+                tail.fill(0.0);
                 continue;
             }
-            let f = a_ki * inv;
-            let i = k + 1 + off;
-            if let (Some(dst), Some(src)) = (row_i.get_mut(i..n), tail.get(off..)) {
-                for (x, s) in dst.iter_mut().zip(src) {
-                    *x -= f * s;
+            stats.rank += 1;
+            if let Some(dk) = d.get_mut(k) {
+                *dk = pivot;
+            }
+            let inv_k = 1.0 / pivot;
+            if let Some(slot) = inv.get_mut(k - k0) {
+                *slot = inv_k;
+            }
+            // Rows of the same panel: a_ij -= (a_ki / d_k) a_kj for j in i..n.
+            for (off, row_i) in below.iter_mut().take(k1 - k - 1).enumerate() {
+                let a_ki = tail.get(off).copied().unwrap_or(0.0);
+                if a_ki == 0.0 {
+                    continue;
+                }
+                let f = a_ki * inv_k;
+                let i = k + 1 + off;
+                if let (Some(dst), Some(src)) = (row_i.get_mut(i..n), tail.get(off..)) {
+                    for (x, s) in dst.iter_mut().zip(src) {
+                        *x -= f * s;
+                    }
                 }
             }
         }
-        for v in tail.iter_mut() {
-            *v *= inv;
+        let (top, trailing) = a.split_at_mut(k1);
+        let panel = top.get_mut(k0..).unwrap_or(&mut []);
+        update_trailing(panel, &inv, k1, n, trailing);
+        for (k, row_k) in (k0..k1).zip(panel.iter_mut()) {
+            let inv_k = inv.get(k - k0).copied().unwrap_or(0.0);
+            if inv_k != 0.0 {
+                for v in row_k.get_mut(k + 1..n).unwrap_or(&mut []) {
+                    *v *= inv_k;
+                }
+            }
         }
+        k0 = k1;
     }
     Ok(())
+}
+
+/// Trailing update of one panel (rows `panel`, unnormalized, pivots `k0..k1` with `1/d` in
+/// `inv`): for each row `i >= k1`, `a_ij -= (a_ki / d_k) a_kj` for the panel's `k` in order.
+fn update_trailing<const D: usize>(
+    panel: &[[f64; D]],
+    inv: &[f64; PANEL],
+    k1: usize,
+    n: usize,
+    trailing: &mut [[f64; D]],
+) {
+    for (off, row_i) in trailing.iter_mut().take(n.saturating_sub(k1)).enumerate() {
+        let i = k1 + off;
+        let mut f = [0.0; PANEL];
+        for ((fm, row_m), im) in f.iter_mut().zip(panel).zip(inv) {
+            *fm = row_m.get(i).copied().unwrap_or(0.0) * im;
+        }
+        let Some(dst) = row_i.get_mut(i..n) else {
+            continue;
+        };
+        if let ([r0, r1, r2, r3], [f0, f1, f2, f3]) = (panel, f) {
+            if f.iter().all(|v| *v != 0.0) {
+                let (u0, u1, u2, u3) = (
+                    r0.get(i..n).unwrap_or(&[]),
+                    r1.get(i..n).unwrap_or(&[]),
+                    r2.get(i..n).unwrap_or(&[]),
+                    r3.get(i..n).unwrap_or(&[]),
+                );
+                for ((((x, a0), a1), a2), a3) in dst.iter_mut().zip(u0).zip(u1).zip(u2).zip(u3) {
+                    // One subtraction per pivot, in pivot order (the unblocked rounding).
+                    *x = (((*x - f0 * a0) - f1 * a1) - f2 * a2) - f3 * a3;
+                }
+                continue;
+            }
+        }
+        // A short panel, or zero multipliers (skipped, as the unblocked loop skips them).
+        for (row_m, fm) in panel.iter().zip(f) {
+            if fm == 0.0 {
+                continue;
+            }
+            for (x, s) in dst.iter_mut().zip(row_m.get(i..n).unwrap_or(&[])) {
+                *x -= fm * s;
+            }
+        }
+    }
 }
 
 /// `y <- U^-T y` over the steps `steps` (forward substitution with the unit-upper rows of `a`).
@@ -387,6 +473,63 @@ impl<const D: usize> Ldlt<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blocked_elimination_is_bit_identical_to_one_pivot_at_a_time() {
+        // Dense SPD, sparse (zero multipliers), rank-deficient and indefinite matrices, full
+        // factorizations and partial (Schur) step ranges not aligned to the panel.
+        const NN: usize = 23;
+        let mut rnd = crate::solver::test_rng(11);
+        for case in 0..24 {
+            let mut a = [[0.0; NN]; NN];
+            let m = 6 + case % 5;
+            let mut g = [[0.0; NN]; NN];
+            for row in g.iter_mut().take(m) {
+                for v in row.iter_mut() {
+                    *v = rnd();
+                }
+            }
+            for i in 0..NN {
+                for j in i..NN {
+                    let sparse = case % 3 == 1 && (i * 7 + j * 3) % 4 == 0 && i != j;
+                    let mut v: f64 = (0..m).map(|k| g[k][i] * g[k][j]).sum();
+                    if i == j && case % 4 != 2 {
+                        v += 0.5; // full rank unless case % 4 == 2 (rank m: dropped pivots)
+                    }
+                    if case % 6 == 5 && i == j && i % 5 == 3 {
+                        v = -1.0; // indefinite
+                    }
+                    a[i][j] = if sparse { 0.0 } else { v };
+                }
+            }
+            let n = NN - case % 4;
+            let steps = if case % 2 == 0 {
+                0..n
+            } else {
+                1..(5 + case % 7)
+            };
+            let floor = 1e-9;
+            let (mut a1, mut a2) = (a, a);
+            let (mut d1, mut d2) = ([0.0; NN], [0.0; NN]);
+            let (mut s1, mut s2) = (PivotStats::new(), PivotStats::new());
+            eliminate(&mut a1, &mut d1, n, steps.clone(), floor, &mut s1).unwrap();
+            // Panels of one pivot: the textbook order, through the general (short-panel) path.
+            eliminate_in_panels(&mut a2, &mut d2, n, steps, floor, &mut s2, 1).unwrap();
+            for i in 0..NN {
+                assert_eq!(d1[i].to_bits(), d2[i].to_bits(), "case {case} d[{i}]");
+                for j in i..NN {
+                    assert_eq!(
+                        a1[i][j].to_bits(),
+                        a2[i][j].to_bits(),
+                        "case {case} a[{i}][{j}]: {} vs {}",
+                        a1[i][j],
+                        a2[i][j]
+                    );
+                }
+            }
+            assert_eq!(s1.report(), s2.report(), "case {case}");
+        }
+    }
 
     #[test]
     fn block_sparse_factorization_matches_a_dense_reference() {
