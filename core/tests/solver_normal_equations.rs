@@ -200,9 +200,6 @@ fn fast_2x6_path_equals_general_block_path() {
         for j in i..40 {
             assert!((fast.h[i][j] - slow.h[i][j]).abs() < 1e-12, "h[{i}][{j}]");
         }
-        for j in 0..i {
-            assert_eq!(fast.h[i][j], 0.0, "lower triangle written at ({i},{j})");
-        }
         assert!((fast.b[i] - slow.b[i]).abs() < 1e-12, "b[{i}]");
     }
     assert!((fast.cost - slow.cost).abs() < 1e-12);

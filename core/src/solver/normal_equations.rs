@@ -432,18 +432,12 @@ impl<const D: usize> NormalEquations<D> {
                 } else {
                     (&jb.data.0, xa, cb, ca)
                 };
-                // A diagonal block gets its upper triangle only (the lower one is never read).
-                let diag = r0 == c0;
                 for (i, xi) in x.iter().enumerate() {
-                    let k0 = if diag { i } else { 0 };
-                    let Some(row) = self
-                        .h
-                        .get_mut(r0 + i)
-                        .and_then(|h| h.get_mut(c0 + k0..c0 + 6))
+                    let Some(row) = self.h.get_mut(r0 + i).and_then(|h| h.get_mut(c0..c0 + 6))
                     else {
                         continue;
                     };
-                    for (h, yk) in row.iter_mut().zip(y.get(k0..).unwrap_or(&[])) {
+                    for (h, yk) in row.iter_mut().zip(y) {
                         *h += xi[0] * yk[0] + xi[1] * yk[1];
                     }
                 }
