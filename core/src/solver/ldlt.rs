@@ -134,7 +134,7 @@ pub(crate) fn max_abs_diag<const D: usize>(
 
 /// Pivots per panel of the blocked elimination: the trailing rows are read and written once per
 /// panel instead of once per pivot, and the panel's rows stay in L1.
-const PANEL: usize = 4;
+pub(crate) const PANEL: usize = 4;
 
 /// Runs elimination steps `steps` on the upper triangle of the active `n x n` block of `a`
 /// (see module docs), storing kept pivots in `d` (0 for dropped ones) and the unit-upper factor
@@ -144,19 +144,10 @@ const PANEL: usize = 4;
 /// trailing entry subtracts the panel's terms in pivot order, and only then are the panel rows
 /// normalized. Each entry therefore sees exactly the operations of one-pivot-at-a-time
 /// elimination in the same order (bit-identical results), with a quarter of the memory traffic.
+///
+/// `panel` is the number of pivots per panel, clamped to `1..=PANEL`: callers pass [`PANEL`];
+/// 1 is the textbook one-pivot order the tests compare against.
 pub(crate) fn eliminate<const D: usize>(
-    a: &mut [[f64; D]; D],
-    d: &mut [f64; D],
-    n: usize,
-    steps: core::ops::Range<usize>,
-    floor: f64,
-    stats: &mut PivotStats,
-) -> Result<(), Error> {
-    eliminate_in_panels(a, d, n, steps, floor, stats, PANEL)
-}
-
-/// [`eliminate`] with panels of `panel` pivots (`1..=PANEL`; 1 is the unblocked order).
-fn eliminate_in_panels<const D: usize>(
     a: &mut [[f64; D]; D],
     d: &mut [f64; D],
     n: usize,
@@ -398,7 +389,15 @@ impl<const D: usize> Ldlt<D> {
         let threshold = floor.threshold(max_abs_diag(&self.a, 0..n));
         let mut stats = PivotStats::new();
         self.factored = false;
-        eliminate(&mut self.a, &mut self.d, n, 0..n, threshold, &mut stats)?;
+        eliminate(
+            &mut self.a,
+            &mut self.d,
+            n,
+            0..n,
+            threshold,
+            &mut stats,
+            PANEL,
+        )?;
         self.factored = true;
         Ok(stats.report())
     }
@@ -512,9 +511,9 @@ mod tests {
             let (mut a1, mut a2) = (a, a);
             let (mut d1, mut d2) = ([0.0; NN], [0.0; NN]);
             let (mut s1, mut s2) = (PivotStats::new(), PivotStats::new());
-            eliminate(&mut a1, &mut d1, n, steps.clone(), floor, &mut s1).unwrap();
+            eliminate(&mut a1, &mut d1, n, steps.clone(), floor, &mut s1, PANEL).unwrap();
             // Panels of one pivot: the textbook order, through the general (short-panel) path.
-            eliminate_in_panels(&mut a2, &mut d2, n, steps, floor, &mut s2, 1).unwrap();
+            eliminate(&mut a2, &mut d2, n, steps, floor, &mut s2, 1).unwrap();
             for i in 0..NN {
                 assert_eq!(d1[i].to_bits(), d2[i].to_bits(), "case {case} d[{i}]");
                 for j in i..NN {

@@ -19,7 +19,7 @@
 //! whose pivot was dropped are zero. [`add_prior`] adds that residual at `dx = x (-) x0`.
 
 use super::ldlt::{
-    eliminate, forward_substitute, max_abs_diag, FactorReport, Ldlt, PivotFloor, PivotStats,
+    eliminate, forward_substitute, max_abs_diag, FactorReport, Ldlt, PivotFloor, PivotStats, PANEL,
 };
 use super::normal_equations::{
     accumulate_row_contiguous, accumulate_row_indexed, all_finite, NormalEquations,
@@ -54,7 +54,7 @@ pub fn schur_complement_in_place<const D: usize>(
     let threshold = floor.threshold(max_abs_diag(&ne.h, 0..m));
     let mut d = [0.0; D];
     let mut stats = PivotStats::new();
-    eliminate(&mut ne.h, &mut d, n, 0..m, threshold, &mut stats)?;
+    eliminate(&mut ne.h, &mut d, n, 0..m, threshold, &mut stats, PANEL)?;
     let b = ne.b.get_mut(..n).ok_or(Error::CapacityExceeded)?;
     forward_substitute(&ne.h, n, 0..m, b);
     // c* = c - sum_k y_k^2 / d_k with y = U^-T b over the eliminated steps.
