@@ -5,7 +5,7 @@ mod vision_common;
 
 use nalgebra::{Matrix2x6, SMatrix};
 use povins_core::camera::{CameraExtrinsic, Vec2};
-use povins_core::factors::pose_only_visual::PoseOnlyVisualFactor;
+use povins_core::factors::pose_only_visual::{PoseOnlyAnchors, PoseOnlyVisualFactor};
 use povins_core::factors::{sqrt_info_from_pixels, CamFrame, KeyframePose, TimedObs};
 use povins_core::landmarks::pose_only_depth;
 use povins_core::math::Vec3;
@@ -166,6 +166,37 @@ fn check_jacobians(j_is_e: bool, seed: u64) {
         } else {
             let nj = num_jac::<2, 6>(h, |d| res(&st.s, &st.e, &perturb_pose(&st.j, d), &st.ext));
             check("pose j", &jac.d_pose_j, &nj);
+        }
+        // The rank-structured blocks (weight w) against central differences: on e the Jacobian
+        // is q E, plus the j role when j == e.
+        let w = 0.7;
+        let anchors = PoseOnlyAnchors::new(
+            (f.kf_s, f.kf_e),
+            f.obs_s,
+            f.obs_e,
+            f.sqrt_info,
+            (&st.s, &st.e),
+            (&frames[0], &frames[1]),
+            &st.ext,
+        )
+        .unwrap();
+        let g = anchors
+            .geometry(f.kf_j, &f.obs_j, &j_pose, &frames[2])
+            .unwrap();
+        assert_eq!(anchors.whitened(&g), r0);
+        let pb = anchors.pose_blocks(&g, w);
+        assert!((pb.r - r0 * w).amax() < 1e-15);
+        check("blocks: pose s", &pb.d_pose_s, &(ns * w));
+        let on_e = pb.q * anchors.shared_e()
+            + if j_is_e {
+                pb.d_pose_j
+            } else {
+                Matrix2x6::zeros()
+            };
+        check("blocks: pose e", &on_e, &(ne * w));
+        if !j_is_e {
+            let nj = num_jac::<2, 6>(h, |d| res(&st.s, &st.e, &perturb_pose(&st.j, d), &st.ext));
+            check("blocks: pose j", &pb.d_pose_j, &(nj * w));
         }
         // Time delays.
         let td = |k: usize, d: f64| {

@@ -14,16 +14,16 @@ use super::problem_lidar::add_inverse_depth_obs;
 use super::window::{Block, Layout, Window, KF_DIM};
 use crate::camera::{CameraExtrinsic, Vec2};
 use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
-use crate::factors::pose_only_visual::PoseOnlyAnchors;
+use crate::factors::pose_only_visual::{InJ, PoseOnlyAnchors};
 use crate::factors::robust::Huber;
 use crate::factors::td::TdRandomWalk;
-use crate::factors::{CamFrame, TimedObs};
+use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::inertial::preintegration::{Mat15, Vec15};
 use crate::inertial::NavState;
 use crate::landmarks::{KfObs, LandmarkManager};
 use crate::lidar::LdmMode;
 use crate::math::{jr_inv_so3, quat_exp, Vec3};
-use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations};
+use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations, SharedBlock};
 use crate::Error;
 use heapless::Vec as HVec;
 
@@ -124,6 +124,53 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     pub saved: &'a mut Saved<N, L>,
     /// Counts of the last assembly.
     pub counts: AssemblyCounts,
+}
+
+/// Pose-only landmark with only body poses estimated: the geometry of every observation first
+/// (a landmark enters the system whole or not at all: `None` when one is degenerate, nothing
+/// added), then each residual with its robust weight through a [`SharedBlock`] on anchor `e`.
+/// Returns the robust cost and the number of observations.
+fn add_pose_only_landmark<const N: usize, const D: usize>(
+    anchors: &PoseOnlyAnchors<'_>,
+    obs: &[Option<KfObs>; N],
+    count: usize,
+    (s, e): (usize, usize),
+    (poses, frames, huber, l): (&[KeyframePose; N], &[CamFrame; N], &Huber, &Layout<N>),
+    ne: &mut NormalEquations<D>,
+) -> Result<Option<(f64, u32)>, Error> {
+    let mut geo: HVec<(usize, InJ<'_>), N> = HVec::new();
+    for (j, oj) in obs.iter().enumerate().take(count) {
+        let (Some(oj), Some(pj), Some(fj)) = (oj, poses.get(j), frames.get(j)) else {
+            continue;
+        };
+        if j == s {
+            continue;
+        }
+        match anchors.geometry(j, &timed(oj), pj, fj) {
+            Ok(g) => {
+                let _ = geo.push((j, g));
+            }
+            Err(_) => return Ok(None),
+        }
+    }
+    let col = |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
+    let (cs, ce) = (col(s)?, col(e)?);
+    let shared_e = anchors.shared_e();
+    let mut acc = SharedBlock::new(ne, shared_e, cs, ce)?;
+    let mut cost = 0.0;
+    for (j, g) in geo.iter() {
+        let sq = anchors.whitened(g).norm_squared();
+        cost += huber.rho(sq)[0];
+        let pb = anchors.pose_blocks(g, huber.sqrt_weight(sq));
+        if *j == e {
+            let on_e = pb.q * shared_e + pb.d_pose_j;
+            ne.add_2x6_blocks(&pb.r, &[pb.d_pose_s, on_e], &[cs, ce])?;
+        } else {
+            acc.add(ne, &pb.r, &pb.q, &pb.d_pose_s, &pb.d_pose_j, col(*j)?)?;
+        }
+    }
+    acc.finish(ne);
+    Ok(Some((cost, geo.len() as u32)))
 }
 
 fn timed(o: &KfObs) -> TimedObs {
@@ -352,6 +399,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
         let mut cost = 0.0;
         let linearize = ne.is_some();
+        // Only body poses estimated: the landmark's products on anchor e go through the rank
+        // structure (`add_pose_only_landmark`).
+        let fast = linearize && !est_ext && !est_td;
         for li in 0..self.lms.len() {
             let Some(lm) = self.lms.landmarks().get(li) else {
                 break;
@@ -409,6 +459,19 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 &ext,
             ) {
                 Err(_) => failed = true,
+                Ok(anchors) if fast => {
+                    if let Some(ne_ref) = ne.as_deref_mut() {
+                        let ctx = (&poses, &frames, &huber, &l);
+                        match add_pose_only_landmark(&anchors, &lm.obs, count, (s, e), ctx, ne_ref)?
+                        {
+                            Some((c, n)) => {
+                                lm_cost = c;
+                                n_obs = n;
+                            }
+                            None => failed = true,
+                        }
+                    }
+                }
                 Ok(anchors) => {
                     for (j, oj) in lm.obs.iter().enumerate().take(count) {
                         let (Some(oj), Some(pj), Some(fj)) = (oj, poses.get(j), frames.get(j))
@@ -438,33 +501,13 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     }
                 }
             }
-            if let (false, Some(ne_ref)) = (failed, ne.as_deref_mut()) {
+            if let (false, false, Some(ne_ref)) = (failed, fast, ne.as_deref_mut()) {
                 for (j, jac) in jacs.iter() {
                     let j = *j;
                     let sq = jac.r.norm_squared();
                     let w = huber.sqrt_weight(sq);
                     lm_cost += huber.rho(sq)[0];
                     n_obs += 1;
-                    if !est_ext && !est_td {
-                        let col =
-                            |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
-                        let r = jac.r * w;
-                        let (cs, ce) = (col(s)?, col(e)?);
-                        if j == e {
-                            ne_ref.add_2x6_blocks(
-                                &r,
-                                &[jac.d_pose_s * w, jac.d_pose_e * w],
-                                &[cs, ce],
-                            )?;
-                        } else {
-                            ne_ref.add_2x6_blocks(
-                                &r,
-                                &[jac.d_pose_s * w, jac.d_pose_e * w, jac.d_pose_j * w],
-                                &[cs, ce, col(j)?],
-                            )?;
-                        }
-                        continue;
-                    }
                     let r = [jac.r.x * w, jac.r.y * w];
                     let (mut a, mut b, mut c, mut x) = ([0.0; 12], [0.0; 12], [0.0; 12], [0.0; 12]);
                     row_major(&(jac.d_pose_s * w), &mut a);

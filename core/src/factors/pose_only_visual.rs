@@ -21,6 +21,13 @@
 //! `delta t_js = R_j^T dp_s + [t_js]x dth_j - R_j^T dp_j` (camera-pose perturbations). Camera
 //! blocks map to body and extrinsic blocks by `cam_to_body_ext`. When `j == e` the pose of `e`
 //! plays both roles and its two Jacobians are summed (likewise its time delay).
+//!
+//! **Rank structure of the anchors.** `M_a delta a + M_b delta b = Q_j (S_a delta a + S_b delta b)`
+//! with the per-observation `Q_j = W dpi [2 t_js, -u_j]` (2x2) and the
+//! landmark-wide `S_a = [a^T; b^T]`, `S_b = [0; a^T]`. So for `j != e` the Jacobian on the body
+//! pose of `e` is `Q_j E` with one `2 x 6` `E` per landmark, and the one on `s` is `Q_j F + G_j`
+//! (`F` landmark-wide, `G_j` through `u_j` and `t_js`). [`PoseOnlyAnchors::pose_blocks`] returns
+//! that form, so a landmark's `e`-block products reduce to `2 x 2` sums per observation.
 
 use super::{
     all_finite_ext, all_finite_pose, cam_to_body_ext, d_pi, CamFrame, KeyframePose, TimedObs,
@@ -91,10 +98,30 @@ pub struct PoseOnlyAnchors<'f> {
     /// The chain through `a` and `b`, formed on the first [`Self::evaluate`] (a cost-only
     /// evaluation never needs it).
     pre: OnceCell<AbChainPre>,
+    /// `(F, E)` of the rank structure (module docs), formed on the first
+    /// [`Self::pose_blocks`].
+    shared: OnceCell<(Matrix2x6<f64>, Matrix2x6<f64>)>,
 }
 
-/// Geometry of one observation `j` against the anchors.
-struct InJ<'a> {
+/// Whitened, robustly weighted residual of one observation `j` and its body-pose Jacobians in
+/// the rank-structured form (module docs): on `s` `d_pose_s`, on `e` `q E` (plus `d_pose_j` when
+/// `j == e`), on `j` `d_pose_j`. Camera extrinsic and time delays held fixed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseBlocks {
+    /// `w r` (whitened residual times the robust weight's square root).
+    pub r: Vec2,
+    /// `w W dpi [2 t_js, -u_j]`: maps the landmark-wide [`PoseOnlyAnchors::shared_e`] to the
+    /// observation's Jacobian on the pose of `e`.
+    pub q: Mat2x2,
+    /// W.r.t. the body pose of `s`, `[dp, dtheta]`.
+    pub d_pose_s: Matrix2x6<f64>,
+    /// W.r.t. the body pose of `j` (of `e` when `j == e`, to be added to `q E`).
+    pub d_pose_j: Matrix2x6<f64>,
+}
+
+/// Geometry of one observation `j` against the anchors ([`PoseOnlyAnchors::geometry`]).
+#[derive(Debug, Clone)]
+pub struct InJ<'a> {
     cj: &'a CamFrame,
     r_js: Mat3,
     t_js: Vec3,
@@ -157,6 +184,7 @@ impl<'f> PoseOnlyAnchors<'f> {
             alpha,
             dd,
             pre: OnceCell::new(),
+            shared: OnceCell::new(),
         })
     }
 
@@ -200,7 +228,22 @@ impl<'f> PoseOnlyAnchors<'f> {
         })
     }
 
-    fn whitened(&self, g: &InJ<'_>) -> Vec2 {
+    /// Geometry of observation `obs_j` in keyframe `kf_j` (pose `j`, camera frame `cj`; both
+    /// ignored when `kf_j` is the anchor `e`), for [`Self::whitened`] and [`Self::pose_blocks`].
+    ///
+    /// Errors: as [`Self::residual`].
+    pub fn geometry<'a>(
+        &'a self,
+        kf_j: usize,
+        obs_j: &TimedObs,
+        j: &KeyframePose,
+        cj: &'a CamFrame,
+    ) -> Result<InJ<'a>, Error> {
+        self.in_j(kf_j, obs_j, j, cj)
+    }
+
+    /// Whitened residual of an observation's geometry (unweighted).
+    pub fn whitened(&self, g: &InJ<'_>) -> Vec2 {
         let pi = Vec2::new(g.p.x / g.p.z, g.p.y / g.p.z);
         (pi - g.x_j.xy()).component_mul(&self.sqrt_info)
     }
@@ -282,6 +325,66 @@ impl<'f> PoseOnlyAnchors<'f> {
             d_td,
         })
     }
+}
+
+impl PoseOnlyAnchors<'_> {
+    /// The landmark-wide `E` (module docs): the Jacobian of observation `j != e` on the body pose
+    /// of `e` is `q E` ([`PoseBlocks::q`]).
+    pub fn shared_e(&self) -> Matrix2x6<f64> {
+        self.shared_fe().1
+    }
+
+    fn shared_fe(&self) -> &(Matrix2x6<f64>, Matrix2x6<f64>) {
+        self.shared.get_or_init(|| {
+            let pre = self
+                .pre
+                .get_or_init(|| AbChainPre::new(&self.two, &self.ce.r_wc.transpose()));
+            let (a, b) = (self.two.a.transpose(), self.two.b.transpose());
+            let mut s_a = SMatrix::<f64, 2, 3>::zeros();
+            s_a.set_row(0, &a);
+            s_a.set_row(1, &b);
+            let mut s_b = SMatrix::<f64, 2, 3>::zeros();
+            s_b.set_row(1, &a);
+            let ab = pre.apply::<2>(&s_a, &s_b);
+            let (f, _) = cam_to_body_ext::<2>(&ab.d_p_s, &ab.d_th_s, self.cs);
+            let (e, _) = cam_to_body_ext::<2>(&ab.d_p_e, &ab.d_th_e, self.ce);
+            (f, e)
+        })
+    }
+
+    /// Residual and body-pose Jacobians of an observation's geometry `g` in the rank-structured
+    /// form, scaled by `w` (the robust weight's square root, see [`PoseBlocks`]). Agrees with
+    /// [`Self::evaluate`]: `d_pose_s = w evaluate.d_pose_s`, `q E (+ d_pose_j when j == e) =
+    /// w evaluate.d_pose_e`, `d_pose_j = w evaluate.d_pose_j` for `j != e`.
+    pub fn pose_blocks(&self, g: &InJ<'_>, w: f64) -> PoseBlocks {
+        let (alpha, dd) = (self.alpha, self.dd);
+        let (f, _) = *self.shared_fe();
+        let h: SMatrix<f64, 2, 3> = Mat2x2::from_diagonal(&(self.sqrt_info * w)) * d_pi(&g.p);
+        let (hu, ht) = (h * g.u_j, h * g.t_js);
+        let q = Mat2x2::new(2.0 * ht.x, -hu.x, 2.0 * ht.y, -hu.y);
+        let h_rjw = h * g.cj.r_wc.transpose();
+        let h_rjs = h * g.r_js;
+        let d_p = h_rjw * alpha;
+        let g_s = body_of(&d_p, &(-(h_rjs * skew(&self.two.x_s) * dd)), self.cs);
+        let d_pose_j = body_of(&(-d_p), &(h * skew(&g.p)), g.cj);
+        PoseBlocks {
+            r: self.whitened(g) * w,
+            q,
+            d_pose_s: q * f + g_s,
+            d_pose_j,
+        }
+    }
+}
+
+/// The body-pose half of [`cam_to_body_ext`] (the extrinsic half is not needed when the
+/// extrinsic is held fixed).
+#[inline]
+fn body_of(d_p: &SMatrix<f64, 2, 3>, d_th: &SMatrix<f64, 2, 3>, cam: &CamFrame) -> Matrix2x6<f64> {
+    let mut body = Matrix2x6::zeros();
+    body.fixed_columns_mut::<3>(0).copy_from(d_p);
+    body.fixed_columns_mut::<3>(3)
+        .copy_from(&(-(d_p * cam.r_wb_pbc_x) + d_th * cam.r_cb));
+    body
 }
 
 impl PoseOnlyVisualFactor {

@@ -26,12 +26,14 @@ pub mod lm;
 pub mod marginalization;
 pub mod normal_equations;
 pub mod schur_landmarks;
+pub mod shared_block;
 
 pub use ldlt::{FactorReport, Ldlt, PivotFloor};
 pub use lm::{LmConfig, LmProblem, LmSummary, LmWorkspace, Termination};
 pub use marginalization::{add_prior, schur_complement, schur_complement_in_place, sqrt_prior};
 pub use normal_equations::{JacobianBlock, NormalEquations};
 pub use schur_landmarks::LandmarkSchur;
+pub use shared_block::SharedBlock;
 
 /// Deterministic uniform numbers in `[-0.5, 0.5)` for the solver's unit tests (a 64-bit LCG).
 #[cfg(test)]
