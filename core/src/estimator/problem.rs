@@ -22,7 +22,7 @@ use crate::inertial::preintegration::{Mat15, Vec15};
 use crate::inertial::NavState;
 use crate::landmarks::{KfObs, LandmarkManager};
 use crate::lidar::LdmMode;
-use crate::math::{jr_inv_so3, quat_exp, Vec3};
+use crate::math::{jr_inv_so3, quat_exp, Mat3, Vec3};
 use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations, SharedBlock};
 use crate::Error;
 use heapless::Vec as HVec;
@@ -135,7 +135,13 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
     obs: &[Option<KfObs>; N],
     count: usize,
     (s, e): (usize, usize),
-    (poses, frames, huber, l): (&[KeyframePose; N], &[CamFrame; N], &Huber, &Layout<N>),
+    (poses, frames, huber, l, rel_js): (
+        &[KeyframePose; N],
+        &[CamFrame; N],
+        &Huber,
+        &Layout<N>,
+        &impl Fn(usize) -> Option<(Mat3, Vec3)>,
+    ),
     ne: &mut NormalEquations<D>,
 ) -> Result<Option<(f64, u32)>, Error> {
     let mut geo: HVec<(usize, InJ<'_>), N> = HVec::new();
@@ -146,7 +152,10 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
         if j == s {
             continue;
         }
-        match anchors.geometry(j, &timed(oj), pj, fj) {
+        let Some(rel) = rel_js(j) else {
+            return Ok(None);
+        };
+        match anchors.geometry_with_relative(j, &timed(oj), pj, fj, rel) {
             Ok(g) => {
                 let _ = geo.push((j, g));
             }
@@ -397,6 +406,13 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let poses = self.window.poses();
         // Camera frames once per keyframe rather than three times per residual.
         let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
+        // Relative poses `(R_js, t_js)` once per keyframe pair rather than per observation.
+        let rel: [[(Mat3, Vec3); N]; N] = core::array::from_fn(|j| {
+            core::array::from_fn(|s| match (frames.get(j), frames.get(s)) {
+                (Some(fj), Some(fs)) if j < count && s < count => fj.relative_from(fs),
+                _ => (Mat3::identity(), Vec3::zeros()),
+            })
+        });
         let mut cost = 0.0;
         let linearize = ne.is_some();
         // Only body poses estimated: the landmark's products on anchor e go through the rank
@@ -449,7 +465,11 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             // Evaluate every observation first: a landmark enters the system whole or not at all.
             let mut jacs: HVec<(usize, crate::factors::pose_only_visual::PoseOnlyJacobians), N> =
                 HVec::new();
-            match PoseOnlyAnchors::new(
+            let rel_js = |j: usize| rel.get(j).and_then(|row| row.get(s)).copied();
+            let Some(rel_es) = rel_js(e) else {
+                continue;
+            };
+            match PoseOnlyAnchors::with_relative(
                 (s, e),
                 timed(os),
                 timed(oe),
@@ -457,11 +477,12 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 (ps, pe),
                 (fs, fe),
                 &ext,
+                rel_es,
             ) {
                 Err(_) => failed = true,
                 Ok(anchors) if fast => {
                     if let Some(ne_ref) = ne.as_deref_mut() {
-                        let ctx = (&poses, &frames, &huber, &l);
+                        let ctx = (&poses, &frames, &huber, &l, &rel_js);
                         match add_pose_only_landmark(&anchors, &lm.obs, count, (s, e), ctx, ne_ref)?
                         {
                             Some((c, n)) => {
@@ -490,7 +511,11 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                                 Err(_) => failed = true,
                             }
                         } else {
-                            match anchors.residual(j, &obs_j, pj, fj) {
+                            let g = match rel_js(j) {
+                                Some(rel) => anchors.geometry_with_relative(j, &obs_j, pj, fj, rel),
+                                None => Err(Error::DimensionMismatch),
+                            };
+                            match g.map(|g| anchors.whitened(&g)) {
                                 Ok(r) => {
                                     lm_cost += huber.rho(r.norm_squared())[0];
                                     n_obs += 1;

@@ -148,6 +148,33 @@ impl<'f> PoseOnlyAnchors<'f> {
         (cs, ce): (&'f CamFrame, &'f CamFrame),
         ext: &CameraExtrinsic,
     ) -> Result<Self, Error> {
+        let rel_es = ce.relative_from(cs);
+        Self::with_relative(
+            (kf_s, kf_e),
+            obs_s,
+            obs_e,
+            sqrt_info,
+            (s, e),
+            (cs, ce),
+            ext,
+            rel_es,
+        )
+    }
+
+    /// [`Self::new`] with `ce.relative_from(cs)` precomputed (`rel_es`; bit-identical result).
+    /// A window evaluates every landmark against the same few keyframe pairs, so it forms the
+    /// relative poses once per pair rather than once per landmark and observation.
+    #[allow(clippy::too_many_arguments)]
+    pub fn with_relative(
+        (kf_s, kf_e): (usize, usize),
+        obs_s: TimedObs,
+        obs_e: TimedObs,
+        sqrt_info: Vec2,
+        (s, e): (&KeyframePose, &KeyframePose),
+        (cs, ce): (&'f CamFrame, &'f CamFrame),
+        ext: &CameraExtrinsic,
+        (r_es, t_es): (Mat3, Vec3),
+    ) -> Result<Self, Error> {
         if kf_s == kf_e {
             return Err(Error::Degenerate);
         }
@@ -162,7 +189,6 @@ impl<'f> PoseOnlyAnchors<'f> {
         }
         let x_s = obs_s.corrected(s.td);
         let x_e = obs_e.corrected(e.td);
-        let (r_es, t_es) = ce.relative_from(cs);
         let two = TwoView::new(&x_s, &x_e, &r_es, &t_es);
         let alpha = two.a.norm_squared();
         let dd = -two.a.dot(&two.b);
@@ -194,6 +220,7 @@ impl<'f> PoseOnlyAnchors<'f> {
         obs_j: &TimedObs,
         j: &KeyframePose,
         cj: &'a CamFrame,
+        rel_js: Option<(Mat3, Vec3)>,
     ) -> Result<InJ<'a>, Error> {
         if kf_j == self.kf_s {
             return Err(Error::Degenerate);
@@ -209,7 +236,7 @@ impl<'f> PoseOnlyAnchors<'f> {
             }
             (cj, j.td)
         };
-        let (r_js, t_js) = cj.relative_from(self.cs);
+        let (r_js, t_js) = rel_js.unwrap_or_else(|| cj.relative_from(self.cs));
         let u_j = r_js * self.two.x_s;
         let p = u_j * self.dd + t_js * self.alpha;
         if !p.iter().all(|v| v.is_finite()) {
@@ -239,7 +266,19 @@ impl<'f> PoseOnlyAnchors<'f> {
         j: &KeyframePose,
         cj: &'a CamFrame,
     ) -> Result<InJ<'a>, Error> {
-        self.in_j(kf_j, obs_j, j, cj)
+        self.in_j(kf_j, obs_j, j, cj, None)
+    }
+
+    /// [`Self::geometry`] with `cj.relative_from(cs)` precomputed (`rel_js`; bit-identical).
+    pub fn geometry_with_relative<'a>(
+        &'a self,
+        kf_j: usize,
+        obs_j: &TimedObs,
+        j: &KeyframePose,
+        cj: &'a CamFrame,
+        rel_js: (Mat3, Vec3),
+    ) -> Result<InJ<'a>, Error> {
+        self.in_j(kf_j, obs_j, j, cj, Some(rel_js))
     }
 
     /// Whitened residual of an observation's geometry (unweighted).
@@ -260,7 +299,7 @@ impl<'f> PoseOnlyAnchors<'f> {
         j: &KeyframePose,
         cj: &CamFrame,
     ) -> Result<Vec2, Error> {
-        let g = self.in_j(kf_j, obs_j, j, cj)?;
+        let g = self.in_j(kf_j, obs_j, j, cj, None)?;
         Ok(self.whitened(&g))
     }
 
@@ -276,7 +315,7 @@ impl<'f> PoseOnlyAnchors<'f> {
         j: &KeyframePose,
         cj: &CamFrame,
     ) -> Result<PoseOnlyJacobians, Error> {
-        let g = self.in_j(kf_j, obs_j, j, cj)?;
+        let g = self.in_j(kf_j, obs_j, j, cj, None)?;
         let (alpha, dd) = (self.alpha, self.dd);
         let w = Mat2x2::from_diagonal(&self.sqrt_info);
         let h: SMatrix<f64, 2, 3> = w * d_pi(&g.p);
