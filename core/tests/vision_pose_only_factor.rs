@@ -178,12 +178,19 @@ fn check_jacobians(j_is_e: bool, seed: u64) {
             (&st.s, &st.e),
             (&frames[0], &frames[1]),
             &st.ext,
+            None,
         )
         .unwrap();
         let g = anchors
-            .geometry(f.kf_j, &f.obs_j, &j_pose, &frames[2])
+            .geometry(f.kf_j, &f.obs_j, &j_pose, &frames[2], None)
             .unwrap();
         assert_eq!(anchors.whitened(&g), r0);
+        // Precomputed relative poses give bit-identical results.
+        let rel = Some(frames[2].relative_from(&frames[0]));
+        let g_rel = anchors
+            .geometry(f.kf_j, &f.obs_j, &j_pose, &frames[2], rel)
+            .unwrap();
+        assert_eq!(anchors.pose_blocks(&g_rel, w), anchors.pose_blocks(&g, w));
         let pb = anchors.pose_blocks(&g, w);
         assert!((pb.r - r0 * w).amax() < 1e-15);
         check("blocks: pose s", &pb.d_pose_s, &(ns * w));

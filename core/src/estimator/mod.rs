@@ -934,6 +934,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             (ps, pe),
             (fs, fe),
             &self.ext,
+            None,
         ) else {
             return out;
         };

@@ -155,7 +155,7 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
         let Some(rel) = rel_js(j) else {
             return Ok(None);
         };
-        match anchors.geometry_with_relative(j, &timed(oj), pj, fj, rel) {
+        match anchors.geometry(j, &timed(oj), pj, fj, Some(rel)) {
             Ok(g) => {
                 let _ = geo.push((j, g));
             }
@@ -469,7 +469,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let Some(rel_es) = rel_js(e) else {
                 continue;
             };
-            match PoseOnlyAnchors::with_relative(
+            match PoseOnlyAnchors::new(
                 (s, e),
                 timed(os),
                 timed(oe),
@@ -477,7 +477,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 (ps, pe),
                 (fs, fe),
                 &ext,
-                rel_es,
+                Some(rel_es),
             ) {
                 Err(_) => failed = true,
                 Ok(anchors) if fast => {
@@ -512,7 +512,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                             }
                         } else {
                             let g = match rel_js(j) {
-                                Some(rel) => anchors.geometry_with_relative(j, &obs_j, pj, fj, rel),
+                                Some(rel) => anchors.geometry(j, &obs_j, pj, fj, Some(rel)),
                                 None => Err(Error::DimensionMismatch),
                             };
                             match g.map(|g| anchors.whitened(&g)) {

@@ -133,7 +133,9 @@ pub struct InJ<'a> {
 
 impl<'f> PoseOnlyAnchors<'f> {
     /// Anchors `s` (`kf_s`, observation `obs_s`, pose `s`, camera frame `cs`) and `e`; the
-    /// frames must be `CamFrame::new` of the poses with `ext`.
+    /// frames must be `CamFrame::new` of the poses with `ext`. `rel_es` is
+    /// `ce.relative_from(cs)` when the caller has it (a window evaluates every landmark against
+    /// the same few keyframe pairs), `None` to compute it here; the result is bit-identical.
     ///
     /// Errors: [`Error::Degenerate`] when `kf_s == kf_e` or the landmark is not in front of
     /// camera `s` (zero parallax included), [`Error::NonFinite`] for non-finite input,
@@ -147,33 +149,7 @@ impl<'f> PoseOnlyAnchors<'f> {
         (s, e): (&KeyframePose, &KeyframePose),
         (cs, ce): (&'f CamFrame, &'f CamFrame),
         ext: &CameraExtrinsic,
-    ) -> Result<Self, Error> {
-        let rel_es = ce.relative_from(cs);
-        Self::with_relative(
-            (kf_s, kf_e),
-            obs_s,
-            obs_e,
-            sqrt_info,
-            (s, e),
-            (cs, ce),
-            ext,
-            rel_es,
-        )
-    }
-
-    /// [`Self::new`] with `ce.relative_from(cs)` precomputed (`rel_es`; bit-identical result).
-    /// A window evaluates every landmark against the same few keyframe pairs, so it forms the
-    /// relative poses once per pair rather than once per landmark and observation.
-    #[allow(clippy::too_many_arguments)]
-    pub fn with_relative(
-        (kf_s, kf_e): (usize, usize),
-        obs_s: TimedObs,
-        obs_e: TimedObs,
-        sqrt_info: Vec2,
-        (s, e): (&KeyframePose, &KeyframePose),
-        (cs, ce): (&'f CamFrame, &'f CamFrame),
-        ext: &CameraExtrinsic,
-        (r_es, t_es): (Mat3, Vec3),
+        rel_es: Option<(Mat3, Vec3)>,
     ) -> Result<Self, Error> {
         if kf_s == kf_e {
             return Err(Error::Degenerate);
@@ -189,6 +165,7 @@ impl<'f> PoseOnlyAnchors<'f> {
         }
         let x_s = obs_s.corrected(s.td);
         let x_e = obs_e.corrected(e.td);
+        let (r_es, t_es) = rel_es.unwrap_or_else(|| ce.relative_from(cs));
         let two = TwoView::new(&x_s, &x_e, &r_es, &t_es);
         let alpha = two.a.norm_squared();
         let dd = -two.a.dot(&two.b);
@@ -257,6 +234,8 @@ impl<'f> PoseOnlyAnchors<'f> {
 
     /// Geometry of observation `obs_j` in keyframe `kf_j` (pose `j`, camera frame `cj`; both
     /// ignored when `kf_j` is the anchor `e`), for [`Self::whitened`] and [`Self::pose_blocks`].
+    /// `rel_js` is `cj.relative_from(cs)` when the caller has it, `None` to compute it here
+    /// (bit-identical).
     ///
     /// Errors: as [`Self::residual`].
     pub fn geometry<'a>(
@@ -265,20 +244,9 @@ impl<'f> PoseOnlyAnchors<'f> {
         obs_j: &TimedObs,
         j: &KeyframePose,
         cj: &'a CamFrame,
+        rel_js: Option<(Mat3, Vec3)>,
     ) -> Result<InJ<'a>, Error> {
-        self.in_j(kf_j, obs_j, j, cj, None)
-    }
-
-    /// [`Self::geometry`] with `cj.relative_from(cs)` precomputed (`rel_js`; bit-identical).
-    pub fn geometry_with_relative<'a>(
-        &'a self,
-        kf_j: usize,
-        obs_j: &TimedObs,
-        j: &KeyframePose,
-        cj: &'a CamFrame,
-        rel_js: (Mat3, Vec3),
-    ) -> Result<InJ<'a>, Error> {
-        self.in_j(kf_j, obs_j, j, cj, Some(rel_js))
+        self.in_j(kf_j, obs_j, j, cj, rel_js)
     }
 
     /// Whitened residual of an observation's geometry (unweighted).
@@ -458,6 +426,7 @@ impl PoseOnlyVisualFactor {
             (s, e),
             (cs, ce),
             ext,
+            None,
         )
     }
 
