@@ -191,7 +191,13 @@ impl<'f> PoseOnlyAnchors<'f> {
         })
     }
 
-    fn in_j<'a>(
+    /// Geometry of observation `obs_j` in keyframe `kf_j` (pose `j`, camera frame `cj`; both
+    /// ignored when `kf_j` is the anchor `e`), for [`Self::whitened`] and [`Self::pose_blocks`].
+    /// `rel_js` is `cj.relative_from(cs)` when the caller has it, `None` to compute it here
+    /// (bit-identical).
+    ///
+    /// Errors: as [`Self::residual`].
+    pub fn geometry<'a>(
         &'a self,
         kf_j: usize,
         obs_j: &TimedObs,
@@ -232,23 +238,6 @@ impl<'f> PoseOnlyAnchors<'f> {
         })
     }
 
-    /// Geometry of observation `obs_j` in keyframe `kf_j` (pose `j`, camera frame `cj`; both
-    /// ignored when `kf_j` is the anchor `e`), for [`Self::whitened`] and [`Self::pose_blocks`].
-    /// `rel_js` is `cj.relative_from(cs)` when the caller has it, `None` to compute it here
-    /// (bit-identical).
-    ///
-    /// Errors: as [`Self::residual`].
-    pub fn geometry<'a>(
-        &'a self,
-        kf_j: usize,
-        obs_j: &TimedObs,
-        j: &KeyframePose,
-        cj: &'a CamFrame,
-        rel_js: Option<(Mat3, Vec3)>,
-    ) -> Result<InJ<'a>, Error> {
-        self.in_j(kf_j, obs_j, j, cj, rel_js)
-    }
-
     /// Whitened residual of an observation's geometry (unweighted).
     pub fn whitened(&self, g: &InJ<'_>) -> Vec2 {
         let pi = Vec2::new(g.p.x / g.p.z, g.p.y / g.p.z);
@@ -267,7 +256,7 @@ impl<'f> PoseOnlyAnchors<'f> {
         j: &KeyframePose,
         cj: &CamFrame,
     ) -> Result<Vec2, Error> {
-        let g = self.in_j(kf_j, obs_j, j, cj, None)?;
+        let g = self.geometry(kf_j, obs_j, j, cj, None)?;
         Ok(self.whitened(&g))
     }
 
@@ -283,7 +272,7 @@ impl<'f> PoseOnlyAnchors<'f> {
         j: &KeyframePose,
         cj: &CamFrame,
     ) -> Result<PoseOnlyJacobians, Error> {
-        let g = self.in_j(kf_j, obs_j, j, cj, None)?;
+        let g = self.geometry(kf_j, obs_j, j, cj, None)?;
         let (alpha, dd) = (self.alpha, self.dd);
         let w = Mat2x2::from_diagonal(&self.sqrt_info);
         let h: SMatrix<f64, 2, 3> = w * d_pi(&g.p);
