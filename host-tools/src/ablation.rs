@@ -169,6 +169,14 @@ pub struct VariantRow {
     pub ate_mean_m: Option<f64>,
     /// `(ate_mean / ate_mean(po-vins) - 1) * 100`.
     pub ate_change_vs_po_vins_pct: Option<f64>,
+    /// The same per (scenario, seed) pair: geometric mean of `ATE / ATE(po-vins)` over the pairs,
+    /// minus 1, in percent (runs differ by chaotic trajectory details, so pairing removes the
+    /// scenario and seed from the comparison).
+    pub paired_change_pct: Option<f64>,
+    /// Standard error of that mean log ratio, in percent.
+    pub paired_se_pct: Option<f64>,
+    /// Pairs where po-vins has the lower ATE, and pairs compared.
+    pub po_vins_better: (usize, usize),
     /// Back end per keyframe, median over every keyframe of every run, ms.
     pub backend_ms_median: f64,
     /// Rejection per keyframe, median, ms.
@@ -295,6 +303,9 @@ fn aggregate(scenarios: &[Scenario], runs: &[RunResult]) -> Vec<VariantRow> {
                 ate_mean_m: mean(&means),
                 ate,
                 ate_change_vs_po_vins_pct: None,
+                paired_change_pct: None,
+                paired_se_pct: None,
+                po_vins_better: (0, 0),
                 backend_ms_median: pooled_median(&mine, |t| &t.backend_ms),
                 rejection_ms_median: pooled_median(&mine, |t| &t.rejection_ms),
                 depth_opt_ms_median: pooled_median(&mine, |t| &t.depth_opt_ms),
@@ -317,8 +328,35 @@ fn aggregate(scenarios: &[Scenario], runs: &[RunResult]) -> Vec<VariantRow> {
             (Some(a), Some(b)) if b > 0.0 => Some((a / b - 1.0) * 100.0),
             _ => None,
         };
+        let logs = paired_log_ratios(runs, r.variant);
+        let n = logs.len();
+        r.po_vins_better = (logs.iter().filter(|&&x| x > 0.0).count(), n);
+        if let Some(m) = mean(&logs) {
+            r.paired_change_pct = Some((m.exp() - 1.0) * 100.0);
+            if n >= 2 {
+                let var = logs.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1) as f64;
+                r.paired_se_pct = Some((var / n as f64).sqrt() * 100.0);
+            }
+        }
     }
     rows
+}
+
+/// `ln(ATE(variant) / ATE(po-vins))` for every (scenario, seed) where both have an ATE.
+fn paired_log_ratios(runs: &[RunResult], variant: Variant) -> Vec<f64> {
+    runs.iter()
+        .filter(|r| r.variant == variant)
+        .filter_map(|r| {
+            let a = r.ate_pos_rmse_m?;
+            let b = runs
+                .iter()
+                .find(|p| {
+                    p.variant == Variant::PoVins && p.scenario == r.scenario && p.seed == r.seed
+                })?
+                .ate_pos_rmse_m?;
+            (a > 0.0 && b > 0.0).then(|| (a / b).ln())
+        })
+        .collect()
 }
 
 /// One simulated sequence and its base configuration, shared by the runs of its variants.
@@ -544,9 +582,9 @@ pub fn render_markdown(r: &AblationReport) -> String {
         rule.push_str("---:|");
     }
     head.push_str(
-        " mean ATE (m) | vs po-vins | back end (ms) | rejection (ms) | depth-opt (ms) | depths/kf | LDM/kf | within 3σ before | within 3σ after | edge before | edge after |",
+        " mean ATE (m) | vs po-vins | paired (± se) | po-vins better | back end (ms) | rejection (ms) | depth-opt (ms) | depths/kf | LDM/kf | within 3σ before | within 3σ after | edge before | edge after |",
     );
-    rule.push_str("---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    rule.push_str("---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let _ = writeln!(s, "{head}\n{rule}");
     for row in &r.rows {
         let _ = write!(s, "| {} |", row.variant.name());
@@ -561,9 +599,15 @@ pub fn render_markdown(r: &AblationReport) -> String {
         let change = row
             .ate_change_vs_po_vins_pct
             .map_or("n/a".to_string(), |c| format!("{c:+.1}%"));
+        let paired = match (row.paired_change_pct, row.paired_se_pct) {
+            (Some(c), Some(se)) => format!("{c:+.1}% ± {se:.1}"),
+            (Some(c), None) => format!("{c:+.1}%"),
+            _ => "n/a".to_string(),
+        };
+        let better = format!("{}/{}", row.po_vins_better.0, row.po_vins_better.1);
         let _ = writeln!(
             s,
-            " {} | {change} | {:.2} | {:.3} | {:.3} | {:.1} | {:.1} | {} | {} | {} | {} |",
+            " {} | {change} | {paired} | {better} | {:.2} | {:.3} | {:.3} | {:.1} | {:.1} | {} | {} | {} | {} |",
             num(row.ate_mean_m, 3),
             row.backend_ms_median,
             row.rejection_ms_median,
@@ -578,7 +622,9 @@ pub fn render_markdown(r: &AblationReport) -> String {
     }
     s.push_str(
         "\nATE: IMU-rate position RMSE after position + yaw alignment, mean over seeds; the mean \
-         ATE is the mean of the scenario means. Times: median over every keyframe of every run. \
+         ATE is the mean of the scenario means; paired: geometric mean over the (scenario, seed) \
+         pairs of ATE / ATE(po-vins), with the standard error of its log, and the pairs where \
+         po-vins is better. Times: median over every keyframe of every run. \
          Association quality: share of associated LiDAR depths within 3 sigma_dr of the true \
          depth (simulator truth), before and after the uncertainty-based rejection; edge: share \
          of them on occlusion-edge features.\n\n## Runs\n\n\
@@ -665,6 +711,37 @@ mod tests {
         assert_eq!(flags(Variant::NoRejection), (true, true, false, true));
         assert_eq!(flags(Variant::DirectLdm), (true, false, true, true));
         assert_eq!(flags(Variant::NoDepthOpt), (true, true, true, false));
+    }
+
+    #[test]
+    fn paired_change_pairs_runs_by_scenario_and_seed() {
+        let with_seed = |mut r: RunResult, seed: u64| {
+            r.seed = seed;
+            r
+        };
+        let runs = vec![
+            with_seed(run("robot", Variant::PoVins, Some(0.1), &[1.0]), 1),
+            with_seed(run("robot", Variant::PoVins, Some(0.2), &[1.0]), 2),
+            with_seed(run("vehicle", Variant::PoVins, None, &[1.0]), 1),
+            // Twice as bad on seed 1, half on seed 2 (where a mean of ATEs would say +25%).
+            with_seed(run("robot", Variant::NoRejection, Some(0.2), &[1.0]), 1),
+            with_seed(run("robot", Variant::NoRejection, Some(0.1), &[1.0]), 2),
+            // No po-vins ATE to pair with: left out.
+            with_seed(run("vehicle", Variant::NoRejection, Some(5.0), &[1.0]), 1),
+        ];
+        let rows = aggregate(&[Scenario::Robot, Scenario::Vehicle], &runs);
+        let nr = &rows[2];
+        assert_eq!(nr.variant, Variant::NoRejection);
+        assert_eq!(nr.po_vins_better, (1, 2));
+        assert!(nr.paired_change_pct.unwrap().abs() < 1e-9);
+        // Logs +-ln 2: sample sd ln2 * sqrt(2), standard error ln 2.
+        assert!((nr.paired_se_pct.unwrap() - 100.0 * 2f64.ln()).abs() < 1e-9);
+        let po = &rows[0];
+        assert_eq!(po.po_vins_better, (0, 2));
+        assert!(po.paired_change_pct.unwrap().abs() < 1e-12);
+        // A variant with no runs has nothing to pair.
+        assert_eq!(rows[1].po_vins_better, (0, 0));
+        assert_eq!(rows[1].paired_change_pct, None);
     }
 
     #[test]

@@ -50,8 +50,7 @@
 //! sigma_dr_m = 0.1              # std of an associated LiDAR depth at short range
 //! sigma_dr_rel = 0.01           # plus this fraction of the depth (sqrt of the sum of squares)
 //! rejection_sigma_px = 1.5      # feature noise in the rejection's depth uncertainty
-//! rejection_sigmas = 3.0        # rejection gate, in std of d_v - d_r
-//! rejection_max_rel_std = 0.25 # test only once sigma_dv <= this fraction of the depth
+//! rejection_sigmas = 3.0        # rejection gate, in std of 1/d_v - 1/d_r
 //! p_bl_m = [0.0, 0.0, 0.1]      # LiDAR origin in the body (replaces the dataset's T_bl)
 //! q_bl_xyzw = [0.0, 0.0, 0.0, 1.0]  # LiDAR -> body rotation (normalized; |q| must be 1 +- 1e-3)
 //! td_l_s = 0.0                  # LiDAR-IMU time offset, t_imu = t_lidar + td_l_s
@@ -218,7 +217,6 @@ struct LidarSection {
     depth_only_opt: Option<bool>,
     sigma_dr_m: Option<f64>,
     sigma_dr_rel: Option<f64>,
-    rejection_max_rel_std: Option<f64>,
     rejection_sigma_px: Option<f64>,
     rejection_sigmas: Option<f64>,
     p_bl_m: Option<[f64; 3]>,
@@ -381,7 +379,6 @@ impl RunConfigFile {
         set(&mut c.depth_only_opt, l.depth_only_opt);
         set(&mut c.sigma_dr_m, l.sigma_dr_m);
         set(&mut c.sigma_dr_rel, l.sigma_dr_rel);
-        set(&mut c.rejection_max_rel_std, l.rejection_max_rel_std);
         set(&mut c.rejection_sigma_px, l.rejection_sigma_px);
         set(&mut c.rejection_sigmas, l.rejection_sigmas);
         if let Some(p) = l.p_bl_m {

@@ -704,16 +704,16 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if let (true, Some(ld), Some((d_v, two))) = (test_depths, lm.lidar, visual.as_ref()) {
                 let t0 = clock.map_or(0, |c| c());
                 let sd_v = depth_std(two, lc.rejection_sigma_px, &focal).unwrap_or(f64::INFINITY);
-                let gate = lc.rejection_sigmas * libm::sqrt(sd_v * sd_v + ld.sigma_m * ld.sigma_m);
-                // sigma_dv is first order in pixel noise only: at low parallax the pose errors
-                // between s and e dominate and the pose-only depth is far off while sigma_dv says
-                // otherwise (measured: rejections of good depths, d_v at half the truth). Test
-                // only a reasonably triangulated landmark; otherwise there is no evidence.
-                let testable = theta >= min_par
-                    && *d_v >= dmin
-                    && *d_v <= dmax
-                    && sd_v <= lc.rejection_max_rel_std * *d_v;
-                if testable && libm::fabs(d_v - ld.depth_m) > gate {
+                let pair = crate::lidar::DepthPair {
+                    d_v_m: *d_v,
+                    sigma_dv_m: sd_v,
+                    d_r_m: ld.depth_m,
+                    sigma_dr_m: ld.sigma_m,
+                };
+                // In inverse depth the test gates itself at low parallax (large sigma);
+                // the range check keeps degenerate geometry out.
+                let testable = theta >= min_par && *d_v >= dmin && *d_v <= dmax;
+                if testable && pair.is_outlier(lc.rejection_sigmas) {
                     lm.lidar = None;
                     lm.inv_depth = 0.0;
                     rejected += 1;

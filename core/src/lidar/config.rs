@@ -109,11 +109,9 @@ pub struct LidarConfig {
     pub sigma_dr_rel: f64,
     /// Feature noise used in the rejection's depth uncertainty, px (paper: 1.5).
     pub rejection_sigma_px: f64,
-    /// Rejection gate in standard deviations of `d_v - d_r` (paper: 3).
+    /// Rejection gate in standard deviations of `1/d_v - 1/d_r` (paper: 3, in depth; see
+    /// [`crate::lidar::rejection`]).
     pub rejection_sigmas: f64,
-    /// The test runs only once the pose-only depth's relative standard deviation is at most
-    /// this (below it the first-order `sigma_dv` is trustworthy).
-    pub rejection_max_rel_std: f64,
     /// LiDAR-IMU extrinsic.
     pub extrinsic: LidarExtrinsic,
     /// LiDAR-IMU time offset, `t_imu = t_lidar + td_l_s`.
@@ -133,7 +131,6 @@ impl Default for LidarConfig {
             sigma_dr_rel: 0.01,
             rejection_sigma_px: 1.5,
             rejection_sigmas: 3.0,
-            rejection_max_rel_std: 0.25,
             extrinsic: LidarExtrinsic::identity(),
             td_l_s: 0.0,
             association: AssociationConfig::default(),
@@ -157,7 +154,6 @@ impl LidarConfig {
             && self.sigma_dr_rel.is_finite()
             && pos(self.rejection_sigma_px)
             && pos(self.rejection_sigmas)
-            && pos(self.rejection_max_rel_std)
             && self.td_l_s.is_finite()
             && self.extrinsic.p_bl.iter().all(|x| x.is_finite())
             && self.extrinsic.q_bl.coords.iter().all(|x| x.is_finite())

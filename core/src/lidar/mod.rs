@@ -9,6 +9,8 @@
 //!    and keeps the nearest point per angular cell (foreground only).
 //! 3. [`SphereGrid::associate`] gives a feature's LiDAR depth: neighbours of its bearing, plane
 //!    fit with plane and range-spread checks, ray-plane intersection, depth = z in the camera.
+//! 4. Before each solve, [`DepthPair::is_outlier`] tests the depth against the landmark's
+//!    pose-only depth and its uncertainty (paper IV.C, in inverse depth: see [`rejection`]).
 //!
 //! Frames: `l` LiDAR, `b` body (IMU), `w` world, `c` camera; `T_bl` maps LiDAR points into the
 //! body (`P_b = R_bl P_l + p_bl`).
@@ -19,12 +21,14 @@ pub mod buffer;
 pub mod config;
 mod deskew;
 mod plane;
+pub mod rejection;
 #[cfg(test)]
 mod testutil;
 
 pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
 pub use buffer::{PointBuffer, ScanStats, WorldPoint};
 pub use config::{AssociationConfig, LdmMode, LidarConfig, LidarExtrinsic};
+pub use rejection::DepthPair;
 
 /// One LiDAR return in the LiDAR frame `l`, with its own timestamp (so motion distortion can be
 /// removed). Stored as `f32` to keep point buffers small; the math converts to `f64`.
