@@ -600,11 +600,16 @@ pub fn render_markdown(r: &AblationReport) -> String {
             .ate_change_vs_po_vins_pct
             .map_or("n/a".to_string(), |c| format!("{c:+.1}%"));
         let paired = match (row.paired_change_pct, row.paired_se_pct) {
+            _ if row.variant == Variant::PoVins => "reference".to_string(),
             (Some(c), Some(se)) => format!("{c:+.1}% ± {se:.1}"),
             (Some(c), None) => format!("{c:+.1}%"),
             _ => "n/a".to_string(),
         };
-        let better = format!("{}/{}", row.po_vins_better.0, row.po_vins_better.1);
+        let better = if row.variant == Variant::PoVins {
+            "n/a".to_string()
+        } else {
+            format!("{}/{}", row.po_vins_better.0, row.po_vins_better.1)
+        };
         let _ = writeln!(
             s,
             " {} | {change} | {paired} | {better} | {:.2} | {:.3} | {:.3} | {:.1} | {:.1} | {} | {} | {} | {} |",
