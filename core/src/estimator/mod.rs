@@ -12,7 +12,7 @@
 //!    ([`crate::lidar::SphereGrid`]);
 //! 3. prepare landmarks: anchor `e` of largest parallax, pose-only depth, parallax and depth gates
 //!    (inverse-depth mode: initialize the inverse depth), the uncertainty-based rejection of
-//!    LiDAR depths (paper IV.C; `estimator/lidar.rs`);
+//!    LiDAR depths (paper IV.C, tested in inverse depth: `lidar::rejection`);
 //! 4. LM pass 1, chi-square cull of observations, LM pass 2 when the cull removed enough; LiDAR
 //!    landmarks enter as MSC (or direct) LiDAR-depth measurements (`estimator/problem_lidar.rs`);
 //! 5. depth-only optimization of the LiDAR landmarks (paper V.D), then outlier culling by
@@ -633,7 +633,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     }
 
     /// Chooses anchors and gates every landmark for the coming solve. With `reject`, also runs
-    /// the uncertainty-based test on LiDAR depths (see [`lidar`]); returns (depths rejected,
+    /// the uncertainty-based test on LiDAR depths (see [`crate::lidar::rejection`]); returns (depths rejected,
     /// time spent on the test in ns).
     fn prepare_landmarks(&mut self, reject: bool) -> (u32, u64) {
         let count = self.window.len();
