@@ -96,6 +96,8 @@ pub struct AblationConfig {
     /// Camera-LiDAR rotation error of the simulated calibration, deg (the simulator's default
     /// is 0.5): larger values put more feature depths on the background at object edges.
     pub lidar_extrinsic_error_deg: f64,
+    /// Probability that a LiDAR ray passes through a tree crown (the simulator's default is 0).
+    pub foliage_porosity: f64,
 }
 
 /// One replay.
@@ -212,6 +214,8 @@ pub struct AblationReport {
     pub jobs: usize,
     /// Simulated camera-LiDAR rotation error, deg.
     pub lidar_extrinsic_error_deg: f64,
+    /// Simulated foliage porosity for the LiDAR.
+    pub foliage_porosity: f64,
     /// One row per variant, in [`Variant::ALL`] order.
     pub rows: Vec<VariantRow>,
     /// Every run, scenario-major, then seed, then variant.
@@ -375,6 +379,7 @@ impl Pair {
         &self,
         duration_s: f64,
         lidar_extrinsic_error_deg: f64,
+        foliage_porosity: f64,
         overrides: Option<&RunConfigFile>,
         progress: &Progress,
     ) -> Result<Prepared, String> {
@@ -392,6 +397,7 @@ impl Pair {
         let mut sim_cfg = SimConfig::new(self.scenario, self.seed, duration_s);
         sim_cfg.threads = 1;
         sim_cfg.lidar_extrinsic_error_deg = lidar_extrinsic_error_deg;
+        sim_cfg.foliage_porosity = foliage_porosity;
         let d = sim::simulate(&sim_cfg, &|_, _, _| {})
             .map_err(|e| format!("{e:#}"))
             .and_then(|s| {
@@ -480,6 +486,7 @@ pub fn run_ablation(
                             .prepared(
                                 cfg.duration_s,
                                 cfg.lidar_extrinsic_error_deg,
+                                cfg.foliage_porosity,
                                 overrides,
                                 progress,
                             )
@@ -542,6 +549,7 @@ pub fn run_ablation(
         duration_s: cfg.duration_s,
         jobs: cfg.jobs,
         lidar_extrinsic_error_deg: cfg.lidar_extrinsic_error_deg,
+        foliage_porosity: cfg.foliage_porosity,
         rows: aggregate(&cfg.scenarios, &runs),
         runs,
     })
@@ -567,11 +575,12 @@ pub fn render_markdown(r: &AblationReport) -> String {
     let _ = writeln!(
         s,
         "# LiDAR ablation (simulated: {}; seeds {}; {} s each; camera-LiDAR rotation error {} deg; \
-         ground-truth init; {} job{})\n",
+         foliage porosity {}; ground-truth init; {} job{})\n",
         r.scenarios.join(", "),
         seeds.join(", "),
         r.duration_s,
         r.lidar_extrinsic_error_deg,
+        r.foliage_porosity,
         r.jobs,
         if r.jobs == 1 { "" } else { "s" }
     );
@@ -784,6 +793,7 @@ mod tests {
             seeds: vec![1, 2],
             duration_s: 8.0,
             lidar_extrinsic_error_deg: 0.5,
+            foliage_porosity: 0.0,
             jobs: 2,
             rows,
             runs,

@@ -525,6 +525,7 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
             duration_s: 5.0,
             jobs,
             lidar_extrinsic_error_deg: 0.5,
+            foliage_porosity: 0.0,
         };
         run_ablation(&cfg, None, &quiet()).expect("ablation")
     };
@@ -563,6 +564,7 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
             duration_s: 2.0,
             jobs: 1,
             lidar_extrinsic_error_deg: 0.5,
+            foliage_porosity: 0.0,
         },
         None,
         &quiet()

@@ -3,6 +3,7 @@
 
 use povins_core::math::Vec3;
 use povins_host_tools::sim::lidar::lidar_pose;
+use povins_host_tools::sim::world::Material;
 use povins_host_tools::sim::{simulate, LidarKind, Scenario, SimConfig, T0_NS};
 
 struct Stats {
@@ -115,4 +116,60 @@ fn points_lie_on_surfaces_with_the_range_noise() {
             s.surf_rms
         );
     }
+}
+
+/// Points whose opaque ray meets a tree crown, and how many of them return from behind it.
+fn crown_rays(porosity: f64) -> (usize, usize, usize) {
+    let mut cfg = SimConfig::new(Scenario::Handheld, 7, 3.0);
+    cfg.foliage_porosity = porosity;
+    cfg.max_features = Some(20);
+    let out = simulate(&cfg, &|_, _, _| {}).expect("simulate");
+    let t_bl = out.t_bl_true.expect("true mounting");
+    let (mut crown, mut behind, mut all) = (0, 0, 0);
+    for scan in &out.dataset.lidar {
+        for p in scan.points.iter().step_by(3) {
+            all += 1;
+            let t = (p.t_ns - T0_NS) as f64 * 1e-9;
+            let p_l = Vec3::new(p.p_l[0] as f64, p.p_l[1] as f64, p.p_l[2] as f64);
+            let r = p_l.norm();
+            let (o, q) = lidar_pose(&out.trajectory, &t_bl, t);
+            let Some(hit) = out.world.raycast(&o, &(q * (p_l / r)), 1e3) else {
+                continue;
+            };
+            if out.world.material(&hit) == Material::Foliage {
+                crown += 1;
+                // Leaf returns lie at most 0.4 m inside the crown (plus range noise).
+                behind += usize::from(r > hit.t + 0.5);
+            }
+        }
+    }
+    (crown, behind, all)
+}
+
+#[test]
+fn porous_foliage_lets_the_lidar_see_behind_tree_crowns() {
+    let (crown0, behind0, all0) = crown_rays(0.0);
+    let (crown1, behind1, all1) = crown_rays(1.0);
+    eprintln!("opaque: {crown0} crown rays, {behind0} behind; porous: {crown1}, {behind1}");
+    assert!(
+        crown0 > 200,
+        "the scene must show tree crowns to the LiDAR: {crown0}"
+    );
+    assert_eq!(behind0, 0, "opaque crowns return from their surface");
+    // Fully porous: every ray through a crown returns from what lies behind it (or nothing);
+    // a ray grazing a crown can meet a trunk or another crown within 0.5 m of its entry.
+    assert!(
+        crown1 > 200 && behind1 * 1000 >= crown1 * 999,
+        "{behind1} of {crown1}"
+    );
+    assert!(
+        all1 <= all0,
+        "rays through crowns into the sky give no return"
+    );
+    let mut cfg = SimConfig::new(Scenario::Handheld, 7, 1.0);
+    cfg.foliage_porosity = 1.5;
+    let Err(err) = simulate(&cfg, &|_, _, _| {}) else {
+        panic!("a porosity of 1.5 was accepted");
+    };
+    assert!(format!("{err:#}").contains("foliage porosity"), "{err:#}");
 }

@@ -1,13 +1,13 @@
 //! The estimator's LiDAR steps (paper III, IV.C, V.D): sweep intake, depth association at a
 //! keyframe, the uncertainty-based rejection test and the depth-only optimization.
 //!
-//! Rejection (paper eq. 14-15): with the pose-only depth `d_v` of the landmark from its anchors
-//! `(s, e)` and its analytic standard deviation `sigma_dv` (paper eq. 13, evaluated with
-//! `rejection_sigma_px`), a LiDAR depth `d_r` is an outlier when
-//! `|d_v - d_r| > k sqrt(sigma_dv^2 + sigma_dr^2)` (`k = 3`). The test runs at every solve while
-//! the landmark lives (its parallax, hence its power, grows as the window moves); a landmark
-//! without parallax yet cannot be tested and keeps its depth. A rejected depth is dropped for
-//! good; the visual feature stays.
+//! Rejection (paper eq. 14-15, see [`crate::lidar::rejection`]): the pose-only depth `d_v` of the
+//! landmark from its anchors `(s, e)` and its analytic standard deviation `sigma_dv` (paper eq. 13,
+//! evaluated with `rejection_sigma_px`) are compared with the LiDAR depth `d_r` in inverse depth,
+//! `|1/d_v - 1/d_r| > k sqrt((sigma_dv/d_v^2)^2 + (sigma_dr/d_r^2)^2)` (`k = 3`). The test runs at
+//! every solve while the landmark lives (its parallax, hence its power, grows as the window
+//! moves); a landmark without parallax yet cannot be tested and keeps its depth. A rejected depth
+//! is dropped for good; the visual feature stays.
 
 use super::{DepthEvent, DepthEventKind, Estimator, KeyframeReport};
 use crate::camera::Vec2;

@@ -42,6 +42,10 @@ pub struct Args {
     /// outliers (features on object edges picking up background depths).
     #[arg(long, default_value_t = 0.5)]
     pub lidar_extrinsic_error_deg: f64,
+    /// Probability that a LiDAR ray passes through a tree crown, in [0, 1]: the camera sees the
+    /// crown, the LiDAR the wall behind it (the paper's unstructured-scene depth outliers).
+    #[arg(long, default_value_t = 0.0)]
+    pub foliage_porosity: f64,
 }
 
 /// Runs the command.
@@ -57,6 +61,7 @@ pub fn run(args: Args) -> Result<()> {
         duration_s: args.duration,
         jobs: args.jobs,
         lidar_extrinsic_error_deg: args.lidar_extrinsic_error_deg,
+        foliage_porosity: args.foliage_porosity,
     };
     let progress = Progress::new(run_count(&cfg) as u64, "ablation");
     let report = run_ablation(&cfg, overrides.as_ref(), &progress)?;

@@ -48,6 +48,9 @@ pub struct Args {
     /// Translation error of the true camera-LiDAR relation vs the stored calibration, m.
     #[arg(long, default_value_t = 0.03)]
     pub lidar_extrinsic_error_m: f64,
+    /// Probability that a LiDAR ray passes through a tree crown, in [0, 1] (0: opaque crowns).
+    #[arg(long, default_value_t = 0.0)]
+    pub foliage_porosity: f64,
     /// Fraction of new feature tracks that jump to a wrong landmark (default 0.02).
     #[arg(long)]
     pub wrong_track_rate: Option<f64>,
@@ -67,6 +70,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.lidar_points = args.lidar_points;
     cfg.lidar_extrinsic_error_deg = args.lidar_extrinsic_error_deg;
     cfg.lidar_extrinsic_error_m = args.lidar_extrinsic_error_m;
+    cfg.foliage_porosity = args.foliage_porosity;
     cfg.wrong_track_rate = args.wrong_track_rate;
     cfg.max_features = args.max_features;
     cfg.static_s = args.static_s;

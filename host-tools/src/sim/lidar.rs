@@ -17,7 +17,7 @@
 
 use super::rng::Rng;
 use super::trajectory::Trajectory;
-use super::world::World;
+use super::world::{Hit, Material, Shape, World};
 use povins_core::lidar::LidarPoint;
 use povins_core::math::{Quat, Vec3};
 use povins_platform::dataset::{Extrinsic, LidarScan};
@@ -58,6 +58,60 @@ pub struct LidarParams {
     pub range_m: (f64, f64),
     /// Angular radius of the depth-discontinuity test around each return, rad.
     pub edge_angle_rad: f64,
+    /// Probability that a ray passes through a foliage crown (gaps between leaves) instead of
+    /// returning from a leaf, in `[0, 1]`; 0 makes foliage an opaque sphere.
+    pub foliage_porosity: f64,
+}
+
+/// Crowns a ray may pass through before the cast gives up (trees are 2-4 overlapping spheres).
+const MAX_CROWNS: usize = 8;
+
+/// Largest depth of a leaf return behind the crown's outer surface, m.
+const MAX_LEAF_DEPTH_M: f64 = 0.4;
+
+/// Casts a ray through porous foliage: at each crown the ray returns from a leaf with
+/// probability `1 - porosity`, at a depth spread through the outer layer of the crown, or
+/// passes through to what lies behind (trunk, wall, ground). The camera sees crowns as opaque,
+/// so a feature on a crown can get LiDAR points of the background next to it: the paper's
+/// "feature on the tree, LiDAR point on the wall" depth outlier.
+fn cast_porous(
+    world: &World,
+    o: &Vec3,
+    d: &Vec3,
+    t_max: f64,
+    porosity: f64,
+    rng: &mut Rng,
+) -> Option<Hit> {
+    let mut start = 0.0;
+    for _ in 0..MAX_CROWNS {
+        let o_k = o + d * start;
+        let mut h = world.raycast(&o_k, d, t_max - start)?;
+        h.t += start;
+        if porosity <= 0.0 || world.material(&h) != Material::Foliage {
+            return Some(h);
+        }
+        let Some(Shape::Sphere { c, r }) = h
+            .prim
+            .and_then(|i| world.primitives().get(i as usize))
+            .map(|p| p.shape)
+        else {
+            return Some(h);
+        };
+        // Far side of the crown along the ray (the entry is at `h.t`).
+        let oc = o - c;
+        let b = oc.dot(d);
+        let t_exit = -b + libm::sqrt((b * b - oc.norm_squared() + r * r).max(0.0));
+        if !rng.chance(porosity) {
+            let leaf = rng.range(0.0, MAX_LEAF_DEPTH_M.min(0.5 * (t_exit - h.t)).max(0.0));
+            h.t += leaf;
+            return Some(h);
+        }
+        start = t_exit.max(h.t) + 1e-4;
+        if start >= t_max {
+            return None;
+        }
+    }
+    None
 }
 
 /// Rosette prism rates, Hz (incommensurate so the pattern does not repeat).
@@ -188,7 +242,7 @@ pub fn simulate_sweep(
         let o = p0 + (p1 - p0) * f;
         let q = q0.slerp(&q1, f);
         let d_w = q * d_l;
-        let hit = world.raycast(&o, &d_w, t_cast);
+        let hit = cast_porous(world, &o, &d_w, t_cast, params.foliage_porosity, rng);
         hits.push(hit.map(|h| (h.t, h.surface_id())));
         rets.push(hit.and_then(|h| {
             let r = h.t + params.range_noise_m * rng.normal();
@@ -253,5 +307,88 @@ pub fn simulate_sweep(
             points,
         },
         edge,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::world::Primitive;
+
+    /// A crown of radius 1 m centred 10 m ahead (x) at 2 m height, a wall at x = 20 m behind it.
+    fn tree_before_wall() -> World {
+        let prims = vec![
+            Primitive {
+                shape: Shape::Sphere {
+                    c: Vec3::new(10.0, 0.0, 2.0),
+                    r: 1.0,
+                },
+                material: Material::Foliage,
+            },
+            Primitive {
+                shape: Shape::Box {
+                    min: Vec3::new(20.0, -10.0, 0.0),
+                    max: Vec3::new(21.0, 10.0, 8.0),
+                },
+                material: Material::Building,
+            },
+        ];
+        World::new(prims, [-5.0, -15.0, 30.0, 15.0], 5.0)
+    }
+
+    const O: Vec3 = Vec3::new(0.0, 0.0, 2.0);
+
+    #[test]
+    fn opaque_crown_returns_its_surface() {
+        let w = tree_before_wall();
+        let mut rng = Rng::new(1);
+        let h = cast_porous(&w, &O, &Vec3::x(), 100.0, 0.0, &mut rng).expect("hit");
+        assert!((h.t - 9.0).abs() < 1e-9, "{}", h.t);
+        assert_eq!(w.material(&h), Material::Foliage);
+        // Opaque: the same as the plain ray cast, and no random draw.
+        assert_eq!(Some(h), w.raycast(&O, &Vec3::x(), 100.0));
+        assert_eq!(rng.next_u64(), Rng::new(1).next_u64());
+    }
+
+    #[test]
+    fn fully_porous_crown_shows_the_wall_behind() {
+        let w = tree_before_wall();
+        let mut rng = Rng::new(2);
+        for d in [Vec3::x(), Vec3::new(1.0, 0.05, 0.03).normalize()] {
+            let h = cast_porous(&w, &O, &d, 100.0, 1.0, &mut rng).expect("hit");
+            assert_eq!(w.material(&h), Material::Building);
+            // The wall face at x = 20 along d.
+            assert!((h.t - 20.0 / d.x).abs() < 1e-6, "{}", h.t);
+        }
+        // Past the crown with nothing behind within range: no return.
+        assert!(cast_porous(&w, &O, &Vec3::x(), 15.0, 1.0, &mut rng).is_none());
+    }
+
+    #[test]
+    fn porosity_is_the_share_of_rays_through_and_leaves_lie_in_the_outer_crown() {
+        let w = tree_before_wall();
+        let mut rng = Rng::new(3);
+        let n = 4000;
+        let (mut wall, mut leaf) = (0usize, 0usize);
+        for k in 0..n {
+            // Rays spread over the central part of the crown (chord > 1 m).
+            let a = 0.03 * ((k % 20) as f64 / 19.0 - 0.5);
+            let b = 0.03 * ((k / 20 % 20) as f64 / 19.0 - 0.5);
+            let d = Vec3::new(1.0, a, b).normalize();
+            let entry = w.raycast(&O, &d, 100.0).expect("crown").t;
+            let h = cast_porous(&w, &O, &d, 100.0, 0.3, &mut rng).expect("hit");
+            match w.material(&h) {
+                Material::Foliage => {
+                    leaf += 1;
+                    assert!(h.t >= entry && h.t <= entry + MAX_LEAF_DEPTH_M, "{}", h.t);
+                }
+                Material::Building => wall += 1,
+                m => panic!("unexpected {m:?}"),
+            }
+        }
+        assert_eq!(wall + leaf, n);
+        let share = wall as f64 / n as f64;
+        // Binomial(4000, 0.3): sd 0.007.
+        assert!((share - 0.3).abs() < 0.03, "{share}");
     }
 }

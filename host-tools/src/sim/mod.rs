@@ -64,6 +64,8 @@ pub struct SimConfig {
     pub lidar_extrinsic_error_m: f64,
     /// LiDAR range noise (1 sigma), m.
     pub lidar_range_noise_m: f64,
+    /// Probability that a LiDAR ray passes through a tree crown, in `[0, 1]`.
+    pub foliage_porosity: f64,
     /// Fraction of new tracks that become wrong tracks (`None` = scenario default).
     pub wrong_track_rate: Option<f64>,
     /// Tracked-feature cap (`None` = scenario default).
@@ -88,6 +90,7 @@ impl SimConfig {
             lidar_extrinsic_error_deg: 0.5,
             lidar_extrinsic_error_m: 0.03,
             lidar_range_noise_m: 0.02,
+            foliage_porosity: 0.0,
             wrong_track_rate: None,
             max_features: None,
             pixel_noise_px: 1.0,
@@ -224,6 +227,11 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
         "|td| must be < 1 s"
     );
     let mut pre = scenario::preset(cfg.scenario, cfg.static_s);
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&cfg.foliage_porosity),
+        "foliage porosity must be in [0, 1], got {}",
+        cfg.foliage_porosity
+    );
     if let Some(r) = cfg.wrong_track_rate {
         anyhow::ensure!(
             (0.0..=1.0).contains(&r),
@@ -283,6 +291,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             range_noise_m: cfg.lidar_range_noise_m,
             range_m: range,
             edge_angle_rad: 0.5f64.to_radians(),
+            foliage_porosity: cfg.foliage_porosity,
         }
     });
     let t_bl_true = lidar_params.as_ref().map(|_| {
