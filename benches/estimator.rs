@@ -139,6 +139,14 @@ fn bench_keyframe_lidar(c: &mut Criterion) {
         }
         let (est, i) = snapshot(&ds, cfg, 60);
         let sample = ds.imu[i];
+        if lidar == Some(LdmMode::Msc) {
+            // The tracker's per-image call: every window landmark with a depth, predicted.
+            let mut buf = [povins::core::estimator::FeaturePrediction::EMPTY; 200];
+            let t = sample.t_ns;
+            c.bench_function("estimator/predict_features_lidar_msc_sim_robot", |b| {
+                b.iter(|| est.predict_features(t, &mut buf).expect("prediction"))
+            });
+        }
         on_clone(
             c,
             &format!("estimator/keyframe_step_{name}_sim_robot"),

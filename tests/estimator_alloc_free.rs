@@ -141,20 +141,24 @@ fn lidar_alloc_free(ldm: povins::core::lidar::LdmMode) {
         let frames = frames_of(&ds);
         let sweeps = sweeps_of(&ds);
         let mut est = new_estimator(cfg);
-        let (mut keyframes, mut ldm_used) = (0usize, 0u64);
+        let (mut keyframes, mut ldm_used, mut predicted) = (0usize, 0u64, 0usize);
+        // Feature prediction for the tracker (after each keyframe) is part of the hot loop too.
+        let mut buf = [povins::core::estimator::FeaturePrediction::EMPTY; 200];
         let allocs = count_allocs(|| {
             est.initialize(s0).expect("initialize from ground truth");
-            drive_lidar(&mut est, &ds.imu[start..], &frames, &sweeps, |_, _, o| {
+            drive_lidar(&mut est, &ds.imu[start..], &frames, &sweeps, |e, s, o| {
                 if let Some(r) = o.keyframe {
                     keyframes += 1;
                     ldm_used += u64::from(r.ldm_count);
+                    predicted += e.predict_features(s.t_ns, &mut buf).unwrap_or(0);
                 }
                 true
             });
         });
         let c = est.counters();
-        println!("robot with LiDAR ({ldm:?}): {keyframes} keyframes, {ldm_used} LDMs, {allocs} allocations, {c:?}");
+        println!("robot with LiDAR ({ldm:?}): {keyframes} keyframes, {ldm_used} LDMs, {predicted} predictions, {allocs} allocations, {c:?}");
         assert!(keyframes > 40, "only {keyframes} keyframes");
+        assert!(predicted > 1000, "only {predicted} feature predictions");
         assert!(c.lidar_points_accepted > 100_000, "{c:?}");
         assert!(ldm_used > 100, "LiDAR depths were not used: {ldm_used}");
         assert_eq!(allocs, 0, "the estimator allocated {allocs} times");

@@ -6,8 +6,10 @@
 
 use crate::progress::Progress;
 use anyhow::{bail, Result};
-use povins_core::camera::CameraExtrinsic;
-use povins_core::estimator::{Counters, DepthEvent, EstimatorConfig, KeyframeReport, PoVins};
+use povins_core::camera::{CameraExtrinsic, FeatureObs};
+use povins_core::estimator::{
+    Counters, DepthEvent, EstimatorConfig, FeaturePrediction, KeyframeReport, PoVins,
+};
 use povins_core::inertial::NavState;
 use povins_core::lidar::{LidarConfig, LidarExtrinsic};
 use povins_platform::trajectory::StampedPose;
@@ -110,6 +112,10 @@ pub struct RunOutput {
     pub lidar: LidarConfig,
     /// Wall time of the whole replay (estimator calls only), s.
     pub estimator_wall_s: f64,
+    /// Per camera frame after initialization, for every feature the estimator predicted
+    /// (`predict_features`, just before the frame is offered) and the frame observes: the
+    /// distance between prediction and observation, px. What an INS-aided tracker would gain.
+    pub prediction_err_px: Vec<f32>,
 }
 
 /// Replays `ds` through a new estimator with `cfg`. LiDAR sweeps are offered whatever
@@ -173,7 +179,10 @@ pub fn replay(
         lidar_scans: ds.lidar.len(),
         lidar,
         estimator_wall_s: 0.0,
+        prediction_err_px: Vec::new(),
     };
+    let mut predicted = vec![FeaturePrediction::EMPTY; 512];
+    let mut eval_s = 0.0;
     let mut kf_states: BTreeMap<i64, NavState> = BTreeMap::new();
     let t_start_ns = ds.imu[start].t_ns;
     let mut fi = ds.features.partition_point(|f| f.t_ns < t_start_ns);
@@ -183,6 +192,11 @@ pub fn replay(
     let t_run = Instant::now();
     for (i, s) in ds.imu.iter().enumerate().skip(start) {
         while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
+            if let Ok(n) = est.predict_features(f.t_ns, &mut predicted) {
+                let t_eval = Instant::now();
+                prediction_errors(&predicted[..n.min(predicted.len())], &f.obs, &mut out);
+                eval_s += t_eval.elapsed().as_secs_f64();
+            }
             let _ = est.push_frame(f.t_ns, &f.obs);
             fi += 1;
         }
@@ -211,12 +225,25 @@ pub fn replay(
             progress.set_position(i as u64);
         }
     }
-    out.estimator_wall_s = t_run.elapsed().as_secs_f64();
+    out.estimator_wall_s = t_run.elapsed().as_secs_f64() - eval_s;
     progress.finish();
     out.keyframe_states = kf_states.into_values().collect();
     out.keyframes = out.keyframe_states.iter().map(StampedPose::from).collect();
     out.counters = est.counters();
     Ok(out)
+}
+
+/// Appends the pixel distance of each prediction to the observation of the same feature.
+fn prediction_errors(predicted: &[FeaturePrediction], obs: &[FeatureObs], out: &mut RunOutput) {
+    let mut by_id: Vec<(u64, f64, f64)> = obs.iter().map(|o| (o.id, o.u_px, o.v_px)).collect();
+    by_id.sort_by_key(|o| o.0);
+    for p in predicted {
+        if let Ok(k) = by_id.binary_search_by_key(&p.id, |o| o.0) {
+            let (_, u, v) = by_id[k];
+            out.prediction_err_px
+                .push((p.uv_px[0] - u).hypot(p.uv_px[1] - v) as f32);
+        }
+    }
 }
 
 /// Ground-truth state at `t_ns` by linear interpolation (slerp for attitude).

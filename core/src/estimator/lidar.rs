@@ -54,19 +54,15 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let _ = self.events.push(DepthEvent { id, kind, depth_m });
     }
 
-    /// Buffers the INS state of a propagated sample for de-skewing.
+    /// Buffers the INS state of a propagated sample for de-skewing and feature prediction.
     pub(super) fn record_ins(&mut self, st: &NavState) {
-        if self.cfg.lidar.enabled {
-            let _ = self.ins_window.push(*st);
-        }
+        let _ = self.ins_window.push(*st);
     }
 
     /// The INS restarts from the optimized keyframe `to` (it was at `from`): move the buffered
     /// INS states with it so sweeps straddling the keyframe de-skew on a continuous path.
     pub(super) fn correct_ins_window(&mut self, from: &NavState, to: &NavState) {
-        if self.cfg.lidar.enabled {
-            self.ins_window.apply_correction(from, to);
-        }
+        self.ins_window.apply_correction(from, to);
     }
 
     /// Associates LiDAR depths with the landmarks anchored at the new keyframe `pos` (their

@@ -26,6 +26,7 @@
 
 pub mod config;
 mod lidar;
+mod predict;
 pub mod prior;
 pub mod problem;
 mod problem_lidar;
@@ -33,6 +34,7 @@ pub mod report;
 pub mod window;
 
 pub use config::{EstimatorConfig, FirstStatePrior, VisualMode};
+pub use predict::FeaturePrediction;
 pub use report::{Counters, DepthEvent, DepthEventKind, KeyframeReport};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
@@ -658,31 +660,19 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 lm.lidar = None;
             }
             let s = lm.anchor_s as usize;
-            let (Some(Some(os)), Some(cs)) = (lm.obs.get(s), cams.get(s)) else {
+            let td_s = self.window.get(s).map_or(0.0, |k| k.td_s);
+            let (Some(x_s), Some(cs)) = (predict::corrected_obs(lm, s, td_s), cams.get(s)) else {
                 continue;
             };
-            let td_s = self.window.get(s).map_or(0.0, |k| k.td_s);
-            let x_s = TimedObs {
-                x_n: crate::camera::Vec2::new(os.x_n[0], os.x_n[1]),
-                vel: crate::camera::Vec2::new(os.vel[0], os.vel[1]),
-                td0: os.td0_s,
-            }
-            .corrected(td_s);
             let mut best: Option<(usize, f64, Vec3)> = None;
-            for (k, ok) in lm.obs.iter().enumerate().take(count) {
-                let (Some(ok), Some(ck)) = (ok, cams.get(k)) else {
-                    continue;
-                };
+            for (k, ck) in cams.iter().enumerate().take(count) {
                 if k == s {
                     continue;
                 }
                 let td_k = self.window.get(k).map_or(0.0, |kf| kf.td_s);
-                let x_k = TimedObs {
-                    x_n: crate::camera::Vec2::new(ok.x_n[0], ok.x_n[1]),
-                    vel: crate::camera::Vec2::new(ok.vel[0], ok.vel[1]),
-                    td0: ok.td0_s,
-                }
-                .corrected(td_k);
+                let Some(x_k) = predict::corrected_obs(lm, k, td_k) else {
+                    continue;
+                };
                 let (r_ks, _) = ck.relative_from(cs);
                 let theta = x_k.cross(&(r_ks * x_s)).norm();
                 if theta.is_finite() && best.is_none_or(|(_, t, _)| theta > t) {

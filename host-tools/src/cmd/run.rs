@@ -97,6 +97,12 @@ pub struct Summary {
     pub estimator_ms_per_camera_frame: f64,
     /// Median landmarks in the final solve of a keyframe.
     pub landmarks_used_median: f64,
+    /// Feature prediction for INS-aided tracking: predicted features the next frame observes.
+    pub predictions: usize,
+    /// Their distance to the observation, median and 90th percentile, px.
+    pub prediction_px_median: Option<f64>,
+    /// See `prediction_px_median`.
+    pub prediction_px_p90: Option<f64>,
     /// ATE of the IMU-rate trajectory, position RMSE, m (posyaw alignment).
     pub ate_pos_rmse_m: Option<f64>,
     /// ATE rotation RMSE, deg.
@@ -185,6 +191,13 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         .map(|r| f64::from(r.landmarks_used))
         .collect();
     used.sort_by(f64::total_cmp);
+    let mut pred: Vec<f64> = out
+        .prediction_err_px
+        .iter()
+        .map(|&e| f64::from(e))
+        .collect();
+    pred.sort_by(f64::total_cmp);
+    let pred_pct = |p: f64| (!pred.is_empty()).then(|| percentile(&pred, p));
     // `sum` of no f64 is -0.0; start from +0.0 so an empty run prints 0.000.
     let total_ms: f64 = 0.0 + ms.iter().sum::<f64>();
     let frames = out.camera_frames.max(1) as f64;
@@ -205,6 +218,9 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         backend_ms_per_camera_frame: total_ms / frames,
         estimator_ms_per_camera_frame: out.estimator_wall_s * 1e3 / frames,
         landmarks_used_median: percentile(&used, 50.0),
+        predictions: pred.len(),
+        prediction_px_median: pred_pct(50.0),
+        prediction_px_p90: pred_pct(90.0),
         ate_pos_rmse_m: None,
         ate_rot_rmse_deg: None,
         keyframe_ate_pos_rmse_m: None,
@@ -364,6 +380,13 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
         s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
     );
+    if let (Some(m), Some(p90)) = (s.prediction_px_median, s.prediction_px_p90) {
+        println!(
+            "predict   {m:.2} px median, {p90:.2} px p90 from INS pose and landmark depths to the \
+             tracked feature ({} features)",
+            s.predictions
+        );
+    }
     for line in lidar_lines(s) {
         println!("{line}");
     }
