@@ -144,11 +144,13 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         td: impl Fn(usize) -> f64,
     ) -> Option<(f64, bool)> {
         let by_inverse = lm.inv_depth > 0.0 && lm.inv_depth.is_finite();
-        let d = if lm.lidar.is_some() && self.cfg.lidar.enabled && by_inverse {
+        if lm.lidar.is_some() && self.cfg.lidar.enabled && by_inverse {
             return Some((1.0 / lm.inv_depth, true));
-        } else if !lm.usable {
+        }
+        if !lm.usable {
             return None;
-        } else if self.cfg.mode == VisualMode::InverseDepth {
+        }
+        let d = if self.cfg.mode == VisualMode::InverseDepth {
             by_inverse.then(|| 1.0 / lm.inv_depth)?
         } else {
             let e = lm.anchor_e? as usize;
