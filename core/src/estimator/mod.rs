@@ -129,6 +129,23 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     events: HVec<DepthEvent, MAX_EVENTS>,
 }
 
+/// Time-delay-corrected observation of `lm` at window position `k` (z = 1), or `None`.
+fn corrected_obs<const N: usize>(
+    lm: &crate::landmarks::Landmark<N>,
+    k: usize,
+    td_s: f64,
+) -> Option<Vec3> {
+    let o = lm.obs.get(k)?.as_ref()?;
+    Some(
+        TimedObs {
+            x_n: crate::camera::Vec2::new(o.x_n[0], o.x_n[1]),
+            vel: crate::camera::Vec2::new(o.vel[0], o.vel[1]),
+            td0: o.td0_s,
+        }
+        .corrected(td_s),
+    )
+}
+
 fn now(cfg: &EstimatorConfig) -> u64 {
     cfg.clock.map_or(0, |c| c())
 }
@@ -661,7 +678,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
             let s = lm.anchor_s as usize;
             let td_s = self.window.get(s).map_or(0.0, |k| k.td_s);
-            let (Some(x_s), Some(cs)) = (predict::corrected_obs(lm, s, td_s), cams.get(s)) else {
+            let (Some(x_s), Some(cs)) = (corrected_obs(lm, s, td_s), cams.get(s)) else {
                 continue;
             };
             let mut best: Option<(usize, f64, Vec3)> = None;
@@ -670,7 +687,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                     continue;
                 }
                 let td_k = self.window.get(k).map_or(0.0, |kf| kf.td_s);
-                let Some(x_k) = predict::corrected_obs(lm, k, td_k) else {
+                let Some(x_k) = corrected_obs(lm, k, td_k) else {
                     continue;
                 };
                 let (r_ks, _) = ck.relative_from(cs);

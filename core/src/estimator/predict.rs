@@ -16,10 +16,9 @@
 //! anchors `(s, e)` (paper eq. 19) for the current poses, only when the last solve admitted it
 //! (parallax and depth-uncertainty gates). Landmarks without a depth are not predicted.
 
-use super::Estimator;
-use crate::camera::{CameraPose, Vec2};
+use super::{corrected_obs, Estimator};
+use crate::camera::CameraPose;
 use crate::estimator::{Status, VisualMode};
-use crate::factors::TimedObs;
 use crate::landmarks::{Landmark, TwoView};
 use crate::math::{quat_exp, Quat, Vec3};
 use crate::Error;
@@ -50,19 +49,6 @@ impl FeaturePrediction {
     };
 }
 
-/// Time-delay-corrected observation of `lm` at window position `k` (z = 1), or `None`.
-pub(super) fn corrected_obs<const N: usize>(lm: &Landmark<N>, k: usize, td_s: f64) -> Option<Vec3> {
-    let o = lm.obs.get(k)?.as_ref()?;
-    Some(
-        TimedObs {
-            x_n: Vec2::new(o.x_n[0], o.x_n[1]),
-            vel: Vec2::new(o.vel[0], o.vel[1]),
-            td0: o.td0_s,
-        }
-        .corrected(td_s),
-    )
-}
-
 impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// Predicts where the window's landmarks appear in the image taken at `t_cam_ns` (camera
     /// clock). Writes up to `out.len()` predictions (a buffer of `L` always suffices) and returns
@@ -86,15 +72,15 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let poses = self.window.poses();
         let cams: [CameraPose; N] =
             core::array::from_fn(|k| self.ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb));
+        let td = |k: usize| self.window.get(k).map_or(0.0, |kf| kf.td_s);
         let mut n = 0;
         for lm in self.lms.landmarks() {
             let Some(slot) = out.get_mut(n) else { break };
             let s = lm.anchor_s as usize;
-            let td = |k: usize| self.window.get(k).map_or(0.0, |kf| kf.td_s);
             let (Some(x_s), Some(c_s)) = (corrected_obs(lm, s, td(s)), cams.get(s)) else {
                 continue;
             };
-            let Some((d, lidar)) = self.landmark_depth(lm, &x_s, c_s, &cams, td) else {
+            let Some((d, lidar)) = self.landmark_depth(lm, &x_s, c_s, &cams, &td) else {
                 continue;
             };
             let p_w = c_s.q_wc * (x_s * d) + c_s.p_wc;
@@ -141,7 +127,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         x_s: &Vec3,
         c_s: &CameraPose,
         cams: &[CameraPose; N],
-        td: impl Fn(usize) -> f64,
+        td: &impl Fn(usize) -> f64,
     ) -> Option<(f64, bool)> {
         let by_inverse = lm.inv_depth > 0.0 && lm.inv_depth.is_finite();
         if lm.lidar.is_some() && self.cfg.lidar.enabled && by_inverse {
