@@ -8,6 +8,8 @@
 //! huber_delta = 1.0             # Huber threshold, in sigmas
 //! min_parallax = 0.01           # landmark gate (|x_e x R x_s|)
 //! max_rel_depth_std = 0.1       # landmark gate: analytic depth std / depth
+//! depth_uncertainty_weighting = true  # whiten pose-only residuals with the depth's uncertainty
+//! slot_parallax_ref = 0.02      # parallax at which the slot policy values a track fully
 //! depth_range_m = [0.1, 200.0]
 //! cull_mean_px = 4.5
 //! cull_obs_px = 4.5
@@ -17,9 +19,13 @@
 //! second_pass_min_culled_frac = 0.02 # run that pass only if the cull removed this share of obs
 //! lm_initial_lambda = 1e-4      # Marquardt damping relative to diag(H)
 //! lm_function_tolerance = 1e-3  # stop when the cost decreases by less than this fraction
-//! marginalize_visual = true     # fold anchored landmarks into the prior (VINS-Mono)
-//! reuse_marginalized_landmarks = true  # re-anchor them and keep using them (VINS-Mono)
+//! marginalize_visual = true     # fold the oldest keyframe's visual residuals into the prior
+//! reuse_marginalized_landmarks = true  # VINS-Mono: fold all, keep using them (counted twice)
+//! zupt = true                   # zero-velocity updates while the images show rest
+//! zupt_sigma_mps = 0.01
 //! estimate_td = false
+//! td_prior_s = 0.005            # prior std of the first keyframe's delay
+//! td_rw_s_per_sqrt_s = 1e-4     # random walk of the delay between keyframes
 //! estimate_extrinsic = false
 //!
 //! [imu]                         # replaces the dataset's noise model (continuous densities)
@@ -40,7 +46,13 @@
 //! [static_init]
 //! accel_std_max_mps2 = 0.05
 //! gyro_std_max_rps = 0.005
+//! vibration_accel_std_max_mps2 = 2.5  # limits while the images confirm the rest
+//! vibration_gyro_std_max_rps = 0.2
 //! min_static_s = 1.0
+//!
+//! [rest]                        # rest detection from the feature tracks
+//! max_px = 2.0                  # median feature displacement since the rest began
+//! min_features = 8
 //!
 //! [lidar]                       # LiDAR enhancement (on by default when the dataset has LiDAR)
 //! enabled = true                # false = PO-VINS-WO (`--no-lidar`)
@@ -192,7 +204,16 @@ struct StaticSection {
     accel_norm_tol_mps2: Option<f64>,
     accel_std_max_mps2: Option<f64>,
     gyro_std_max_rps: Option<f64>,
+    vibration_accel_std_max_mps2: Option<f64>,
+    vibration_gyro_std_max_rps: Option<f64>,
     min_static_s: Option<f64>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RestSection {
+    max_px: Option<f64>,
+    min_features: Option<usize>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -243,6 +264,8 @@ pub struct RunConfigFile {
     huber_delta: Option<f64>,
     min_parallax: Option<f64>,
     max_rel_depth_std: Option<f64>,
+    depth_uncertainty_weighting: Option<bool>,
+    slot_parallax_ref: Option<f64>,
     depth_range_m: Option<[f64; 2]>,
     cull_mean_px: Option<f64>,
     cull_obs_px: Option<f64>,
@@ -252,7 +275,11 @@ pub struct RunConfigFile {
     second_pass_min_culled_frac: Option<f64>,
     lm_initial_lambda: Option<f64>,
     lm_function_tolerance: Option<f64>,
+    zupt: Option<bool>,
+    zupt_sigma_mps: Option<f64>,
     estimate_td: Option<bool>,
+    td_prior_s: Option<f64>,
+    td_rw_s_per_sqrt_s: Option<f64>,
     marginalize_visual: Option<bool>,
     reuse_marginalized_landmarks: Option<bool>,
     estimate_extrinsic: Option<bool>,
@@ -262,6 +289,8 @@ pub struct RunConfigFile {
     keyframe: KeyframeSection,
     #[serde(default)]
     static_init: StaticSection,
+    #[serde(default)]
+    rest: RestSection,
     #[serde(default)]
     lidar: LidarSection,
 }
@@ -304,6 +333,11 @@ impl RunConfigFile {
         set(&mut cfg.huber_delta, self.huber_delta);
         set(&mut cfg.min_parallax, self.min_parallax);
         set(&mut cfg.max_rel_depth_std, self.max_rel_depth_std);
+        set(
+            &mut cfg.depth_uncertainty_weighting,
+            self.depth_uncertainty_weighting,
+        );
+        set(&mut cfg.slot_parallax_ref, self.slot_parallax_ref);
         if let Some([a, b]) = self.depth_range_m {
             cfg.depth_range_m = (a, b);
         }
@@ -329,6 +363,10 @@ impl RunConfigFile {
             cfg.lm_second.function_tolerance = t;
         }
         set(&mut cfg.estimate_td, self.estimate_td);
+        set(&mut cfg.zupt, self.zupt);
+        set(&mut cfg.zupt_sigma_mps, self.zupt_sigma_mps);
+        set(&mut cfg.td_prior_s, self.td_prior_s);
+        set(&mut cfg.td_rw_s_per_sqrt_s, self.td_rw_s_per_sqrt_s);
         set(&mut cfg.marginalize_visual, self.marginalize_visual);
         set(
             &mut cfg.reuse_marginalized_landmarks,
@@ -369,6 +407,16 @@ impl RunConfigFile {
         );
         set(&mut cfg.static_init.gyro_std_max_rps, s.gyro_std_max_rps);
         set(&mut cfg.static_init.min_static_s, s.min_static_s);
+        set(
+            &mut cfg.static_init.vibration_accel_std_max_mps2,
+            s.vibration_accel_std_max_mps2,
+        );
+        set(
+            &mut cfg.static_init.vibration_gyro_std_max_rps,
+            s.vibration_gyro_std_max_rps,
+        );
+        set(&mut cfg.rest.max_px, self.rest.max_px);
+        set(&mut cfg.rest.min_features, self.rest.min_features);
         let l = &self.lidar;
         let c = &mut cfg.lidar;
         set(&mut c.enabled, l.enabled);

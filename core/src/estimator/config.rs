@@ -2,7 +2,7 @@
 //! values as defaults.
 
 use crate::camera::{CameraExtrinsic, PinholeCamera};
-use crate::frontend::KeyframeConfig;
+use crate::frontend::{KeyframeConfig, RestConfig};
 use crate::inertial::init::StaticInitConfig;
 use crate::inertial::preintegration::PreintConfig;
 use crate::inertial::ImuNoise;
@@ -66,6 +66,16 @@ pub struct EstimatorConfig {
     pub keyframe: KeyframeConfig,
     /// Static initialization thresholds.
     pub static_init: StaticInitConfig,
+    /// Rest detection from the images (static initialization and zero-velocity updates).
+    pub rest: RestConfig,
+    /// Zero-velocity updates: while the images show the platform at rest, keyframes get a
+    /// zero-velocity factor and consecutive ones a zero-motion factor.
+    pub zupt: bool,
+    /// Standard deviation of the zero-velocity factor, m/s.
+    pub zupt_sigma_mps: f64,
+    /// Standard deviations of the zero-motion factor between keyframes at rest: position m,
+    /// rotation rad.
+    pub zupt_motion_sigma: (f64, f64),
     /// Preintegration (re-integration thresholds).
     pub preint: PreintConfig,
     /// Prior of the first keyframe.
@@ -79,6 +89,12 @@ pub struct EstimatorConfig {
     /// Largest analytic depth standard deviation, as a fraction of the depth, for a landmark to
     /// enter the optimization (gates landmarks whose pose-only depth is still noise).
     pub max_rel_depth_std: f64,
+    /// Whiten each pose-only residual `j != e` with the anchors' depth uncertainty (from
+    /// `sigma_px`), see `factors::pose_only_visual`; off: the depth is taken as exact.
+    pub depth_uncertainty_weighting: bool,
+    /// Parallax `|x_e x R_es x_s|` at which the slot policy values a track fully (below it, in
+    /// proportion, down to a tenth): see `estimator::slots`.
+    pub slot_parallax_ref: f64,
     /// Valid landmark depth range, m (LE-VINS: 1-200 m).
     pub depth_range_m: (f64, f64),
     /// Chi-square threshold (2 dof, 95%) of the cull between the two LM passes.
@@ -95,12 +111,14 @@ pub struct EstimatorConfig {
     pub lm_first: LmConfig,
     /// Levenberg-Marquardt settings of the second pass (after the chi-square cull).
     pub lm_second: LmConfig,
-    /// Fold the visual measurements of landmarks anchored in the oldest keyframe into the
-    /// marginalization prior (as VINS-Mono does). Without, the prior carries only the IMU and
-    /// earlier-prior information (no double use of re-anchored observations).
+    /// Fold the visual residuals of the oldest keyframe into the marginalization prior (landmarks
+    /// anchored there are re-anchored first, see `estimator::marginalize`). Without, the prior
+    /// carries only the IMU and earlier-prior information.
     pub marginalize_visual: bool,
-    /// Keep using a marginalized landmark's remaining observations after re-anchoring it (as
-    /// VINS-Mono does; counts them twice). Off: the landmark leaves with its anchor keyframe.
+    /// Marginalization of landmarks anchored in the oldest keyframe: fold all their residuals
+    /// into the prior and keep using them after re-anchoring (VINS-Mono; counts them twice), or
+    /// (false) re-anchor them first and fold only the oldest observation's residual
+    /// (`estimator::marginalize`).
     pub reuse_marginalized_landmarks: bool,
     /// Estimate the camera-IMU time delay (random walk between keyframes).
     pub estimate_td: bool,
@@ -147,6 +165,10 @@ impl EstimatorConfig {
             mode: VisualMode::PoseOnly,
             keyframe: KeyframeConfig::default(),
             static_init: StaticInitConfig::DEFAULT,
+            rest: RestConfig::default(),
+            zupt: true,
+            zupt_sigma_mps: 0.01,
+            zupt_motion_sigma: (2e-3, 2e-3),
             preint: PreintConfig::DEFAULT,
             first_prior: FirstStatePrior {
                 p_m: 1e-3,
@@ -159,6 +181,8 @@ impl EstimatorConfig {
             huber_delta: 1.0,
             min_parallax: 0.01,
             max_rel_depth_std: 0.1,
+            slot_parallax_ref: 0.02,
+            depth_uncertainty_weighting: true,
             depth_range_m: (0.1, 200.0),
             chi2_threshold: 5.991,
             second_pass_min_culled_frac: 0.02,
@@ -193,6 +217,11 @@ impl EstimatorConfig {
             && self.min_parallax.is_finite()
             && self.min_parallax >= 0.0
             && pos(self.max_rel_depth_std)
+            && pos(self.zupt_sigma_mps)
+            && pos(self.zupt_motion_sigma.0)
+            && pos(self.zupt_motion_sigma.1)
+            && pos(self.rest.max_px)
+            && pos(self.slot_parallax_ref)
             && pos(self.depth_range_m.0)
             && self.depth_range_m.1 > self.depth_range_m.0
             && pos(self.chi2_threshold)

@@ -65,8 +65,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.ins_window.apply_correction(from, to);
     }
 
-    /// Associates LiDAR depths with the landmarks anchored at the new keyframe `pos` (their
-    /// first observation), in the keyframe camera at the INS pose `nav`.
+    /// Associates LiDAR depths with the tracks that start at the new keyframe `pos` (their first
+    /// observation, the anchor they get as landmarks), in the keyframe camera at the INS pose
+    /// `nav`.
     pub(super) fn associate_depths(
         &mut self,
         pos: usize,
@@ -86,30 +87,28 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             .grid
             .build(&self.points, &cam.p_wc, &cam.q_wc, t_l_ns, &cfg.association);
         report.lidar_points = gs.points;
+        // Every track that starts at this keyframe may get a slot later: its depth is kept with
+        // its observation in the store, and a landmark anchored here takes it on promotion.
         let mut n = 0u32;
-        for li in 0..self.lms.len() {
-            let Some(lm) = self.lms.landmarks().get(li) else {
-                break;
-            };
-            if lm.anchor_s as usize != pos || lm.lidar.is_some() {
+        let prev = pos.checked_sub(1);
+        let sigma = |d: f64| cfg.sigma_dr(d);
+        let mut found: heapless::Vec<(u64, f64), { super::MAX_FEATURES }> = heapless::Vec::new();
+        for o in self.lms.store().at(pos) {
+            if prev.is_some_and(|p| self.lms.store().find(p, o.id).is_some()) {
                 continue;
             }
-            let Some(Some(o)) = lm.obs.get(pos) else {
-                continue;
-            };
-            let x_n = Vec2::new(o.x_n[0], o.x_n[1]);
-            let Ok(d) = self.grid.associate(&x_n, &cfg.association) else {
-                continue;
-            };
-            let id = lm.id;
-            if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                lm.lidar = Some(LidarDepth {
-                    depth_m: d.depth_m,
-                    sigma_m: cfg.sigma_dr(d.depth_m),
-                });
-                lm.inv_depth = 1.0 / d.depth_m;
+            let x_n = Vec2::new(o.obs.x_n[0], o.obs.x_n[1]);
+            if let Ok(d) = self.grid.associate(&x_n, &cfg.association) {
+                let _ = found.push((o.id, d.depth_m));
             }
-            self.push_event(id, DepthEventKind::Associated, d.depth_m);
+        }
+        for &(id, depth_m) in found.iter() {
+            let depth = LidarDepth {
+                depth_m,
+                sigma_m: sigma(depth_m),
+            };
+            self.lms.set_lidar(pos, id, depth);
+            self.push_event(id, DepthEventKind::Associated, depth_m);
             n += 1;
         }
         report.depths_associated = n;

@@ -31,16 +31,20 @@ pub mod prior;
 pub mod problem;
 mod problem_lidar;
 pub mod report;
+mod marginalize;
+mod slots;
 pub mod window;
 
 pub use config::{EstimatorConfig, FirstStatePrior, VisualMode};
 pub use predict::FeaturePrediction;
-pub use report::{Counters, DepthEvent, DepthEventKind, KeyframeReport};
+pub use report::{Admission, Counters, DepthEvent, DepthEventKind, KeyframeReport};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
-use crate::frontend::{KeyframeDecision, KeyframeSelector, NormalizedObs, TrackTable};
+use crate::frontend::{
+    KeyframeDecision, KeyframeSelector, NormalizedObs, RestDetector, RestVerdict, TrackTable,
+};
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
 use crate::inertial::window::InsWindow;
@@ -50,15 +54,12 @@ use crate::lidar::association::{GRID_H, GRID_W};
 use crate::lidar::buffer::MAX_LIDAR_POINTS;
 use crate::lidar::{LdmMode, PointBuffer, SphereGrid};
 use crate::math::{log_so3, Vec3};
-use crate::solver::{
-    schur_complement_in_place, sqrt_prior, FactorReport, LandmarkSchur, Ldlt, LmWorkspace,
-    NormalEquations, PivotFloor,
-};
+use crate::solver::{FactorReport, LandmarkSchur, Ldlt, LmWorkspace, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
-use prior::{LinPoint, MargPrior};
+use prior::MargPrior;
 use problem::{FactorSet, InitialPriors, Landmarks, Problem, Saved, SCHUR_COLS};
-use window::{Block, Keyframe, Layout, Preint, Window, MAX_INTERVAL_SAMPLES};
+use window::{Keyframe, Layout, Preint, Window, MAX_INTERVAL_SAMPLES};
 
 /// Most feature observations per camera frame.
 pub const MAX_FEATURES: usize = 512;
@@ -108,6 +109,7 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     ins: Option<Ins>,
     last_imu: Option<ImuSample>,
     tracks: TrackTable<MAX_FEATURES>,
+    rest: RestDetector<MAX_FEATURES>,
     frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
     pending: Option<PendingFrame>,
     window: Window<N>,
@@ -172,6 +174,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             ins: None,
             last_imu: None,
             tracks: TrackTable::new(0.5),
+            rest: RestDetector::new(cfg.rest),
             frame_obs: HVec::new(),
             pending: None,
             window: Window::new(),
@@ -253,6 +256,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.open = None;
         self.pending = None;
         self.tracks.clear();
+        self.rest.clear();
         self.ext = self.cfg.extrinsic;
         // Buffered INS states and points belong to the INS run that ends here.
         self.ins_window.clear();
@@ -341,7 +345,23 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             keyframe: None,
         };
         if self.status == Status::WaitingForInit {
-            match self.static_init.push(s) {
+            // Frames before initialization feed the track velocities and the rest detector.
+            if let Some(p) = self.pending.take() {
+                self.counters.frames_before_init += 1;
+                if self
+                    .tracks
+                    .process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs)
+                    .is_ok()
+                {
+                    self.rest.push(p.t_cam_ns, &self.frame_obs, self.focal_px());
+                }
+            }
+            let td_ns = (self.cfg.td_s * 1e9) as i64;
+            let rest_since = match self.rest.verdict() {
+                RestVerdict::Rest { since_ns } => Some(since_ns.saturating_add(td_ns)),
+                _ => None,
+            };
+            match self.static_init.push_with_rest(s, rest_since) {
                 Ok(Some(state)) => {
                     let ins = Ins::new(self.ins_config(), state)?;
                     self.ins = Some(ins);
@@ -354,13 +374,6 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 Ok(None) => {}
                 Err(Error::CapacityExceeded) => return Err(Error::InvalidConfig),
                 Err(e) => return Err(e),
-            }
-            // Frames before initialization only feed the track velocities.
-            if let Some(p) = self.pending.take() {
-                self.counters.frames_before_init += 1;
-                let _ =
-                    self.tracks
-                        .process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs);
             }
             self.last_imu = Some(*s);
             out.nav = self.ins.as_ref().map(|i| *i.state());
@@ -454,6 +467,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             };
         self.counters.features_received += u64::from(st.received);
         self.counters.features_rejected += u64::from(st.received - st.accepted);
+        self.rest.push(p.t_cam_ns, &self.frame_obs, self.focal_px());
         let Some(ins) = self.ins.as_ref() else {
             return Ok(None);
         };
@@ -485,6 +499,19 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         }
         self.add_keyframe(p.t_cam_ns, nav, sample, decision, t0)
             .map(Some)
+    }
+
+    /// Mean focal length, px.
+    fn focal_px(&self) -> f64 {
+        0.5 * (self.cfg.camera.fx + self.cfg.camera.fy)
+    }
+
+    /// True when the images show the platform at rest since at or before the newest keyframe.
+    fn at_rest_since_last_keyframe(&self) -> bool {
+        match (self.rest.verdict(), self.window.last()) {
+            (RestVerdict::Rest { since_ns }, Some(last)) => since_ns <= last.t_cam_ns,
+            _ => false,
+        }
     }
 
     /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe.
@@ -521,30 +548,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             t_ns: nav.t_ns,
             t_cam_ns,
             decision,
-            window_len: 0,
-            landmarks_total: 0,
-            landmarks_used: 0,
-            observations_used: 0,
-            residual_rms_px: 0.0,
-            iterations: 0,
-            cost: (0.0, 0.0),
-            termination: None,
-            culled_chi2: 0,
-            culled_observations: 0,
-            culled_landmarks: 0,
-            disabled_landmarks: 0,
-            marginalized_rank_deficiency: 0,
-            prior_rank_deficiency: 0,
-            solve_ns: 0,
-            marginalization_ns: 0,
-            total_ns: 0,
-            lidar_points: 0,
-            depths_associated: 0,
-            depths_rejected: 0,
-            ldm_count: 0,
-            association_ns: 0,
-            rejection_ns: 0,
-            depth_opt_ns: 0,
+            ..Default::default()
         };
         self.events.clear();
         // 1. Marginalize the oldest keyframe at the last optimized state.
@@ -582,6 +586,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             state: nav,
             td_s: td,
             preint,
+            at_rest: self.cfg.zupt && self.at_rest_since_last_keyframe(),
         };
         self.window.push(kf)?;
         if self.window.len() == 1 {
@@ -596,21 +601,15 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             nav.ba,
         )?);
         let pos = self.window.len() - 1;
-        // A landmark seen in one earlier keyframe and not tracked into this one can never get a
-        // second observation: free its slot for the tracks of this keyframe.
-        self.lms.retain(
-            |lm| {
-                lm.n_obs() >= 2
-                    || self
-                        .frame_obs
-                        .binary_search_by(|o| o.id.cmp(&lm.id))
-                        .is_ok()
-            },
-            false,
-        );
-        self.lms.add_keyframe_obs(pos, &self.frame_obs, td);
+        self.lms.add_keyframe(pos, &self.frame_obs, td)?;
+        let (mv_tracks, mv_obs) = self.lms.store().multi_view();
+        report.multi_view_tracks = mv_tracks;
+        report.multi_view_observations = mv_obs;
         self.counters.keyframes += 1;
         self.associate_depths(pos, &nav, &mut report);
+        let (promoted, evicted) = self.select_landmarks();
+        report.landmarks_promoted = promoted;
+        report.landmarks_evicted = evicted;
 
         // 3-5. Optimize and cull.
         let ts = now(&self.cfg);
@@ -632,6 +631,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
         }
         report.window_len = self.window.len() as u32;
+        report.td_s = self.current_td();
         report.landmarks_total = self.lms.len() as u32;
         report.total_ns = now(&self.cfg).saturating_sub(t0);
         Ok(report)
@@ -654,7 +654,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// Chooses anchors and gates every landmark for the coming solve. With `reject`, also runs
     /// the uncertainty-based test on LiDAR depths (see [`crate::lidar::rejection`]); returns (depths rejected,
     /// time spent on the test in ns).
-    fn prepare_landmarks(&mut self, reject: bool) -> (u32, u64) {
+    fn prepare_landmarks(&mut self, reject: bool) -> (u32, u64, Admission) {
         let count = self.window.len();
         let ext = self.ext;
         let poses = self.window.poses();
@@ -670,6 +670,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let test_depths = reject && lc.enabled && lc.depth_outlier_rejection;
         let clock = self.cfg.clock;
         let (mut rejected, mut reject_ns) = (0u32, 0u64);
+        let mut adm = Admission::default();
         for lm in self.lms.landmarks_mut() {
             lm.usable = false;
             if !lc.enabled {
@@ -698,6 +699,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
             let Some((e, theta, x_e)) = best else {
                 lm.anchor_e = None;
+                adm.single_view += 1;
                 continue;
             };
             lm.anchor_e = Some(e as u8);
@@ -740,6 +742,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 // so it needs their gates.
                 if in_range && (lc.ldm == LdmMode::Msc || mode == VisualMode::InverseDepth) {
                     lm.usable = true;
+                    adm.admitted += 1;
                     if !(lm.inv_depth > 0.0 && lm.inv_depth.is_finite()) {
                         lm.inv_depth = 1.0 / ld.depth_m;
                     }
@@ -747,24 +750,33 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 }
             }
             if theta < min_par {
+                adm.low_parallax += 1;
                 continue;
             }
-            let Some((d_s, two)) = visual else { continue };
+            let Some((d_s, two)) = visual else {
+                adm.bad_depth += 1;
+                continue;
+            };
             if !(d_s >= dmin && d_s <= dmax) {
+                adm.bad_depth += 1;
                 continue;
             }
             // The pose-only residuals treat the depth from (s, e) as exact: admit a landmark only
             // once its analytic depth uncertainty (paper IV.B) is a small fraction of the depth.
             match depth_std(&two, sigma_px, &focal) {
                 Ok(sd) if sd <= max_rel * d_s => {}
-                _ => continue,
+                _ => {
+                    adm.uncertain_depth += 1;
+                    continue;
+                }
             }
             lm.usable = true;
+            adm.admitted += 1;
             if mode == VisualMode::InverseDepth && (lm.inv_depth.is_nan() || lm.inv_depth <= 0.0) {
                 lm.inv_depth = 1.0 / d_s;
             }
         }
-        (rejected, reject_ns)
+        (rejected, reject_ns, adm)
     }
 
     /// The window's least-squares problem over `layout`, beside the LM workspace and the
@@ -841,9 +853,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 }
             }
         }
-        let (rej, rej_ns) = self.prepare_landmarks(true);
+        let (rej, rej_ns, adm) = self.prepare_landmarks(true);
         report.depths_rejected = rej;
         report.rejection_ns = rej_ns;
+        report.admission = adm;
         let first = self.cfg.lm_first;
         if !self.run_lm(&first, report) {
             return;
@@ -945,6 +958,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         ) else {
             return out;
         };
+        let sd = problem::anchor_depth_std(&self.cfg, &anchors);
+        let anchors = anchors.with_depth_std(sd);
         for (j, obs_j, (pj, fj)) in observed {
             if let Some(o) = out.get_mut(j) {
                 *o = anchors.residual(j, &obs_j, pj, fj).ok();
@@ -974,16 +989,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                     continue;
                 }
                 let bad = r.is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
-                if bad {
-                    if let Some(o) = self
-                        .lms
-                        .landmarks_mut()
-                        .get_mut(li)
-                        .and_then(|l| l.obs.get_mut(j))
-                    {
-                        *o = None;
-                        culled += 1;
-                    }
+                if bad && self.lms.invalidate_obs(li, j) {
+                    culled += 1;
                 }
             }
         }
@@ -1058,18 +1065,16 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 }
                 continue;
             }
-            if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                for (j, e) in errs.iter().enumerate().take(count) {
-                    if j != s && *e > self.cfg.cull_obs_px {
-                        if let Some(o) = lm.obs.get_mut(j) {
-                            *o = None;
-                            n_obs += 1;
-                        }
-                    }
+            for (j, e) in errs.iter().enumerate().take(count) {
+                if j != s && *e > self.cfg.cull_obs_px && self.lms.invalidate_obs(li, j) {
+                    n_obs += 1;
                 }
             }
         }
         if !drop_lm.is_empty() {
+            for &id in drop_lm.iter() {
+                self.lms.ban(id);
+            }
             n_lm = self.lms.retain(|lm| !drop_lm.contains(&lm.id), true) as u32;
         }
         self.fix_anchors();
@@ -1079,72 +1084,6 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             0.0
         };
         (n_obs, n_lm, rms)
-    }
-
-    /// Schur complement of the oldest keyframe (and its delay; in the inverse-depth mode also
-    /// the depths anchored there) into the square-root prior, then removal from the window.
-    fn marginalize_oldest(&mut self) -> Result<(), Error> {
-        let count = self.window.len();
-        let (ext, td) = (self.cfg.estimate_extrinsic, self.cfg.estimate_td);
-        let layout = Layout::marginalize_oldest(count, ext, td);
-        self.prepare_landmarks(false);
-        self.marg_ne.reset(layout.dim())?;
-        {
-            let (mut problem, _, marg_ne) = self.split(layout, FactorSet::Oldest);
-            problem.assemble(Some(marg_ne))?;
-        }
-        let m = Layout::<N>::marginalized_dim(td);
-        let floor = PivotFloor {
-            relative: 1e-10,
-            absolute: 1e-12,
-        };
-        let marg_report = schur_complement_in_place(&mut self.marg_ne, m, floor)?;
-        let p = self.marg_ne.dim();
-        // New blocks (positions still pre-shift) with their linearization points.
-        self.prior.blocks.clear();
-        for k in 1..count {
-            let st = self.window.get(k).ok_or(Error::NotEnoughData)?.state;
-            self.prior
-                .blocks
-                .push((Block::Kf(k as u8), LinPoint::Kf(st)))
-                .map_err(|_| Error::CapacityExceeded)?;
-        }
-        if ext {
-            self.prior
-                .blocks
-                .push((Block::Ext, LinPoint::Ext(self.ext)))
-                .map_err(|_| Error::CapacityExceeded)?;
-        }
-        if td {
-            for k in 1..count {
-                let t = self.window.get(k).ok_or(Error::NotEnoughData)?.td_s;
-                self.prior
-                    .blocks
-                    .push((Block::Td(k as u8), LinPoint::Td(t)))
-                    .map_err(|_| Error::CapacityExceeded)?;
-            }
-        }
-        let r0 = self.prior.r0.get_mut(..p).ok_or(Error::CapacityExceeded)?;
-        let prior_report = sqrt_prior(
-            &self.marg_ne,
-            floor,
-            &mut self.marg_ldlt,
-            &mut self.prior.j0,
-            r0,
-        )?;
-        self.last_marg = Some((marg_report, prior_report));
-        self.prior.set_dim(p, &self.marg_ne)?;
-        self.prior.shift_positions()?;
-        self.initial = None;
-        let _ = self.window.pop_oldest();
-        if self.cfg.marginalize_visual && !self.cfg.reuse_marginalized_landmarks {
-            // Their observations now live in the prior: using them again after re-anchoring
-            // would count them twice. The tracks continue as new landmarks.
-            self.lms
-                .retain(|lm| !(lm.usable && lm.anchor_s == 0), false);
-        }
-        self.lms.shift_out_oldest();
-        Ok(())
     }
 }
 

@@ -20,7 +20,7 @@ use crate::factors::td::TdRandomWalk;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::inertial::preintegration::{Mat15, Vec15};
 use crate::inertial::NavState;
-use crate::landmarks::{KfObs, LandmarkManager};
+use crate::landmarks::{KfObs, LandmarkManager, MargPlan};
 use crate::lidar::LdmMode;
 use crate::math::{jr_inv_so3, quat_exp, Mat3, Vec3};
 use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations, SharedBlock};
@@ -34,7 +34,8 @@ pub const SCHUR_COLS: usize = 128;
 pub const LANDMARK_INDEX: usize = 512;
 
 /// Landmark store of the estimator.
-pub type Landmarks<const N: usize, const L: usize> = LandmarkManager<N, L, LANDMARK_INDEX>;
+pub type Landmarks<const N: usize, const L: usize> =
+    LandmarkManager<N, L, LANDMARK_INDEX, { super::MAX_FEATURES }>;
 
 /// Diagonal priors used until the first marginalization.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -129,7 +130,8 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
 /// Pose-only landmark with only body poses estimated: the geometry of every observation first
 /// (a landmark enters the system whole or not at all: `None` when one is degenerate, nothing
 /// added), then each residual with its robust weight through a [`SharedBlock`] on anchor `e`.
-/// Returns the robust cost and the number of observations.
+/// With `only_j`, only that observation's residual (the marginalization of a re-anchored
+/// landmark). Returns the robust cost and the number of observations.
 fn add_pose_only_landmark<const N: usize, const D: usize>(
     anchors: &PoseOnlyAnchors<'_>,
     obs: &[Option<KfObs>; N],
@@ -142,6 +144,7 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
         &Layout<N>,
         &impl Fn(usize) -> Option<(Mat3, Vec3)>,
     ),
+    only_j: Option<usize>,
     ne: &mut NormalEquations<D>,
 ) -> Result<Option<(f64, u32)>, Error> {
     let mut geo: HVec<(usize, InJ<'_>), N> = HVec::new();
@@ -149,7 +152,7 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
         let (Some(oj), Some(pj), Some(fj)) = (oj, poses.get(j), frames.get(j)) else {
             continue;
         };
-        if j == s {
+        if j == s || only_j.is_some_and(|o| o != j) {
             continue;
         }
         let Some(rel) = rel_js(j) else {
@@ -180,6 +183,16 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
     }
     acc.finish(ne);
     Ok(Some((cost, geo.len() as u32)))
+}
+
+/// The anchors' depth uncertainty for [`PoseOnlyAnchors::with_depth_std`] (0 when the weighting
+/// is off or the uncertainty is undefined).
+pub(super) fn anchor_depth_std(cfg: &EstimatorConfig, anchors: &PoseOnlyAnchors<'_>) -> f64 {
+    if !cfg.depth_uncertainty_weighting {
+        return 0.0;
+    }
+    let focal = Vec2::new(cfg.camera.fx, cfg.camera.fy);
+    crate::landmarks::depth_std(anchors.two_view(), cfg.sigma_px, &focal).unwrap_or(0.0)
 }
 
 fn timed(o: &KfObs) -> TimedObs {
@@ -309,19 +322,103 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             }
         }
 
+        cost += self.zupt_factors(&mut ne)?;
+
         if self.set == FactorSet::Oldest && !self.cfg.marginalize_visual {
             if let Some(ne) = ne {
                 ne.cost = cost;
             }
             return Ok(cost);
         }
-        cost += match self.cfg.mode {
-            VisualMode::PoseOnly => self.pose_only_visual(&mut ne, est_td, est_ext)?,
-            VisualMode::InverseDepth => self.inverse_depth_visual(&mut ne, est_td, est_ext)?,
+        cost += match (self.cfg.mode, self.set) {
+            (VisualMode::PoseOnly, _) => self.pose_only_visual(&mut ne, est_td, est_ext)?,
+            (VisualMode::InverseDepth, FactorSet::All) => {
+                self.inverse_depth_visual(&mut ne, est_td, est_ext)?
+            }
+            // Re-anchored landmarks leave their observation at 0 as a pose-only residual (the
+            // pose-only form is the inverse-depth one with the depth eliminated by the anchors);
+            // the others leave whole, their depth eliminated with them.
+            (VisualMode::InverseDepth, FactorSet::Oldest) => {
+                self.pose_only_visual(&mut ne, est_td, est_ext)?
+                    + self.inverse_depth_visual(&mut ne, est_td, est_ext)?
+            }
         };
         if let Some(ne) = ne {
             // The normal equations summed IRLS-weighted squares; the LM compares robust costs.
             ne.cost = cost;
+        }
+        Ok(cost)
+    }
+
+    /// Zero-velocity updates (keyframes the images show at rest): `v_k / sigma_v` on every such
+    /// keyframe and, with the previous one, `(p_k - p_{k-1}) / sigma_p` and
+    /// `Log(R_{k-1}^T R_k) / sigma_theta`. Right perturbations: with `e = Log(R_a^T R_b)`,
+    /// `de/dtheta_b = Jr^-1(e)` and `de/dtheta_a = -Jr^-1(e) R_b^T R_a`.
+    fn zupt_factors(&self, ne: &mut Option<&mut NormalEquations<D>>) -> Result<f64, Error> {
+        let l = &self.layout;
+        let count = self.window.len();
+        let last = if self.set == FactorSet::Oldest {
+            2.min(count)
+        } else {
+            count
+        };
+        let sv = self.cfg.zupt_sigma_mps;
+        let (sp, sr) = self.cfg.zupt_motion_sigma;
+        let diag = |s: f64| {
+            let mut m = [0.0; 9];
+            for i in 0..3 {
+                if let Some(x) = m.get_mut(i * 4) {
+                    *x = 1.0 / s;
+                }
+            }
+            m
+        };
+        let mut cost = 0.0;
+        for k in 0..last {
+            let kf = self.window.get(k).ok_or(Error::NotEnoughData)?;
+            if !kf.at_rest {
+                continue;
+            }
+            let c = l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch)?;
+            // The marginalization takes only what involves keyframe 0.
+            if self.set == FactorSet::All || k == 0 {
+                let r: [f64; 3] = core::array::from_fn(|i| kf.state.v_wb[i] / sv);
+                cost += sink(ne, &r, &[JacobianBlock::new(c + 6, 3, &diag(sv))])?;
+            }
+            let Some(prev) = k.checked_sub(1).and_then(|p| self.window.get(p)) else {
+                continue;
+            };
+            let cp = l
+                .col(Block::Kf((k - 1) as u8))
+                .ok_or(Error::DimensionMismatch)?;
+            let dp = kf.state.p_wb - prev.state.p_wb;
+            let r: [f64; 3] = core::array::from_fn(|i| dp[i] / sp);
+            let jp = diag(sp);
+            let jm = diag(-sp);
+            cost += sink(
+                ne,
+                &r,
+                &[JacobianBlock::new(cp, 3, &jm), JacobianBlock::new(c, 3, &jp)],
+            )?;
+            let (ra, rb) = (
+                prev.state.q_wb.to_rotation_matrix().into_inner(),
+                kf.state.q_wb.to_rotation_matrix().into_inner(),
+            );
+            let e = crate::math::log_so3(&(prev.state.q_wb.inverse() * kf.state.q_wb));
+            let jr = jr_inv_so3(&e) / sr;
+            let ja = -(jr * rb.transpose() * ra);
+            let r: [f64; 3] = core::array::from_fn(|i| e[i] / sr);
+            let (mut a, mut b) = ([0.0; 9], [0.0; 9]);
+            row_major(&ja, &mut a);
+            row_major(&jr, &mut b);
+            cost += sink(
+                ne,
+                &r,
+                &[
+                    JacobianBlock::new(cp + 3, 3, &a),
+                    JacobianBlock::new(c + 3, 3, &b),
+                ],
+            )?;
         }
         Ok(cost)
     }
@@ -425,9 +522,14 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             if !lm.usable {
                 continue;
             }
-            if self.set == FactorSet::Oldest && lm.anchor_s != 0 {
-                continue;
-            }
+            // Marginalization: the landmarks the plan involves (in the inverse-depth mode only
+            // the re-anchored ones: the others leave with their depth in `inverse_depth_visual`).
+            let only_j = match (self.set, lm.marg, self.cfg.mode) {
+                (FactorSet::All, _, _) => None,
+                (FactorSet::Oldest, MargPlan::ObsZero, _) => Some(0),
+                (FactorSet::Oldest, MargPlan::Whole | MargPlan::Reuse, VisualMode::PoseOnly) => None,
+                _ => continue,
+            };
             let lidar = lm.lidar.is_some() && self.cfg.lidar.enabled;
             if lidar && self.cfg.lidar.ldm == LdmMode::Msc {
                 match self.msc_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext) {
@@ -478,12 +580,17 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 (fs, fe),
                 &ext,
                 Some(rel_es),
-            ) {
+            )
+            .map(|a| {
+                let sd = anchor_depth_std(self.cfg, &a);
+                a.with_depth_std(sd)
+            }) {
                 Err(_) => failed = true,
                 Ok(anchors) if fast => {
                     if let Some(ne_ref) = ne.as_deref_mut() {
                         let ctx = (&poses, &frames, &huber, &l, &rel_js);
-                        match add_pose_only_landmark(&anchors, &lm.obs, count, (s, e), ctx, ne_ref)?
+                        let obs = &lm.obs;
+                        match add_pose_only_landmark(&anchors, obs, count, (s, e), ctx, only_j, ne_ref)?
                         {
                             Some((c, n)) => {
                                 lm_cost = c;
@@ -499,7 +606,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                         else {
                             continue;
                         };
-                        if j == s {
+                        if j == s || only_j.is_some_and(|o| o != j) {
                             continue;
                         }
                         let obs_j = timed(oj);
@@ -622,7 +729,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 continue;
             }
             let s = lm.anchor_s as usize;
-            if self.set == FactorSet::Oldest && s != 0 {
+            if self.set == FactorSet::Oldest && !matches!(lm.marg, MargPlan::Whole | MargPlan::Reuse)
+            {
                 continue;
             }
             let (Some(Some(os)), Some(ps)) = (lm.obs.get(s), poses.get(s)) else {

@@ -4,7 +4,7 @@ use crate::frontend::KeyframeDecision;
 use crate::solver::Termination;
 
 /// Statistics of one keyframe's back-end step.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct KeyframeReport {
     /// IMU time of the keyframe, ns.
     pub t_ns: i64,
@@ -64,6 +64,35 @@ pub struct KeyframeReport {
     pub rejection_ns: u64,
     /// Time of the depth-only optimization, ns.
     pub depth_opt_ns: u64,
+    /// Why the managed landmarks did or did not enter the first solve.
+    pub admission: Admission,
+    /// Camera-IMU time delay of the newest keyframe after the solve, s (`t_imu = t_cam + td`).
+    pub td_s: f64,
+    /// Tracks the window offers: valid observations in at least two of its keyframes.
+    pub multi_view_tracks: u32,
+    /// Their observations (compare with `observations_used + landmarks_used`).
+    pub multi_view_observations: u32,
+    /// Tracks given a landmark slot at this keyframe.
+    pub landmarks_promoted: u32,
+    /// Landmarks evicted for them.
+    pub landmarks_evicted: u32,
+}
+
+/// Landmark admission at the first solve of a keyframe: every managed landmark is counted once,
+/// under the first gate it failed (or as admitted).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Admission {
+    /// Admitted to the optimization.
+    pub admitted: u32,
+    /// Seen in only one keyframe of the window.
+    pub single_view: u32,
+    /// Parallax below `min_parallax`.
+    pub low_parallax: u32,
+    /// Depth behind the anchor camera or outside `depth_range_m`.
+    pub bad_depth: u32,
+    /// Analytic depth uncertainty above `max_rel_depth_std` of the depth.
+    pub uncertain_depth: u32,
 }
 
 impl KeyframeReport {

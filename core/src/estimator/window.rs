@@ -27,6 +27,9 @@ pub struct Keyframe {
     pub td_s: f64,
     /// Preintegration from the previous keyframe to this one (`None` for the first keyframe).
     pub preint: Option<Preint>,
+    /// The images show the platform at rest since before the previous keyframe (so over the
+    /// whole interval to this one): zero-velocity factors apply.
+    pub at_rest: bool,
 }
 
 /// Ring of at most `N` keyframes.

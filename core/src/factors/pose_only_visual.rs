@@ -28,6 +28,18 @@
 //! pose of `e` is `Q_j E` with one `2 x 6` `E` per landmark, and the one on `s` is `Q_j F + G_j`
 //! (`F` landmark-wide, `G_j` through `u_j` and `t_js`). [`PoseOnlyAnchors::pose_blocks`] returns
 //! that form, so a landmark's `e`-block products reduce to `2 x 2` sums per observation.
+//!
+//! **Depth uncertainty** ([`PoseOnlyAnchors::with_depth_std`]). The residual of `j != e` treats
+//! the anchors' depth as exact, but `d_s` carries the noise of `x_s` and `x_e` (std `sigma_d`,
+//! [`crate::landmarks::depth_std`]). Its effect on `r_j` lies along `g_j = dr_j/dd_s = W dpi
+//! alpha u_j` (the epipolar direction in image `j`), so the residual's covariance is
+//! `I + sigma_d^2 g_j g_j^T` rather than `I`. With `k = sigma_d^2 |g_j|^2` the factor whitens by
+//! `W_j = I - (1 - 1/sqrt(1 + k)) g^ g^T` (`g^ = g_j/|g_j|`): residual and Jacobian rows keep
+//! their weight across the epipolar line (rotation and epipolar information) and lose it along
+//! it in proportion to the depth uncertainty. Low-parallax landmarks then enter with the
+//! information they have instead of being gated out. `W_j` is evaluated at the current state and
+//! held fixed in the Jacobian (like the robust weight). For `j == e` the depth is fitted to
+//! `x_e` itself, so `r_e` measures only the epipolar error: no inflation.
 
 use super::{
     all_finite_ext, all_finite_pose, cam_to_body_ext, d_pi, CamFrame, KeyframePose, TimedObs,
@@ -101,6 +113,8 @@ pub struct PoseOnlyAnchors<'f> {
     /// `(F, E)` of the rank structure (module docs), formed on the first
     /// [`Self::pose_blocks`].
     shared: OnceCell<(Matrix2x6<f64>, Matrix2x6<f64>)>,
+    /// `sigma_d^2` of the depth for the residual's depth term (module docs), m^2; 0 = none.
+    depth_var: f64,
 }
 
 /// Whitened, robustly weighted residual of one observation `j` and its body-pose Jacobians in
@@ -129,6 +143,8 @@ pub struct InJ<'a> {
     /// `P~_j = dd u_j + alpha t_js`.
     p: Vec3,
     x_j: Vec3,
+    /// The depth-uncertainty whitening `W_j` (module docs), `None` for the identity.
+    w_depth: Option<Mat2x2>,
 }
 
 impl<'f> PoseOnlyAnchors<'f> {
@@ -188,7 +204,21 @@ impl<'f> PoseOnlyAnchors<'f> {
             dd,
             pre: OnceCell::new(),
             shared: OnceCell::new(),
+            depth_var: 0.0,
         })
+    }
+
+    /// Accounts for the anchors' depth uncertainty `sigma_d_m` (std of `d_s`, m) in every
+    /// residual `j != e` (module docs). Non-finite or non-positive values mean none.
+    pub fn with_depth_std(mut self, sigma_d_m: f64) -> Self {
+        let v = sigma_d_m * sigma_d_m;
+        self.depth_var = if v.is_finite() && v > 0.0 { v } else { 0.0 };
+        self
+    }
+
+    /// The two-view geometry of the anchors.
+    pub fn two_view(&self) -> &TwoView {
+        &self.two
     }
 
     /// Geometry of observation `obs_j` in keyframe `kf_j` (pose `j`, camera frame `cj`; both
@@ -228,6 +258,17 @@ impl<'f> PoseOnlyAnchors<'f> {
         if p.z <= MIN_Z_REL * p.norm() {
             return Err(Error::Degenerate);
         }
+        let w_depth = (self.depth_var > 0.0 && kf_j != self.kf_e).then(|| {
+            let h = Mat2x2::from_diagonal(&self.sqrt_info) * d_pi(&p);
+            let g = h * (u_j * self.alpha);
+            let gg = g.norm_squared();
+            let k = self.depth_var * gg;
+            if !(k > 0.0 && k.is_finite()) {
+                return Mat2x2::identity();
+            }
+            let c = (1.0 - 1.0 / libm::sqrt(1.0 + k)) / gg;
+            Mat2x2::identity() - g * g.transpose() * c
+        });
         Ok(InJ {
             cj,
             r_js,
@@ -235,13 +276,28 @@ impl<'f> PoseOnlyAnchors<'f> {
             u_j,
             p,
             x_j: obs_j.corrected(td_j),
+            w_depth,
         })
     }
 
-    /// Whitened residual of an observation's geometry (unweighted).
+    /// Whitened residual of an observation's geometry (unweighted by the robust kernel; with the
+    /// depth-uncertainty whitening when set).
     pub fn whitened(&self, g: &InJ<'_>) -> Vec2 {
         let pi = Vec2::new(g.p.x / g.p.z, g.p.y / g.p.z);
-        (pi - g.x_j.xy()).component_mul(&self.sqrt_info)
+        let r = (pi - g.x_j.xy()).component_mul(&self.sqrt_info);
+        match &g.w_depth {
+            Some(w) => w * r,
+            None => r,
+        }
+    }
+
+    /// `W_j W dpi(P~_j)` scaled by `w`: the whitened projection Jacobian.
+    fn h_of(&self, g: &InJ<'_>, w: f64) -> SMatrix<f64, 2, 3> {
+        let h = Mat2x2::from_diagonal(&(self.sqrt_info * w)) * d_pi(&g.p);
+        match &g.w_depth {
+            Some(wd) => wd * h,
+            None => h,
+        }
     }
 
     /// Whitened residual of observation `obs_j` in keyframe `kf_j` (pose `j`, camera frame `cj`;
@@ -274,8 +330,7 @@ impl<'f> PoseOnlyAnchors<'f> {
     ) -> Result<PoseOnlyJacobians, Error> {
         let g = self.geometry(kf_j, obs_j, j, cj, None)?;
         let (alpha, dd) = (self.alpha, self.dd);
-        let w = Mat2x2::from_diagonal(&self.sqrt_info);
-        let h: SMatrix<f64, 2, 3> = w * d_pi(&g.p);
+        let h = self.h_of(&g, 1.0);
         let (hu, ht) = (h * g.u_j, h * g.t_js);
         // h M_a and h M_b with M_a = 2 t_js a^T - u_j b^T, M_b = -u_j a^T.
         let hm_a = ht * (self.two.a.transpose() * 2.0) - hu * self.two.b.transpose();
@@ -300,8 +355,9 @@ impl<'f> PoseOnlyAnchors<'f> {
 
         let d_td_s = d_xs * self.obs_s.d_corrected_d_td();
         let d_td_e = ab.d_xe * self.obs_e.d_corrected_d_td();
-        // r contains -W x_j' and d x_j'/d td_j = -v_j.
+        // r contains -W_j W x_j' and d x_j'/d td_j = -v_j.
         let d_td_j = obs_j.vel.component_mul(&self.sqrt_info);
+        let d_td_j = g.w_depth.map_or(d_td_j, |wd| wd * d_td_j);
 
         let (d_pose_e, d_pose_j, d_td) = if kf_j == self.kf_e {
             (
@@ -355,7 +411,7 @@ impl PoseOnlyAnchors<'_> {
     pub fn pose_blocks(&self, g: &InJ<'_>, w: f64) -> PoseBlocks {
         let (alpha, dd) = (self.alpha, self.dd);
         let (f, _) = *self.shared_fe();
-        let h: SMatrix<f64, 2, 3> = Mat2x2::from_diagonal(&(self.sqrt_info * w)) * d_pi(&g.p);
+        let h = self.h_of(g, w);
         let (hu, ht) = (h * g.u_j, h * g.t_js);
         let q = Mat2x2::new(2.0 * ht.x, -hu.x, 2.0 * ht.y, -hu.y);
         let h_rjw = h * g.cj.r_wc.transpose();

@@ -40,10 +40,11 @@ impl Default for KeyframeConfig {
 }
 
 /// Why a frame became (or did not become) a keyframe.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum KeyframeDecision {
     /// Not a keyframe.
+    #[default]
     No,
     /// First frame after initialization.
     First,

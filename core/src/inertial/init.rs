@@ -4,7 +4,10 @@
 //! Static detection over a sliding window of samples: the platform is static when
 //! `| mean |f| - g | <= accel_norm_tol`, every axis of the specific force has a standard
 //! deviation `<= accel_std_max` and every gyro axis `<= gyro_std_max`, and the window spans at
-//! least `min_static_s`.
+//! least `min_static_s`. When the images say the platform has been at rest over the whole window
+//! ([`crate::frontend::RestDetector`]), the spread may reach the vibration limits instead
+//! (`vibration_accel_std_max`, `vibration_gyro_std_max`): rotors idling on the ground shake an
+//! IMU far more than the strict limits allow, yet the mean is still gravity and the gyro bias.
 //!
 //! Leveling: at rest the mean specific force is `f = R_wb^T (0, 0, g)`. With yaw set to zero and
 //! `R_wb = Ry(pitch) Rx(roll)`, `f = g (-sin pitch, sin roll cos pitch, cos roll cos pitch)`, so
@@ -53,6 +56,11 @@ pub struct StaticInitConfig {
     pub accel_std_max_mps2: f64,
     /// Largest standard deviation of each gyro axis, rad/s.
     pub gyro_std_max_rps: f64,
+    /// Largest standard deviation of each specific-force axis when the images confirm the rest
+    /// (vibration), m/s^2.
+    pub vibration_accel_std_max_mps2: f64,
+    /// Largest standard deviation of each gyro axis when the images confirm the rest, rad/s.
+    pub vibration_gyro_std_max_rps: f64,
     /// Shortest static span, s.
     pub min_static_s: f64,
     /// Larger sample spacings restart the detection, s.
@@ -66,6 +74,8 @@ impl StaticInitConfig {
         accel_norm_tol_mps2: 0.3,
         accel_std_max_mps2: 0.05,
         gyro_std_max_rps: 0.005,
+        vibration_accel_std_max_mps2: 2.5,
+        vibration_gyro_std_max_rps: 0.2,
         min_static_s: 1.0,
         max_dt_s: 0.05,
     };
@@ -76,6 +86,8 @@ impl StaticInitConfig {
             self.accel_norm_tol_mps2,
             self.accel_std_max_mps2,
             self.gyro_std_max_rps,
+            self.vibration_accel_std_max_mps2,
+            self.vibration_gyro_std_max_rps,
             self.min_static_s,
             self.max_dt_s,
         ]
@@ -162,6 +174,17 @@ impl<const M: usize> StaticInitializer<M> {
     /// [`Error::CapacityExceeded`] means the full window spans less than `min_static_s` (the
     /// sample is still taken): `M` is too small for this IMU rate.
     pub fn push(&mut self, s: &ImuSample) -> Result<Option<NavState>, Error> {
+        self.push_with_rest(s, None)
+    }
+
+    /// [`Self::push`] with the images' verdict: `rest_since_ns` is the IMU time since which the
+    /// images show the platform at rest (`None`: no image verdict). When it covers the whole
+    /// window, the vibration limits apply instead of the strict ones.
+    pub fn push_with_rest(
+        &mut self,
+        s: &ImuSample,
+        rest_since_ns: Option<i64>,
+    ) -> Result<Option<NavState>, Error> {
         if !s.is_finite() {
             return Err(Error::NonFinite);
         }
@@ -194,9 +217,15 @@ impl<const M: usize> StaticInitializer<M> {
         }
         let st = self.stats()?;
         let c = &self.cfg;
+        let images_at_rest = rest_since_ns.is_some_and(|t| t <= first.t_ns);
+        let (a_max, g_max) = if images_at_rest {
+            (c.vibration_accel_std_max_mps2, c.vibration_gyro_std_max_rps)
+        } else {
+            (c.accel_std_max_mps2, c.gyro_std_max_rps)
+        };
         let is_static = libm::fabs(st.accel_norm_mean - c.gravity_mps2) <= c.accel_norm_tol_mps2
-            && st.accel_std.max() <= c.accel_std_max_mps2
-            && st.gyro_std.max() <= c.gyro_std_max_rps;
+            && st.accel_std.max() <= a_max
+            && st.gyro_std.max() <= g_max;
         if !is_static {
             return Ok(None);
         }

@@ -295,6 +295,10 @@ fn write_states_csv(path: &Path, states: &[NavState]) -> Result<()> {
 pub const STATS_LIDAR_COLUMNS: &str =
     "lidar_points,depths_associated,depths_rejected,ldm_count,association_ms,rejection_ms,depth_opt_ms";
 
+/// The landmark-admission columns appended to `stats.csv` (see `core::estimator::Admission`).
+pub const STATS_ADMISSION_COLUMNS: &str =
+    "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted";
+
 /// Writes the run's files into `dir`.
 pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -308,12 +312,12 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
     );
     writeln!(
         f,
-        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS}"
+        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS},{STATS_ADMISSION_COLUMNS}"
     )?;
     for r in &out.reports {
         writeln!(
             f,
-            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4}",
+            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{}",
             povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
             r.backend_ns() as f64 * 1e-6,
             r.solve_ns as f64 * 1e-6,
@@ -342,6 +346,16 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
             r.association_ns as f64 * 1e-6,
             r.rejection_ns as f64 * 1e-6,
             r.depth_opt_ns as f64 * 1e-6,
+            r.admission.admitted,
+            r.admission.single_view,
+            r.admission.low_parallax,
+            r.admission.bad_depth,
+            r.admission.uncertain_depth,
+            r.td_s * 1e3,
+            r.multi_view_tracks,
+            r.multi_view_observations,
+            r.landmarks_promoted,
+            r.landmarks_evicted,
         )?;
     }
     f.flush()?;

@@ -87,6 +87,8 @@ pub struct TrackerParams {
     pub pixel_noise_px: f64,
     /// Angular radius of the occlusion-boundary test around a landmark, rad.
     pub edge_angle_rad: f64,
+    /// Longest track, frames (`None`: tracks live as long as the other rules allow).
+    pub max_track_frames: Option<u32>,
 }
 
 #[derive(Debug, Clone)]
@@ -271,6 +273,10 @@ impl<'a> CameraSim<'a> {
                     continue;
                 }
             };
+            if self.params.max_track_frames.is_some_and(|m| tr.age >= m) {
+                self.tracked[tr.lm] = false;
+                continue;
+            }
             let motion = libm::hypot(uv[0] - tr.last_uv[0], uv[1] - tr.last_uv[1]);
             let p_loss = (self.params.base_loss + self.params.loss_per_px * motion).min(0.9);
             if self.rng.chance(p_loss) {

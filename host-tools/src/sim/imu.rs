@@ -100,6 +100,27 @@ impl ImuPreset {
     }
 }
 
+impl ImuPreset {
+    /// Analog Devices ADIS16448 as EuRoC's MAV carries it, with the noise densities of EuRoC's
+    /// `imu0/sensor.yaml` (gyro 1.6968e-4 rad/s/sqrt(Hz), walk 1.9393e-5; accelerometer
+    /// 2.0e-3 m/s^2/sqrt(Hz), walk 3.0e-3) and turn-on biases of the size EuRoC's ground truth
+    /// shows (a few 0.01 rad/s, about 0.1 m/s^2).
+    pub fn adis16448_euroc() -> Self {
+        ImuPreset {
+            name: "ADIS16448 (EuRoC)",
+            noise: ImuNoise {
+                gyro_noise_density: 1.6968e-4,
+                accel_noise_density: 2.0e-3,
+                gyro_bias_rw: 1.9393e-5,
+                accel_bias_rw: 3.0e-3,
+                bias_corr_time_s: None,
+            },
+            gyro_turn_on_rps: 0.02,
+            accel_turn_on_mps2: 0.08,
+        }
+    }
+}
+
 /// IMU samples and the ground truth at the same instants.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImuRun {

@@ -23,6 +23,11 @@ pub enum Scenario {
     Handheld,
     /// Car on a road: 15-30 m/s (STIM300, OS1-128).
     Vehicle,
+    /// EuRoC-like MAV: calm flight around a small courtyard at ~1 m/s, yaw free of the path,
+    /// up to ~40 deg/s (ADIS16448 with EuRoC's noise, EuRoC camera).
+    Flight,
+    /// The same MAV flown aggressively: rotations of 150-250 deg/s, tracks of at most 25 frames.
+    Fast,
 }
 
 impl Scenario {
@@ -32,6 +37,8 @@ impl Scenario {
             Scenario::Robot => "robot",
             Scenario::Handheld => "handheld",
             Scenario::Vehicle => "vehicle",
+            Scenario::Flight => "flight",
+            Scenario::Fast => "fast",
         }
     }
 }
@@ -165,6 +172,7 @@ pub fn preset(sc: Scenario, static_s: f64) -> Preset {
                     cell_m: 5.0,
                 },
                 tracker: TrackerParams {
+                    max_track_frames: None,
                     max_features: 200,
                     min_dist_px: 20.0,
                     depth_range_m: (0.5, 40.0),
@@ -245,6 +253,7 @@ pub fn preset(sc: Scenario, static_s: f64) -> Preset {
                     cell_m: 4.0,
                 },
                 tracker: TrackerParams {
+                    max_track_frames: None,
                     max_features: 200,
                     min_dist_px: 20.0,
                     depth_range_m: (0.3, 35.0),
@@ -319,6 +328,7 @@ pub fn preset(sc: Scenario, static_s: f64) -> Preset {
                     cell_m: 10.0,
                 },
                 tracker: TrackerParams {
+                    max_track_frames: None,
                     max_features: 150,
                     min_dist_px: 25.0,
                     depth_range_m: (1.0, 80.0),
@@ -332,6 +342,98 @@ pub fn preset(sc: Scenario, static_s: f64) -> Preset {
                 },
             }
         }
+        Scenario::Flight => mav(static_s, false),
+        Scenario::Fast => mav(static_s, true),
+    }
+}
+
+/// The MAV presets: a flight around a small courtyard (like EuRoC's machine hall and Vicon
+/// room: walls, trees and objects 2-10 m away), the body's yaw independent of the path (a
+/// multicopter), roll and pitch following the accelerations. `aggressive` adds fast rotations
+/// about all axes (peaks of 150-250 deg/s), the track-length cap of a tracker that loses
+/// features in fast turns, and more motion-dependent track loss.
+fn mav(static_s: f64, aggressive: bool) -> Preset {
+    let w = 0.16;
+    let att = if aggressive {
+        [
+            vec![s(0.9, 2.2, 0.0), s(0.3, 0.4, 1.0)],
+            vec![s(0.35, 2.9, 0.5), s(0.08, 0.9, 0.0)],
+            vec![s(0.4, 3.3, 2.0), s(0.08, 1.1, 0.0)],
+        ]
+    } else {
+        [
+            vec![s(0.9, 0.23, 0.0), s(0.25, 0.7, 1.0)],
+            vec![s(0.06, 0.8, 0.5), s(0.03, 1.7, 0.0)],
+            vec![s(0.06, 0.9, 2.0), s(0.03, 1.5, 0.0)],
+        ]
+    };
+    Preset {
+        trajectory: Trajectory {
+            p0: Vec3::new(0.0, 0.0, 1.6),
+            pos: [
+                vec![s(5.0, w, HALF_PI), s(1.2, 2.7 * w, 0.3)],
+                vec![s(3.5, w, 0.0), s(1.0, 3.3 * w, 1.1)],
+                vec![s(0.6, 0.31, 0.0), s(0.2, 0.9, 1.0)],
+            ],
+            att,
+            att0: [0.0; 3],
+            steered: false,
+            warp: TimeWarp {
+                t_static: static_s,
+                t_ramp: 2.0,
+            },
+        },
+        imu: ImuPreset::adis16448_euroc(),
+        camera: euroc_camera(),
+        camera_rate_hz: 20.0,
+        t_bc: forward_camera(Vec3::new(0.06, -0.02, 0.0), Vec3::new(0.01, 0.25, -0.01)),
+        t_bl: lidar_mount(Vec3::new(0.0, 0.0, 0.1), Vec3::new(0.004, 0.006, -0.01)),
+        lidar: LidarKind::Livox,
+        scene: SceneParams {
+            buildings: Placement {
+                per_100m: 20.0,
+                offset_m: (6.0, 12.0),
+                clearance_m: 3.0,
+            },
+            building_side_m: (4.0, 12.0),
+            building_height_m: (4.0, 10.0),
+            walls: Placement {
+                per_100m: 14.0,
+                offset_m: (2.0, 4.5),
+                clearance_m: 1.2,
+            },
+            trees: Placement {
+                per_100m: 20.0,
+                offset_m: (2.5, 6.0),
+                clearance_m: 0.8,
+            },
+            cars: Placement {
+                per_100m: 10.0,
+                offset_m: (2.0, 5.0),
+                clearance_m: 1.0,
+            },
+            poles: Placement {
+                per_100m: 15.0,
+                offset_m: (1.2, 4.0),
+                clearance_m: 0.6,
+            },
+            ground_band_m: 10.0,
+            density: [1.0, 3.0, 3.0, 3.0, 4.0, 3.0],
+            cell_m: 4.0,
+        },
+        tracker: TrackerParams {
+            max_features: 150,
+            min_dist_px: 25.0,
+            depth_range_m: (0.3, 30.0),
+            border_px: 8.0,
+            max_incidence_rad: 80.0 * DEG,
+            base_loss: if aggressive { 0.04 } else { 0.02 },
+            loss_per_px: 0.001,
+            wrong_track_rate: 0.02,
+            pixel_noise_px: 1.0,
+            edge_angle_rad: 1.0 * DEG,
+            max_track_frames: aggressive.then_some(25),
+        },
     }
 }
 
