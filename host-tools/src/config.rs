@@ -23,7 +23,8 @@
 //! reuse_marginalized_landmarks = true  # VINS-Mono: fold all, keep using them (counted twice)
 //! zupt = true                   # zero-velocity updates while the images show rest
 //! zupt_sigma_mps = 0.01
-//! estimate_td = false
+//! estimate_td = true
+//! td_s = 0.0                    # initial camera-IMU delay (replaces the dataset's), s
 //! td_prior_s = 0.005            # prior std of the first keyframe's delay
 //! td_rw_s_per_sqrt_s = 1e-4     # random walk of the delay between keyframes
 //! estimate_extrinsic = false
@@ -278,6 +279,7 @@ pub struct RunConfigFile {
     zupt: Option<bool>,
     zupt_sigma_mps: Option<f64>,
     estimate_td: Option<bool>,
+    td_s: Option<f64>,
     td_prior_s: Option<f64>,
     td_rw_s_per_sqrt_s: Option<f64>,
     marginalize_visual: Option<bool>,
@@ -363,6 +365,7 @@ impl RunConfigFile {
             cfg.lm_second.function_tolerance = t;
         }
         set(&mut cfg.estimate_td, self.estimate_td);
+        set(&mut cfg.td_s, self.td_s);
         set(&mut cfg.zupt, self.zupt);
         set(&mut cfg.zupt_sigma_mps, self.zupt_sigma_mps);
         set(&mut cfg.td_prior_s, self.td_prior_s);

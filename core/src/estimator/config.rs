@@ -126,6 +126,9 @@ pub struct EstimatorConfig {
     pub td_rw_s_per_sqrt_s: f64,
     /// Prior standard deviation of the first time delay, s.
     pub td_prior_s: f64,
+    /// Fewest landmarks in a solve for the delay to be estimated (with fewer it is held: a few
+    /// landmarks cannot separate the delay from the motion).
+    pub td_min_landmarks: u32,
     /// Estimate the camera-IMU extrinsic.
     pub estimate_extrinsic: bool,
     /// Prior standard deviations of the extrinsic: translation m, rotation rad.
@@ -182,7 +185,7 @@ impl EstimatorConfig {
             min_parallax: 0.01,
             max_rel_depth_std: 0.1,
             slot_parallax_ref: 0.02,
-            depth_uncertainty_weighting: true,
+            depth_uncertainty_weighting: false,
             depth_range_m: (0.1, 200.0),
             chi2_threshold: 5.991,
             second_pass_min_culled_frac: 0.02,
@@ -192,9 +195,10 @@ impl EstimatorConfig {
             lm_second: lm,
             marginalize_visual: true,
             reuse_marginalized_landmarks: true,
-            estimate_td: false,
+            estimate_td: true,
             td_rw_s_per_sqrt_s: 1e-4,
             td_prior_s: 5e-3,
+            td_min_landmarks: 20,
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
             lidar: LidarConfig::default(),

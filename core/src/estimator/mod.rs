@@ -69,6 +69,12 @@ pub const INIT_SAMPLES: usize = 1024;
 pub const INS_WINDOW: usize = 512;
 /// LiDAR-depth events one keyframe step can report.
 pub const MAX_EVENTS: usize = 1024;
+/// IMU samples a late keyframe can replay (its time lies this many samples before the newest
+/// one: 0.32 s at 200 Hz); a frame later than that is taken at the newest sample.
+pub const LATE_SAMPLES: usize = 64;
+/// Camera frames waiting for the IMU to reach their time (`t_cam + td`); more arriving drop
+/// the oldest (counted in `frames_dropped_no_imu`). Four cover a delay of three frame periods.
+pub const PENDING_FRAMES: usize = 4;
 
 /// The PO-VINS configuration of the paper: 10 keyframes, 200 landmarks.
 pub type PoVins = Estimator<10, 200, 166>;
@@ -111,7 +117,7 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     tracks: TrackTable<MAX_FEATURES>,
     rest: RestDetector<MAX_FEATURES>,
     frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
-    pending: Option<PendingFrame>,
+    pending: heapless::Deque<PendingFrame, PENDING_FRAMES>,
     window: Window<N>,
     open: Option<Preint>,
     lms: Landmarks<N, L>,
@@ -129,6 +135,8 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     points: PointBuffer<MAX_LIDAR_POINTS>,
     grid: SphereGrid<GRID_W, GRID_H>,
     events: HVec<DepthEvent, MAX_EVENTS>,
+    /// The delay is held in the current solve (too few landmarks to estimate it).
+    td_hold: bool,
 }
 
 /// Time-delay-corrected observation of `lm` at window position `k` (z = 1), or `None`.
@@ -176,7 +184,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             tracks: TrackTable::new(0.5),
             rest: RestDetector::new(cfg.rest),
             frame_obs: HVec::new(),
-            pending: None,
+            pending: heapless::Deque::new(),
             window: Window::new(),
             open: None,
             lms: Landmarks::new(),
@@ -194,6 +202,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             points: PointBuffer::new(),
             grid: SphereGrid::new(),
             events: HVec::new(),
+            td_hold: false,
             cfg,
         })
     }
@@ -254,7 +263,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.prior.clear();
         self.initial = None;
         self.open = None;
-        self.pending = None;
+        self.pending.clear();
         self.tracks.clear();
         self.rest.clear();
         self.ext = self.cfg.extrinsic;
@@ -289,11 +298,14 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             self.counters.frames_rejected_time += 1;
             return Err(Error::OutOfRange);
         }
-        if let Some(p) = &self.pending {
+        if let Some(p) = self.pending.back() {
             if t_cam_ns <= p.t_cam_ns {
                 self.counters.frames_rejected_time += 1;
                 return Err(Error::TimeNotIncreasing);
             }
+        }
+        if self.pending.is_full() {
+            let _ = self.pending.pop_front();
             self.counters.frames_dropped_no_imu += 1;
         }
         let mut pf = PendingFrame {
@@ -306,8 +318,14 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         }
         self.counters.features_rejected += (obs.len() - take) as u64;
         self.counters.features_received += (obs.len() - take) as u64;
-        self.pending = Some(pf);
+        // Not full (made room above): cannot fail.
+        let _ = self.pending.push_back(pf);
         Ok(())
+    }
+
+    /// Time of the INS state (the newest propagated sample), ns.
+    fn ins_time(&self) -> i64 {
+        self.ins.as_ref().map_or(i64::MIN, |i| i.state().t_ns)
     }
 
     fn current_td(&self) -> f64 {
@@ -346,7 +364,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         };
         if self.status == Status::WaitingForInit {
             // Frames before initialization feed the track velocities and the rest detector.
-            if let Some(p) = self.pending.take() {
+            while let Some(p) = self.pending.pop_front() {
                 self.counters.frames_before_init += 1;
                 if self
                     .tracks
@@ -380,29 +398,32 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             return Ok(out);
         }
 
-        // A pending frame whose IMU time has been reached is processed at exactly that time.
-        let frame_due = self
+        // Pending frames whose IMU time has been reached are processed at exactly that time (or
+        // at this sample when it is already past: the observations' delay correction accounts for
+        // the difference, see `add_keyframe`).
+        while let Some(t_f) = self
             .pending
-            .as_ref()
+            .front()
             .map(|p| p.t_cam_ns.saturating_add((self.current_td() * 1e9) as i64))
-            .filter(|t_f| *t_f <= s.t_ns);
-        if let Some(t_f) = frame_due {
-            // The keyframe sample: the real one at t_f, or one interpolated at t_f, or (right
-            // after initialization, with no earlier sample) this sample itself.
+            .filter(|t_f| *t_f <= s.t_ns)
+        {
+            // The keyframe sample: the real one at t_f, or one interpolated at t_f, or (the frame
+            // is late, or right after initialization) this sample itself.
             let sample_f = match self.last_imu {
                 _ if t_f == s.t_ns => *s,
-                Some(prev) if prev.t_ns < t_f => interpolate(&prev, s, t_f),
-                _ => *s,
+                Some(prev) if prev.t_ns < t_f && self.ins_time() <= t_f => {
+                    interpolate(&prev, s, t_f)
+                }
+                // Late: the sample at t_f from the open interval (the keyframe is rewound there).
+                _ => self.open_sample_at(t_f).unwrap_or(*s),
             };
-            if self
-                .ins
-                .as_ref()
-                .is_some_and(|i| i.state().t_ns < sample_f.t_ns)
-            {
+            if self.ins_time() < sample_f.t_ns {
                 self.advance(&sample_f)?;
             }
-            if let Some(p) = self.pending.take() {
-                out.keyframe = self.process_frame(&p, &sample_f)?;
+            if let Some(p) = self.pending.pop_front() {
+                if let Some(r) = self.process_frame(&p, &sample_f)? {
+                    out.keyframe = Some(r);
+                }
             }
         }
         if self.ins.as_ref().is_some_and(|i| i.state().t_ns < s.t_ns) {
@@ -497,8 +518,53 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         if !decision.is_keyframe() {
             return Ok(None);
         }
-        self.add_keyframe(p.t_cam_ns, nav, sample, decision, t0)
-            .map(Some)
+        // A late frame (its IMU time already passed, e.g. a negative delay): the keyframe goes
+        // at its own time and the samples after it are replayed into the next interval.
+        let tail = if sample.t_ns < nav.t_ns {
+            self.rewind_to(sample)
+        } else {
+            None
+        };
+        let nav = self.ins.as_ref().map_or(nav, |i| *i.state());
+        let report = self.add_keyframe(p.t_cam_ns, nav, sample, decision, t0)?;
+        for s in tail.iter().flatten() {
+            self.advance(s)?;
+        }
+        Ok(Some(report))
+    }
+
+    /// The IMU sample at `t_ns` interpolated from the open interval's samples (strictly after its
+    /// start), if it holds that time.
+    fn open_sample_at(&self, t_ns: i64) -> Option<ImuSample> {
+        let v = self.open.as_ref()?.samples();
+        let k = v.iter().position(|x| x.t_ns >= t_ns).filter(|&k| k > 0)?;
+        let (a, b) = (v.get(k - 1)?, v.get(k)?);
+        Some(if b.t_ns == t_ns {
+            *b
+        } else {
+            interpolate(a, b, t_ns)
+        })
+    }
+
+    /// Rewinds the INS and the open interval to `sample` (between the newest keyframe and the
+    /// newest sample): the interval is truncated there and the INS re-propagated from the
+    /// keyframe. Returns the samples after `sample`, to replay once the keyframe is in; `None`
+    /// (nothing changed) when there is no keyframe yet or too many samples to replay.
+    fn rewind_to(&mut self, sample: &ImuSample) -> Option<HVec<ImuSample, LATE_SAMPLES>> {
+        let kf_state = self.window.last()?.state;
+        let ins_cfg = self.ins_config();
+        let open = self.open.as_mut()?;
+        let mut tail: HVec<ImuSample, LATE_SAMPLES> = HVec::new();
+        for s in open.samples().iter().filter(|s| s.t_ns > sample.t_ns) {
+            tail.push(*s).ok()?;
+        }
+        open.truncate_at(sample).ok()?;
+        let mut ins = Ins::new(ins_cfg, kf_state).ok()?;
+        for s in open.samples() {
+            ins.propagate(s).ok()?;
+        }
+        self.ins = Some(ins);
+        Some(tail)
     }
 
     /// Mean focal length, px.
@@ -601,7 +667,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             nav.ba,
         )?);
         let pos = self.window.len() - 1;
-        self.lms.add_keyframe(pos, &self.frame_obs, td)?;
+        // The observations were taken at `t_cam + td_true`; the keyframe's state is at its sample
+        // time, so the delay they are referred to is that time minus the camera time (equal to
+        // `td` unless the frame was processed late).
+        let td0 = nav.t_ns.saturating_sub(t_cam_ns) as f64 * 1e-9;
+        self.lms.add_keyframe(pos, &self.frame_obs, td0)?;
         let (mv_tracks, mv_obs) = self.lms.store().multi_view();
         report.multi_view_tracks = mv_tracks;
         report.multi_view_observations = mv_obs;
@@ -790,6 +860,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         &mut LmWorkspace<D>,
         &mut NormalEquations<D>,
     ) {
+        let td_hold = self.td_hold.then(|| {
+            core::array::from_fn(|k| self.window.get(k).map_or(0.0, |kf| kf.td_s))
+        });
         let problem = Problem {
             cfg: &self.cfg,
             window: &mut self.window,
@@ -802,6 +875,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             schur: &mut self.schur,
             saved: &mut self.saved,
             counts: Default::default(),
+            td_hold,
         };
         (problem, &mut self.lm, &mut self.marg_ne)
     }
@@ -857,6 +931,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         report.depths_rejected = rej;
         report.rejection_ns = rej_ns;
         report.admission = adm;
+        self.td_hold = adm.admitted < self.cfg.td_min_landmarks;
         let first = self.cfg.lm_first;
         if !self.run_lm(&first, report) {
             return;

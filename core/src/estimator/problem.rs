@@ -125,6 +125,9 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     pub saved: &'a mut Saved<N, L>,
     /// Counts of the last assembly.
     pub counts: AssemblyCounts,
+    /// Hold every keyframe's delay at these values (a tight factor): too few landmarks to
+    /// estimate it ([`EstimatorConfig::td_min_landmarks`]).
+    pub td_hold: Option<[f64; N]>,
 }
 
 /// Pose-only landmark with only body poses estimated: the geometry of every observation first
@@ -323,6 +326,20 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         }
 
         cost += self.zupt_factors(&mut ne)?;
+        // Never in the marginalization: the hold is about this solve, not information.
+        let hold = self.td_hold.filter(|_| est_td && self.set == FactorSet::All);
+        if let Some(hold) = hold {
+            // 1 us: the delay stays where it is while it cannot be estimated.
+            const HOLD_S: f64 = 1e-6;
+            for k in 0..count {
+                let (Some(kf), Some(t0)) = (self.window.get(k), hold.get(k)) else {
+                    continue;
+                };
+                let c = l.col(Block::Td(k as u8)).ok_or(Error::DimensionMismatch)?;
+                let r = (kf.td_s - t0) / HOLD_S;
+                cost += sink(&mut ne, &[r], &[JacobianBlock::new(c, 1, &[1.0 / HOLD_S])])?;
+            }
+        }
 
         if self.set == FactorSet::Oldest && !self.cfg.marginalize_visual {
             if let Some(ne) = ne {

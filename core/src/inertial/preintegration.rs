@@ -343,6 +343,31 @@ impl<const M: usize> Preintegration<M> {
         Ok(())
     }
 
+    /// The stored raw samples, the start sample first.
+    pub fn samples(&self) -> &[ImuSample] {
+        &self.samples
+    }
+
+    /// Ends the interval at `last` (a sample at a time between the start and the newest stored
+    /// sample, e.g. interpolated): drops the samples at or after its time, appends it and
+    /// re-integrates at the current linearization biases. [`Error::OutOfRange`] (nothing changed)
+    /// unless `last` lies strictly after the start.
+    pub fn truncate_at(&mut self, last: &ImuSample) -> Result<(), Error> {
+        if !last.is_finite() {
+            return Err(Error::NonFinite);
+        }
+        if last.t_ns <= self.t0_ns {
+            return Err(Error::OutOfRange);
+        }
+        let keep = self.samples.iter().take_while(|s| s.t_ns < last.t_ns).count();
+        self.samples.truncate(keep);
+        self.samples
+            .push(*last)
+            .map_err(|_| Error::CapacityExceeded)?;
+        let (bg0, ba0) = (self.bg0, self.ba0);
+        self.reintegrate(bg0, ba0)
+    }
+
     /// Re-integrates with `bg`, `ba` when [`Self::needs_reintegration`]; returns whether it did.
     pub fn update_linearization(&mut self, bg: &Vec3, ba: &Vec3) -> Result<bool, Error> {
         if self.needs_reintegration(bg, ba) {
