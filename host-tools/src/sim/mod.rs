@@ -15,6 +15,7 @@
 pub mod camera;
 pub mod imu;
 pub mod lidar;
+pub mod render;
 pub mod rng;
 pub mod scenario;
 pub mod scene;

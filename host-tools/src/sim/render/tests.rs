@@ -1,0 +1,375 @@
+use super::truth::{camera_frames, ImageTruth};
+use super::*;
+use crate::sim::world::Primitive;
+use crate::sim::{simulate, Scenario, SimConfig, SimOutput};
+
+fn sim(scenario: Scenario, seed: u64, duration_s: f64) -> SimOutput {
+    let mut cfg = SimConfig::new(scenario, seed, duration_s);
+    cfg.lidar = Some(crate::sim::LidarKind::None);
+    simulate(&cfg, &|_, _, _| {}).unwrap()
+}
+
+/// Camera at `o` looking along world +x (image x = -y, image y = -z).
+fn view_along_x(o: Vec3) -> View {
+    View {
+        o_w: o,
+        r_wc: Mat3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0),
+    }
+}
+
+fn wall(x: f64) -> Primitive {
+    Primitive {
+        shape: Shape::Box {
+            min: Vec3::new(x, -60.0, 0.0),
+            max: Vec3::new(x + 1.0, 60.0, 100.0),
+        },
+        material: Material::Building,
+    }
+}
+
+/// Number of Shi-Tomasi corners: local maxima (11x11) of the minimum eigenvalue of the 5x5
+/// structure tensor of central-difference gradients, above `min_eig` (grey levels^2).
+fn shi_tomasi_count(px: &[u8], w: usize, h: usize, min_eig: f64) -> usize {
+    let g = |x: usize, y: usize| f64::from(px[y * w + x]);
+    let mut e = vec![0.0; w * h];
+    let mut grad = vec![(0.0, 0.0); w * h];
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            grad[y * w + x] = (
+                0.5 * (g(x + 1, y) - g(x - 1, y)),
+                0.5 * (g(x, y + 1) - g(x, y - 1)),
+            );
+        }
+    }
+    for y in 3..h - 3 {
+        for x in 3..w - 3 {
+            let (mut a, mut b, mut c) = (0.0, 0.0, 0.0);
+            for yy in y - 2..=y + 2 {
+                for xx in x - 2..=x + 2 {
+                    let (gx, gy) = grad[yy * w + xx];
+                    a += gx * gx;
+                    b += gx * gy;
+                    c += gy * gy;
+                }
+            }
+            let (a, b, c) = (a / 25.0, b / 25.0, c / 25.0);
+            e[y * w + x] = 0.5 * (a + c) - (0.25 * (a - c) * (a - c) + b * b).sqrt();
+        }
+    }
+    let mut n = 0;
+    for y in 8..h - 8 {
+        for x in 8..w - 8 {
+            let v = e[y * w + x];
+            if v < min_eig {
+                continue;
+            }
+            let mut best = true;
+            'nb: for yy in y - 5..=y + 5 {
+                for xx in x - 5..=x + 5 {
+                    let o = e[yy * w + xx];
+                    if o > v || (o == v && (yy, xx) < (y, x)) {
+                        best = false;
+                        break 'nb;
+                    }
+                }
+            }
+            n += usize::from(best);
+        }
+    }
+    n
+}
+
+/// Centroid of a small disc painted on a fronto-parallel wall lands where `camera::project`
+/// puts the disc's centre, over the whole (strongly distorted) EuRoC image.
+#[test]
+fn rendered_marker_lands_on_the_projection() {
+    let world = World::new(vec![wall(10.0)], [-70.0, -70.0, 70.0, 70.0], 10.0);
+    let cam = PinholeCamera::EUROC_CAM0;
+    let o = Vec3::new(0.0, 0.0, 50.0);
+    let view = view_along_x(o);
+    let radius = 0.1;
+    let mut worst: f64 = 0.0;
+    for (y0, z0) in [
+        (0.0, 50.0),
+        (5.0, 53.0),
+        (-6.5, 46.0),
+        (7.0, 46.0),
+        (-7.0, 54.5),
+        (2.0, 51.0),
+    ] {
+        let r = Renderer::new(&world, cam, &Extrinsic::identity())
+            .with_lighting(1.0, 0.0)
+            .with_albedo(Box::new(move |_, _, c: &Chart| match *c {
+                Chart::Plane { st, fp, .. } => {
+                    let d = ((st[0] - y0).powi(2) + (st[1] - z0).powi(2)).sqrt();
+                    let f = 0.5 * (fp[0] + fp[1]);
+                    (0.5 - (d - radius) / f).clamp(0.0, 1.0)
+                }
+                Chart::Solid { .. } => 0.0,
+            }));
+        let opts = RenderOptions {
+            supersample: 2,
+            ..RenderOptions::default()
+        };
+        let img = r.radiance(&view, &opts);
+        let (w, _) = (cam.width as usize, cam.height as usize);
+        let (mut s, mut su, mut sv) = (0.0, 0.0, 0.0);
+        for (i, &l) in img.iter().enumerate() {
+            let l = f64::from(l);
+            s += l;
+            su += l * (i % w) as f64;
+            sv += l * (i / w) as f64;
+        }
+        let proj = |y: f64, z: f64| {
+            let p_c = view.r_wc.transpose() * (Vec3::new(10.0, y, z) - o);
+            crate::sim::camera::project(&cam, &p_c).unwrap()
+        };
+        // Exact centroid of the disc's (distorted) image: image-area weighted mean over the disc.
+        let (mut a, mut cu, mut cv) = (0.0, 0.0, 0.0);
+        let n = 160;
+        let hs = 1e-5;
+        for iy in 0..n {
+            for iz in 0..n {
+                let dy = radius * (2.0 * (iy as f64 + 0.5) / n as f64 - 1.0);
+                let dz = radius * (2.0 * (iz as f64 + 0.5) / n as f64 - 1.0);
+                if dy * dy + dz * dz > radius * radius {
+                    continue;
+                }
+                let p = proj(y0 + dy, z0 + dz);
+                let py = proj(y0 + dy + hs, z0 + dz);
+                let pz = proj(y0 + dy, z0 + dz + hs);
+                let jac = ((py[0] - p[0]) * (pz[1] - p[1]) - (py[1] - p[1]) * (pz[0] - p[0])).abs();
+                a += jac;
+                cu += jac * p[0];
+                cv += jac * p[1];
+            }
+        }
+        let exact = [cu / a, cv / a];
+        let uv = proj(y0, z0);
+        let err = ((su / s - exact[0]).powi(2) + (sv / s - exact[1]).powi(2)).sqrt();
+        let bias = ((uv[0] - exact[0]).powi(2) + (uv[1] - exact[1]).powi(2)).sqrt();
+        assert!(s > 20.0, "marker at {uv:?} not rendered ({s})");
+        eprintln!("marker at {uv:?}: {err:.4} px from its exact image centroid (distortion bias {bias:.4} px)");
+        worst = worst.max(err);
+    }
+    eprintln!("marker centroid vs project: worst {worst:.4} px");
+    assert!(
+        worst < 0.02,
+        "marker centroid {worst} px from the projection"
+    );
+}
+
+/// The renderer's depth map, lifted back to 3-D, projects onto its pixel, and agrees with an
+/// independent ray cast through the world grid (the tile culling misses nothing).
+#[test]
+fn depth_map_agrees_with_projection_and_world_raycast() {
+    let out = sim(Scenario::Handheld, 3, 8.0);
+    let truth = ImageTruth::new(&out);
+    let cam = *truth.renderer().camera();
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let mut checked = 0;
+    for i in [10usize, 80, 150] {
+        let v = *truth.view(i).unwrap();
+        let depth = truth.depth_map(i).unwrap();
+        for row in (0..h).step_by(7) {
+            for col in (0..w).step_by(5) {
+                let z = f64::from(depth[row * w + col]);
+                let uv = [col as f64, row as f64];
+                let cast = truth.surface_point(i, uv);
+                let Some((p, _)) = cast else {
+                    assert!(
+                        z.is_nan(),
+                        "({col}, {row}) depth {z} but the world ray cast hits nothing"
+                    );
+                    continue;
+                };
+                let p_c = v.r_wc.transpose() * (p - v.o_w);
+                assert!(
+                    (p_c.z - z).abs() < 1e-4 * z.max(1.0),
+                    "({col}, {row}): depth {z} vs cast {}",
+                    p_c.z
+                );
+                let back = crate::sim::camera::project(&cam, &p_c).unwrap();
+                assert!((back[0] - uv[0]).abs() < 1e-6 && (back[1] - uv[1]).abs() < 1e-6);
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 10_000, "{checked}");
+}
+
+/// A pixel transferred to another frame and back returns to itself; a point hidden behind an
+/// occluder, or out of view, in the other frame has no transfer.
+#[test]
+fn transfer_round_trips_and_respects_occlusion() {
+    let occluder = Primitive {
+        shape: Shape::Box {
+            min: Vec3::new(9.5, 1.2, 0.0),
+            max: Vec3::new(10.5, 1.8, 3.0),
+        },
+        material: Material::Pole,
+    };
+    let world = World::new(vec![wall(20.0), occluder], [-70.0, -70.0, 70.0, 70.0], 5.0);
+    let cam = PinholeCamera::EUROC_CAM0;
+    let views = vec![
+        view_along_x(Vec3::new(0.0, 0.0, 1.5)),
+        view_along_x(Vec3::new(0.0, 3.0, 1.5)),
+    ];
+    let truth = ImageTruth::with_views(&world, cam, vec![0, 50_000_000], views.clone());
+    let pix = |j: usize, p: Vec3| {
+        crate::sim::camera::project(&cam, &(views[j].r_wc.transpose() * (p - views[j].o_w)))
+            .unwrap()
+    };
+    // Hidden from frame 0 by the occluder, visible from frame 1.
+    let hidden = Vec3::new(20.0, 3.0, 1.5);
+    assert!(truth.transfer(1, pix(1, hidden), 0).is_none());
+    // Visible from both: the transfer is the projection, and it round-trips.
+    let seen = Vec3::new(20.0, -3.0, 2.0);
+    let uv1 = pix(1, seen);
+    let uv0 = truth.transfer(1, uv1, 0).unwrap();
+    let p0 = pix(0, seen);
+    assert!((uv0[0] - p0[0]).abs() < 1e-6 && (uv0[1] - p0[1]).abs() < 1e-6);
+    let back = truth.transfer(0, uv0, 1).unwrap();
+    assert!((back[0] - uv1[0]).abs() < 1e-6 && (back[1] - uv1[1]).abs() < 1e-6);
+    // A point on the occluder seen from frame 0 is out of view or visible in 1, never hidden.
+    assert!(truth
+        .surface_point(0, pix(0, Vec3::new(9.5, 1.5, 1.5)))
+        .is_some());
+    // Out of view in frame 1: far to the side.
+    let side = Vec3::new(20.0, -25.0, 1.5);
+    assert!(truth.transfer(0, pix(0, side), 1).is_none());
+
+    // On a simulated sequence: round trips over many pixels and frame pairs.
+    let out = sim(Scenario::Robot, 2, 6.0);
+    let t = ImageTruth::new(&out);
+    let (mut ok, mut none) = (0, 0);
+    for (i, j) in [(20usize, 22usize), (50, 60), (100, 101)] {
+        for row in (10..470).step_by(23) {
+            for col in (10..740).step_by(17) {
+                let uv = [col as f64 + 0.3, row as f64 - 0.2];
+                match t.transfer(i, uv, j) {
+                    Some(q) => {
+                        let b = t.transfer(j, q, i).expect("visible both ways");
+                        assert!(
+                            (b[0] - uv[0]).abs() < 1e-5 && (b[1] - uv[1]).abs() < 1e-5,
+                            "{uv:?} -> {q:?} -> {b:?}"
+                        );
+                        ok += 1;
+                    }
+                    None => none += 1,
+                }
+            }
+        }
+    }
+    assert!(ok > 1500 && none > 10, "{ok} transferred, {none} not");
+}
+
+fn render_all(out: &SimOutput, opts: &RenderOptions, seed: u64, threads: usize) -> Vec<Vec<u8>> {
+    let n = out.dataset.features.len();
+    let frames = std::sync::Mutex::new(vec![Vec::new(); n]);
+    sequence::render_sequence(out, opts, seed, threads, &|_, _, _| {}, &|k, _, px| {
+        frames.lock().unwrap()[k] = px;
+        Ok(())
+    })
+    .unwrap();
+    frames.into_inner().unwrap()
+}
+
+/// Same seed, same pixels, whatever the thread count; the seed drives the noise.
+#[test]
+fn rendering_is_deterministic_and_thread_count_independent() {
+    let out = sim(Scenario::Handheld, 4, 0.3);
+    let opts = RenderOptions {
+        noise_grey: 2.0,
+        exposure_var: 0.2,
+        motion_blur_s: 0.004,
+        ..RenderOptions::default()
+    };
+    let a = render_all(&out, &opts, 4, 1);
+    let b = render_all(&out, &opts, 4, 2);
+    let c = render_all(&out, &opts, 5, 2);
+    assert_eq!(a.len(), 7);
+    assert!(a.iter().all(|f| f.len() == 752 * 480));
+    assert!(a == b, "thread count changed the pixels");
+    assert!(a != c, "the seed does not reach the noise");
+    // Without noise the images do not depend on the seed at all (the world does).
+    let quiet = RenderOptions::default();
+    assert!(render_all(&out, &quiet, 4, 2) == render_all(&out, &quiet, 9, 1));
+}
+
+/// Rendered frames of every scenario have plenty of Shi-Tomasi corners; a flat wall has none.
+#[test]
+fn textures_have_corners() {
+    let min_eig = 25.0;
+    for (sc, seed) in [
+        (Scenario::Robot, 1),
+        (Scenario::Handheld, 2),
+        (Scenario::Vehicle, 3),
+    ] {
+        let out = sim(sc, seed, 6.0);
+        let frames = camera_frames(&out);
+        let r = Renderer::new(
+            &out.world,
+            out.dataset.calib.camera,
+            &out.dataset.calib.t_bc,
+        );
+        for k in [frames.len() / 2, frames.len() - 1] {
+            let px = r.render_frame(
+                &out.trajectory,
+                frames[k].1,
+                k as u64,
+                seed,
+                &RenderOptions::default(),
+            );
+            let n = shi_tomasi_count(&px, 752, 480, min_eig);
+            eprintln!("{} frame {k}: {n} corners", sc.name());
+            assert!(n >= 150, "{} frame {k}: only {n} corners", sc.name());
+        }
+    }
+    let world = World::new(vec![wall(10.0)], [-70.0, -70.0, 70.0, 70.0], 10.0);
+    let r = Renderer::new(&world, PinholeCamera::EUROC_CAM0, &Extrinsic::identity())
+        .with_albedo(Box::new(|_, _, _| 0.5));
+    let img: Vec<u8> = r
+        .radiance(
+            &view_along_x(Vec3::new(0.0, 0.0, 50.0)),
+            &RenderOptions::default(),
+        )
+        .iter()
+        .map(|&l| (255.0 * l).round() as u8)
+        .collect();
+    assert_eq!(shi_tomasi_count(&img, 752, 480, min_eig), 0);
+}
+
+/// One filtered sample per pixel (plus edge samples) stays close to a 4x4 supersampled
+/// reference: the texture pre-filter removes what would alias.
+#[test]
+fn prefiltered_render_is_close_to_supersampled() {
+    let out = sim(Scenario::Robot, 1, 4.0);
+    let frames = camera_frames(&out);
+    let r = Renderer::new(
+        &out.world,
+        out.dataset.calib.camera,
+        &out.dataset.calib.t_bc,
+    );
+    let k = frames.len() - 1;
+    let view = r.view(&out.trajectory.eval(frames[k].1));
+    let fast = r.radiance(&view, &RenderOptions::default());
+    let reference = r.radiance(
+        &view,
+        &RenderOptions {
+            supersample: 4,
+            edge_samples: 4,
+            ..RenderOptions::default()
+        },
+    );
+    let mut d: Vec<f64> = fast
+        .iter()
+        .zip(&reference)
+        .map(|(a, b)| 255.0 * f64::from((a - b).abs()))
+        .collect();
+    let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+    d.sort_by(f64::total_cmp);
+    let p99 = d[d.len() * 99 / 100];
+    eprintln!("1 sample vs 4x4: rms {rms:.2} grey levels, p99 {p99:.2}");
+    assert!(rms < 3.0 && p99 < 12.0, "rms {rms}, p99 {p99}");
+}
