@@ -11,6 +11,13 @@ use std::time::Instant;
 /// threads in any order.
 pub type Sink<'a> = &'a (dyn Fn(usize, i64, Vec<u8>) -> anyhow::Result<()> + Sync);
 
+/// CPU time of the calling thread, s (Linux `/proc/thread-self/schedstat`; `None` elsewhere).
+pub fn thread_cpu_s() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = s.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
+}
+
 /// Timing of a sequence render.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SequenceStats {
@@ -20,7 +27,8 @@ pub struct SequenceStats {
     pub threads: usize,
     /// Wall time, s (ray table included).
     pub wall_s: f64,
-    /// Mean busy time of a worker per frame (rendering only, the sink excluded), ms.
+    /// Mean time a worker spends rendering a frame (the sink excluded), ms: thread CPU time
+    /// where the OS reports it (so other load on the machine does not count), else wall time.
     pub ms_per_frame: f64,
 }
 
@@ -61,9 +69,12 @@ pub fn render_sequence(
                         break;
                     }
                     let (stamp, t) = frames[k];
-                    let t0 = Instant::now();
+                    let (t0, c0) = (Instant::now(), thread_cpu_s());
                     let px = renderer.render_frame(&out.trajectory, t, k as u64, seed, opts);
-                    busy += t0.elapsed().as_secs_f64();
+                    busy += match (c0, thread_cpu_s()) {
+                        (Some(a), Some(b)) => b - a,
+                        _ => t0.elapsed().as_secs_f64(),
+                    };
                     if let Err(e) = sink(k, stamp, px) {
                         failed.store(true, Ordering::Relaxed);
                         if let Ok(mut slot) = first_err.lock() {

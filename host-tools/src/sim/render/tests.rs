@@ -373,3 +373,41 @@ fn prefiltered_render_is_close_to_supersampled() {
     eprintln!("1 sample vs 4x4: rms {rms:.2} grey levels, p99 {p99:.2}");
     assert!(rms < 3.0 && p99 < 12.0, "rms {rms}, p99 {p99}");
 }
+
+/// Rendering time per frame on one thread (`cargo test --release ... render_speed -- --ignored
+/// --nocapture`).
+#[test]
+#[ignore]
+fn render_speed() {
+    for (sc, seed) in [
+        (Scenario::Robot, 1),
+        (Scenario::Handheld, 1),
+        (Scenario::Vehicle, 1),
+    ] {
+        let out = sim(sc, seed, 20.0);
+        let frames = camera_frames(&out);
+        let r = Renderer::new(
+            &out.world,
+            out.dataset.calib.camera,
+            &out.dataset.calib.t_bc,
+        );
+        let t0 = sequence::thread_cpu_s().unwrap_or(0.0);
+        let n = 12;
+        for k in 0..n {
+            let i = k * (frames.len() - 1) / (n - 1);
+            let _ = r.render_frame(
+                &out.trajectory,
+                frames[i].1,
+                i as u64,
+                1,
+                &RenderOptions::default(),
+            );
+        }
+        let cpu = sequence::thread_cpu_s().unwrap_or(0.0) - t0;
+        eprintln!(
+            "{}: {:.1} ms CPU per frame",
+            sc.name(),
+            cpu * 1e3 / n as f64
+        );
+    }
+}

@@ -44,7 +44,7 @@ fn hash(a: i64, b: i64, c: i64, seed: u64) -> u64 {
 /// Uniform in `[0, 1)` from 16 bits of `h` starting at `bit`.
 #[inline]
 fn unit(h: u64, bit: u32) -> f64 {
-    ((h >> bit) & 0xFFFF) as f64 * (1.0 / 65536.0)
+    ((h >> bit) & 0xFFFF) as i64 as f64 * (1.0 / 65536.0)
 }
 
 #[inline]
@@ -75,11 +75,11 @@ fn values() -> &'static [f64; 256] {
 /// Lattice offsets that make octave/surface `seed` an independent noise (period 256 cells).
 #[inline]
 fn offsets(seed: u64) -> [i64; 3] {
-    let h = hash(seed as i64, 3, 5, 0x0FF5E7);
+    let h = (seed ^ (seed >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     [
-        (h & 255) as i64,
-        ((h >> 8) & 255) as i64,
-        ((h >> 16) & 255) as i64,
+        ((h >> 40) & 255) as i64,
+        ((h >> 48) & 255) as i64,
+        (h >> 56) as i64,
     ]
 }
 
@@ -138,11 +138,10 @@ fn noise3(q: [f64; 3], seed: u64) -> f64 {
     r[0] + (r[1] - r[0]) * sz
 }
 
-/// Weight of an octave of wavelength `lambda` for footprint `fp` (same unit).
+/// Weight of an octave spanning `q` pixel footprints per wavelength.
 #[inline]
-fn octave_weight(lambda: f64, fp: f64) -> f64 {
-    let q = lambda / fp.max(1e-12);
-    ((q - FADE_PX.0) / (FADE_PX.1 - FADE_PX.0)).clamp(0.0, 1.0)
+fn octave_weight(q: f64) -> f64 {
+    ((q - FADE_PX.0) * (1.0 / (FADE_PX.1 - FADE_PX.0))).clamp(0.0, 1.0)
 }
 
 /// Fractal value noise.
@@ -184,113 +183,131 @@ pub struct MaterialTexture {
     pub blobs: [Blobs; 3],
 }
 
-/// The texture of a material.
-pub fn material_texture(m: Material) -> MaterialTexture {
-    let fbm = |lambda0, amp, octaves| Fbm {
+const fn fbm(lambda0: f64, amp: f64, octaves: u32) -> Fbm {
+    Fbm {
         lambda0,
         amp,
         gain: 0.8,
         octaves,
-    };
-    let sq = |cell: f64, p, size: (f64, f64), c: f64| Blobs {
+    }
+}
+
+const fn sq(cell: f64, p: f64, size: (f64, f64), c: f64) -> Blobs {
+    Blobs {
         cell: [cell, cell],
         p,
         size: [size, size],
         contrast: (-c, c),
-    };
-    match m {
-        Material::Ground => MaterialTexture {
-            mean: 0.42,
-            jitter: 0.0,
-            fbm: fbm(6.0, 0.08, 9),
-            blobs: [
-                sq(2.0, 0.5, (0.3, 0.8), 0.1),
-                sq(0.35, 0.45, (0.2, 0.6), 0.2),
-                sq(0.08, 0.4, (0.25, 0.7), 0.12),
-            ],
-        },
-        Material::Building => MaterialTexture {
-            mean: 0.6,
-            jitter: 0.12,
-            fbm: fbm(4.0, 0.06, 8),
-            blobs: [
-                Blobs {
-                    cell: [2.6, 3.0],
-                    p: 0.75,
-                    size: [(0.35, 0.6), (0.4, 0.6)],
-                    contrast: (-0.35, 0.15),
-                },
-                Blobs {
-                    cell: [0.45, 0.3],
-                    p: 0.35,
-                    size: [(0.3, 0.8), (0.3, 0.7)],
-                    contrast: (-0.15, 0.15),
-                },
-                sq(0.1, 0.35, (0.3, 0.7), 0.1),
-            ],
-        },
-        Material::Vehicle => MaterialTexture {
-            mean: 0.5,
-            jitter: 0.3,
-            fbm: fbm(2.0, 0.04, 7),
-            blobs: [
-                Blobs {
-                    cell: [1.2, 0.7],
-                    p: 0.6,
-                    size: [(0.4, 0.8), (0.3, 0.6)],
-                    contrast: (-0.3, 0.2),
-                },
-                sq(0.3, 0.3, (0.2, 0.6), 0.15),
-                sq(0.08, 0.3, (0.3, 0.7), 0.08),
-            ],
-        },
-        Material::Trunk => MaterialTexture {
-            mean: 0.32,
-            jitter: 0.05,
-            fbm: fbm(1.0, 0.08, 7),
-            blobs: [
-                Blobs {
-                    cell: [0.25, 0.6],
-                    p: 0.5,
-                    size: [(0.2, 0.5), (0.3, 0.9)],
-                    contrast: (-0.15, 0.15),
-                },
-                Blobs {
-                    cell: [0.06, 0.12],
-                    p: 0.5,
-                    size: [(0.2, 0.6), (0.3, 0.9)],
-                    contrast: (-0.12, 0.12),
-                },
-                sq(0.03, 0.3, (0.3, 0.7), 0.06),
-            ],
-        },
-        Material::Foliage => MaterialTexture {
-            mean: 0.3,
-            jitter: 0.06,
-            fbm: fbm(1.2, 0.08, 7),
-            blobs: [
-                sq(0.5, 0.5, (0.3, 0.7), 0.16),
-                sq(0.16, 0.5, (0.3, 0.7), 0.12),
-                sq(0.05, 0.4, (0.3, 0.7), 0.08),
-            ],
-        },
-        Material::Pole => MaterialTexture {
-            mean: 0.55,
-            jitter: 0.1,
-            fbm: fbm(1.0, 0.04, 6),
-            blobs: [
-                Blobs {
-                    cell: [1.0, 0.8],
-                    p: 0.5,
-                    size: [(1.0, 1.0), (0.2, 0.5)],
-                    contrast: (-0.3, 0.25),
-                },
-                sq(0.1, 0.3, (0.3, 0.7), 0.1),
-                sq(0.03, 0.3, (0.3, 0.7), 0.06),
-            ],
-        },
     }
 }
+
+/// The texture of a material.
+pub fn material_texture(m: Material) -> &'static MaterialTexture {
+    match m {
+        Material::Ground => &GROUND,
+        Material::Building => &BUILDING,
+        Material::Vehicle => &VEHICLE,
+        Material::Trunk => &TRUNK,
+        Material::Foliage => &FOLIAGE,
+        Material::Pole => &POLE,
+    }
+}
+
+const GROUND: MaterialTexture = MaterialTexture {
+    mean: 0.42,
+    jitter: 0.0,
+    fbm: fbm(3.0, 0.09, 7),
+    blobs: [
+        sq(2.0, 0.5, (0.3, 0.8), 0.1),
+        sq(0.35, 0.45, (0.2, 0.6), 0.2),
+        sq(0.08, 0.4, (0.25, 0.7), 0.12),
+    ],
+};
+
+const BUILDING: MaterialTexture = MaterialTexture {
+    mean: 0.6,
+    jitter: 0.12,
+    fbm: fbm(2.0, 0.07, 6),
+    blobs: [
+        Blobs {
+            cell: [2.6, 3.0],
+            p: 0.75,
+            size: [(0.35, 0.6), (0.4, 0.6)],
+            contrast: (-0.35, 0.15),
+        },
+        Blobs {
+            cell: [0.45, 0.3],
+            p: 0.35,
+            size: [(0.3, 0.8), (0.3, 0.7)],
+            contrast: (-0.15, 0.15),
+        },
+        sq(0.1, 0.35, (0.3, 0.7), 0.1),
+    ],
+};
+
+const VEHICLE: MaterialTexture = MaterialTexture {
+    mean: 0.5,
+    jitter: 0.3,
+    fbm: fbm(2.0, 0.04, 7),
+    blobs: [
+        Blobs {
+            cell: [1.2, 0.7],
+            p: 0.6,
+            size: [(0.4, 0.8), (0.3, 0.6)],
+            contrast: (-0.3, 0.2),
+        },
+        sq(0.3, 0.3, (0.2, 0.6), 0.15),
+        sq(0.08, 0.3, (0.3, 0.7), 0.08),
+    ],
+};
+
+const TRUNK: MaterialTexture = MaterialTexture {
+    mean: 0.32,
+    jitter: 0.05,
+    fbm: fbm(1.0, 0.08, 7),
+    blobs: [
+        Blobs {
+            cell: [0.25, 0.6],
+            p: 0.5,
+            size: [(0.2, 0.5), (0.3, 0.9)],
+            contrast: (-0.15, 0.15),
+        },
+        Blobs {
+            cell: [0.06, 0.12],
+            p: 0.5,
+            size: [(0.2, 0.6), (0.3, 0.9)],
+            contrast: (-0.12, 0.12),
+        },
+        sq(0.03, 0.3, (0.3, 0.7), 0.06),
+    ],
+};
+
+const FOLIAGE: MaterialTexture = MaterialTexture {
+    mean: 0.3,
+    jitter: 0.06,
+    fbm: fbm(1.2, 0.08, 7),
+    blobs: [
+        sq(0.5, 0.5, (0.3, 0.7), 0.16),
+        sq(0.16, 0.5, (0.3, 0.7), 0.12),
+        sq(0.05, 0.4, (0.3, 0.7), 0.08),
+    ],
+};
+
+const POLE: MaterialTexture = MaterialTexture {
+    mean: 0.55,
+    jitter: 0.1,
+    fbm: fbm(1.0, 0.04, 6),
+    blobs: [
+        Blobs {
+            cell: [1.0, 0.8],
+            p: 0.5,
+            size: [(1.0, 1.0), (0.2, 0.5)],
+            contrast: (-0.3, 0.25),
+        },
+        sq(0.1, 0.3, (0.3, 0.7), 0.1),
+        sq(0.03, 0.3, (0.3, 0.7), 0.06),
+    ],
+};
 
 /// Where and how wide a texture is evaluated.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -314,11 +331,10 @@ pub enum Chart {
     },
 }
 
-/// Box-filtered overlap of `[a, b]` with `[x - f/2, x + f/2]`, divided by `f`.
+/// Box-filtered overlap of `[a, b]` with `[x - h, x + h]`, divided by `2 h` (`inv_f = 1/(2h)`).
 #[inline]
-fn overlap(x: f64, f: f64, a: f64, b: f64) -> f64 {
-    let h = 0.5 * f;
-    ((x + h).min(b) - (x - h).max(a)).max(0.0) / f
+fn overlap(x: f64, h: f64, inv_f: f64, a: f64, b: f64) -> f64 {
+    ((x + h).min(b) - (x - h).max(a)).max(0.0) * inv_f
 }
 
 /// Mean albedo change of a blob layer (the limit for large footprints).
@@ -336,7 +352,7 @@ fn blob_rect(b: &Blobs, cs: f64, i: i64, iw: i64, j: i64, seed: u64) -> Option<(
     if unit(h, 0) >= b.p {
         return None;
     }
-    let h2 = hash(iw, j, 11, seed);
+    let h2 = h.rotate_left(29).wrapping_mul(0x94D0_49BB_1331_11EB);
     let ws = cs * (b.size[0].0 + (b.size[0].1 - b.size[0].0) * unit(h, 16));
     let wt = b.cell[1] * (b.size[1].0 + (b.size[1].1 - b.size[1].0) * unit(h, 32));
     let s0 = i as f64 * cs + (cs - ws) * unit(h, 48);
@@ -345,23 +361,22 @@ fn blob_rect(b: &Blobs, cs: f64, i: i64, iw: i64, j: i64, seed: u64) -> Option<(
     Some(([s0, s0 + ws, t0, t0 + wt], c))
 }
 
-/// Box-filtered 2-D blob layer.
-fn blobs2(b: &Blobs, st: [f64; 2], fp: [f64; 2], period: f64, seed: u64) -> f64 {
-    let (n, cs) = if period > 0.0 {
+/// Box-filtered 2-D blob layer; `inv_fp` are the reciprocal footprints.
+fn blobs2(b: &Blobs, st: [f64; 2], fp: [f64; 2], inv_fp: [f64; 2], period: f64, seed: u64) -> f64 {
+    let (n, cs, inv_cs) = if period > 0.0 {
         let n = (period / b.cell[0]).round().max(1.0);
-        (n as i64, period / n)
+        (n as i64, period / n, n / period)
     } else {
-        (0, b.cell[0])
+        (0, b.cell[0], 1.0 / b.cell[0])
     };
-    let ct = b.cell[1];
-    let (fs, ft) = (fp[0].max(1e-9), fp[1].max(1e-9));
-    // Cells covered by the footprint per axis; beyond 3 the layer is replaced by its mean.
-    let span = (fs / cs).max(ft / ct);
+    let inv_ct = 1.0 / b.cell[1];
+    // Half footprints in cells; beyond 3 cells the layer is replaced by its mean.
+    let (hs, ht) = (0.5 * fp[0] * inv_cs, 0.5 * fp[1] * inv_ct);
+    let span = 2.0 * hs.max(ht);
     if span >= 3.0 {
         return blob_mean(b, 2);
     }
-    let (us, ut) = (st[0] / cs, st[1] / ct);
-    let (hs, ht) = (0.5 * fs / cs, 0.5 * ft / ct);
+    let (us, ut) = (st[0] * inv_cs, st[1] * inv_ct);
     let (i, fu) = floor_frac(us);
     let (j, fv) = floor_frac(ut);
     // Usual case: the footprint lies inside one cell.
@@ -375,11 +390,14 @@ fn blobs2(b: &Blobs, st: [f64; 2], fp: [f64; 2], period: f64, seed: u64) -> f64 
     } else {
         (floor_frac(ut - ht).0, floor_frac(ut + ht).0)
     };
+    let (hfs, hft) = (0.5 * fp[0], 0.5 * fp[1]);
     let mut acc = 0.0;
     for j in j0..=j1 {
         for i in i0..=i1 {
             if let Some((r, c)) = blob_rect(b, cs, i, wrap(i, n), j, seed) {
-                acc += c * overlap(st[0], fs, r[0], r[1]) * overlap(st[1], ft, r[2], r[3]);
+                acc += c
+                    * overlap(st[0], hfs, inv_fp[0], r[0], r[1])
+                    * overlap(st[1], hft, inv_fp[1], r[2], r[3]);
             }
         }
     }
@@ -421,7 +439,7 @@ fn blobs3(b: &Blobs, p: [f64; 3], fp: f64, seed: u64) -> f64 {
                     let bit = 16 * axis as u32;
                     let w = c * (r.0 + (r.1 - r.0) * unit(h, bit + 16));
                     let a = idx as f64 * c + (c - w) * unit(h2, bit + 16);
-                    cov *= overlap(x, f, a, a + w);
+                    cov *= overlap(x, 0.5 * f, 1.0 / f, a, a + w);
                 }
                 acc += cov * (b.contrast.0 + (b.contrast.1 - b.contrast.0) * unit(h2, 0));
             }
@@ -433,36 +451,40 @@ fn blobs3(b: &Blobs, p: [f64; 3], fp: f64, seed: u64) -> f64 {
 
 /// Fractal noise on a 2-D chart (isotropic fade with the larger footprint).
 fn fbm2(f: &Fbm, st: [f64; 2], fp: f64, period: f64, seed: u64) -> f64 {
-    let (mut amp, mut lambda, mut sum) = (f.amp, f.lambda0, 0.0);
+    let inv_fp = 1.0 / fp.max(1e-12);
+    let (mut amp, mut lambda, mut inv_l, mut sum) = (f.amp, f.lambda0, 1.0 / f.lambda0, 0.0);
     for o in 0..f.octaves {
-        let w = octave_weight(lambda, fp);
+        let w = octave_weight(lambda * inv_fp);
         if w <= 0.0 {
             break;
         }
         let s = if period > 0.0 {
-            let n = (period / lambda).round().max(1.0);
+            let n = (period * inv_l).round().max(1.0);
             (st[0] * n / period, n as i64)
         } else {
-            (st[0] / lambda, 0)
+            (st[0] * inv_l, 0)
         };
-        sum += w * amp * noise2(s.0, st[1] / lambda, seed.wrapping_add(o as u64), s.1);
+        sum += w * amp * noise2(s.0, st[1] * inv_l, seed.wrapping_add(o as u64), s.1);
         amp *= f.gain;
         lambda *= 0.5;
+        inv_l *= 2.0;
     }
     sum
 }
 
 fn fbm3(f: &Fbm, p: [f64; 3], fp: f64, seed: u64) -> f64 {
-    let (mut amp, mut lambda, mut sum) = (f.amp, f.lambda0, 0.0);
+    let inv_fp = 1.0 / fp.max(1e-12);
+    let (mut amp, mut lambda, mut inv_l, mut sum) = (f.amp, f.lambda0, 1.0 / f.lambda0, 0.0);
     for o in 0..f.octaves {
-        let w = octave_weight(lambda, fp);
+        let w = octave_weight(lambda * inv_fp);
         if w <= 0.0 {
             break;
         }
-        let q = [p[0] / lambda, p[1] / lambda, p[2] / lambda];
+        let q = [p[0] * inv_l, p[1] * inv_l, p[2] * inv_l];
         sum += w * amp * noise3(q, seed.wrapping_add(o as u64));
         amp *= f.gain;
         lambda *= 0.5;
+        inv_l *= 2.0;
     }
     sum
 }
@@ -476,8 +498,10 @@ pub fn albedo(m: Material, surface_id: u32, chart: &Chart) -> f64 {
         Chart::Plane { st, fp, period } => {
             let iso = fp[0].max(fp[1]);
             let mut v = base + fbm2(&tex.fbm, st, iso, period, seed);
+            let inv_fp = [1.0 / fp[0].max(1e-9), 1.0 / fp[1].max(1e-9)];
+            let fp = [fp[0].max(1e-9), fp[1].max(1e-9)];
             for (k, b) in tex.blobs.iter().enumerate() {
-                v += blobs2(b, st, fp, period, seed ^ (0xC0A5 + k as u64));
+                v += blobs2(b, st, fp, inv_fp, period, seed ^ (0xC0A5 + k as u64));
             }
             v
         }
@@ -521,14 +545,14 @@ mod tests {
         let fp = [0.4, 0.25];
         for k in 0..50 {
             let st = [k as f64 * 0.37 - 5.0, k as f64 * 0.21 + 1.0];
-            let exact = blobs2(&b, st, fp, 0.0, 3);
+            let exact = blobs2(&b, st, fp, [1.0 / fp[0], 1.0 / fp[1]], 0.0, 3);
             let n = 64;
             let mut acc = 0.0;
             for a in 0..n {
                 for c in 0..n {
                     let s = st[0] + fp[0] * ((a as f64 + 0.5) / n as f64 - 0.5);
                     let t = st[1] + fp[1] * ((c as f64 + 0.5) / n as f64 - 0.5);
-                    acc += blobs2(&b, [s, t], [1e-9, 1e-9], 0.0, 3);
+                    acc += blobs2(&b, [s, t], [1e-9, 1e-9], [1e9, 1e9], 0.0, 3);
                 }
             }
             let mean = acc / (n * n) as f64;
