@@ -303,6 +303,60 @@ impl<'w> Renderer<'w> {
         Some((acc * inv * inv, key.unwrap_or(0)))
     }
 
+    /// Anti-aliased edge pixel: `e` x `e` sub-samples find the surfaces (traced only); each
+    /// surface is shaded once, at the mean position of its samples with a footprint of its share
+    /// of the pixel, and weighted by its sample count.
+    fn edge_pixel(
+        &self,
+        vis: &Visible,
+        view: &View,
+        col: usize,
+        row: usize,
+        e: u32,
+    ) -> Option<f64> {
+        let c = self.rays.center(col, row)?;
+        let j = self.rays.jacobian(col, row);
+        let tile = self.rays.tile_of(col, row);
+        let inv = 1.0 / e as f64;
+        // (key, count, sum du, sum dv, first du, first dv) per surface.
+        let mut groups: Vec<(u32, u32, f64, f64, f64, f64)> = Vec::with_capacity(4);
+        for b in 0..e {
+            let dv = (b as f64 + 0.5) * inv - 0.5;
+            for a in 0..e {
+                let du = (a as f64 + 0.5) * inv - 0.5;
+                let xy = [c[0] + j[0] * du + j[2] * dv, c[1] + j[1] * du + j[3] * dv];
+                let r = view.r_wc * Vec3::new(xy[0], xy[1], 1.0);
+                let key = surface_key(
+                    vis.trace(self.world, tile, &view.o_w, &r.normalize())
+                        .as_ref(),
+                );
+                match groups.iter_mut().find(|g| g.0 == key) {
+                    Some(g) => {
+                        g.1 += 1;
+                        g.2 += du;
+                        g.3 += dv;
+                    }
+                    None => groups.push((key, 1, du, dv, du, dv)),
+                }
+            }
+        }
+        let mut acc = 0.0;
+        for &(key, n, su, sv, fu, fv) in &groups {
+            let f = (n as f64).sqrt() * inv;
+            let dj = ([j[0] * f, j[1] * f], [j[2] * f, j[3] * f]);
+            let at =
+                |du: f64, dv: f64| [c[0] + j[0] * du + j[2] * dv, c[1] + j[1] * du + j[3] * dv];
+            let (mu, mv) = (su / n as f64, sv / n as f64);
+            let (mut l, k) = self.sample(vis, view, tile, at(mu, mv), dj);
+            if k != key {
+                // The mean position of a non-convex group fell on another surface.
+                l = self.sample(vis, view, tile, at(fu, fv), dj).0;
+            }
+            acc += l * n as f64;
+        }
+        Some(acc * inv * inv)
+    }
+
     /// Linear radiance image (row-major, nominally in `[0, 1]`; 0 where a pixel has no ray).
     pub fn radiance(&self, view: &View, opts: &RenderOptions) -> Vec<f32> {
         let (w, h) = (self.rays.width, self.rays.height);
@@ -328,7 +382,7 @@ impl<'w> Renderer<'w> {
                         || (row > 0 && keys[(row - 1) * w + col] != k)
                         || (row + 1 < h && keys[(row + 1) * w + col] != k);
                     if edge {
-                        if let Some((l, _)) = self.pixel(&vis, view, col, row, e) {
+                        if let Some(l) = self.edge_pixel(&vis, view, col, row, e) {
                             img[row * w + col] = l as f32;
                         }
                     }
