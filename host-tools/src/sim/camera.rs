@@ -1,6 +1,7 @@
 //! Camera projection and the feature-tracker model.
 //!
-//! Projection (forward model only, so the simulator does not depend on the core camera module):
+//! Projection (the simulator's own forward model; [`unproject`], its exact inverse used by the
+//! image renderer, only takes its starting point from the core's undistortion):
 //! `x = X/Z, y = Y/Z`, then radial-tangential distortion
 //!
 //! ```text

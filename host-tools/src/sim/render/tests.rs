@@ -411,3 +411,66 @@ fn render_speed() {
         );
     }
 }
+
+/// Motion blur smooths a moving frame, the exposure gain varies by the requested amount, and the
+/// pixel noise has the requested standard deviation.
+#[test]
+fn options_have_their_effect() {
+    let out = sim(Scenario::Handheld, 6, 6.0);
+    let frames = camera_frames(&out);
+    let r = Renderer::new(
+        &out.world,
+        out.dataset.calib.camera,
+        &out.dataset.calib.t_bc,
+    );
+    // The frame with the fastest rotation.
+    let k = (0..frames.len())
+        .max_by(|&a, &b| {
+            let w = |i: usize| out.trajectory.eval(frames[i].1).omega_b.norm();
+            w(a).total_cmp(&w(b))
+        })
+        .unwrap();
+    let t = frames[k].1;
+    let render = |o: RenderOptions| r.render_frame(&out.trajectory, t, k as u64, 6, &o);
+    let energy = |px: &[u8]| {
+        let mut e = 0.0;
+        for y in 0..479 {
+            for x in 0..751 {
+                let g = |dx: usize, dy: usize| f64::from(px[(y + dy) * 752 + x + dx]);
+                e += (g(1, 0) - g(0, 0)).powi(2) + (g(0, 1) - g(0, 0)).powi(2);
+            }
+        }
+        e / (751.0 * 479.0)
+    };
+    let sharp = render(RenderOptions::default());
+    let blurred = render(RenderOptions {
+        motion_blur_s: 0.02,
+        ..RenderOptions::default()
+    });
+    let (es, eb) = (energy(&sharp), energy(&blurred));
+    eprintln!("gradient energy sharp {es:.1}, 20 ms blur {eb:.1}");
+    assert!(eb < 0.8 * es, "blur did not smooth: {es} -> {eb}");
+
+    // Exposure: log-gain standard deviation over 10 minutes close to the option.
+    let logs: Vec<f64> = (0..6000)
+        .map(|i| exposure_gain(6, 0.2, i as f64 * 0.1).ln())
+        .collect();
+    let mean = logs.iter().sum::<f64>() / logs.len() as f64;
+    let sd = (logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / logs.len() as f64).sqrt();
+    assert!((0.14..0.26).contains(&sd), "log gain sd {sd}");
+    assert_eq!(exposure_gain(6, 0.0, 3.0), 1.0);
+
+    // Noise: the difference to the noise-free frame has the requested sigma (unclipped pixels).
+    let noisy = render(RenderOptions {
+        noise_grey: 3.0,
+        ..RenderOptions::default()
+    });
+    let d: Vec<f64> = sharp
+        .iter()
+        .zip(&noisy)
+        .filter(|(a, _)| (15..240).contains(*a))
+        .map(|(a, b)| f64::from(*b) - f64::from(*a))
+        .collect();
+    let sd = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+    assert!((2.8..3.2).contains(&sd), "noise sd {sd}");
+}
