@@ -1,9 +1,9 @@
 //! Ground truth for image tracking: where a pixel of one frame is in another frame, and depth
 //! maps.
 //!
-//! A pixel is turned into its exact viewing ray ([`camera::unproject`]), cast against the world
+//! A pixel is turned into its exact viewing ray ([`camera::unproject`](crate::sim::camera::unproject)), cast against the world
 //! ([`World::raycast`], independent of the renderer's culling) and the surface point is projected
-//! into the other frame with [`camera::project`]; the result is `None` when the point is out of
+//! into the other frame with [`camera::project`](crate::sim::camera::project); the result is `None` when the point is out of
 //! the other image, seen from behind or occluded there.
 
 use super::{Renderer, View};
