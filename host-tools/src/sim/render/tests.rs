@@ -27,9 +27,14 @@ fn wall(x: f64) -> Primitive {
     }
 }
 
-/// Number of Shi-Tomasi corners: local maxima (11x11) of the minimum eigenvalue of the 5x5
-/// structure tensor of central-difference gradients, above `min_eig` (grey levels^2).
+/// Number of Shi-Tomasi corners (see [`shi_tomasi_corners`]).
 fn shi_tomasi_count(px: &[u8], w: usize, h: usize, min_eig: f64) -> usize {
+    shi_tomasi_corners(px, w, h, min_eig).len()
+}
+
+/// Shi-Tomasi corners: local maxima (11x11) of the minimum eigenvalue of the 5x5 structure
+/// tensor of central-difference gradients, above `min_eig` (grey levels^2).
+fn shi_tomasi_corners(px: &[u8], w: usize, h: usize, min_eig: f64) -> Vec<(usize, usize)> {
     let g = |x: usize, y: usize| f64::from(px[y * w + x]);
     let mut e = vec![0.0; w * h];
     let mut grad = vec![(0.0, 0.0); w * h];
@@ -56,7 +61,7 @@ fn shi_tomasi_count(px: &[u8], w: usize, h: usize, min_eig: f64) -> usize {
             e[y * w + x] = 0.5 * (a + c) - (0.25 * (a - c) * (a - c) + b * b).sqrt();
         }
     }
-    let mut n = 0;
+    let mut n = Vec::new();
     for y in 8..h - 8 {
         for x in 8..w - 8 {
             let v = e[y * w + x];
@@ -73,7 +78,9 @@ fn shi_tomasi_count(px: &[u8], w: usize, h: usize, min_eig: f64) -> usize {
                     }
                 }
             }
-            n += usize::from(best);
+            if best {
+                n.push((x, y));
+            }
         }
     }
     n
@@ -473,4 +480,128 @@ fn options_have_their_effect() {
         .collect();
     let sd = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
     assert!((2.8..3.2).contains(&sd), "noise sd {sd}");
+}
+
+/// Bilinear sample of an image (f64 grey levels) at `(x, y)`; `None` outside.
+fn bilinear(img: &[f64], w: usize, h: usize, x: f64, y: f64) -> Option<f64> {
+    if !(x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64) {
+        return None;
+    }
+    let (x0, y0) = (x as usize, y as usize);
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let at = |xx: usize, yy: usize| img[yy * w + xx];
+    Some(
+        (1.0 - fy) * ((1.0 - fx) * at(x0, y0) + fx * at(x0 + 1, y0))
+            + fy * ((1.0 - fx) * at(x0, y0 + 1) + fx * at(x0 + 1, y0 + 1)),
+    )
+}
+
+/// Translation-only Lucas-Kanade of the 15x15 patch around integer pixel `p` of `a` into `b`,
+/// started at `q0`.
+fn lk(a: &[f64], b: &[f64], w: usize, h: usize, p: [usize; 2], q0: [f64; 2]) -> Option<[f64; 2]> {
+    let r = 7i64;
+    let mut q = q0;
+    for _ in 0..30 {
+        let (mut hxx, mut hxy, mut hyy, mut bx, mut by) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let t = a[(p[1] as i64 + dy) as usize * w + (p[0] as i64 + dx) as usize];
+                let (x, y) = (q[0] + dx as f64, q[1] + dy as f64);
+                let i = bilinear(b, w, h, x, y)?;
+                let gx = 0.5 * (bilinear(b, w, h, x + 1.0, y)? - bilinear(b, w, h, x - 1.0, y)?);
+                let gy = 0.5 * (bilinear(b, w, h, x, y + 1.0)? - bilinear(b, w, h, x, y - 1.0)?);
+                let e = t - i;
+                hxx += gx * gx;
+                hxy += gx * gy;
+                hyy += gy * gy;
+                bx += gx * e;
+                by += gy * e;
+            }
+        }
+        let det = hxx * hyy - hxy * hxy;
+        if det.abs() < 1e-9 {
+            return None;
+        }
+        let (sx, sy) = ((hyy * bx - hxy * by) / det, (hxx * by - hxy * bx) / det);
+        q = [q[0] + sx, q[1] + sy];
+        if sx.abs() + sy.abs() < 1e-5 {
+            return Some(q);
+        }
+    }
+    Some(q)
+}
+
+/// Rendered content moves as the image truth says: a plain Lucas-Kanade tracker on consecutive
+/// rendered frames lands on the true transfer of well-textured points away from depth edges
+/// (what an image front end's accuracy is measured against).
+#[test]
+fn rendered_content_follows_the_truth() {
+    let mut all = Vec::new();
+    for (sc, seed) in [(Scenario::Robot, 1), (Scenario::Handheld, 2)] {
+        let out = sim(sc, seed, 5.0);
+        let truth = ImageTruth::new(&out);
+        let frames = camera_frames(&out);
+        let r = truth.renderer();
+        for i in [40usize, 80] {
+            let img = |k: usize| -> Vec<f64> {
+                r.render_frame(
+                    &out.trajectory,
+                    frames[k].1,
+                    k as u64,
+                    seed,
+                    &RenderOptions::default(),
+                )
+                .iter()
+                .map(|&v| f64::from(v))
+                .collect()
+            };
+            let (a, b) = (img(i), img(i + 1));
+            let depth = truth.depth_map(i).unwrap();
+            let a8: Vec<u8> = a.iter().map(|&v| v as u8).collect();
+            let mut errs = Vec::new();
+            for (x, y) in shi_tomasi_corners(&a8, 752, 480, 25.0) {
+                if !(12..740).contains(&x) || !(12..468).contains(&y) {
+                    continue;
+                }
+                // Skip points near a depth discontinuity (occlusion boundaries): no jump of more
+                // than 3 % between neighbouring pixels of the window.
+                let dep = |xx: i64, yy: i64| f64::from(depth[yy as usize * 752 + xx as usize]);
+                let mut flat = true;
+                for dy in -9i64..=9 {
+                    for dx in -9i64..=9 {
+                        let (xx, yy) = (x as i64 + dx, y as i64 + dy);
+                        let d = dep(xx, yy);
+                        flat &= d.is_finite()
+                            && (dep(xx + 1, yy) - d).abs() < 0.03 * d
+                            && (dep(xx, yy + 1) - d).abs() < 0.03 * d;
+                    }
+                }
+                let Some(q) = truth.transfer(i, [x as f64, y as f64], i + 1) else {
+                    continue;
+                };
+                if !flat || q[0] < 12.0 || q[1] < 12.0 || q[0] > 739.0 || q[1] > 467.0 {
+                    continue;
+                }
+                if let Some(t) = lk(
+                    &a,
+                    &b,
+                    752,
+                    480,
+                    [x, y],
+                    [q[0].round() + 0.3, q[1].round() - 0.4],
+                ) {
+                    errs.push(((t[0] - q[0]).powi(2) + (t[1] - q[1]).powi(2)).sqrt());
+                }
+            }
+            all.extend(errs);
+        }
+    }
+    all.sort_by(f64::total_cmp);
+    let (med, p90) = (all[all.len() / 2], all[all.len() * 9 / 10]);
+    eprintln!(
+        "LK on rendered frames vs truth: {} points, median {med:.3} px, p90 {p90:.3} px",
+        all.len()
+    );
+    assert!(all.len() > 200, "{}", all.len());
+    assert!(med < 0.1 && p90 < 0.3, "median {med}, p90 {p90}");
 }
