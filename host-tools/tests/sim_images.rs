@@ -113,13 +113,15 @@ fn render_flags_need_images() {
 
 /// The simulator's noise-free tracks follow their landmarks exactly: the image truth (ray cast of
 /// the first observation, projected into later frames) reproduces them, and flags the
-/// simulator's deliberate wrong tracks.
+/// simulator's deliberate wrong tracks; with a camera-IMU delay too.
 #[test]
 fn image_truth_scores_the_simulated_tracks() {
     let mut cfg = SimConfig::new(Scenario::Robot, 5, 12.0);
     cfg.lidar = Some(LidarKind::None);
     cfg.pixel_noise_px = 0.0;
     cfg.wrong_track_rate = Some(0.05);
+    // A camera-IMU delay: the truth must render each frame at its true time `stamp - T0 + td`.
+    cfg.td_s = 0.013;
     let out = run_sim(&cfg, &|_, _, _| {}).unwrap();
     let truth = ImageTruth::new(&out);
     let s = score_tracks(
