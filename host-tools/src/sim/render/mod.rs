@@ -57,7 +57,7 @@ pub struct RenderOptions {
     pub edge_samples: u32,
     /// Exposure time for motion blur, s (0 = off).
     pub motion_blur_s: f64,
-    /// Sub-frames averaged for motion blur (0 = enough for about 1 px of rotation between
+    /// Sub-frames averaged for motion blur (0 = enough for about 1 px of image motion between
     /// sub-frames, 2 to 16).
     pub blur_subframes: u32,
     /// Standard deviation of the log exposure gain over time (0 = constant exposure).
@@ -459,13 +459,15 @@ impl<'w> Renderer<'w> {
     }
 }
 
-/// Sub-frames for motion blur: the option, or enough for about 1 px of rotation between them.
+/// Sub-frames for motion blur: the option, or enough for about 1 px of image motion between
+/// them (rotation, plus translation seen at 2 m), 2 to 16.
 fn blur_subframes(traj: &Trajectory, t_s: f64, f_px: f64, opts: &RenderOptions) -> u32 {
     if opts.blur_subframes > 0 {
         return opts.blur_subframes;
     }
-    let w = traj.eval(t_s).omega_b.norm();
-    ((w * f_px * opts.motion_blur_s).ceil() as u32 + 1).clamp(2, 16)
+    let k = traj.eval(t_s);
+    let rate = k.omega_b.norm() + k.v_wb.norm() / 2.0;
+    ((rate * f_px * opts.motion_blur_s).ceil() as u32 + 1).clamp(2, 16)
 }
 
 /// Global exposure gain at time `t_s`: `exp(var * g(t))` with `g` a smooth, unit-variance sum of
