@@ -605,3 +605,32 @@ fn rendered_content_follows_the_truth() {
     assert!(all.len() > 200, "{}", all.len());
     assert!(med < 0.1 && p90 < 0.3, "median {med}, p90 {p90}");
 }
+
+/// Writes one frame per scenario as PNG for looking at (`POVINS_RENDER_DUMP=dir`, default
+/// `target/render-dump`).
+#[test]
+#[ignore]
+fn dump_frames() {
+    let dir = std::env::var("POVINS_RENDER_DUMP").unwrap_or_else(|_| "target/render-dump".into());
+    std::fs::create_dir_all(&dir).unwrap();
+    for (sc, seed) in [
+        (Scenario::Robot, 1),
+        (Scenario::Handheld, 1),
+        (Scenario::Vehicle, 1),
+    ] {
+        let out = sim(sc, seed, 10.0);
+        let frames = camera_frames(&out);
+        let c = &out.dataset.calib;
+        let r = Renderer::new(&out.world, c.camera, &c.t_bc);
+        let k = frames.len() / 2;
+        let px = r.render_frame(
+            &out.trajectory,
+            frames[k].1,
+            k as u64,
+            seed,
+            &RenderOptions::default(),
+        );
+        let p = std::path::Path::new(&dir).join(format!("{}-{k}.png", sc.name()));
+        povins_platform::euroc::write_png_mono8(&p, c.camera.width, c.camera.height, &px).unwrap();
+    }
+}

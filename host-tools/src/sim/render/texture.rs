@@ -41,6 +41,15 @@ fn hash(a: i64, b: i64, c: i64, seed: u64) -> u64 {
     h ^ (h >> 31)
 }
 
+/// Cheaper 64-bit mix of a 2-D cell (three multiplies).
+#[inline]
+fn cell_hash(a: i64, b: i64, seed: u64) -> u64 {
+    let mut h = seed ^ (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    h = (h ^ (h >> 29) ^ b as u64).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    h = (h ^ (h >> 32)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    h ^ (h >> 29)
+}
+
 /// Uniform in `[0, 1)` from 16 bits of `h` starting at `bit`.
 #[inline]
 fn unit(h: u64, bit: u32) -> f64 {
@@ -52,24 +61,68 @@ fn fade(t: f64) -> f64 {
     t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 }
 
-/// Permutation table for lattice noise (256 entries repeated twice), from a fixed seed.
-fn perm() -> &'static [u8; 512] {
-    static PERM: std::sync::OnceLock<[u8; 512]> = std::sync::OnceLock::new();
-    PERM.get_or_init(|| {
-        let mut p: [u8; 256] = core::array::from_fn(|i| i as u8);
-        let mut r = crate::sim::rng::Rng::new(0x5EED_7E57);
-        r.shuffle(&mut p);
-        core::array::from_fn(|i| p[i & 255])
-    })
+/// SplitMix64 step, usable in constant evaluation.
+const fn splitmix(state: u64) -> (u64, u64) {
+    let s = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = s;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    (s, z ^ (z >> 31))
 }
 
-/// Lattice values in `[-1, 1]`, indexed by the permutation hash.
+/// Permutation of 0..=255 (Fisher-Yates with SplitMix64 from a fixed seed), repeated twice.
+const fn make_perm() -> [u8; 512] {
+    let mut p = [0u8; 256];
+    let mut i = 0;
+    while i < 256 {
+        p[i] = i as u8;
+        i += 1;
+    }
+    let mut state = 0x5EED_7E57u64;
+    let mut i = 255;
+    while i > 0 {
+        let (s, r) = splitmix(state);
+        state = s;
+        let j = (r % (i as u64 + 1)) as usize;
+        let t = p[i];
+        p[i] = p[j];
+        p[j] = t;
+        i -= 1;
+    }
+    let mut out = [0u8; 512];
+    let mut k = 0;
+    while k < 512 {
+        out[k] = p[k & 255];
+        k += 1;
+    }
+    out
+}
+
+/// Lattice values, uniform in `[-1, 1)` (53-bit SplitMix64 draws from a fixed seed).
+const fn make_values() -> [f64; 256] {
+    let mut v = [0.0; 256];
+    let mut state = 0x07A1_00E5u64;
+    let mut i = 0;
+    while i < 256 {
+        let (s, r) = splitmix(state);
+        state = s;
+        v[i] = (r >> 11) as f64 * (2.0 / (1u64 << 53) as f64) - 1.0;
+        i += 1;
+    }
+    v
+}
+
+static PERM: [u8; 512] = make_perm();
+static VALUES: [f64; 256] = make_values();
+
+#[inline]
+fn perm() -> &'static [u8; 512] {
+    &PERM
+}
+
+#[inline]
 fn values() -> &'static [f64; 256] {
-    static V: std::sync::OnceLock<[f64; 256]> = std::sync::OnceLock::new();
-    V.get_or_init(|| {
-        let mut r = crate::sim::rng::Rng::new(0x7A1_0E5);
-        core::array::from_fn(|_| r.range(-1.0, 1.0))
-    })
+    &VALUES
 }
 
 /// Lattice offsets that make octave/surface `seed` an independent noise (period 256 cells).
@@ -348,7 +401,7 @@ fn blob_mean(b: &Blobs, dims: usize) -> f64 {
 /// hash): `Some(([s0, s1], [t0, t1], contrast))`.
 #[inline]
 fn blob_rect(b: &Blobs, cs: f64, i: i64, iw: i64, j: i64, seed: u64) -> Option<([f64; 4], f64)> {
-    let h = hash(iw, j, 7, seed);
+    let h = cell_hash(iw, j, seed);
     if unit(h, 0) >= b.p {
         return None;
     }
