@@ -221,6 +221,19 @@ pub struct Blobs {
     pub size: [(f64, f64); 2],
     /// Albedo change inside a rectangle, range.
     pub contrast: (f64, f64),
+    /// `1 / cell` (kept so the hot path does not divide).
+    pub inv_cell: [f64; 2],
+}
+
+/// A blob layer of rectangles.
+pub const fn rects(cell: [f64; 2], p: f64, size: [(f64, f64); 2], contrast: (f64, f64)) -> Blobs {
+    Blobs {
+        cell,
+        p,
+        size,
+        contrast,
+        inv_cell: [1.0 / cell[0], 1.0 / cell[1]],
+    }
 }
 
 /// The texture of one material.
@@ -246,12 +259,7 @@ const fn fbm(lambda0: f64, amp: f64, octaves: u32) -> Fbm {
 }
 
 const fn sq(cell: f64, p: f64, size: (f64, f64), c: f64) -> Blobs {
-    Blobs {
-        cell: [cell, cell],
-        p,
-        size: [size, size],
-        contrast: (-c, c),
-    }
+    rects([cell, cell], p, [size, size], (-c, c))
 }
 
 /// The texture of a material.
@@ -282,18 +290,8 @@ const BUILDING: MaterialTexture = MaterialTexture {
     jitter: 0.12,
     fbm: fbm(2.0, 0.07, 6),
     blobs: [
-        Blobs {
-            cell: [2.6, 3.0],
-            p: 0.75,
-            size: [(0.35, 0.6), (0.4, 0.6)],
-            contrast: (-0.35, 0.15),
-        },
-        Blobs {
-            cell: [0.45, 0.3],
-            p: 0.35,
-            size: [(0.3, 0.8), (0.3, 0.7)],
-            contrast: (-0.15, 0.15),
-        },
+        rects([2.6, 3.0], 0.75, [(0.35, 0.6), (0.4, 0.6)], (-0.35, 0.15)),
+        rects([0.45, 0.3], 0.35, [(0.3, 0.8), (0.3, 0.7)], (-0.15, 0.15)),
         sq(0.1, 0.35, (0.3, 0.7), 0.1),
     ],
 };
@@ -303,12 +301,7 @@ const VEHICLE: MaterialTexture = MaterialTexture {
     jitter: 0.3,
     fbm: fbm(2.0, 0.04, 7),
     blobs: [
-        Blobs {
-            cell: [1.2, 0.7],
-            p: 0.6,
-            size: [(0.4, 0.8), (0.3, 0.6)],
-            contrast: (-0.3, 0.2),
-        },
+        rects([1.2, 0.7], 0.6, [(0.4, 0.8), (0.3, 0.6)], (-0.3, 0.2)),
         sq(0.3, 0.3, (0.2, 0.6), 0.15),
         sq(0.08, 0.3, (0.3, 0.7), 0.08),
     ],
@@ -319,18 +312,8 @@ const TRUNK: MaterialTexture = MaterialTexture {
     jitter: 0.05,
     fbm: fbm(1.0, 0.08, 7),
     blobs: [
-        Blobs {
-            cell: [0.25, 0.6],
-            p: 0.5,
-            size: [(0.2, 0.5), (0.3, 0.9)],
-            contrast: (-0.15, 0.15),
-        },
-        Blobs {
-            cell: [0.06, 0.12],
-            p: 0.5,
-            size: [(0.2, 0.6), (0.3, 0.9)],
-            contrast: (-0.12, 0.12),
-        },
+        rects([0.25, 0.6], 0.5, [(0.2, 0.5), (0.3, 0.9)], (-0.15, 0.15)),
+        rects([0.06, 0.12], 0.5, [(0.2, 0.6), (0.3, 0.9)], (-0.12, 0.12)),
         sq(0.03, 0.3, (0.3, 0.7), 0.06),
     ],
 };
@@ -351,12 +334,7 @@ const POLE: MaterialTexture = MaterialTexture {
     jitter: 0.1,
     fbm: fbm(1.0, 0.04, 6),
     blobs: [
-        Blobs {
-            cell: [1.0, 0.8],
-            p: 0.5,
-            size: [(1.0, 1.0), (0.2, 0.5)],
-            contrast: (-0.3, 0.25),
-        },
+        rects([1.0, 0.8], 0.5, [(1.0, 1.0), (0.2, 0.5)], (-0.3, 0.25)),
         sq(0.1, 0.3, (0.3, 0.7), 0.1),
         sq(0.03, 0.3, (0.3, 0.7), 0.06),
     ],
@@ -417,12 +395,12 @@ fn blob_rect(b: &Blobs, cs: f64, i: i64, iw: i64, j: i64, seed: u64) -> Option<(
 /// Box-filtered 2-D blob layer; `inv_fp` are the reciprocal footprints.
 fn blobs2(b: &Blobs, st: [f64; 2], fp: [f64; 2], inv_fp: [f64; 2], period: f64, seed: u64) -> f64 {
     let (n, cs, inv_cs) = if period > 0.0 {
-        let n = (period / b.cell[0]).round().max(1.0);
+        let n = (period * b.inv_cell[0]).round().max(1.0);
         (n as i64, period / n, n / period)
     } else {
-        (0, b.cell[0], 1.0 / b.cell[0])
+        (0, b.cell[0], b.inv_cell[0])
     };
-    let inv_ct = 1.0 / b.cell[1];
+    let inv_ct = b.inv_cell[1];
     // Half footprints in cells; beyond 3 cells the layer is replaced by its mean.
     let (hs, ht) = (0.5 * fp[0] * inv_cs, 0.5 * fp[1] * inv_ct);
     let span = 2.0 * hs.max(ht);
