@@ -85,11 +85,6 @@ impl Visible {
         Visible { start, items, near }
     }
 
-    /// Total tile entries.
-    pub fn items_len(&self) -> usize {
-        self.items.len()
-    }
-
     /// Nearest hit of the unit world ray `o + t d` among the tile's primitives and the ground.
     #[inline]
     pub fn trace(&self, world: &World, tile: usize, o: &Vec3, d: &Vec3) -> Option<Hit> {
