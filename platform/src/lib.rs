@@ -8,6 +8,7 @@ pub mod cdr;
 pub mod dataset;
 pub mod error;
 pub mod euroc;
+pub mod image_codec;
 pub mod mcap_io;
 pub mod ros2;
 pub mod trajectory;

@@ -5,6 +5,7 @@
 //! |---|---|---|
 //! | `/imu0` | `sensor_msgs/msg/Imu` | IMU samples |
 //! | `/cam0/image_raw` | `sensor_msgs/msg/Image` | mono8 images |
+//! | `/cam0/image_raw/compressed` | `sensor_msgs/msg/CompressedImage` | read only: JPEG or PNG images, decoded to mono8 |
 //! | `/cam0/features` | `sensor_msgs/msg/PointCloud` | feature tracks, VINS-Mono layout |
 //! | `/lidar0/points` | `sensor_msgs/msg/PointCloud2` | LiDAR sweeps, per-point `t` |
 //! | `/groundtruth` | `nav_msgs/msg/Odometry` | body pose and velocity in `world` |
@@ -23,7 +24,11 @@
 //! [`SimTruth`] is the JSON attachment [`SIM_TRUTH_ATTACHMENT`].
 //!
 //! Reading ignores topics it does not know, orders each topic by header stamp and rejects
-//! repeated stamps. A message that does not decode is [`IoError::Corrupt`] naming the topic, the
+//! repeated stamps. Images come from `/cam0/image_raw` (`sensor_msgs/msg/Image`, or a
+//! `sensor_msgs/msg/CompressedImage` published there) or, when that topic has none, from
+//! `/cam0/image_raw/compressed`; compressed payloads are decoded by [`crate::image_codec`] and
+//! one that does not decode is [`IoError::Corrupt`] naming the file, the topic, the message's
+//! sequence number and the codec's reason. A message that does not decode is [`IoError::Corrupt`] naming the topic, the
 //! message's sequence number and the byte offset inside the message.
 
 use crate::cdr::CdrError;
@@ -44,6 +49,8 @@ use std::path::Path;
 pub const TOPIC_IMU: &str = "/imu0";
 /// Image topic.
 pub const TOPIC_IMAGE: &str = "/cam0/image_raw";
+/// Compressed image topic (`image_transport` naming), read only.
+pub const TOPIC_IMAGE_COMPRESSED: &str = "/cam0/image_raw/compressed";
 /// Feature topic.
 pub const TOPIC_FEATURES: &str = "/cam0/features";
 /// LiDAR topic.
@@ -59,6 +66,7 @@ pub const SIM_TRUTH_ATTACHMENT: &str = "povins.sim_truth.json";
 
 const IMU_TYPE: &str = "sensor_msgs/msg/Imu";
 const IMAGE_TYPE: &str = "sensor_msgs/msg/Image";
+const COMPRESSED_IMAGE_TYPE: &str = "sensor_msgs/msg/CompressedImage";
 const POINT_CLOUD_TYPE: &str = "sensor_msgs/msg/PointCloud";
 const POINT_CLOUD2_TYPE: &str = "sensor_msgs/msg/PointCloud2";
 const ODOMETRY_TYPE: &str = "nav_msgs/msg/Odometry";
@@ -224,6 +232,9 @@ fn calibration_from_metadata(
     };
     Ok((m.get("name").cloned().unwrap_or_default(), calib))
 }
+
+#[cfg(test)]
+mod compressed_tests;
 
 #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 enum Kind {
@@ -513,6 +524,7 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
     let mut channels: HashMap<u16, (String, String, String)> = HashMap::new();
     let mut ds_imu = Vec::new();
     let mut images = Vec::new();
+    let mut compressed_images = Vec::new();
     let mut lidar = Vec::new();
     let mut features = Vec::new();
     let mut odoms: Vec<msgs::Odometry> = Vec::new();
@@ -558,7 +570,9 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
                 };
                 let want = match topic.as_str() {
                     TOPIC_IMU | TOPIC_GROUND_TRUTH_BIAS => IMU_TYPE,
+                    TOPIC_IMAGE if ty == COMPRESSED_IMAGE_TYPE => COMPRESSED_IMAGE_TYPE,
                     TOPIC_IMAGE => IMAGE_TYPE,
+                    TOPIC_IMAGE_COMPRESSED => COMPRESSED_IMAGE_TYPE,
                     TOPIC_FEATURES => POINT_CLOUD_TYPE,
                     TOPIC_LIDAR => POINT_CLOUD2_TYPE,
                     TOPIC_GROUND_TRUTH => ODOMETRY_TYPE,
@@ -594,6 +608,22 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
                     }
                     TOPIC_GROUND_TRUTH => {
                         odoms.push(msgs::Odometry::decode(&data).map_err(corrupt)?)
+                    }
+                    TOPIC_IMAGE | TOPIC_IMAGE_COMPRESSED if want == COMPRESSED_IMAGE_TYPE => {
+                        let m = msgs::CompressedImage::decode(&data).map_err(corrupt)?;
+                        let im = convert::image_from_compressed_msg(&m).map_err(|e| {
+                            IoError::Corrupt {
+                                file: path.into(),
+                                what: format!("{} (format {:?})", what(), m.format),
+                                offset: 0,
+                                msg: e,
+                            }
+                        })?;
+                        if topic == TOPIC_IMAGE {
+                            images.push(im);
+                        } else {
+                            compressed_images.push(im);
+                        }
                     }
                     TOPIC_IMAGE => {
                         let m = msgs::Image::decode(&data).map_err(corrupt)?;
@@ -682,7 +712,11 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
         calib,
         imu: ordered(path, TOPIC_IMU, ds_imu, |s| s.t_ns)?,
         features: ordered(path, TOPIC_FEATURES, features, |s| s.t_ns)?,
-        images: ordered(path, TOPIC_IMAGE, images, |s| s.t_ns)?,
+        images: if images.is_empty() {
+            ordered(path, TOPIC_IMAGE_COMPRESSED, compressed_images, |s| s.t_ns)?
+        } else {
+            ordered(path, TOPIC_IMAGE, images, |s| s.t_ns)?
+        },
         lidar: ordered(path, TOPIC_LIDAR, lidar, |s| s.t_ns)?,
         ground_truth,
         sim_truth,

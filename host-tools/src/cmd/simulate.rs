@@ -1,7 +1,9 @@
 //! `povins simulate`: writes a simulated camera + IMU + LiDAR sequence with ground truth.
 
-use crate::sim::{self, LidarKind, Scenario, SimConfig};
+use crate::sim::render::{sequence, RenderOptions};
+use crate::sim::{self, LidarKind, Scenario, SimConfig, SimOutput};
 use indicatif::{ProgressBar, ProgressStyle};
+use povins_platform::dataset::ImageFrame;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -60,6 +62,49 @@ pub struct Args {
     /// Time at rest before moving, s.
     #[arg(long, default_value_t = 1.0)]
     pub static_s: f64,
+    /// Render grayscale camera images at the camera rate (EuRoC: `cam0/data/<ns>.png`; MCAP:
+    /// `sensor_msgs/msg/Image` on `/cam0/image_raw`).
+    #[arg(long)]
+    pub images: bool,
+    /// Motion blur: exposure time, ms (0 = off; the stamp is mid-exposure). Needs --images.
+    #[arg(long, default_value_t = 0.0)]
+    pub motion_blur_ms: f64,
+    /// Exposure/gain changes over time: standard deviation of the log gain (0 = constant,
+    /// 0.2 = about +-20 %). Needs --images.
+    #[arg(long, default_value_t = 0.0)]
+    pub exposure_var: f64,
+    /// Gaussian pixel noise, grey levels (1 sigma). Needs --images.
+    #[arg(long, default_value_t = 0.0)]
+    pub image_noise: f64,
+    /// Samples per pixel side (1 = one footprint-filtered sample per pixel, edges 3x3).
+    /// Needs --images.
+    #[arg(long, default_value_t = 1)]
+    pub image_supersample: u32,
+}
+
+impl Args {
+    /// Render options from the flags; an error when a render flag is given without --images.
+    pub fn render_options(&self) -> anyhow::Result<Option<RenderOptions>> {
+        let opts = RenderOptions {
+            supersample: self.image_supersample,
+            edge_samples: RenderOptions::default()
+                .edge_samples
+                .max(self.image_supersample),
+            motion_blur_s: self.motion_blur_ms * 1e-3,
+            exposure_var: self.exposure_var,
+            noise_grey: self.image_noise,
+            ..RenderOptions::default()
+        };
+        if !self.images {
+            anyhow::ensure!(
+                opts == RenderOptions::default(),
+                "--motion-blur-ms, --exposure-var, --image-noise and --image-supersample need --images"
+            );
+            return Ok(None);
+        }
+        opts.check()?;
+        Ok(Some(opts))
+    }
 }
 
 /// Runs the command.
@@ -74,6 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.wrong_track_rate = args.wrong_track_rate;
     cfg.max_features = args.max_features;
     cfg.static_s = args.static_s;
+    let render = args.render_options()?;
 
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = ProgressBar::new(1);
@@ -83,16 +129,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         b
     });
-    // The camera and LiDAR stages run concurrently: the bar shows their combined progress.
-    let counts = Mutex::new([(0usize, 0usize); 2]);
+    // The camera and LiDAR stages run concurrently, images after them: the bar shows their
+    // combined progress.
+    let counts = Mutex::new([(0usize, 0usize); 3]);
     let report = |name: &'static str, done: usize, total: usize| {
         if let (Some(b), Ok(mut c)) = (&bar, counts.lock()) {
-            c[usize::from(name == "lidar")] = (done, total);
-            b.set_length((c[0].1 + c[1].1).max(1) as u64);
-            b.set_position((c[0].0 + c[1].0) as u64);
+            let slot = match name {
+                "lidar" => 1,
+                "images" => 2,
+                _ => 0,
+            };
+            c[slot] = (done, total);
+            b.set_length(c.iter().map(|x| x.1).sum::<usize>().max(1) as u64);
+            b.set_position(c.iter().map(|x| x.0).sum::<usize>() as u64);
         }
     };
-    let out = sim::simulate(&cfg, &report)?;
+    let mut out = sim::simulate(&cfg, &report)?;
+    if let Some(opts) = &render {
+        render_images(&mut out, opts, &args, &report)?;
+    }
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
@@ -103,5 +158,55 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Format::Euroc => povins_platform::euroc::write_dataset(&args.out, &out.dataset)?,
     }
     eprintln!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Renders the camera images into `out.dataset.images`: as PNG files in the EuRoC folder
+/// (rendered and encoded on the worker threads, the dataset keeps their paths) or in memory for
+/// MCAP.
+fn render_images(
+    out: &mut SimOutput,
+    opts: &RenderOptions,
+    args: &Args,
+    progress: sim::Progress<'_>,
+) -> anyhow::Result<()> {
+    let cam = out.dataset.calib.camera;
+    let n = out.dataset.features.len();
+    let slots: Mutex<Vec<Option<ImageFrame>>> = Mutex::new(vec![None; n]);
+    let data_dir = args.out.join("mav0").join("cam0").join("data");
+    if args.format == Format::Euroc {
+        std::fs::create_dir_all(&data_dir)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", data_dir.display()))?;
+    }
+    let sink = |k: usize, t_ns: i64, px: Vec<u8>| -> anyhow::Result<()> {
+        let mut im = ImageFrame {
+            t_ns,
+            width: cam.width,
+            height: cam.height,
+            mono8: px,
+            path: None,
+        };
+        if args.format == Format::Euroc {
+            let p = data_dir.join(format!("{t_ns}.png"));
+            povins_platform::euroc::write_png_mono8(&p, im.width, im.height, &im.mono8)?;
+            im.mono8 = Vec::new();
+            im.path = Some(p);
+        }
+        if let Ok(mut s) = slots.lock() {
+            s[k] = Some(im);
+        }
+        Ok(())
+    };
+    let stats = sequence::render_sequence(out, opts, args.seed, 0, progress, &sink)?;
+    let images: Option<Vec<ImageFrame>> = slots
+        .into_inner()
+        .map_err(|_| anyhow::anyhow!("image rendering failed"))?
+        .into_iter()
+        .collect();
+    out.dataset.images = images.ok_or_else(|| anyhow::anyhow!("image rendering failed"))?;
+    eprintln!(
+        "images          {} frames {}x{} in {:.1} s ({:.0} ms per frame per thread, {} threads)",
+        stats.frames, cam.width, cam.height, stats.wall_s, stats.ms_per_frame, stats.threads
+    );
     Ok(())
 }

@@ -21,6 +21,7 @@ pub mod lidar_assoc;
 pub mod report;
 pub mod rte;
 pub mod stats;
+pub mod tracks;
 
 pub use align::{Alignment, Sim3};
 pub use report::{EvalReport, MatchedPose};

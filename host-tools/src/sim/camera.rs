@@ -1,6 +1,7 @@
 //! Camera projection and the feature-tracker model.
 //!
-//! Projection (forward model only, so the simulator does not depend on the core camera module):
+//! Projection (the simulator's own forward model; [`unproject`], its exact inverse used by the
+//! image renderer, only takes its starting point from the core's undistortion):
 //! `x = X/Z, y = Y/Z`, then radial-tangential distortion
 //!
 //! ```text
@@ -30,38 +31,75 @@ use povins_platform::dataset::{Extrinsic, FeatureFrame};
 /// Largest normalized radius accepted before distortion (beyond it radtan can fold back).
 const MAX_NORM_RADIUS: f64 = 1.6;
 
+/// Applies the distortion model to normalized coordinates `(x, y)` (no radius check).
+pub fn distort_normalized(cam: &PinholeCamera, x: f64, y: f64) -> [f64; 2] {
+    let r2 = x * x + y * y;
+    match cam.distortion {
+        Distortion::None => [x, y],
+        Distortion::RadTan { k1, k2, p1, p2 } => {
+            let k = 1.0 + k1 * r2 + k2 * r2 * r2;
+            [
+                k * x + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+                k * y + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+            ]
+        }
+        Distortion::Equidistant { k } => {
+            let r = libm::sqrt(r2);
+            if r < 1e-12 {
+                [x, y]
+            } else {
+                let th = libm::atan(r);
+                let t2 = th * th;
+                let thd = th * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))));
+                [x * thd / r, y * thd / r]
+            }
+        }
+    }
+}
+
 /// Projects a camera-frame point to raw (distorted) pixels; `None` when behind the camera.
 pub fn project(cam: &PinholeCamera, p_c: &Vec3) -> Option<[f64; 2]> {
     if p_c.z <= 1e-6 {
         return None;
     }
     let (x, y) = (p_c.x / p_c.z, p_c.y / p_c.z);
-    let r2 = x * x + y * y;
-    if r2 > MAX_NORM_RADIUS * MAX_NORM_RADIUS {
+    if x * x + y * y > MAX_NORM_RADIUS * MAX_NORM_RADIUS {
         return None;
     }
-    let (xd, yd) = match cam.distortion {
-        Distortion::None => (x, y),
-        Distortion::RadTan { k1, k2, p1, p2 } => {
-            let k = 1.0 + k1 * r2 + k2 * r2 * r2;
-            (
-                k * x + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-                k * y + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
-            )
-        }
-        Distortion::Equidistant { k } => {
-            let r = libm::sqrt(r2);
-            if r < 1e-12 {
-                (x, y)
-            } else {
-                let th = libm::atan(r);
-                let t2 = th * th;
-                let thd = th * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))));
-                (x * thd / r, y * thd / r)
-            }
-        }
-    };
+    let [xd, yd] = distort_normalized(cam, x, y);
     Some([cam.fx * xd + cam.cx, cam.fy * yd + cam.cy])
+}
+
+/// The exact inverse of [`project`] for a raw pixel: normalized coordinates `(x, y)` of the
+/// ray `(x, y, 1)` that projects to `(u, v)` to better than 1e-9 px, or `None` when no ray
+/// within the accepted radius does (the core's undistortion seeds Newton steps on this module's
+/// forward model, so the two models cannot drift apart).
+pub fn unproject(cam: &PinholeCamera, u: f64, v: f64) -> Option<[f64; 2]> {
+    let x0 = cam.undistort(u, v).ok()?;
+    let target = [(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy];
+    let (mut x, mut y) = (x0.x, x0.y);
+    let h = 1e-7;
+    for _ in 0..8 {
+        let f = distort_normalized(cam, x, y);
+        let (rx, ry) = (f[0] - target[0], f[1] - target[1]);
+        if (rx * cam.fx).abs() < 1e-10 && (ry * cam.fy).abs() < 1e-10 {
+            break;
+        }
+        let fx = distort_normalized(cam, x + h, y);
+        let fy = distort_normalized(cam, x, y + h);
+        let (a, b) = ((fx[0] - f[0]) / h, (fy[0] - f[0]) / h);
+        let (c, d) = ((fx[1] - f[1]) / h, (fy[1] - f[1]) / h);
+        let det = a * d - b * c;
+        if det.abs() < 1e-12 {
+            return None;
+        }
+        x -= (d * rx - b * ry) / det;
+        y -= (a * ry - c * rx) / det;
+    }
+    let f = distort_normalized(cam, x, y);
+    let ok =
+        ((f[0] - target[0]) * cam.fx).abs() < 1e-9 && ((f[1] - target[1]) * cam.fy).abs() < 1e-9;
+    (ok && x * x + y * y <= MAX_NORM_RADIUS * MAX_NORM_RADIUS).then_some([x, y])
 }
 
 /// Tracker parameters.

@@ -2,7 +2,8 @@
 //!
 //! Pipeline: a carrier [`trajectory`] with exact derivatives drives the [`imu`] model and gives
 //! the ground truth at IMU rate; a procedural [`scene`] is built around the path; the [`camera`]
-//! tracker and the [`lidar`] both ray-cast the same [`world`]. Everything random comes from
+//! tracker and the [`lidar`] both ray-cast the same [`world`], and [`render`] draws grayscale
+//! camera images of it (on request, after the simulation) with ground truth for image tracking. Everything random comes from
 //! [`rng`] streams derived from the seed, so a seed fully determines the output (independent of
 //! the number of threads used for the LiDAR sweeps).
 //!
@@ -15,6 +16,7 @@
 pub mod camera;
 pub mod imu;
 pub mod lidar;
+pub mod render;
 pub mod rng;
 pub mod scenario;
 pub mod scene;

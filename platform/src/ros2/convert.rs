@@ -13,7 +13,8 @@
 //!   the point time in integer nanoseconds after the header stamp (the sweep start), as Ouster
 //!   drivers publish it. Exact for offsets up to 4.29 s; a point before the sweep start or later
 //!   than that cannot be written.
-//! - Image -> `sensor_msgs/msg/Image`, frame `cam0`, `mono8`, `step` = width.
+//! - Image -> `sensor_msgs/msg/Image`, frame `cam0`, `mono8`, `step` = width. Reading also takes
+//!   `sensor_msgs/msg/CompressedImage` (JPEG or PNG, any colour type, decoded to mono8).
 //! - Feature frame -> `sensor_msgs/msg/PointCloud`, frame `cam0`, following VINS-Mono's
 //!   `feature_tracker` (`/feature_tracker/feature`): `points` are the *undistorted normalized*
 //!   coordinates `(x, y, 1)`; channels, in VINS-Mono's order, are `id_of_point` (track id),
@@ -24,8 +25,8 @@
 //!   are `float32`: ids must stay below 2^24 and pixels are rounded to `f32` (3e-5 px at 752 px).
 
 use super::msgs::{
-    ChannelFloat32, Image, Imu, Odometry, PointCloud, PointCloud2, PointField, POINT_FIELD_FLOAT32,
-    POINT_FIELD_UINT32,
+    ChannelFloat32, CompressedImage, Image, Imu, Odometry, PointCloud, PointCloud2, PointField,
+    POINT_FIELD_FLOAT32, POINT_FIELD_UINT32,
 };
 use super::Header;
 use crate::dataset::{FeatureFrame, ImageFrame, LidarScan};
@@ -308,6 +309,19 @@ pub fn image_from_msg(m: Image) -> Result<ImageFrame, String> {
         width: m.width,
         height: m.height,
         mono8,
+        path: None,
+    })
+}
+
+/// Image frame from a `sensor_msgs/msg/CompressedImage` (JPEG or PNG, decoded to mono8, colour
+/// converted to luma; see [`crate::image_codec`]).
+pub fn image_from_compressed_msg(m: &CompressedImage) -> Result<ImageFrame, String> {
+    let im = crate::image_codec::decode_mono8(&m.format, &m.data)?;
+    Ok(ImageFrame {
+        t_ns: m.header.t_ns,
+        width: im.width,
+        height: im.height,
+        mono8: im.pixels,
         path: None,
     })
 }

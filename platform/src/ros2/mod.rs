@@ -130,6 +130,12 @@ uint8 is_bigendian
 uint32 step
 uint8[] data
 ";
+    /// `sensor_msgs/CompressedImage`.
+    pub const COMPRESSED_IMAGE: &str = "\
+std_msgs/Header header
+string format
+uint8[] data
+";
     /// `sensor_msgs/PointCloud2`.
     pub const POINT_CLOUD2: &str = "\
 std_msgs/Header header
@@ -214,6 +220,17 @@ pub fn imu_schema() -> String {
 pub fn image_schema() -> String {
     schema_text(
         defs::IMAGE,
+        &[
+            ("std_msgs/Header", defs::HEADER),
+            ("builtin_interfaces/Time", defs::TIME),
+        ],
+    )
+}
+
+/// `ros2msg` schema of `sensor_msgs/msg/CompressedImage`.
+pub fn compressed_image_schema() -> String {
+    schema_text(
+        defs::COMPRESSED_IMAGE,
         &[
             ("std_msgs/Header", defs::HEADER),
             ("builtin_interfaces/Time", defs::TIME),

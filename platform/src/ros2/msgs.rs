@@ -116,6 +116,38 @@ impl Image {
     }
 }
 
+/// `sensor_msgs/msg/CompressedImage`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CompressedImage {
+    /// Header.
+    pub header: Header,
+    /// Codec description, e.g. `jpeg`, `png`, `bgr8; jpeg compressed bgr8`.
+    pub format: String,
+    /// The compressed image.
+    pub data: Vec<u8>,
+}
+
+impl CompressedImage {
+    /// Encodes the message.
+    pub fn encode(&self) -> Result<Vec<u8>, CdrError> {
+        let mut w = CdrWriter::with_capacity(self.data.len() + 64);
+        self.header.encode(&mut w)?;
+        w.string(&self.format)?;
+        w.bytes(&self.data)?;
+        Ok(w.into_inner())
+    }
+
+    /// Decodes the message.
+    pub fn decode(msg: &[u8]) -> Result<Self, CdrError> {
+        let mut r = CdrReader::new(msg)?;
+        Ok(CompressedImage {
+            header: Header::decode(&mut r)?,
+            format: r.string()?.to_owned(),
+            data: r.bytes()?.to_vec(),
+        })
+    }
+}
+
 /// `sensor_msgs/msg/PointField` datatype `UINT32`.
 pub const POINT_FIELD_UINT32: u8 = 6;
 /// `sensor_msgs/msg/PointField` datatype `FLOAT32`.
@@ -406,7 +438,13 @@ mod tests {
             angular: [0.0; 3],
             twist_covariance: [0.25; 36],
         };
+        let cimg = CompressedImage {
+            header: Header::new(6, "cam0"),
+            format: "png".into(),
+            data: vec![0x89, b'P', b'N', b'G', 1, 2, 3],
+        };
         vec![
+            ("cimg", cimg.encode().unwrap()),
             ("imu", imu.encode().unwrap()),
             ("image", img.encode().unwrap()),
             ("pc2", pc2.encode().unwrap()),
@@ -419,6 +457,7 @@ mod tests {
         match kind {
             "imu" => Imu::decode(m).map(drop),
             "image" => Image::decode(m).map(drop),
+            "cimg" => CompressedImage::decode(m).map(drop),
             "pc2" => PointCloud2::decode(m).map(drop),
             "pc" => PointCloud::decode(m).map(drop),
             _ => Odometry::decode(m).map(drop),
@@ -427,7 +466,12 @@ mod tests {
 
     #[test]
     fn messages_round_trip_and_know_their_sizes() {
-        let s = samples();
+        let mut s = samples();
+        let c = CompressedImage::decode(&s.remove(0).1).unwrap();
+        assert_eq!(
+            (c.header.t_ns, c.format.as_str(), c.data.len()),
+            (6, "png", 7)
+        );
         // Imu layout by hand: 4 header bytes, then in the payload sec 0..4, nanosec 4..8, length
         // 8..12, "body\0" 12..17, padding to 24, 37 float64 = 296 bytes: 4 + 24 + 296.
         assert_eq!(s[0].1.len(), 324);
