@@ -215,6 +215,8 @@ fn check_jacobians(j_is_e: bool, seed: u64) {
             }
             res(&s, &e, &j, &st.ext)
         };
+        // The rank-structured delay Jacobians of the fast path agree with both.
+        let tdj = anchors.td_jacobians(&g, w, &f.obs_j);
         for k in 0..(if j_is_e { 2 } else { 3 }) {
             let n: SMatrix<f64, 2, 1> = num_jac::<2, 1>(h, |d| td(k, d[0]));
             let a: SMatrix<f64, 2, 1> = jac.d_td[k];
@@ -224,6 +226,15 @@ fn check_jacobians(j_is_e: bool, seed: u64) {
                 a.amax() > 1e-3,
                 "td {k} Jacobian should be non-trivial: {a}"
             );
+            let b: SMatrix<f64, 2, 1> = tdj[k];
+            assert!(
+                rel_err(&b, &(n * w)) < 1e-6,
+                "fast td {k}: {b} vs {}",
+                n * w
+            );
+        }
+        if j_is_e {
+            assert_eq!(tdj[2], nalgebra::Vector2::zeros());
         }
     }
 }

@@ -9,11 +9,11 @@
 //! its anchor loses everything its later observations say). Landmarks without such an anchor,
 //! and LiDAR landmarks (their depth belongs to position 0), go into the prior whole and leave.
 
+use super::prior::LinPoint;
 use super::problem::FactorSet;
 use super::slots::max_parallax;
-use super::window::Layout;
-use super::prior::LinPoint;
 use super::window::Block;
+use super::window::Layout;
 use super::{corrected_obs, Estimator};
 use crate::landmarks::MargPlan;
 use crate::solver::{schur_complement_in_place, sqrt_prior, PivotFloor};

@@ -26,12 +26,12 @@
 
 pub mod config;
 mod lidar;
+mod marginalize;
 mod predict;
 pub mod prior;
 pub mod problem;
 mod problem_lidar;
 pub mod report;
-mod marginalize;
 mod slots;
 pub mod window;
 
@@ -860,9 +860,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         &mut LmWorkspace<D>,
         &mut NormalEquations<D>,
     ) {
-        let td_hold = self.td_hold.then(|| {
-            core::array::from_fn(|k| self.window.get(k).map_or(0.0, |kf| kf.td_s))
-        });
+        let td_hold = self
+            .td_hold
+            .then(|| core::array::from_fn(|k| self.window.get(k).map_or(0.0, |kf| kf.td_s)));
         let problem = Problem {
             cfg: &self.cfg,
             window: &mut self.window,

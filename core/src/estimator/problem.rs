@@ -26,6 +26,7 @@ use crate::math::{jr_inv_so3, quat_exp, Mat3, Vec3};
 use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations, SharedBlock};
 use crate::Error;
 use heapless::Vec as HVec;
+use nalgebra::Matrix2x6;
 
 /// Pose columns a landmark can touch in the inverse-depth mode (`7 N + 6` for a window of `N`).
 pub const SCHUR_COLS: usize = 128;
@@ -169,6 +170,7 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
         }
     }
     let col = |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
+    let td_col = |k: usize| l.col(Block::Td(k as u8));
     let (cs, ce) = (col(s)?, col(e)?);
     let shared_e = anchors.shared_e();
     let mut acc = SharedBlock::new(ne, shared_e, cs, ce)?;
@@ -176,13 +178,31 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
     for (j, g) in geo.iter() {
         let sq = anchors.whitened(g).norm_squared();
         cost += huber.rho(sq)[0];
-        let pb = anchors.pose_blocks(g, huber.sqrt_weight(sq));
+        let w = huber.sqrt_weight(sq);
+        let pb = anchors.pose_blocks(g, w);
+        let cj = col(*j)?;
         if *j == e {
             let on_e = pb.q * shared_e + pb.d_pose_j;
             ne.add_2x6_blocks(&pb.r, &[pb.d_pose_s, on_e], &[cs, ce])?;
         } else {
-            acc.add(ne, &pb.r, &pb.q, &pb.d_pose_s, &pb.d_pose_j, col(*j)?)?;
+            acc.add(ne, &pb.r, &pb.q, &pb.d_pose_s, &pb.d_pose_j, cj)?;
         }
+        // Delay columns (after every pose column in the solve layout).
+        let (Some(ts), Some(te), Some(Some(oj))) = (td_col(s), td_col(e), obs.get(*j)) else {
+            continue;
+        };
+        let t = anchors.td_jacobians(g, w, &timed(oj));
+        let mut poses: HVec<(usize, Matrix2x6<f64>), 3> = HVec::new();
+        let _ = poses.push((cs, pb.d_pose_s));
+        if *j == e {
+            let _ = poses.push((ce, pb.q * shared_e + pb.d_pose_j));
+        } else {
+            let _ = poses.push((ce, pb.q * shared_e));
+            let _ = poses.push((cj, pb.d_pose_j));
+        }
+        let tj = if *j == e { None } else { td_col(*j) };
+        let tds = [(Some(ts), t[0]), (Some(te), t[1]), (tj, t[2])];
+        ne.add_scalar_columns(&pb.r, &tds, &poses)?;
     }
     acc.finish(ne);
     Ok(Some((cost, geo.len() as u32)))
@@ -327,7 +347,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
 
         cost += self.zupt_factors(&mut ne)?;
         // Never in the marginalization: the hold is about this solve, not information.
-        let hold = self.td_hold.filter(|_| est_td && self.set == FactorSet::All);
+        let hold = self
+            .td_hold
+            .filter(|_| est_td && self.set == FactorSet::All);
         if let Some(hold) = hold {
             // 1 us: the delay stays where it is while it cannot be estimated.
             const HOLD_S: f64 = 1e-6;
@@ -415,7 +437,10 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             cost += sink(
                 ne,
                 &r,
-                &[JacobianBlock::new(cp, 3, &jm), JacobianBlock::new(c, 3, &jp)],
+                &[
+                    JacobianBlock::new(cp, 3, &jm),
+                    JacobianBlock::new(c, 3, &jp),
+                ],
             )?;
             let (ra, rb) = (
                 prev.state.q_wb.to_rotation_matrix().into_inner(),
@@ -529,9 +554,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         });
         let mut cost = 0.0;
         let linearize = ne.is_some();
-        // Only body poses estimated: the landmark's products on anchor e go through the rank
-        // structure (`add_pose_only_landmark`).
-        let fast = linearize && !est_ext && !est_td;
+        // Extrinsic not estimated: the landmark's products on anchor e go through the rank
+        // structure (`add_pose_only_landmark`), the delays as scalar columns.
+        let fast = linearize && !est_ext;
         for li in 0..self.lms.len() {
             let Some(lm) = self.lms.landmarks().get(li) else {
                 break;
@@ -544,7 +569,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let only_j = match (self.set, lm.marg, self.cfg.mode) {
                 (FactorSet::All, _, _) => None,
                 (FactorSet::Oldest, MargPlan::ObsZero, _) => Some(0),
-                (FactorSet::Oldest, MargPlan::Whole | MargPlan::Reuse, VisualMode::PoseOnly) => None,
+                (FactorSet::Oldest, MargPlan::Whole | MargPlan::Reuse, VisualMode::PoseOnly) => {
+                    None
+                }
                 _ => continue,
             };
             let lidar = lm.lidar.is_some() && self.cfg.lidar.enabled;
@@ -607,8 +634,15 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                     if let Some(ne_ref) = ne.as_deref_mut() {
                         let ctx = (&poses, &frames, &huber, &l, &rel_js);
                         let obs = &lm.obs;
-                        match add_pose_only_landmark(&anchors, obs, count, (s, e), ctx, only_j, ne_ref)?
-                        {
+                        match add_pose_only_landmark(
+                            &anchors,
+                            obs,
+                            count,
+                            (s, e),
+                            ctx,
+                            only_j,
+                            ne_ref,
+                        )? {
                             Some((c, n)) => {
                                 lm_cost = c;
                                 n_obs = n;
@@ -746,7 +780,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 continue;
             }
             let s = lm.anchor_s as usize;
-            if self.set == FactorSet::Oldest && !matches!(lm.marg, MargPlan::Whole | MargPlan::Reuse)
+            if self.set == FactorSet::Oldest
+                && !matches!(lm.marg, MargPlan::Whole | MargPlan::Reuse)
             {
                 continue;
             }

@@ -115,6 +115,9 @@ pub struct PoseOnlyAnchors<'f> {
     shared: OnceCell<(Matrix2x6<f64>, Matrix2x6<f64>)>,
     /// `sigma_d^2` of the depth for the residual's depth term (module docs), m^2; 0 = none.
     depth_var: f64,
+    /// `(X_s, X_e)`: the landmark-wide derivatives of `(S_a da + S_b db)` with respect to the
+    /// observations `x_s` and `x_e`, formed on the first [`Self::td_jacobians`].
+    shared_x: OnceCell<(SMatrix<f64, 2, 3>, SMatrix<f64, 2, 3>)>,
 }
 
 /// Whitened, robustly weighted residual of one observation `j` and its body-pose Jacobians in
@@ -145,6 +148,8 @@ pub struct InJ<'a> {
     x_j: Vec3,
     /// The depth-uncertainty whitening `W_j` (module docs), `None` for the identity.
     w_depth: Option<Mat2x2>,
+    /// `j` is the anchor `e`.
+    is_e: bool,
 }
 
 impl<'f> PoseOnlyAnchors<'f> {
@@ -205,6 +210,7 @@ impl<'f> PoseOnlyAnchors<'f> {
             pre: OnceCell::new(),
             shared: OnceCell::new(),
             depth_var: 0.0,
+            shared_x: OnceCell::new(),
         })
     }
 
@@ -277,6 +283,7 @@ impl<'f> PoseOnlyAnchors<'f> {
             p,
             x_j: obs_j.corrected(td_j),
             w_depth,
+            is_e: kf_j == self.kf_e,
         })
     }
 
@@ -424,6 +431,42 @@ impl PoseOnlyAnchors<'_> {
             q,
             d_pose_s: q * f + g_s,
             d_pose_j,
+        }
+    }
+}
+
+impl PoseOnlyAnchors<'_> {
+    /// Jacobians of the weighted residual of geometry `g` (observation `obs_j`, robust weight
+    /// `w` as in [`Self::pose_blocks`]) with respect to the time delays of `s`, `e` and `j`, in
+    /// the rank-structured form: the anchors act through `q (S_a da + S_b db)`, so the chain to
+    /// `x_s` and `x_e` is one landmark-wide `2 x 3` pair. When `j == e` the third entry is zero
+    /// and its term is in the second. Agrees with `w` [`Self::evaluate`]`.d_td`.
+    pub fn td_jacobians(&self, g: &InJ<'_>, w: f64, obs_j: &TimedObs) -> [Vec2; 3] {
+        let (xs, xe) = *self.shared_x.get_or_init(|| {
+            let pre = self
+                .pre
+                .get_or_init(|| AbChainPre::new(&self.two, &self.ce.r_wc.transpose()));
+            let (a, b) = (self.two.a.transpose(), self.two.b.transpose());
+            let mut s_a = SMatrix::<f64, 2, 3>::zeros();
+            s_a.set_row(0, &a);
+            s_a.set_row(1, &b);
+            let mut s_b = SMatrix::<f64, 2, 3>::zeros();
+            s_b.set_row(1, &a);
+            pre.observations::<2>(&s_a, &s_b)
+        });
+        let h = self.h_of(g, w);
+        let (hu, ht) = (h * g.u_j, h * g.t_js);
+        let q = Mat2x2::new(2.0 * ht.x, -hu.x, 2.0 * ht.y, -hu.y);
+        let d_xs = q * xs + h * g.r_js * self.dd;
+        let d_xe = q * xe;
+        let d_td_s = d_xs * self.obs_s.d_corrected_d_td();
+        let d_td_e = d_xe * self.obs_e.d_corrected_d_td();
+        let d_td_j = obs_j.vel.component_mul(&self.sqrt_info) * w;
+        let d_td_j = g.w_depth.map_or(d_td_j, |wd| wd * d_td_j);
+        if g.is_e {
+            [d_td_s, d_td_e + d_td_j, Vec2::zeros()]
+        } else {
+            [d_td_s, d_td_e, d_td_j]
         }
     }
 }

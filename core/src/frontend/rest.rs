@@ -98,8 +98,7 @@ impl<const F: usize> RestDetector<F> {
             RestVerdict::Unknown
         } else {
             // Median by partial selection (deterministic: total order on finite values).
-            self.scratch
-                .sort_unstable_by(|a, b| a.total_cmp(b));
+            self.scratch.sort_unstable_by(|a, b| a.total_cmp(b));
             let med = self.scratch.get(n / 2).copied().unwrap_or(f64::INFINITY);
             if med <= self.cfg.max_px {
                 RestVerdict::Rest {

@@ -135,7 +135,8 @@ impl<const F: usize> TrackTable<F> {
         out.truncate(k);
 
         // Velocities from the two previous frames, when both are recent enough.
-        let recent = |a: Option<i64>, b: i64| a.is_some_and(|a| b.saturating_sub(a) <= self.max_gap_ns);
+        let recent =
+            |a: Option<i64>, b: i64| a.is_some_and(|a| b.saturating_sub(a) <= self.max_gap_ns);
         if let (true, true, Some(t1), Some(t2)) = (
             recent(self.prev_t_ns, t_ns),
             self.prev_t_ns.is_some_and(|t1| recent(self.prev2_t_ns, t1)),

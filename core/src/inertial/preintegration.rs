@@ -359,7 +359,11 @@ impl<const M: usize> Preintegration<M> {
         if last.t_ns <= self.t0_ns {
             return Err(Error::OutOfRange);
         }
-        let keep = self.samples.iter().take_while(|s| s.t_ns < last.t_ns).count();
+        let keep = self
+            .samples
+            .iter()
+            .take_while(|s| s.t_ns < last.t_ns)
+            .count();
         self.samples.truncate(keep);
         self.samples
             .push(*last)

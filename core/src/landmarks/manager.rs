@@ -187,7 +187,11 @@ impl<const N: usize, const L: usize, const H: usize, const F: usize> LandmarkMan
             let Some(&i) = self.index.get(&o.id) else {
                 continue;
             };
-            if let Some(slot) = self.lms.get_mut(i as usize).and_then(|l| l.obs.get_mut(pos)) {
+            if let Some(slot) = self
+                .lms
+                .get_mut(i as usize)
+                .and_then(|l| l.obs.get_mut(pos))
+            {
                 *slot = Some(o.obs);
                 added += 1;
             }
@@ -378,7 +382,10 @@ impl<const N: usize, const L: usize, const H: usize, const F: usize> LandmarkMan
             if had_anchor_at_zero {
                 // The depth was expressed in the dropped anchor; the LiDAR depth belongs to it.
                 // A depth associated at the new anchor (if any) takes its place.
-                lm.lidar = self.store.find(lm.anchor_s as usize, lm.id).and_then(|o| o.lidar);
+                lm.lidar = self
+                    .store
+                    .find(lm.anchor_s as usize, lm.id)
+                    .and_then(|o| o.lidar);
                 lm.inv_depth = lm.lidar.map_or(0.0, |d| 1.0 / d.depth_m);
             }
         }

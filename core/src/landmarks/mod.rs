@@ -7,5 +7,5 @@ pub mod store;
 pub use manager::{
     KfObs, Landmark, LandmarkManager, LidarDepth, ManagerStats, MargPlan, BANNED_TRACKS,
 };
-pub use store::{ObservationStore, TrackObs};
 pub use pose_only::{depth_std, pose_only_depth, select_anchor, PoseOnlyDepth, TwoView};
+pub use store::{ObservationStore, TrackObs};

@@ -155,6 +155,16 @@ pub(crate) struct AbChainPre {
 }
 
 impl AbChainPre {
+    /// The chain to the observations for a landmark-wide pair `(S_a, S_b)`: `(S_a xs_a,
+    /// S_a xe_a + S_b xe_b)`, the derivatives with respect to `x_s` and `x_e`.
+    pub(crate) fn observations<const R: usize>(
+        &self,
+        s_a: &SMatrix<f64, R, 3>,
+        s_b: &SMatrix<f64, R, 3>,
+    ) -> (SMatrix<f64, R, 3>, SMatrix<f64, R, 3>) {
+        (s_a * self.xs_a, s_a * self.xe_a + s_b * self.xe_b)
+    }
+
     /// Factors of `two`'s chain; `r_ew` is `R_wc_e^T`.
     pub(crate) fn new(two: &TwoView, r_ew: &Mat3) -> Self {
         let xe_x = skew(&two.x_e);

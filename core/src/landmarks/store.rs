@@ -205,14 +205,23 @@ mod tests {
         s.push_keyframe(&obs(&[1, 2, 5]), 0.0).unwrap();
         s.push_keyframe(&obs(&[2, 5, 7]), 0.001).unwrap();
         s.push_keyframe(&obs(&[5]), 0.002).unwrap();
-        assert_eq!(s.push_keyframe(&obs(&[9]), 0.0), Err(Error::CapacityExceeded));
+        assert_eq!(
+            s.push_keyframe(&obs(&[9]), 0.0),
+            Err(Error::CapacityExceeded)
+        );
         assert_eq!(s.find(1, 7).map(|o| o.obs.td0_s), Some(0.001));
         s.invalidate(1, 5);
         assert!(s.find(1, 5).is_none(), "an invalidated observation is gone");
         s.shift_out_oldest();
         assert_eq!(s.len(), 2);
         // Position 0 is now the old position 1.
-        assert_eq!(s.at(0).iter().map(|o| o.id).collect::<heapless::Vec<u64, 4>>(), [2, 5, 7]);
+        assert_eq!(
+            s.at(0)
+                .iter()
+                .map(|o| o.id)
+                .collect::<heapless::Vec<u64, 4>>(),
+            [2, 5, 7]
+        );
         assert!(s.find(0, 5).is_none());
         s.push_keyframe(&obs(&[9]), 0.0).unwrap();
         assert!(s.find(2, 9).is_some());

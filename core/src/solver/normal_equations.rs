@@ -385,6 +385,69 @@ pub(crate) fn accumulate_row_indexed<const D: usize>(
     }
 }
 
+impl<const D: usize> NormalEquations<D> {
+    /// Adds the terms of a 2-row residual `r` that involve its single-column states: `cols[k]`
+    /// (`None`: not estimated) with Jacobian column `cols[k].1`, against each other and against
+    /// the 6-wide pose blocks `poses` (whose own products the caller adds elsewhere). The scalar
+    /// columns must be distinct and outside the pose blocks. The cost is not touched; nothing is
+    /// added on `Err`.
+    pub fn add_scalar_columns(
+        &mut self,
+        r: &nalgebra::Vector2<f64>,
+        cols: &[(Option<usize>, nalgebra::Vector2<f64>)],
+        poses: &[(usize, nalgebra::Matrix2x6<f64>)],
+    ) -> Result<(), Error> {
+        let n = self.n;
+        let distinct = cols
+            .iter()
+            .enumerate()
+            .all(|(a, (ca, _))| ca.is_none() || cols.iter().skip(a + 1).all(|(cb, _)| cb != ca));
+        let in_pose = |c: usize| poses.iter().any(|(p, _)| (*p..p + 6).contains(&c));
+        if !distinct
+            || cols
+                .iter()
+                .any(|c| c.0.is_some_and(|c| c >= n || in_pose(c)))
+            || poses.iter().any(|(c, _)| c + 6 > n)
+        {
+            return Err(Error::DimensionMismatch);
+        }
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        if !finite(r.as_slice())
+            || !cols.iter().all(|c| finite(c.1.as_slice()))
+            || !poses.iter().all(|p| finite(p.1.as_slice()))
+        {
+            return Err(Error::NonFinite);
+        }
+        for (a, (ca, ja)) in cols.iter().enumerate() {
+            let Some(ca) = *ca else { continue };
+            if let Some(b) = self.b.get_mut(ca) {
+                *b -= ja.dot(r);
+            }
+            for (pc, pj) in poses {
+                let x = pj.transpose() * ja;
+                for (i, xi) in x.iter().enumerate() {
+                    let (lo, hi) = if pc + i < ca {
+                        (pc + i, ca)
+                    } else {
+                        (ca, pc + i)
+                    };
+                    if let Some(h) = self.h.get_mut(lo).and_then(|row| row.get_mut(hi)) {
+                        *h += xi;
+                    }
+                }
+            }
+            for (cb, jb) in cols.iter().skip(a) {
+                let Some(cb) = *cb else { continue };
+                let (lo, hi) = if ca <= cb { (ca, cb) } else { (cb, ca) };
+                if let Some(h) = self.h.get_mut(lo).and_then(|row| row.get_mut(hi)) {
+                    *h += ja.dot(jb);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Fast path of [`NormalEquations::add_blocks`] for the commonest visual residual: 2 rows over
 /// up to three distinct 6-wide pose blocks. The 6x6 products are formed with fixed-size
 /// arithmetic and added block by block, so there is no per-entry bookkeeping.
@@ -589,6 +652,70 @@ mod tests {
         assert_eq!(a.h[1][5], 5.0);
         assert!((a.b[5] - 1.8).abs() < 1e-15);
         assert!((a.cost - 0.58).abs() < 1e-15);
+    }
+
+    #[test]
+    fn scalar_columns_complete_the_pose_blocks() {
+        // Two pose blocks (one before, one after the scalars) plus two scalar columns, as the
+        // marginalization layout places a delay between keyframe blocks.
+        let mut rnd = crate::solver::test_rng(9);
+        let r = nalgebra::Vector2::new(rnd(), rnd());
+        let p0 = nalgebra::Matrix2x6::<f64>::from_fn(|_, _| rnd());
+        let p1 = nalgebra::Matrix2x6::<f64>::from_fn(|_, _| rnd());
+        let t0 = nalgebra::Vector2::new(rnd(), rnd());
+        let t1 = nalgebra::Vector2::new(rnd(), rnd());
+        let (c0, c1, s0, s1) = (0, 8, 6, 15);
+        let mut split = NormalEquations::<16>::new();
+        let mut whole = NormalEquations::<16>::new();
+        split.reset(16).unwrap();
+        whole.reset(16).unwrap();
+        split.add_2x6_blocks(&r, &[p0, p1], &[c0, c1]).unwrap();
+        split
+            .add_scalar_columns(
+                &r,
+                &[(Some(s0), t0), (None, t1), (Some(s1), t1)],
+                &[(c0, p0), (c1, p1)],
+            )
+            .unwrap();
+        let rm = |m: &nalgebra::Matrix2x6<f64>| -> [f64; 12] {
+            core::array::from_fn(|k| m[(k / 6, k % 6)])
+        };
+        let (a, b) = (rm(&p0), rm(&p1));
+        let (ta, tb) = ([t0.x, t0.y], [t1.x, t1.y]);
+        whole
+            .add_blocks(
+                r.as_slice(),
+                &[
+                    JacobianBlock::new(c0, 6, &a),
+                    JacobianBlock::new(c1, 6, &b),
+                    JacobianBlock::new(s0, 1, &ta),
+                    JacobianBlock::new(s1, 1, &tb),
+                ],
+            )
+            .unwrap();
+        // Upper triangles (the 2x6 path also writes inside its diagonal blocks' lower halves).
+        for i in 0..16 {
+            assert!((split.b[i] - whole.b[i]).abs() < 1e-14, "b[{i}]");
+            for j in i..16 {
+                assert!(
+                    (split.h[i][j] - whole.h[i][j]).abs() < 1e-14,
+                    "h[{i}][{j}] {} vs {}",
+                    split.h[i][j],
+                    whole.h[i][j]
+                );
+            }
+        }
+        // A scalar inside a pose block, or repeated, is refused untouched.
+        let before = split.clone();
+        assert_eq!(
+            split.add_scalar_columns(&r, &[(Some(3), t0)], &[(c0, p0)]),
+            Err(Error::DimensionMismatch)
+        );
+        assert_eq!(
+            split.add_scalar_columns(&r, &[(Some(6), t0), (Some(6), t1)], &[]),
+            Err(Error::DimensionMismatch)
+        );
+        assert!(split.h == before.h && split.b == before.b);
     }
 
     #[test]
