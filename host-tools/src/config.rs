@@ -4,6 +4,7 @@
 //!
 //! ```toml
 //! mode = "pose-only"            # or "inverse-depth"
+//! visual_depth = "eliminated"   # or "two-view" (the paper's anchors): pose-only depth source
 //! sigma_px = 1.5                # feature noise
 //! huber_delta = 1.0             # Huber threshold, in sigmas
 //! min_parallax = 0.01           # landmark gate (|x_e x R x_s|)
@@ -13,6 +14,7 @@
 //! depth_range_m = [0.1, 200.0]
 //! cull_mean_px = 4.5
 //! cull_obs_px = 4.5
+//! cull_whole_tracks = false     # drop and ban the track instead of the single observation
 //! chi2_threshold = 5.991
 //! lm_max_iterations = 6
 //! lm_second_max_iterations = 6  # the pass after the chi-square cull (overrides the above)
@@ -104,6 +106,25 @@ impl From<ModeArg> for VisualMode {
         match m {
             ModeArg::PoseOnly => VisualMode::PoseOnly,
             ModeArg::InverseDepth => VisualMode::InverseDepth,
+        }
+    }
+}
+
+/// Pose-only depth sources in TOML.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VisualDepthArg {
+    /// The paper's two anchors.
+    TwoView,
+    /// All observations, eliminated.
+    Eliminated,
+}
+
+impl From<VisualDepthArg> for povins_core::estimator::VisualDepth {
+    fn from(m: VisualDepthArg) -> Self {
+        match m {
+            VisualDepthArg::TwoView => Self::TwoView,
+            VisualDepthArg::Eliminated => Self::Eliminated,
         }
     }
 }
@@ -261,6 +282,7 @@ fn unit_quat_xyzw(q: [f64; 4]) -> Option<Quat> {
 #[serde(deny_unknown_fields)]
 pub struct RunConfigFile {
     mode: Option<ModeArg>,
+    visual_depth: Option<VisualDepthArg>,
     sigma_px: Option<f64>,
     huber_delta: Option<f64>,
     min_parallax: Option<f64>,
@@ -270,6 +292,7 @@ pub struct RunConfigFile {
     depth_range_m: Option<[f64; 2]>,
     cull_mean_px: Option<f64>,
     cull_obs_px: Option<f64>,
+    cull_whole_tracks: Option<bool>,
     chi2_threshold: Option<f64>,
     lm_max_iterations: Option<usize>,
     lm_second_max_iterations: Option<usize>,
@@ -331,6 +354,9 @@ impl RunConfigFile {
         if let Some(m) = self.mode {
             cfg.mode = m.into();
         }
+        if let Some(d) = self.visual_depth {
+            cfg.visual_depth = d.into();
+        }
         set(&mut cfg.sigma_px, self.sigma_px);
         set(&mut cfg.huber_delta, self.huber_delta);
         set(&mut cfg.min_parallax, self.min_parallax);
@@ -345,6 +371,7 @@ impl RunConfigFile {
         }
         set(&mut cfg.cull_mean_px, self.cull_mean_px);
         set(&mut cfg.cull_obs_px, self.cull_obs_px);
+        set(&mut cfg.cull_whole_tracks, self.cull_whole_tracks);
         set(&mut cfg.chi2_threshold, self.chi2_threshold);
         if let Some(n) = self.lm_max_iterations {
             cfg.lm_first.max_iterations = n;

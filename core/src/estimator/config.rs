@@ -20,6 +20,17 @@ pub enum VisualMode {
     InverseDepth,
 }
 
+/// Where a pose-only landmark's depth comes from (see `estimator::problem_visual`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum VisualDepth {
+    /// The paper's two-view depth from the anchors `(s, e)`, exact in every residual.
+    TwoView,
+    /// The inverse depth that best fits all the landmark's observations, eliminated by its Schur
+    /// complement at every linearization (no landmark state either).
+    Eliminated,
+}
+
 /// Standard deviations of the prior put on the first keyframe (it fixes the gauge until the
 /// first marginalization folds it into the marginalization prior).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -62,6 +73,8 @@ pub struct EstimatorConfig {
     pub max_frame_lead_s: f64,
     /// Visual measurement model.
     pub mode: VisualMode,
+    /// Depth of the pose-only visual measurements.
+    pub visual_depth: VisualDepth,
     /// Keyframe thresholds.
     pub keyframe: KeyframeConfig,
     /// Static initialization thresholds.
@@ -87,7 +100,8 @@ pub struct EstimatorConfig {
     /// Smallest parallax `|x_e x R_es x_s|` (rad-like) for a landmark to enter the optimization.
     pub min_parallax: f64,
     /// Largest analytic depth standard deviation, as a fraction of the depth, for a landmark to
-    /// enter the optimization (gates landmarks whose pose-only depth is still noise).
+    /// enter the optimization with a two-view depth ([`VisualDepth::TwoView`]: gates landmarks
+    /// whose depth is still noise; an estimated or eliminated depth needs no such gate).
     pub max_rel_depth_std: f64,
     /// Whiten each pose-only residual `j != e` with the anchors' depth uncertainty (from
     /// `sigma_px`), see `factors::pose_only_visual`; off: the depth is taken as exact.
@@ -107,6 +121,8 @@ pub struct EstimatorConfig {
     pub cull_mean_px: f64,
     /// Drop a single observation whose reprojection error exceeds this, px.
     pub cull_obs_px: f64,
+    /// Drop (and ban) the whole track instead of the single observation.
+    pub cull_whole_tracks: bool,
     /// Levenberg-Marquardt settings of the first pass.
     pub lm_first: LmConfig,
     /// Levenberg-Marquardt settings of the second pass (after the chi-square cull).
@@ -133,6 +149,8 @@ pub struct EstimatorConfig {
     pub estimate_extrinsic: bool,
     /// Prior standard deviations of the extrinsic: translation m, rotation rad.
     pub extrinsic_prior: (f64, f64),
+    /// Health monitor limits and the re-initialization prior.
+    pub health: super::HealthConfig,
     /// LiDAR enhancement (off by default: PO-VINS-WO).
     pub lidar: LidarConfig,
     /// Monotonic clock for the timing statistics, nanoseconds (none: timings are zero).
@@ -166,6 +184,7 @@ impl EstimatorConfig {
             max_speed_mps: 100.0,
             max_frame_lead_s: 1.0,
             mode: VisualMode::PoseOnly,
+            visual_depth: VisualDepth::Eliminated,
             keyframe: KeyframeConfig::default(),
             static_init: StaticInitConfig::DEFAULT,
             rest: RestConfig::default(),
@@ -182,7 +201,7 @@ impl EstimatorConfig {
             },
             sigma_px: 1.5,
             huber_delta: 1.0,
-            min_parallax: 0.01,
+            min_parallax: 0.002,
             max_rel_depth_std: 0.1,
             slot_parallax_ref: 0.02,
             depth_uncertainty_weighting: false,
@@ -191,6 +210,7 @@ impl EstimatorConfig {
             second_pass_min_culled_frac: 0.02,
             cull_mean_px: 4.5,
             cull_obs_px: 4.5,
+            cull_whole_tracks: false,
             lm_first: lm,
             lm_second: lm,
             marginalize_visual: true,
@@ -201,6 +221,7 @@ impl EstimatorConfig {
             td_min_landmarks: 20,
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
+            health: super::HealthConfig::default(),
             lidar: LidarConfig::default(),
             clock: None,
         }

@@ -15,7 +15,7 @@ use crate::inertial::NavState;
 use crate::landmarks::LidarDepth;
 use crate::lidar::ScanStats;
 
-use super::problem_lidar::LidarLandmark;
+use super::problem_lidar::TauLandmark;
 
 impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// Offers one LiDAR sweep (points in the LiDAR frame with their own times). Push a sweep once
@@ -126,7 +126,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 continue;
             };
             let Some(m) =
-                LidarLandmark::<N>::new(&lm.obs, lm.anchor_s as usize, d, sqrt_info, count)
+                TauLandmark::<N>::new(&lm.obs, lm.anchor_s as usize, Some(d), sqrt_info, count)
             else {
                 continue;
             };

@@ -25,17 +25,20 @@
 //! `static`.
 
 pub mod config;
+mod health;
 mod lidar;
 mod marginalize;
 mod predict;
 pub mod prior;
 pub mod problem;
 mod problem_lidar;
+mod problem_visual;
 pub mod report;
 mod slots;
 pub mod window;
 
-pub use config::{EstimatorConfig, FirstStatePrior, VisualMode};
+pub use config::{EstimatorConfig, FirstStatePrior, VisualDepth, VisualMode};
+pub use health::{Breakdown, HealthConfig};
 pub use predict::FeaturePrediction;
 pub use report::{Admission, Counters, DepthEvent, DepthEventKind, KeyframeReport};
 
@@ -137,6 +140,11 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     events: HVec<DepthEvent, MAX_EVENTS>,
     /// The delay is held in the current solve (too few landmarks to estimate it).
     td_hold: bool,
+    /// Consecutive keyframes with large residuals (health monitor).
+    bad_keyframes: u32,
+    /// Set by a re-initialization: the delay to start the new window with (and its first
+    /// keyframe takes the wide re-initialization prior).
+    reinit_td: Option<f64>,
 }
 
 /// Time-delay-corrected observation of `lm` at window position `k` (z = 1), or `None`.
@@ -203,6 +211,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             grid: SphereGrid::new(),
             events: HVec::new(),
             td_hold: false,
+            bad_keyframes: 0,
+            reinit_td: None,
             cfg,
         })
     }
@@ -329,7 +339,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     }
 
     fn current_td(&self) -> f64 {
-        self.window.last().map_or(self.cfg.td_s, |k| k.td_s)
+        self.window
+            .last()
+            .map_or(self.reinit_td.unwrap_or(self.cfg.td_s), |k| k.td_s)
     }
 
     /// Feeds one IMU sample: propagates the INS, and processes a pending frame whose time the
@@ -658,6 +670,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         if self.window.len() == 1 {
             self.prior.clear();
             self.initial = Some(self.initial_priors(&nav, td));
+            self.reinit_td = None;
         }
         self.open = Some(Preint::new(
             self.cfg.imu_noise,
@@ -687,6 +700,16 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             self.optimize(&mut report);
         }
         report.solve_ns = now(&self.cfg).saturating_sub(ts);
+        if self.window.len() >= 2 {
+            let health = self.check_health(&nav, report.residual_rms_px, report.landmarks_used);
+            if let Some(b) = health {
+                // The window broke down: INS-only from its own prediction, a new window next.
+                report.breakdown = Some(b);
+                self.reinitialize_from(nav);
+                report.total_ns = now(&self.cfg).saturating_sub(t0);
+                return Ok(report);
+            }
+        }
 
         // 6. The INS continues from the newest optimized keyframe; the open interval is
         // re-linearized at its biases (it holds only the keyframe sample so far).
@@ -708,7 +731,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     }
 
     fn initial_priors(&self, kf0: &NavState, td: f64) -> InitialPriors {
-        let p = &self.cfg.first_prior;
+        let p = match self.reinit_td {
+            Some(_) => &self.cfg.health.reinit_prior,
+            None => &self.cfg.first_prior,
+        };
         InitialPriors {
             kf0: *kf0,
             kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
@@ -736,6 +762,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let sigma_px = self.cfg.sigma_px;
         let focal = crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy);
         let mode = self.cfg.mode;
+        // Modes that keep an inverse depth per landmark (a state, or the eliminated one's last
+        // solution as the next solve's start).
+        let depth_state =
+            mode == VisualMode::InverseDepth || self.cfg.visual_depth == VisualDepth::Eliminated;
         let lc = self.cfg.lidar;
         let test_depths = reject && lc.enabled && lc.depth_outlier_rejection;
         let clock = self.cfg.clock;
@@ -831,18 +861,17 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 adm.bad_depth += 1;
                 continue;
             }
-            // The pose-only residuals treat the depth from (s, e) as exact: admit a landmark only
+            // The two-view residuals treat the depth from (s, e) as exact: admit a landmark only
             // once its analytic depth uncertainty (paper IV.B) is a small fraction of the depth.
-            match depth_std(&two, sigma_px, &focal) {
-                Ok(sd) if sd <= max_rel * d_s => {}
-                _ => {
-                    adm.uncertain_depth += 1;
-                    continue;
-                }
+            // (An eliminated depth carries its own uncertainty: no such gate.)
+            let two_view = mode == VisualMode::PoseOnly && !depth_state;
+            if two_view && !depth_std(&two, sigma_px, &focal).is_ok_and(|sd| sd <= max_rel * d_s) {
+                adm.uncertain_depth += 1;
+                continue;
             }
             lm.usable = true;
             adm.admitted += 1;
-            if mode == VisualMode::InverseDepth && (lm.inv_depth.is_nan() || lm.inv_depth <= 0.0) {
+            if depth_state && (lm.inv_depth.is_nan() || lm.inv_depth <= 0.0) {
                 lm.inv_depth = 1.0 / d_s;
             }
         }
@@ -999,7 +1028,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             .take(self.window.len())
             .filter(|(j, _)| *j != s)
             .filter_map(|(j, (o, pf))| o.as_ref().map(|o| (j, to(o), pf)));
-        if lidar_tau || self.cfg.mode == VisualMode::InverseDepth {
+        let eliminated = self.cfg.visual_depth == VisualDepth::Eliminated && lm.inv_depth > 0.0;
+        if lidar_tau || eliminated || self.cfg.mode == VisualMode::InverseDepth {
             for (j, obs_j, (pj, _)) in observed {
                 let f = crate::factors::inverse_depth_visual::InverseDepthVisualFactor {
                     kf_s: s,
@@ -1129,7 +1159,15 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if n == 0 {
                 continue;
             }
-            if sum / f64::from(n) > self.cfg.cull_mean_px {
+            // A track with one gross observation is a wrong track from there on (a tracker that
+            // jumps stays on what it jumped to): with `cull_whole_tracks` it goes whole.
+            let gross = self.cfg.cull_whole_tracks
+                && errs
+                    .iter()
+                    .enumerate()
+                    .take(count)
+                    .any(|(j, e)| j != s && *e > self.cfg.cull_obs_px);
+            if gross || sum / f64::from(n) > self.cfg.cull_mean_px {
                 let _ = drop_lm.push(id);
                 if let Some(d) = self.lms.landmarks().get(li).and_then(|l| l.lidar) {
                     let _ = self.events.push(DepthEvent {

@@ -8,7 +8,7 @@
 //! complement (LE-VINS-WO). Visual residuals go through a Huber kernel (IRLS weights; the cost
 //! uses `rho`, so the LM gain ratio sees the robust cost).
 
-use super::config::{EstimatorConfig, VisualMode};
+use super::config::{EstimatorConfig, VisualDepth, VisualMode};
 use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
 use super::problem_lidar::add_inverse_depth_obs;
 use super::window::{Block, Layout, Window, KF_DIM};
@@ -582,6 +582,25 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                         self.counts.landmarks += 1;
                         self.counts.observations += n;
                         self.counts.ldm += 1;
+                    }
+                    Err(_) if linearize => {
+                        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
+                            lm.usable = false;
+                        }
+                        self.counts.disabled += 1;
+                    }
+                    Err(_) => return Err(Error::Degenerate),
+                }
+                continue;
+            }
+            if self.cfg.visual_depth == VisualDepth::Eliminated && only_j.is_none() {
+                match self
+                    .eliminated_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext)
+                {
+                    Ok((c, n)) => {
+                        cost += c;
+                        self.counts.landmarks += 1;
+                        self.counts.observations += n;
                     }
                     Err(_) if linearize => {
                         if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {

@@ -56,22 +56,24 @@ fn timed(o: &KfObs) -> TimedObs {
     }
 }
 
-/// Inverse-depth reprojections `j != s` of one landmark, ready to evaluate.
-pub(super) struct LidarLandmark<const N: usize> {
+/// Inverse-depth reprojections `j != s` of one landmark, ready to evaluate, with the LiDAR
+/// depth of an MSC-based LDM (or without one: a visual landmark whose inverse depth is
+/// eliminated the same way, `estimator::problem_visual`).
+pub(super) struct TauLandmark<const N: usize> {
     /// Anchor position.
     pub s: usize,
     /// `(position j, factor)` per observation.
     pub obs: HVec<(usize, InverseDepthVisualFactor), N>,
-    /// The LiDAR depth.
-    pub depth: LidarDepth,
+    /// The LiDAR depth, if any.
+    pub depth: Option<LidarDepth>,
 }
 
-impl<const N: usize> LidarLandmark<N> {
+impl<const N: usize> TauLandmark<N> {
     /// The landmark's measurements, or `None` without an anchor observation or any `j != s`.
     pub fn new(
         obs: &[Option<KfObs>; N],
         s: usize,
-        depth: LidarDepth,
+        depth: Option<LidarDepth>,
         sqrt_info: Vec2,
         count: usize,
     ) -> Option<Self> {
@@ -92,21 +94,22 @@ impl<const N: usize> LidarLandmark<N> {
         if out.is_empty() {
             return None;
         }
-        Some(LidarLandmark { s, obs: out, depth })
+        Some(TauLandmark { s, obs: out, depth })
     }
 
+    /// The whitened depth row and its derivative in `tau` (zero without a LiDAR depth).
     fn depth_row(&self, tau: f64) -> (f64, f64) {
-        let sd = self.depth.sigma_m;
-        (
-            (1.0 / tau - self.depth.depth_m) / sd,
-            -1.0 / (tau * tau * sd),
-        )
+        let Some(d) = self.depth else {
+            return (0.0, 0.0);
+        };
+        let sd = d.sigma_m;
+        ((1.0 / tau - d.depth_m) / sd, -1.0 / (tau * tau * sd))
     }
 
     /// The observations as rays in `tau`: camera `j` sees the landmark at `P_j ~ a + tau b`
     /// with `a = R_jw R_ws x_s`, `b = R_jw (p_ws - p_wj)` (`P_j = (a + tau b) / tau`, and the
     /// projection is scale-free), so once `(a, b)` are known every 1-D step costs a few flops.
-    fn rays(
+    pub(super) fn rays(
         &self,
         poses: &[KeyframePose; N],
         frames: &[CamFrame; N],
@@ -144,7 +147,7 @@ impl<const N: usize> LidarLandmark<N> {
 
     /// 1-D Gauss–Newton on the inverse depth from `tau0` (or `1/d_r`): `visual(tau, g, h)`
     /// adds the visual rows' `J^T r` and `J^T J` to the LiDAR depth row's `(g, h)`.
-    fn gauss_newton_tau(
+    pub(super) fn gauss_newton_tau(
         &self,
         tau0: f64,
         mut visual: impl FnMut(f64, f64, f64) -> Result<(f64, f64), Error>,
@@ -152,7 +155,7 @@ impl<const N: usize> LidarLandmark<N> {
         let mut tau = if tau0 > 0.0 && tau0.is_finite() {
             tau0
         } else {
-            1.0 / self.depth.depth_m
+            1.0 / self.depth.ok_or(Error::NotEnoughData)?.depth_m
         };
         for _ in 0..TAU_ITERS {
             let (rd, jd) = self.depth_row(tau);
@@ -245,7 +248,7 @@ impl<const N: usize> LidarLandmark<N> {
     }
 }
 
-/// One observation as a function of the inverse depth (see [`LidarLandmark::solve`]).
+/// One observation as a function of the inverse depth (see [`TauLandmark::solve`]).
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Ray {
     a: Vec3,
@@ -257,7 +260,7 @@ pub(super) struct Ray {
 impl Ray {
     /// Whitened residual `w (pi(a + tau b) - x_j)` and its derivative in `tau`.
     #[inline]
-    fn residual_and_d_tau(&self, tau: f64) -> Result<(Vec2, Vec2), Error> {
+    pub(super) fn residual_and_d_tau(&self, tau: f64) -> Result<(Vec2, Vec2), Error> {
         let q = self.a + self.b * tau;
         // `q` points like P_j (tau > 0): the landmark must be in front of camera j.
         if q.z <= MIN_Z_REL * q.norm() || tau <= 0.0 {
@@ -334,7 +337,7 @@ pub(super) fn add_inverse_depth_obs<const N: usize, const D: usize>(
 /// accumulator `sc` (projection of `tau`). Returns the block's robust cost.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn accumulate_msc<const N: usize, const D: usize>(
-    m: &LidarLandmark<N>,
+    m: &TauLandmark<N>,
     poses: &[KeyframePose; N],
     ext: &CameraExtrinsic,
     tau: f64,
@@ -389,7 +392,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             .get(li)
             .ok_or(Error::DimensionMismatch)?;
         let depth = lm.lidar.ok_or(Error::NotEnoughData)?;
-        let m = LidarLandmark::new(&lm.obs, lm.anchor_s as usize, depth, sqrt_info, count)
+        let m = TauLandmark::new(&lm.obs, lm.anchor_s as usize, Some(depth), sqrt_info, count)
             .ok_or(Error::NotEnoughData)?;
         let (tau, rays) = m.solve(poses, frames, lm.inv_depth)?;
         let n_obs = m.obs.len();
@@ -500,7 +503,7 @@ mod tests {
     fn scene() -> (
         [KeyframePose; N],
         CameraExtrinsic,
-        LidarLandmark<N>,
+        TauLandmark<N>,
         MscLidarDepth<N>,
     ) {
         let ext = CameraExtrinsic {
@@ -528,10 +531,10 @@ mod tests {
         };
         let sqrt_info = Vec2::new(460.0, 460.0) / 1.5;
         let obs_s = TimedObs::still(obs[0]);
-        let mut m = LidarLandmark {
+        let mut m = TauLandmark {
             s: 0,
             obs: HVec::new(),
-            depth,
+            depth: Some(depth),
         };
         let mut g = MscLidarDepth::<N>::new(0, obs_s, depth.depth_m, 0.1, sqrt_info).unwrap();
         for (j, o) in obs.iter().enumerate().skip(1) {
@@ -690,12 +693,14 @@ mod tests {
             assert!(m.stacked_sq(&poses, &ext, tau * (1.0 + d)).unwrap() > c);
         }
         // The LiDAR depth pulls tau*: with a depth 1 m further the solution moves.
-        let mut far = LidarLandmark {
+        let mut far = TauLandmark {
             s: m.s,
             obs: m.obs.clone(),
             depth: m.depth,
         };
-        far.depth.depth_m += 1.0;
+        if let Some(d) = far.depth.as_mut() {
+            d.depth_m += 1.0;
+        }
         let tau_far = far.best_tau(&poses, &ext, 0.0).unwrap();
         assert!(tau_far < tau);
     }

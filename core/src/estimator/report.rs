@@ -76,6 +76,9 @@ pub struct KeyframeReport {
     pub landmarks_promoted: u32,
     /// Landmarks evicted for them.
     pub landmarks_evicted: u32,
+    /// The health monitor found the window broken after this solve and re-initialized it
+    /// (`estimator::health`); the keyframe was dropped with the window.
+    pub breakdown: Option<super::Breakdown>,
 }
 
 /// Landmark admission at the first solve of a keyframe: every managed landmark is counted once,
@@ -162,6 +165,8 @@ pub struct Counters {
     pub resets: u64,
     /// Of the resets: those caused by a non-finite or implausibly fast INS state.
     pub divergence_resets: u64,
+    /// Windows dropped by the health monitor, the INS continuing alone (`estimator::health`).
+    pub reinitializations: u64,
     /// LiDAR sweeps offered.
     pub lidar_scans: u64,
     /// LiDAR sweeps refused whole (LiDAR disabled, not initialized, or larger than the buffer

@@ -1,0 +1,128 @@
+//! Health monitor: notices when the window breaks down and falls back to the INS.
+//!
+//! After every keyframe solve the newest keyframe is checked against limits no healthy solution
+//! reaches: non-finite or implausibly fast states, biases beyond the sensor's physical range, a
+//! velocity correction far beyond what the INS could have drifted since the last keyframe, and
+//! visual residuals that stay many sigmas large (the window no longer explains its own
+//! measurements). On a breakdown the window, its landmarks and its prior are dropped and the INS
+//! continues alone from its own prediction of the keyframe state (INS-only, as between
+//! keyframes); the next frame starts a new window from that state with a wide prior
+//! ([`HealthConfig::reinit_prior`]). Each re-initialization is counted
+//! ([`super::Counters::reinitializations`]) and reported with its reason
+//! ([`super::KeyframeReport::breakdown`]). Only when the INS itself is no longer finite does the
+//! estimator fall back to waiting for a static initialization.
+
+use super::config::FirstStatePrior;
+use super::Estimator;
+use crate::inertial::NavState;
+
+/// Limits of the health monitor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct HealthConfig {
+    /// Check at all.
+    pub enabled: bool,
+    /// Largest plausible gyro bias (each axis), rad/s.
+    pub max_gyro_bias_rps: f64,
+    /// Largest plausible accelerometer bias (each axis), m/s^2.
+    pub max_accel_bias_mps2: f64,
+    /// Largest velocity correction of the newest keyframe by its solve (against the INS
+    /// prediction), m/s.
+    pub max_velocity_correction_mps: f64,
+    /// Visual residual RMS, in units of `sigma_px`, above which a keyframe counts as bad.
+    pub max_residual_sigmas: f64,
+    /// Consecutive bad keyframes that make a breakdown.
+    pub bad_keyframes: u32,
+    /// Prior of the first keyframe of a re-initialized window.
+    pub reinit_prior: FirstStatePrior,
+}
+
+impl Default for HealthConfig {
+    fn default() -> Self {
+        HealthConfig {
+            enabled: true,
+            max_gyro_bias_rps: 0.3,
+            max_accel_bias_mps2: 2.0,
+            max_velocity_correction_mps: 2.0,
+            max_residual_sigmas: 4.0,
+            bad_keyframes: 3,
+            reinit_prior: FirstStatePrior {
+                p_m: 1e-3,
+                theta_rad: 0.05,
+                v_mps: 0.5,
+                bg_rps: 0.01,
+                ba_mps2: 0.3,
+            },
+        }
+    }
+}
+
+/// Why the health monitor re-initialized the window.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Breakdown {
+    /// A state became non-finite or faster than `max_speed_mps`.
+    State,
+    /// A bias left its plausible range.
+    Bias,
+    /// The solve moved the newest velocity more than the INS could have drifted.
+    VelocityJump,
+    /// The visual residuals stayed many sigmas large.
+    Residuals,
+}
+
+impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+    /// Checks the newest keyframe after its solve (`predicted`: the INS state it started from,
+    /// `residual_rms_px` and `landmarks` of the solve). Returns the breakdown, if any.
+    pub(super) fn check_health(
+        &mut self,
+        predicted: &NavState,
+        residual_rms_px: f64,
+        landmarks: u32,
+    ) -> Option<Breakdown> {
+        let h = self.cfg.health;
+        if !h.enabled {
+            return None;
+        }
+        let st = self.window.last()?.state;
+        let finite = st
+            .p_wb
+            .iter()
+            .chain(st.v_wb.iter())
+            .chain(st.bg.iter())
+            .chain(st.ba.iter())
+            .chain(st.q_wb.coords.iter())
+            .all(|x| x.is_finite());
+        if !finite || st.v_wb.amax() > self.cfg.max_speed_mps {
+            return Some(Breakdown::State);
+        }
+        if st.bg.amax() > h.max_gyro_bias_rps || st.ba.amax() > h.max_accel_bias_mps2 {
+            return Some(Breakdown::Bias);
+        }
+        if (st.v_wb - predicted.v_wb).norm() > h.max_velocity_correction_mps {
+            return Some(Breakdown::VelocityJump);
+        }
+        let bad = landmarks >= 10 && residual_rms_px > h.max_residual_sigmas * self.cfg.sigma_px;
+        self.bad_keyframes = if bad { self.bad_keyframes + 1 } else { 0 };
+        (self.bad_keyframes >= h.bad_keyframes).then_some(Breakdown::Residuals)
+    }
+
+    /// Drops the window and continues INS-only from `predicted` (the INS's own state at the
+    /// newest keyframe); the next keyframe starts a new window with the wide prior. A
+    /// non-finite INS state resets the estimator instead.
+    pub(super) fn reinitialize_from(&mut self, predicted: NavState) {
+        let td = self.current_td();
+        self.reset_window();
+        self.bad_keyframes = 0;
+        self.counters.reinitializations += 1;
+        let ok = self
+            .ins
+            .as_mut()
+            .is_some_and(|ins| ins.set_state(predicted).is_ok());
+        if !ok {
+            self.reset();
+            return;
+        }
+        self.reinit_td = Some(td);
+    }
+}
