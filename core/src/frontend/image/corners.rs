@@ -8,14 +8,17 @@
 //! gradient outer product): raw Sobel sums are `8 * 8 * 9 = 576` times that.
 //!
 //! The image is split into `grid_cols` x `grid_rows` cells. A cell is scanned only when it holds
-//! fewer than `max_per_cell` features, the emptiest cells first, until the scanned cells can hold
-//! twice the features wanted; a scanned cell that gives nothing is skipped for
+//! fewer than `max_per_cell` features, the emptiest cells first, until the scanned cells are
+//! expected to give twice the features wanted (each cell is expected to give what it gave at
+//! its last scan, capped by its room, or half its room if never scanned); a scanned cell that gives nothing is skipped for
 //! [`BARREN_SKIP_FRAMES`] frames (unless fewer tracks exist than are wanted). Each scanned cell streams its rows (three rows of products and
 //! three of responses in scratch, no image-sized buffer), keeps local maxima of its 3x3
 //! neighbourhood above the absolute floor that are not inside the occupancy mask of existing
-//! tracks, and retains its [`MAX_CANDIDATES_PER_CELL`] strongest. The quality threshold is
-//! `quality_level` times the best response among the scanned cells (and at least the absolute
-//! floor). Selection then goes round-robin over the scanned cells in priority order, taking each
+//! tracks, and retains up to [`MAX_CANDIDATES_PER_CELL`] of them spread out: a candidate within
+//! `min_distance_px` of a stronger one is dropped, and evicts the weaker ones near it. The
+//! quality threshold is `quality_level` times the best response among the scanned cells (like
+//! OpenCV's masked `goodFeaturesToTrack`; optionally also the responses at the existing tracks,
+//! `quality_from_tracks`), and at least the absolute floor. Selection then goes round-robin over the scanned cells in priority order, taking each
 //! cell's best remaining candidate that is at least `min_distance_px` (on the mask's block grid)
 //! from every track and every corner already taken, until enough corners are found.
 
@@ -60,6 +63,11 @@ pub struct DetectorConfig {
     pub min_eigen: f32,
     /// Corners are detected at least this far from the image border, px (at least 4).
     pub border_px: usize,
+    /// Whether the responses at the existing tracks count in the frame's best response (the
+    /// reference of `quality_level`). Off: the best among the scanned cells only, as OpenCV's
+    /// `goodFeaturesToTrack` with a mask (the threshold drops when the strong corners are
+    /// already tracked, so weaker regions get features too).
+    pub quality_from_tracks: bool,
 }
 
 impl Default for DetectorConfig {
@@ -67,11 +75,12 @@ impl Default for DetectorConfig {
         DetectorConfig {
             grid_cols: 8,
             grid_rows: 6,
-            max_per_cell: 6,
+            max_per_cell: 8,
             min_distance_px: 20.0,
             quality_level: 0.01,
-            min_eigen: 2.0,
+            min_eigen: 1.0,
             border_px: 11,
+            quality_from_tracks: false,
         }
     }
 }
@@ -232,6 +241,7 @@ struct CellCandidates {
     items: [Corner; MAX_CANDIDATES_PER_CELL],
     len: usize,
     next: usize,
+    taken: usize,
 }
 
 impl CellCandidates {
@@ -243,11 +253,40 @@ impl CellCandidates {
         }; MAX_CANDIDATES_PER_CELL],
         len: 0,
         next: 0,
+        taken: 0,
     };
 
-    /// Inserts keeping descending response; equal responses keep scan order (deterministic).
+    /// Inserts `c` into the cell's spread-out candidate set: dropped if a candidate at least as
+    /// strong lies within `sqrt(md2)` px (so equal responses keep the earlier one in scan order:
+    /// deterministic), otherwise it evicts the weaker candidates within that distance and takes
+    /// its place in descending order (the weakest falls out of a full set).
     #[inline]
-    fn insert(&mut self, c: Corner) {
+    fn insert(&mut self, c: Corner, md2: i32) {
+        let near = |e: &Corner| {
+            let (dx, dy) = (
+                i32::from(e.x) - i32::from(c.x),
+                i32::from(e.y) - i32::from(c.y),
+            );
+            dx * dx + dy * dy < md2
+        };
+        let items = self.items.get(..self.len).unwrap_or(&[]);
+        if items.iter().any(|e| e.response >= c.response && near(e)) {
+            return;
+        }
+        // Remove the weaker neighbours (order preserved).
+        let mut k = 0usize;
+        for i in 0..self.len {
+            let Some(e) = self.items.get(i).copied() else {
+                break;
+            };
+            if !near(&e) {
+                if let Some(s) = self.items.get_mut(k) {
+                    *s = e;
+                }
+                k += 1;
+            }
+        }
+        self.len = k;
         if self.len == MAX_CANDIDATES_PER_CELL {
             match self.items.last() {
                 Some(last) if c.response > last.response => {}
@@ -286,10 +325,20 @@ struct ScanScratch {
     resp: [[f32; SPAN]; 3],
 }
 
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy)]
 struct CellState {
     barren_until: u32,
     last_scanned: u32,
+    /// Candidates above the threshold at the last scan (`u8::MAX`: never scanned).
+    last_yield: u8,
+}
+
+impl CellState {
+    const NEW: CellState = CellState {
+        barren_until: 0,
+        last_scanned: 0,
+        last_yield: u8::MAX,
+    };
 }
 
 /// The grid detector with its scratch (about 100 KiB: per-cell candidate lists, the occupancy
@@ -326,10 +375,7 @@ impl GridDetector {
             },
             cands: [CellCandidates::EMPTY; MAX_GRID_CELLS],
             cell_list: [0; MAX_GRID_CELLS],
-            cells: [CellState {
-                barren_until: 0,
-                last_scanned: 0,
-            }; MAX_GRID_CELLS],
+            cells: [CellState::NEW; MAX_GRID_CELLS],
             frame: 0,
             dims: (0, 0, 0, 0),
         }
@@ -337,7 +383,7 @@ impl GridDetector {
 
     /// Forgets the per-cell history (barren cells).
     pub fn reset(&mut self) {
-        self.cells.fill(CellState::default());
+        self.cells.fill(CellState::NEW);
         self.frame = 0;
     }
 
@@ -418,7 +464,7 @@ impl GridDetector {
         let cells = &self.cells;
         let key = |i: u16| {
             let i = usize::from(i);
-            let st = cells.get(i).copied().unwrap_or_default();
+            let st = cells.get(i).copied().unwrap_or(CellState::NEW);
             (
                 counts.get(i).copied().unwrap_or(0),
                 st.last_scanned,
@@ -427,20 +473,39 @@ impl GridDetector {
         };
         let list = self.cell_list.get_mut(..n_list).unwrap_or(&mut []);
         list.sort_unstable_by_key(|&i| key(i));
-        let mut room = 0usize;
+        // Scan until the expected yield covers twice the features wanted: a cell is expected to
+        // give what it gave at its last scan (capped by its room), or half its room if never
+        // scanned.
+        let mut expected = 0usize;
         let mut n_scan = 0usize;
         for &i in list.iter() {
-            if room >= 2 * wanted {
+            if expected >= 2 * wanted {
                 break;
             }
-            room += cfg.max_per_cell.saturating_sub(usize::from(
-                counts.get(usize::from(i)).copied().unwrap_or(0),
-            ));
+            let i = usize::from(i);
+            let room = cfg
+                .max_per_cell
+                .saturating_sub(usize::from(counts.get(i).copied().unwrap_or(0)));
+            let last = self.cells.get(i).map_or(u8::MAX, |c| c.last_yield);
+            expected += if last == u8::MAX {
+                room / 2
+            } else {
+                room.min(usize::from(last))
+            };
             n_scan += 1;
         }
         // Scan.
         let floor_raw = cfg.min_eigen * RESPONSE_SCALE;
+        let md = libm::ceilf(cfg.min_distance_px) as i32;
+        let md2 = md * md;
+        // The frame's best response: the scanned cells' and the existing tracks' (the strongest
+        // corners were selected and are still tracked; each costs one 3x3 block).
         let mut best_raw = 0.0f32;
+        for f in existing.iter().filter(|_| cfg.quality_from_tracks) {
+            if f.u_px >= 0.0 && f.v_px >= 0.0 {
+                best_raw = best_raw.max(response_at(image, f.u_px as usize, f.v_px as usize));
+            }
+        }
         for k in 0..n_scan {
             let Some(&ci) = self.cell_list.get(k) else {
                 break;
@@ -458,8 +523,15 @@ impl GridDetector {
             };
             *cands = CellCandidates::EMPTY;
             if rect.0 < rect.2 && rect.1 < rect.3 {
-                let (best, px) =
-                    scan_cell(image, rect, floor_raw, &self.mask, &mut self.scratch, cands);
+                let (best, px) = scan_cell(
+                    image,
+                    rect,
+                    floor_raw,
+                    md2,
+                    &self.mask,
+                    &mut self.scratch,
+                    cands,
+                );
                 best_raw = best_raw.max(best);
                 stats.pixels += px;
             }
@@ -467,16 +539,11 @@ impl GridDetector {
             stats.candidates += cands.len as u32;
             if let Some(st) = self.cells.get_mut(ci) {
                 st.last_scanned = frame;
-                st.barren_until = if cands.len == 0 {
-                    frame.wrapping_add(BARREN_SKIP_FRAMES).max(1)
-                } else {
-                    0
-                };
             }
         }
         stats.best_response = best_raw / RESPONSE_SCALE;
-        // Select: round-robin over the scanned cells in priority order.
         let thr = (cfg.quality_level * best_raw).max(floor_raw);
+        // Select: round-robin over the scanned cells in priority order.
         let mut taken = 0usize;
         let mut progress = true;
         while taken < wanted && progress {
@@ -512,11 +579,33 @@ impl GridDetector {
                             taken += 1;
                         }
                         *cnt += 1;
+                        cands.taken += 1;
                         progress = true;
                         break;
                     }
                 }
             }
+        }
+        // Remember what each scanned cell can still give (good candidates not taken).
+        for k in 0..n_scan {
+            let ci = usize::from(self.cell_list.get(k).copied().unwrap_or(0));
+            let (Some(cands), Some(st)) = (self.cands.get(k), self.cells.get_mut(ci)) else {
+                continue;
+            };
+            let left = cands
+                .items
+                .iter()
+                .take(cands.len)
+                .skip(cands.next)
+                .filter(|c| c.response >= thr)
+                .count();
+            let got = cands.taken;
+            st.last_yield = left.min(usize::from(u8::MAX - 1)) as u8;
+            st.barren_until = if left == 0 && got == 0 {
+                frame.wrapping_add(BARREN_SKIP_FRAMES).max(1)
+            } else {
+                0
+            };
         }
         stats.detected = taken as u32;
         Ok(stats)
@@ -541,6 +630,31 @@ pub(crate) fn cell_of(
     Some(cy * cols + cx)
 }
 
+/// Raw response at pixel `(x, y)` (0 within 3 px of the border).
+fn response_at(img: &ImageView, x: usize, y: usize) -> f32 {
+    if x < 3 || y < 3 || x + 3 >= img.width() || y + 3 >= img.height() {
+        return 0.0;
+    }
+    let (mut a, mut b, mut c) = (0i32, 0i32, 0i32);
+    for yy in y - 1..=y + 1 {
+        let (Some(ra), Some(rb), Some(rc)) = (
+            img.span(x - 2, yy - 1, 5),
+            img.span(x - 2, yy, 5),
+            img.span(x - 2, yy + 1, 5),
+        ) else {
+            return 0.0;
+        };
+        let (mut gx, mut gy) = ([0i32; 3], [0i32; 3]);
+        sobel_row(ra, rb, rc, &mut gx, &mut gy);
+        for (x, y) in gx.iter().zip(&gy) {
+            a += x * x;
+            b += x * y;
+            c += y * y;
+        }
+    }
+    min_eig(a, b, c)
+}
+
 /// Minimum eigenvalue of `[[a, b], [b, c]]` (raw integer sums, exact in `f32`).
 #[inline(always)]
 fn min_eig(a: i32, b: i32, c: i32) -> f32 {
@@ -551,10 +665,12 @@ fn min_eig(a: i32, b: i32, c: i32) -> f32 {
 
 /// Scans cell `rect = (x0, y0, x1, y1)` (candidate pixels; the image must extend 3 px beyond
 /// it). Returns the best raw response and the pixel count.
+#[allow(clippy::too_many_arguments)]
 fn scan_cell(
     img: &ImageView,
     rect: (usize, usize, usize, usize),
     floor_raw: f32,
+    md2: i32,
     mask: &OccupancyMask,
     s: &mut ScanScratch,
     out: &mut CellCandidates,
@@ -638,22 +754,26 @@ fn scan_cell(
             ) else {
                 continue;
             };
-            if r > best {
-                best = r;
-            }
             if r <= floor_raw {
                 continue;
+            }
+            let x = x0 + k - 1;
+            // The best response outside the occupancy mask (OpenCV's masked maximum).
+            if r > best && mask.is_free(x, ny) {
+                best = r;
             }
             let is_max = u3.iter().chain(d3).all(|&v| r >= v)
                 && m3.first().is_some_and(|&v| r >= v)
                 && m3.last().is_some_and(|&v| r >= v);
-            let x = x0 + k - 1;
             if is_max && mask.is_free(x, ny) {
-                out.insert(Corner {
-                    x: x as u16,
-                    y: ny as u16,
-                    response: r,
-                });
+                out.insert(
+                    Corner {
+                        x: x as u16,
+                        y: ny as u16,
+                        response: r,
+                    },
+                    md2,
+                );
             }
         }
     }

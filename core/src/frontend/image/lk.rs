@@ -1,21 +1,29 @@
 //! Pyramidal Lucas-Kanade for one point, inverse-compositional for a translation (the template's
-//! gradients and Hessian are computed once per level), in OpenCV's fixed-point arithmetic.
+//! gradients and Hessian are computed once per level), in exact integer arithmetic laid out for
+//! auto-vectorization (16-bit lanes).
 //!
 //! Per level, from the coarsest to level 0:
 //! - The template is the `(W + 2)^2` patch around the previous position, bilinearly interpolated
-//!   with 14-bit weights to 5 fractional bits (`0..=8160`), its 3x3 Scharr gradients rounded to
-//!   the same scale (`32 x grey / px`), and the 2x2 Hessian `A = sum g g^T` (exact `i64`).
+//!   with 8-bit weights (`sum w I <= 256 * 255` is exact in `u16`) to 3 fractional bits
+//!   (`8 x grey`), its 3x3 Scharr gradients scaled to `8 x grey / px` (`|g| <= 1020`), and the
+//!   Hessian `A = sum g g^T`, exact in `i32`.
 //!   A template whose smallest eigenvalue of `A / N` is below `min_eigen` `(grey/px)^2` fails.
-//! - Each iteration samples the `W^2` window at the current guess `q` (same interpolation),
-//!   accumulates `b = sum (J(q + x) - T(x)) g(x)` and `sum |J - T|` exactly in integers (per-row
-//!   `i32` partial sums: `|diff * g| <= 8160 * 4080`, 31 of them fit), and steps
-//!   `q -= A^-1 b` (`f64`, fixed order). It stops when the step is below `epsilon_px` (level
-//!   pixels), when it oscillates (OpenCV's half-step rule), or after `max_iterations`.
+//! - Each iteration samples the window at the current guess `q` the same way (`8 x grey`,
+//!   `|J - T| <= 2040`) and accumulates `b = sum (J(q + x) - T(x)) g(x)` in `i32`, which cannot
+//!   overflow (`2040 * 1020 * 31 * 32 < 2^31`), then steps `q -= A^-1 b` (`f64`, fixed order). It
+//!   stops when the step is below `epsilon_px` (level pixels), when it oscillates (OpenCV's
+//!   half-step rule), or after `max_iterations`.
 //! - The guess carries to the next finer level through the pyramid's coordinate map.
 //!
+//! Rows are padded to a multiple of 8 pixels with zero template gradients (so the padding adds
+//! nothing), which lets the per-row kernels run whole 16-bit vectors; the sums are flat dot
+//! products that compile to multiply-add instructions (`pmaddwd` on x86-64, `smlal` on
+//! aarch64). 8-bit weights quantize the sampling position to 1/256 px (bias below 0.002 px).
+//!
 //! Windows that reach outside the image read replicated border pixels (copied into a small
-//! patch first); a window that leaves the image entirely fails. The photometric residual is the
-//! mean `|J - T|` of the last iteration at level 0, in grey levels.
+//! patch first). As in OpenCV, a weak template or a window entirely off the image at a coarse
+//! level only skips that level; at level 0 it fails the point. The photometric residual is the
+//! mean `|J - T|` over the window at the final position, in grey levels.
 
 use super::pyramid::{Pyramid, PyramidFilter};
 use super::view::ImageView;
@@ -23,13 +31,14 @@ use crate::Error;
 
 /// Largest LK window side, px.
 pub const MAX_WINDOW: usize = 31;
-const MAX_PATCH: usize = MAX_WINDOW + 2;
-const MAX_SRC: usize = MAX_WINDOW + 3;
-/// Fixed-point bits of the bilinear weights.
-const W_BITS: u32 = 14;
-/// Fractional bits kept in interpolated intensities.
-const FRAC_BITS: u32 = 5;
-const DESCALE: u32 = W_BITS - FRAC_BITS;
+/// Padded row length of the largest window.
+const MAX_WP: usize = 32;
+const MAX_PATCH_W: usize = MAX_WP + 2;
+const MAX_PATCH_H: usize = MAX_WINDOW + 2;
+const MAX_SRC_W: usize = MAX_PATCH_W + 1;
+const MAX_SRC_H: usize = MAX_PATCH_H + 1;
+/// Bilinear weights sum to `2^WEIGHT_BITS`.
+const WEIGHT_BITS: u32 = 8;
 
 /// Lucas-Kanade parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -109,20 +118,24 @@ pub struct LkTrack {
 
 #[derive(Clone)]
 struct Template {
-    t: [i16; MAX_WINDOW * MAX_WINDOW],
-    gx: [i16; MAX_WINDOW * MAX_WINDOW],
-    gy: [i16; MAX_WINDOW * MAX_WINDOW],
+    /// Values (`8 x grey`), rows of `wp` with zero padding.
+    t: [i16; MAX_WINDOW * MAX_WP],
+    /// Gradients (`8 x grey / px`), zero in the padding.
+    gx: [i16; MAX_WINDOW * MAX_WP],
+    gy: [i16; MAX_WINDOW * MAX_WP],
     a11: f64,
     a12: f64,
     a22: f64,
 }
 
-/// Scratch of one LK track (about 14 KiB): the template and the border patch.
+/// Scratch of one LK track (about 12 KiB): the template, the interpolated patch, the window
+/// differences and the border patch.
 #[derive(Clone)]
 pub struct LkScratch {
     tmpl: Template,
-    interp: [i32; MAX_PATCH * MAX_PATCH],
-    patch: [u8; MAX_SRC * MAX_SRC],
+    interp: [i16; MAX_PATCH_H * MAX_PATCH_W],
+    diff: [i16; MAX_WINDOW * MAX_WP],
+    patch: [u8; MAX_SRC_H * MAX_SRC_W],
 }
 
 impl Default for LkScratch {
@@ -136,50 +149,165 @@ impl LkScratch {
     pub const fn new() -> Self {
         LkScratch {
             tmpl: Template {
-                t: [0; MAX_WINDOW * MAX_WINDOW],
-                gx: [0; MAX_WINDOW * MAX_WINDOW],
-                gy: [0; MAX_WINDOW * MAX_WINDOW],
+                t: [0; MAX_WINDOW * MAX_WP],
+                gx: [0; MAX_WINDOW * MAX_WP],
+                gy: [0; MAX_WINDOW * MAX_WP],
                 a11: 0.0,
                 a12: 0.0,
                 a22: 0.0,
             },
-            interp: [0; MAX_PATCH * MAX_PATCH],
-            patch: [0; MAX_SRC * MAX_SRC],
+            interp: [0; MAX_PATCH_H * MAX_PATCH_W],
+            diff: [0; MAX_WINDOW * MAX_WP],
+            patch: [0; MAX_SRC_H * MAX_SRC_W],
         }
     }
 }
 
-/// Bilinear weights `(w00, w01, w10, w11)` of the fractional offsets, summing to `2^14`.
+/// Window row length padded to a multiple of 8.
 #[inline]
-fn weights(ax: f64, ay: f64) -> [i32; 4] {
-    let one = f64::from(1u32 << W_BITS);
-    let w00 = ((1.0 - ax) * (1.0 - ay) * one + 0.5) as i32;
-    let w01 = (ax * (1.0 - ay) * one + 0.5) as i32;
-    let w10 = ((1.0 - ax) * ay * one + 0.5) as i32;
-    [w00, w01, w10, (1 << W_BITS) - w00 - w01 - w10]
+fn padded(win: usize) -> usize {
+    win.div_ceil(8) * 8
 }
 
-/// The `n x n` source block at integer top-left `(ix, iy)`: the image itself when inside,
-/// otherwise a border-replicated copy in `patch`. Returns the data, its stride and the offset
-/// of the block's first pixel.
+/// Bilinear weights `(w00, w01, w10, w11)` of the fractional offsets `ax, ay` in `[0, 1)`: each
+/// rounded to 8 bits, the rounding excess (at most 2) taken from the largest (at least 64), so
+/// they are non-negative and sum to exactly `2^8`.
+#[inline]
+fn weights(ax: f64, ay: f64) -> [u16; 4] {
+    let one = f64::from(1u32 << WEIGHT_BITS);
+    let q = |v: f64| (v * one + 0.5) as i32;
+    let mut w = [
+        q((1.0 - ax) * (1.0 - ay)),
+        q(ax * (1.0 - ay)),
+        q((1.0 - ax) * ay),
+        q(ax * ay),
+    ];
+    let excess = w.iter().sum::<i32>() - (1 << WEIGHT_BITS);
+    let mut big = 0;
+    for (i, v) in w.iter().enumerate() {
+        if *v > w[big] {
+            big = i;
+        }
+    }
+    w[big] -= excess;
+    w.map(|v| v.clamp(0, 1 << WEIGHT_BITS) as u16)
+}
+
+/// A source block of `rows x cols` pixels at integer top-left `(ix, iy)`: the image itself when
+/// inside, otherwise a border-replicated copy in `patch`. Returns the data, its stride and the
+/// offset of the block's first pixel.
 fn source_block<'a>(
     img: &ImageView<'a>,
     ix: i64,
     iy: i64,
-    n: usize,
-    patch: &'a mut [u8; MAX_SRC * MAX_SRC],
+    cols: usize,
+    rows: usize,
+    patch: &'a mut [u8; MAX_SRC_H * MAX_SRC_W],
 ) -> (&'a [u8], usize, usize) {
     let (w, h) = (img.width() as i64, img.height() as i64);
-    if ix >= 0 && iy >= 0 && ix + n as i64 <= w && iy + n as i64 <= h {
+    if ix >= 0 && iy >= 0 && ix + cols as i64 <= w && iy + rows as i64 <= h {
         let off = iy as usize * img.stride() + ix as usize;
         return (img.data(), img.stride(), off);
     }
-    for (r, row) in patch.chunks_exact_mut(n).take(n).enumerate() {
-        for (c, px) in row.iter_mut().enumerate() {
-            *px = img.clamped((ix + c as i64) as isize, (iy + r as i64) as isize);
+    // Row by row: the clamped source row, the inside span copied, the edges replicated.
+    let left = (-ix).clamp(0, cols as i64) as usize;
+    let inside_end = (w - ix).clamp(0, cols as i64) as usize;
+    let (x_first, x_last) = (
+        ix.clamp(0, w - 1) as usize,
+        (ix + cols as i64 - 1).clamp(0, w - 1) as usize,
+    );
+    for (r, dst) in patch.chunks_exact_mut(cols).take(rows).enumerate() {
+        let y = (iy + r as i64).clamp(0, h - 1) as usize;
+        let src = img.row(y);
+        let (l, rest) = dst.split_at_mut(left.min(inside_end.max(left)));
+        let (mid, right) = rest.split_at_mut(inside_end.saturating_sub(left));
+        l.fill(src.first().copied().unwrap_or(0));
+        if let Some(s) = src.get(x_first..x_first + mid.len()) {
+            mid.copy_from_slice(s);
+        }
+        right.fill(src.get(x_last).copied().unwrap_or(0));
+    }
+    let shared: &'a [u8] = patch;
+    (shared, cols, 0)
+}
+
+/// One bilinear row of `N` pixels: `out[i] = ((sum w I) + round) >> shift - sub[i]` from source
+/// rows `s0`, `s1` (at least `N + 1` pixels each). `u16` arithmetic is exact (`sum <= 65280`).
+#[inline(always)]
+fn bilinear_row<const N: usize>(
+    s0: &[u8],
+    s1: &[u8],
+    w: [u16; 4],
+    shift: u32,
+    sub: Option<&[i16]>,
+    out: &mut [i16],
+) -> Option<()> {
+    let a: &[u8; N] = s0.get(..N)?.try_into().ok()?;
+    let b: &[u8; N] = s0.get(1..N + 1)?.try_into().ok()?;
+    let c: &[u8; N] = s1.get(..N)?.try_into().ok()?;
+    let d: &[u8; N] = s1.get(1..N + 1)?.try_into().ok()?;
+    let o: &mut [i16; N] = out.get_mut(..N)?.try_into().ok()?;
+    let round = 1u16 << (shift - 1);
+    let [w00, w01, w10, w11] = w;
+    for i in 0..N {
+        let s = (w00 * u16::from(a[i]) + w01 * u16::from(b[i]))
+            + (w10 * u16::from(c[i]) + w11 * u16::from(d[i]));
+        o[i] = ((s + round) >> shift) as i16;
+    }
+    if let Some(sub) = sub {
+        let t: &[i16; N] = sub.get(..N)?.try_into().ok()?;
+        for i in 0..N {
+            o[i] -= t[i];
         }
     }
-    (&patch[..], n, 0)
+    Some(())
+}
+
+/// [`bilinear_row`] for a runtime length among the padded sizes.
+#[inline(always)]
+fn bilinear_row_n(
+    n: usize,
+    s0: &[u8],
+    s1: &[u8],
+    w: [u16; 4],
+    shift: u32,
+    sub: Option<&[i16]>,
+    out: &mut [i16],
+) -> Option<()> {
+    match n {
+        8 => bilinear_row::<8>(s0, s1, w, shift, sub, out),
+        10 => bilinear_row::<10>(s0, s1, w, shift, sub, out),
+        16 => bilinear_row::<16>(s0, s1, w, shift, sub, out),
+        18 => bilinear_row::<18>(s0, s1, w, shift, sub, out),
+        24 => bilinear_row::<24>(s0, s1, w, shift, sub, out),
+        26 => bilinear_row::<26>(s0, s1, w, shift, sub, out),
+        32 => bilinear_row::<32>(s0, s1, w, shift, sub, out),
+        34 => bilinear_row::<34>(s0, s1, w, shift, sub, out),
+        _ => None,
+    }
+}
+
+/// `(sum d gx, sum d gy)` over flat rows: exact, and a multiply-add reduction once vectorized.
+#[inline(always)]
+fn dot2(d: &[i16], gx: &[i16], gy: &[i16]) -> (i32, i32) {
+    let (mut sx, mut sy) = (0i32, 0i32);
+    for ((&d, &x), &y) in d.iter().zip(gx).zip(gy) {
+        sx += i32::from(d) * i32::from(x);
+        sy += i32::from(d) * i32::from(y);
+    }
+    (sx, sy)
+}
+
+/// `(sum gx^2, sum gx gy, sum gy^2)`.
+#[inline(always)]
+fn hessian(gx: &[i16], gy: &[i16]) -> (i32, i32, i32) {
+    let (mut a, mut b, mut c) = (0i32, 0i32, 0i32);
+    for (&x, &y) in gx.iter().zip(gy) {
+        a += i32::from(x) * i32::from(x);
+        b += i32::from(x) * i32::from(y);
+        c += i32::from(y) * i32::from(y);
+    }
+    (a, b, c)
 }
 
 impl Template {
@@ -190,11 +318,12 @@ impl Template {
         x: f64,
         y: f64,
         win: usize,
-        interp: &mut [i32; MAX_PATCH * MAX_PATCH],
-        patch: &mut [u8; MAX_SRC * MAX_SRC],
+        interp: &mut [i16; MAX_PATCH_H * MAX_PATCH_W],
+        patch: &mut [u8; MAX_SRC_H * MAX_SRC_W],
     ) -> Result<(), LkFailure> {
         let half = (win / 2) as f64;
-        let p = win + 2;
+        let wp = padded(win);
+        let (pw, ph) = (wp + 2, win + 2);
         let (xt, yt) = (x - half - 1.0, y - half - 1.0);
         let (fx, fy) = (libm::floor(xt), libm::floor(yt));
         if !(fx.is_finite() && fy.is_finite()) {
@@ -202,46 +331,54 @@ impl Template {
         }
         let (ix, iy) = (fx as i64, fy as i64);
         let (w, h) = (img.width() as i64, img.height() as i64);
-        if ix + p as i64 <= 0 || iy + p as i64 <= 0 || ix >= w || iy >= h {
+        if ix + ph as i64 <= 0 || iy + ph as i64 <= 0 || ix >= w || iy >= h {
             return Err(LkFailure::OutOfImage);
         }
-        let [w00, w01, w10, w11] = weights(xt - fx, yt - fy);
-        let (src, stride, off) = source_block(img, ix, iy, p + 1, patch);
-        // Interpolated (W+2)^2 patch, 5 fractional bits.
-        for (r, out) in interp.chunks_exact_mut(p).take(p).enumerate() {
+        let wgt = weights(xt - fx, yt - fy);
+        let (src, stride, off) = source_block(img, ix, iy, pw + 1, ph + 1, patch);
+        // Interpolated (W+2) x (WP+2) patch, 3 fractional bits (x 8), rounded exactly as the
+        // iterations sample the target.
+        for (r, out) in interp.chunks_exact_mut(pw).take(ph).enumerate() {
             let o0 = off + r * stride;
-            let (Some(s0), Some(s1)) = (
-                src.get(o0..o0 + p + 1),
-                src.get(o0 + stride..o0 + stride + p + 1),
-            ) else {
+            let (Some(s0), Some(s1)) = (src.get(o0..), src.get(o0 + stride..)) else {
                 return Err(LkFailure::OutOfImage);
             };
-            interp_row(s0, s1, [w00, w01, w10, w11], out);
+            bilinear_row_n(pw, s0, s1, wgt, WEIGHT_BITS - 3, None, out)
+                .ok_or(LkFailure::OutOfImage)?;
         }
-        // Template values and Scharr gradients of the interior.
-        let (mut a11, mut a12, mut a22) = (0i64, 0i64, 0i64);
+        // Values (x 8) and Scharr gradients (x 8 grey / px) of the interior; zero padding.
         let rows = self
             .t
-            .chunks_exact_mut(win)
-            .zip(self.gx.chunks_exact_mut(win))
-            .zip(self.gy.chunks_exact_mut(win))
+            .chunks_exact_mut(wp)
+            .zip(self.gx.chunks_exact_mut(wp))
+            .zip(self.gy.chunks_exact_mut(wp))
             .take(win);
         for (r, ((t, gx), gy)) in rows.enumerate() {
             let (Some(p0), Some(p1), Some(p2)) = (
-                interp.get(r * p..r * p + p),
-                interp.get((r + 1) * p..(r + 1) * p + p),
-                interp.get((r + 2) * p..(r + 2) * p + p),
+                interp.get(r * pw..r * pw + pw),
+                interp.get((r + 1) * pw..(r + 1) * pw + pw),
+                interp.get((r + 2) * pw..(r + 2) * pw + pw),
             ) else {
                 return Err(LkFailure::OutOfImage);
             };
-            let (s11, s12, s22) = scharr_row(p0, p1, p2, t, gx, gy);
-            a11 += i64::from(s11);
-            a12 += i64::from(s12);
-            a22 += i64::from(s22);
+            scharr_row(p0, p1, p2, t, gx, gy);
+            for v in t
+                .iter_mut()
+                .skip(win)
+                .chain(gx.iter_mut().skip(win))
+                .chain(gy.iter_mut().skip(win))
+            {
+                *v = 0;
+            }
         }
-        self.a11 = a11 as f64;
-        self.a12 = a12 as f64;
-        self.a22 = a22 as f64;
+        let n = win * wp;
+        let (a11, a12, a22) = hessian(
+            self.gx.get(..n).unwrap_or(&[]),
+            self.gy.get(..n).unwrap_or(&[]),
+        );
+        self.a11 = f64::from(a11);
+        self.a12 = f64::from(a12);
+        self.a22 = f64::from(a22);
         Ok(())
     }
 
@@ -250,49 +387,23 @@ impl Template {
         let (a, b, c) = (self.a11, self.a12, self.a22);
         let d = a - c;
         let l = 0.5 * ((a + c) - libm::sqrt(d * d + 4.0 * (b * b)));
-        l / ((win * win) as f64 * 1024.0)
+        l / ((win * win) as f64 * 64.0)
     }
 }
 
-/// One interpolated row: `out[c] = (w00 s0[c] + w01 s0[c+1] + w10 s1[c] + w11 s1[c+1]) >> 9`.
+/// Template row and its Scharr gradients (`x 8 grey / px`) from three rows of the `x 8` patch.
 #[inline(always)]
-fn interp_row(s0: &[u8], s1: &[u8], w: [i32; 4], out: &mut [i32]) {
-    let n = out.len();
-    let (Some(a), Some(b), Some(c), Some(d)) =
-        (s0.get(..n), s0.get(1..n + 1), s1.get(..n), s1.get(1..n + 1))
-    else {
-        return;
-    };
-    let [w00, w01, w10, w11] = w;
-    let round = 1 << (DESCALE - 1);
-    for ((((o, &a), &b), &c), &d) in out.iter_mut().zip(a).zip(b).zip(c).zip(d) {
-        let s = w00 * i32::from(a) + w01 * i32::from(b) + w10 * i32::from(c) + w11 * i32::from(d);
-        *o = (s + round) >> DESCALE;
-    }
-}
-
-/// Template row and its Scharr gradients from three interpolated rows; returns the row's
-/// Hessian sums `(sum gx^2, sum gx gy, sum gy^2)`.
-#[inline(always)]
-fn scharr_row(
-    p0: &[i32],
-    p1: &[i32],
-    p2: &[i32],
-    t: &mut [i16],
-    gx: &mut [i16],
-    gy: &mut [i16],
-) -> (i32, i32, i32) {
+fn scharr_row(p0: &[i16], p1: &[i16], p2: &[i16], t: &mut [i16], gx: &mut [i16], gy: &mut [i16]) {
     let n = t.len();
     let (Some(a0), Some(a1), Some(a2)) = (p0.get(..n), p0.get(1..n + 1), p0.get(2..n + 2)) else {
-        return (0, 0, 0);
+        return;
     };
     let (Some(b0), Some(b1), Some(b2)) = (p1.get(..n), p1.get(1..n + 1), p1.get(2..n + 2)) else {
-        return (0, 0, 0);
+        return;
     };
     let (Some(c0), Some(c1), Some(c2)) = (p2.get(..n), p2.get(1..n + 1), p2.get(2..n + 2)) else {
-        return (0, 0, 0);
+        return;
     };
-    let (mut s11, mut s12, mut s22) = (0i32, 0i32, 0i32);
     let it = t
         .iter_mut()
         .zip(gx.iter_mut())
@@ -301,59 +412,153 @@ fn scharr_row(
         .zip(b0.iter().zip(b1).zip(b2))
         .zip(c0.iter().zip(c1).zip(c2));
     for (((((ot, ox), oy), ((&a0, &a1), &a2)), ((&b0, &b1), &b2)), ((&c0, &c1), &c2)) in it {
-        let x = (3 * (a2 - a0) + 10 * (b2 - b0) + 3 * (c2 - c0) + 16) >> FRAC_BITS;
-        let y = (3 * (c0 - a0) + 10 * (c1 - a1) + 3 * (c2 - a2) + 16) >> FRAC_BITS;
-        *ot = b1 as i16;
-        *ox = x as i16;
-        *oy = y as i16;
-        s11 += x * x;
-        s12 += x * y;
-        s22 += y * y;
+        // Scharr of a x 8 image (values 0..=2040) is 32 x 8 = 256 per grey / px; >> 5 gives
+        // x 8 (|g| <= 1020). Exact in i16: |sum| <= 16 * 2040 + 16 = 32656.
+        *ox = (3 * (a2 - a0) + 10 * (b2 - b0) + 3 * (c2 - c0) + 16) >> 5;
+        *oy = (3 * (c0 - a0) + 10 * (c1 - a1) + 3 * (c2 - a2) + 16) >> 5;
+        *ot = b1;
     }
-    (s11, s12, s22)
 }
 
-/// One iteration's sums over the window at integer top-left `(ix, iy)` with `weights`:
-/// `(sum diff gx, sum diff gy, sum |diff|)`.
-#[inline(always)]
+/// `(sum diff gx, sum diff gy)` of the window at integer top-left `(ix, iy)` with `wgt`
+/// (differences left in `diff`).
 fn window_sums(
     src: &[u8],
     stride: usize,
     off: usize,
-    w: [i32; 4],
+    wgt: [u16; 4],
     tmpl: &Template,
     win: usize,
-) -> Option<(i64, i64, i64)> {
-    let (mut bx, mut by, mut be) = (0i64, 0i64, 0i64);
-    let [w00, w01, w10, w11] = w;
-    let round = 1 << (DESCALE - 1);
-    let rows = tmpl
-        .t
-        .chunks_exact(win)
-        .zip(tmpl.gx.chunks_exact(win))
-        .zip(tmpl.gy.chunks_exact(win))
+    diff: &mut [i16; MAX_WINDOW * MAX_WP],
+) -> Option<(i64, i64)> {
+    let wp = padded(win);
+    let rows = diff
+        .chunks_exact_mut(wp)
+        .zip(tmpl.t.chunks_exact(wp))
         .take(win);
-    for (r, ((t, gx), gy)) in rows.enumerate() {
+    for (r, (d, t)) in rows.enumerate() {
         let o0 = off + r * stride;
-        let s0 = src.get(o0..o0 + win + 1)?;
-        let s1 = src.get(o0 + stride..o0 + stride + win + 1)?;
-        let (a, b) = (s0.get(..win)?, s0.get(1..win + 1)?);
-        let (c, d) = (s1.get(..win)?, s1.get(1..win + 1)?);
-        let (mut sx, mut sy, mut se) = (0i32, 0i32, 0i32);
-        let it = a.iter().zip(b).zip(c).zip(d).zip(t.iter().zip(gx).zip(gy));
-        for ((((&a, &b), &c), &d), ((&t, &gx), &gy)) in it {
-            let s =
-                w00 * i32::from(a) + w01 * i32::from(b) + w10 * i32::from(c) + w11 * i32::from(d);
-            let diff = ((s + round) >> DESCALE) - i32::from(t);
-            sx += diff * i32::from(gx);
-            sy += diff * i32::from(gy);
-            se += diff.abs();
-        }
-        bx += i64::from(sx);
-        by += i64::from(sy);
-        be += i64::from(se);
+        let (s0, s1) = (src.get(o0..)?, src.get(o0 + stride..)?);
+        bilinear_row_n(wp, s0, s1, wgt, WEIGHT_BITS - 3, Some(t), d)?;
     }
-    Some((bx, by, be))
+    let n = win * wp;
+    let (bx, by) = dot2(diff.get(..n)?, tmpl.gx.get(..n)?, tmpl.gy.get(..n)?);
+    Some((i64::from(bx), i64::from(by)))
+}
+
+/// Mean `|J - T|` over the window (padding excluded), grey levels.
+fn window_residual(diff: &[i16], win: usize) -> f32 {
+    let wp = padded(win);
+    let mut s = 0i32;
+    for row in diff.chunks_exact(wp).take(win) {
+        for &d in row.iter().take(win) {
+            s += i32::from(d).abs();
+        }
+    }
+    (f64::from(s) / ((win * win) as f64 * 8.0)) as f32
+}
+
+/// What one pyramid level did.
+struct LevelRun {
+    outcome: Result<(), LkFailure>,
+    iterations: u32,
+    converged: bool,
+}
+
+/// Gauss-Newton iterations on one level: template at `p` in `from`, guess `q` in `to`. With
+/// `final_residual`, the mean photometric error at the final `q` is written to it.
+#[allow(clippy::too_many_arguments)]
+fn refine_level(
+    from: &ImageView,
+    to: &ImageView,
+    p: [f64; 2],
+    q: &mut [f64; 2],
+    cfg: &LkConfig,
+    eps2: f64,
+    scratch: &mut LkScratch,
+    final_residual: Option<&mut f32>,
+) -> LevelRun {
+    let mut run = LevelRun {
+        outcome: Ok(()),
+        iterations: 0,
+        converged: false,
+    };
+    let win = cfg.window;
+    let half = (win / 2) as f64;
+    let wp = padded(win);
+    let LkScratch {
+        tmpl,
+        interp,
+        diff,
+        patch,
+    } = scratch;
+    if let Err(e) = tmpl.build(from, p[0], p[1], win, interp, patch) {
+        run.outcome = Err(e);
+        return run;
+    }
+    let det = tmpl.a11 * tmpl.a22 - tmpl.a12 * tmpl.a12;
+    if tmpl.min_eigen(win) < f64::from(cfg.min_eigen) || det.is_nan() || det <= 0.0 {
+        run.outcome = Err(LkFailure::SmallEigen);
+        return run;
+    }
+    let inv_det = 1.0 / det;
+    let (wl, hl) = (to.width() as f64, to.height() as f64);
+    let in_range = |q: &[f64; 2]| {
+        q[0] >= -half && q[1] >= -half && q[0] <= wl - 1.0 + half && q[1] <= hl - 1.0 + half
+    };
+    let mut prev = [0.0f64; 2];
+    for it in 0..cfg.max_iterations {
+        if !(q[0].is_finite() && q[1].is_finite()) {
+            run.outcome = Err(LkFailure::NonFinite);
+            return run;
+        }
+        if !in_range(q) {
+            run.outcome = Err(LkFailure::OutOfImage);
+            return run;
+        }
+        let (xt, yt) = (q[0] - half, q[1] - half);
+        let (fx, fy) = (libm::floor(xt), libm::floor(yt));
+        let wgt = weights(xt - fx, yt - fy);
+        let (src, stride, off) = source_block(to, fx as i64, fy as i64, wp + 1, win + 1, patch);
+        let Some((bx, by)) = window_sums(src, stride, off, wgt, tmpl, win, diff) else {
+            run.outcome = Err(LkFailure::OutOfImage);
+            return run;
+        };
+        run.iterations += 1;
+        let (bx, by) = (bx as f64, by as f64);
+        let d = [
+            (tmpl.a22 * bx - tmpl.a12 * by) * inv_det,
+            (tmpl.a11 * by - tmpl.a12 * bx) * inv_det,
+        ];
+        *q = [q[0] - d[0], q[1] - d[1]];
+        if d[0] * d[0] + d[1] * d[1] <= eps2 {
+            run.converged = true;
+            break;
+        }
+        if it > 0 && libm::fabs(d[0] + prev[0]) < 0.01 && libm::fabs(d[1] + prev[1]) < 0.01 {
+            // Oscillating between two points: settle in the middle.
+            *q = [q[0] + 0.5 * d[0], q[1] + 0.5 * d[1]];
+            run.converged = true;
+            break;
+        }
+        prev = d;
+    }
+    if let Some(res) = final_residual {
+        if !(q[0].is_finite() && q[1].is_finite() && in_range(q)) {
+            run.outcome = Err(LkFailure::OutOfImage);
+            return run;
+        }
+        let (xt, yt) = (q[0] - half, q[1] - half);
+        let (fx, fy) = (libm::floor(xt), libm::floor(yt));
+        let wgt = weights(xt - fx, yt - fy);
+        let (src, stride, off) = source_block(to, fx as i64, fy as i64, wp + 1, win + 1, patch);
+        if window_sums(src, stride, off, wgt, tmpl, win, diff).is_none() {
+            run.outcome = Err(LkFailure::OutOfImage);
+            return run;
+        }
+        *res = window_residual(diff, win);
+    }
+    run
 }
 
 /// Tracks level-0 point `p0` of `from` into `to`, starting the search at `seed` (level-0 px),
@@ -368,8 +573,36 @@ pub fn track_point<const B: usize, const L: usize>(
     cfg: &LkConfig,
     scratch: &mut LkScratch,
 ) -> Result<LkTrack, LkFailure> {
+    track_point_impl(from, to, p0, seed, max_level, cfg, scratch, true)
+}
+
+/// [`track_point`] without the final residual pass and check (`residual` is 0): for the
+/// backward track of the forward-backward check, which only uses the position.
+pub fn track_point_no_residual<const B: usize, const L: usize>(
+    from: &Pyramid<B, L>,
+    to: &Pyramid<B, L>,
+    p0: [f64; 2],
+    seed: [f64; 2],
+    max_level: usize,
+    cfg: &LkConfig,
+    scratch: &mut LkScratch,
+) -> Result<LkTrack, LkFailure> {
+    track_point_impl(from, to, p0, seed, max_level, cfg, scratch, false)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn track_point_impl<const B: usize, const L: usize>(
+    from: &Pyramid<B, L>,
+    to: &Pyramid<B, L>,
+    p0: [f64; 2],
+    seed: [f64; 2],
+    max_level: usize,
+    cfg: &LkConfig,
+    scratch: &mut LkScratch,
+    with_residual: bool,
+) -> Result<LkTrack, LkFailure> {
     let win = cfg.window;
-    if win % 2 == 0 || !(3..=MAX_WINDOW).contains(&win) {
+    if win % 2 == 0 || !(5..=MAX_WINDOW).contains(&win) {
         return Err(LkFailure::OutOfImage);
     }
     if !(p0[0].is_finite() && p0[1].is_finite() && seed[0].is_finite() && seed[1].is_finite()) {
@@ -381,8 +614,6 @@ pub fn track_point<const B: usize, const L: usize>(
     }
     let top = max_level.min(levels - 1);
     let filter: PyramidFilter = from.filter();
-    let half = (win / 2) as f64;
-    let n_px = (win * win) as f64;
     let eps2 = f64::from(cfg.epsilon_px) * f64::from(cfg.epsilon_px);
     let mut q = [filter.to_level(seed[0], top), filter.to_level(seed[1], top)];
     let mut iterations = 0u32;
@@ -393,55 +624,15 @@ pub fn track_point<const B: usize, const L: usize>(
             return Err(LkFailure::OutOfImage);
         };
         let p = [filter.to_level(p0[0], level), filter.to_level(p0[1], level)];
-        let LkScratch {
-            tmpl,
-            interp,
-            patch,
-        } = scratch;
-        tmpl.build(&img_from, p[0], p[1], win, interp, patch)?;
-        if tmpl.min_eigen(win) < f64::from(cfg.min_eigen) {
-            return Err(LkFailure::SmallEigen);
-        }
-        let det = tmpl.a11 * tmpl.a22 - tmpl.a12 * tmpl.a12;
-        if det.is_nan() || det <= 0.0 {
-            return Err(LkFailure::SmallEigen);
-        }
-        let inv_det = 1.0 / det;
-        let (wl, hl) = (img_to.width() as f64, img_to.height() as f64);
-        let mut prev = [0.0f64; 2];
-        converged = false;
-        for it in 0..cfg.max_iterations {
-            if !(q[0].is_finite() && q[1].is_finite()) {
-                return Err(LkFailure::NonFinite);
-            }
-            if q[0] < -half || q[1] < -half || q[0] > wl - 1.0 + half || q[1] > hl - 1.0 + half {
-                return Err(LkFailure::OutOfImage);
-            }
-            let (xt, yt) = (q[0] - half, q[1] - half);
-            let (fx, fy) = (libm::floor(xt), libm::floor(yt));
-            let wgt = weights(xt - fx, yt - fy);
-            let (src, stride, off) = source_block(&img_to, fx as i64, fy as i64, win + 1, patch);
-            let (bx, by, be) =
-                window_sums(src, stride, off, wgt, tmpl, win).ok_or(LkFailure::OutOfImage)?;
-            iterations += 1;
-            residual = (be as f64 / (n_px * 32.0)) as f32;
-            let (bx, by) = (bx as f64, by as f64);
-            let d = [
-                (tmpl.a22 * bx - tmpl.a12 * by) * inv_det,
-                (tmpl.a11 * by - tmpl.a12 * bx) * inv_det,
-            ];
-            q = [q[0] - d[0], q[1] - d[1]];
-            if d[0] * d[0] + d[1] * d[1] <= eps2 {
-                converged = true;
-                break;
-            }
-            if it > 0 && libm::fabs(d[0] + prev[0]) < 0.01 && libm::fabs(d[1] + prev[1]) < 0.01 {
-                // Oscillating between two points: settle in the middle.
-                q = [q[0] + 0.5 * d[0], q[1] + 0.5 * d[1]];
-                converged = true;
-                break;
-            }
-            prev = d;
+        let res = (level == 0 && with_residual).then_some(&mut residual);
+        let lv = refine_level(&img_from, &img_to, p, &mut q, cfg, eps2, scratch, res);
+        iterations += lv.iterations;
+        match lv.outcome {
+            Ok(()) => converged = lv.converged,
+            // As OpenCV: a weak template or a window off the image at a coarse level skips the
+            // level (the guess carries down); only level 0 decides.
+            Err(LkFailure::SmallEigen | LkFailure::OutOfImage) if level > 0 => {}
+            Err(e) => return Err(e),
         }
         if level > 0 {
             q = [filter.up_one(q[0]), filter.up_one(q[1])];
@@ -534,6 +725,42 @@ mod tests {
         assert!(e < 0.02, "max error {e:.4} px");
         // 35 points, one level: a few iterations each.
         assert!(iters < 35 * 10, "{iters} iterations");
+    }
+
+    #[test]
+    fn border_block_replicates_edges() {
+        let img: std::vec::Vec<u8> = (0..50u8).collect(); // 10 x 5, value = 10 y + x
+        let v = ImageView::new(&img, 10, 5, 10).unwrap();
+        let mut patch = [0u8; MAX_SRC_H * MAX_SRC_W];
+        for &(ix, iy, cols, rows) in &[
+            (-3i64, -2i64, 6usize, 4usize),
+            (7, 3, 6, 4),
+            (-4, 1, 18, 2),
+            (12, 7, 3, 3),
+            (-9, -9, 4, 4),
+        ] {
+            let mut want = std::vec::Vec::new();
+            for r in 0..rows as i64 {
+                for c in 0..cols as i64 {
+                    want.push(v.clamped((ix + c) as isize, (iy + r) as isize));
+                }
+            }
+            let (src, stride, off) = source_block(&v, ix, iy, cols, rows, &mut patch);
+            assert_eq!((stride, off), (cols, 0));
+            assert_eq!(&src[..cols * rows], &want[..], "{ix} {iy} {cols} {rows}");
+        }
+    }
+
+    #[test]
+    fn weights_sum_to_256() {
+        for i in 0..=200 {
+            for j in 0..=200 {
+                let w = weights(f64::from(i) / 200.5, f64::from(j) / 200.5);
+                assert_eq!(w.iter().map(|&v| u32::from(v)).sum::<u32>(), 256, "{i} {j}");
+            }
+        }
+        assert_eq!(weights(0.0, 0.0), [256, 0, 0, 0]);
+        assert_eq!(weights(0.5, 0.5), [64, 64, 64, 64]);
     }
 
     #[test]

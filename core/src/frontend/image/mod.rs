@@ -30,7 +30,7 @@ pub(crate) mod testutil;
 
 pub use corners::{Corner, DetectStats, DetectorConfig, GridDetector, OccupancyMask};
 pub use equalize::{Equalization, Equalizer};
-pub use lk::{track_point, LkConfig, LkFailure, LkScratch, LkTrack};
+pub use lk::{track_point, track_point_no_residual, LkConfig, LkFailure, LkScratch, LkTrack};
 pub use pyramid::{level_size, pyramid_bytes, Pyramid, PyramidFilter};
 pub use ransac::{RansacConfig, RansacModel, RansacOutcome, XorShift64};
 pub use tracker::{

@@ -100,7 +100,7 @@ impl<'a> ImageView<'a> {
 
     /// Pixel at `(x, y)` with coordinates clamped into the image (border replication).
     #[inline]
-    pub(crate) fn clamped(&self, x: isize, y: isize) -> u8 {
+    pub fn clamped(&self, x: isize, y: isize) -> u8 {
         let xc = x.clamp(0, self.width as isize - 1) as usize;
         let yc = y.clamp(0, self.height as isize - 1) as usize;
         self.get(xc, yc).unwrap_or(0)
