@@ -15,7 +15,7 @@
 //! three of responses in scratch, no image-sized buffer), keeps local maxima of its 3x3
 //! neighbourhood above the absolute floor that are not inside the occupancy mask of existing
 //! tracks, and retains up to [`MAX_CANDIDATES_PER_CELL`] of them spread out: a candidate within
-//! `min_distance_px` of a stronger one is dropped, and evicts the weaker ones near it. The
+//! half of `min_distance_px` of a stronger one is dropped, and evicts the weaker ones near it. The
 //! quality threshold is `quality_level` times the best response among the scanned cells (like
 //! OpenCV's masked `goodFeaturesToTrack`; optionally also the responses at the existing tracks,
 //! `quality_from_tracks`), and at least the absolute floor. Selection then goes round-robin over the scanned cells in priority order, taking each
@@ -319,10 +319,15 @@ impl CellCandidates {
 struct ScanScratch {
     gx: [i32; SPAN],
     gy: [i32; SPAN],
-    hxx: [[i32; SPAN]; 3],
-    hxy: [[i32; SPAN]; 3],
-    hyy: [[i32; SPAN]; 3],
+    pxx: [f32; SPAN],
+    pxy: [f32; SPAN],
+    pyy: [f32; SPAN],
+    hxx: [[f32; SPAN]; 3],
+    hxy: [[f32; SPAN]; 3],
+    hyy: [[f32; SPAN]; 3],
     resp: [[f32; SPAN]; 3],
+    hmax: [[f32; SPAN]; 3],
+    is_max: [u8; SPAN],
 }
 
 #[derive(Clone, Copy)]
@@ -368,10 +373,15 @@ impl GridDetector {
             scratch: ScanScratch {
                 gx: [0; SPAN],
                 gy: [0; SPAN],
-                hxx: [[0; SPAN]; 3],
-                hxy: [[0; SPAN]; 3],
-                hyy: [[0; SPAN]; 3],
+                pxx: [0.0; SPAN],
+                pxy: [0.0; SPAN],
+                pyy: [0.0; SPAN],
+                hxx: [[0.0; SPAN]; 3],
+                hxy: [[0.0; SPAN]; 3],
+                hyy: [[0.0; SPAN]; 3],
                 resp: [[0.0; SPAN]; 3],
+                hmax: [[0.0; SPAN]; 3],
+                is_max: [0; SPAN],
             },
             cands: [CellCandidates::EMPTY; MAX_GRID_CELLS],
             cell_list: [0; MAX_GRID_CELLS],
@@ -496,8 +506,11 @@ impl GridDetector {
         }
         // Scan.
         let floor_raw = cfg.min_eigen * RESPONSE_SCALE;
+        // Candidates within a cell are spread at half the minimum distance (the selection below
+        // enforces the full distance through the mask): a candidate dropped next to a stronger
+        // one that is later evicted is then rarely lost.
         let md = libm::ceilf(cfg.min_distance_px) as i32;
-        let md2 = md * md;
+        let md2 = (md / 2) * (md / 2);
         // The frame's best response: the scanned cells' and the existing tracks' (the strongest
         // corners were selected and are still tracked; each costs one 3x3 block).
         let mut best_raw = 0.0f32;
@@ -663,8 +676,56 @@ fn min_eig(a: i32, b: i32, c: i32) -> f32 {
     0.5 * ((a + c) - libm::sqrtf(d * d + 4.0 * (b * b)))
 }
 
+/// `sqrt(x)` for `x >= 0` from IEEE `+ - * /` and integer bit operations only: an initial guess
+/// from the exponent bits (within 4%) and three Newton steps, accurate to `f32` rounding. Unlike
+/// `libm::sqrtf` (an opaque instruction) it vectorizes, and it is bit-identical on every IEEE
+/// target (no fused multiply-add, no estimate instructions).
+#[inline(always)]
+fn sqrt_newton(x: f32) -> f32 {
+    let g = f32::from_bits((x.to_bits() >> 1) + 0x1fbd_1df5);
+    let g = 0.5 * (g + x / g);
+    let g = 0.5 * (g + x / g);
+    0.5 * (g + x / g)
+}
+
+/// Responses of one row from the block sums: the minimum eigenvalue where it exceeds the floor
+/// `f` (tested exactly: `a > f` and `(a - f)(c - f) > b^2`), else 0. The sums are exact integers
+/// in `f32` (`< 2^24`). Branch-free so it vectorizes.
+#[inline(always)]
+fn response_row(a: &[f32], b: &[f32], c: &[f32], f: f32, out: &mut [f32]) {
+    for (((r, &a), &b), &c) in out.iter_mut().zip(a).zip(b).zip(c) {
+        let (am, cm) = (a - f, c - f);
+        let pass = (am > 0.0) & (am * cm > b * b);
+        let d = a - c;
+        let l = 0.5 * ((a + c) - sqrt_newton(d * d + 4.0 * (b * b)));
+        *r = if pass { l } else { 0.0 };
+    }
+}
+
+/// `out[k] = max(v[k], v[k + 1], v[k + 2])` (no NaN occurs).
+#[inline(always)]
+fn hmax3(v: &[f32], out: &mut [f32]) {
+    let n = out.len();
+    let (Some(a), Some(b), Some(c)) = (v.get(..n), v.get(1..n + 1), v.get(2..n + 2)) else {
+        return;
+    };
+    for (((o, &a), &b), &c) in out.iter_mut().zip(a).zip(b).zip(c) {
+        let m = if a > b { a } else { b };
+        *o = if m > c { m } else { c };
+    }
+}
+
+/// `out[k] = 1` where `mid[k]` is positive and at least the row maxima `up[k]`, `hm[k]`, `dn[k]`
+/// of its 3x3 neighbourhood, else 0 (branch-free).
+#[inline(always)]
+fn local_max_row(mid: &[f32], up: &[f32], hm: &[f32], dn: &[f32], out: &mut [u8]) {
+    for ((((o, &r), &u), &m), &d) in out.iter_mut().zip(mid).zip(up).zip(hm).zip(dn) {
+        *o = u8::from((r >= u) & (r >= m) & (r >= d) & (r > 0.0));
+    }
+}
+
 /// Scans cell `rect = (x0, y0, x1, y1)` (candidate pixels; the image must extend 3 px beyond
-/// it). Returns the best raw response and the pixel count.
+/// it). Returns the best raw response outside the mask and the pixel count.
 #[allow(clippy::too_many_arguments)]
 fn scan_cell(
     img: &ImageView,
@@ -697,87 +758,102 @@ fn scan_cell(
             return (best, pixels);
         };
         sobel_row(ra, rb, rc, &mut s.gx[..n_p], &mut s.gy[..n_p]);
+        // Per-column products (exact in f32: |g| <= 1020).
+        for ((((&x, &y), xx), xy), yy) in s.gx[..n_p]
+            .iter()
+            .zip(&s.gy[..n_p])
+            .zip(s.pxx[..n_p].iter_mut())
+            .zip(s.pxy[..n_p].iter_mut())
+            .zip(s.pyy[..n_p].iter_mut())
+        {
+            let (x, y) = (x as f32, y as f32);
+            *xx = x * x;
+            *xy = x * y;
+            *yy = y * y;
+        }
         let slot = gi % 3;
-        let (Some(hxx), Some(hxy), Some(hyy)) = (
-            s.hxx.get_mut(slot),
-            s.hxy.get_mut(slot),
-            s.hyy.get_mut(slot),
-        ) else {
-            return (best, pixels);
-        };
-        products_row(
-            &s.gx[..n_p],
-            &s.gy[..n_p],
-            &mut hxx[..n_r],
-            &mut hxy[..n_r],
-            &mut hyy[..n_r],
-        );
+        hsum3(&s.pxx[..n_p], &mut s.hxx[slot][..n_r]);
+        hsum3(&s.pxy[..n_p], &mut s.hxy[slot][..n_r]);
+        hsum3(&s.pyy[..n_p], &mut s.hyy[slot][..n_r]);
         if gi < 2 {
             continue;
         }
-        // Response row gyr - 1 (index ri from y0-1).
+        // Response row gyr - 1 (index ri from y0-1): block sums then eigenvalues.
         let ri = gi - 2;
         let rslot = ri % 3;
         {
+            // Reuse the product rows as the block-sum rows (their content is consumed).
             let [a0, a1, a2] = &s.hxx;
             let [b0, b1, b2] = &s.hxy;
             let [c0, c1, c2] = &s.hyy;
-            let Some(resp) = s.resp.get_mut(rslot) else {
-                return (best, pixels);
-            };
-            let it = resp[..n_r]
-                .iter_mut()
-                .zip(a0[..n_r].iter().zip(&a1[..n_r]).zip(&a2[..n_r]))
-                .zip(b0[..n_r].iter().zip(&b1[..n_r]).zip(&b2[..n_r]))
-                .zip(c0[..n_r].iter().zip(&c1[..n_r]).zip(&c2[..n_r]));
-            for (((r, ((a0, a1), a2)), ((b0, b1), b2)), ((c0, c1), c2)) in it {
-                *r = min_eig(a0 + a1 + a2, b0 + b1 + b2, c0 + c1 + c2);
-            }
+            vsum3(&a0[..n_r], &a1[..n_r], &a2[..n_r], &mut s.pxx[..n_r]);
+            vsum3(&b0[..n_r], &b1[..n_r], &b2[..n_r], &mut s.pxy[..n_r]);
+            vsum3(&c0[..n_r], &c1[..n_r], &c2[..n_r], &mut s.pyy[..n_r]);
+            response_row(
+                &s.pxx[..n_r],
+                &s.pxy[..n_r],
+                &s.pyy[..n_r],
+                floor_raw,
+                &mut s.resp[rslot][..n_r],
+            );
+            // Row maxima of 3 around response columns 1 .. n_r - 1.
+            hmax3(&s.resp[rslot][..n_r], &mut s.hmax[rslot][..n_r - 2]);
         }
         pixels += n_r as u32;
         if ri < 2 {
             continue;
         }
-        // Non-maximum suppression on response row ny = gyr - 2 (candidate row y0 + ri - 2).
+        // Non-maximum suppression on response row ny (candidate row y0 + ri - 2).
         let ny = y0 + ri - 2;
-        let (up, mid, dn) = (
-            &s.resp[(ri + 1) % 3][..n_r],
-            &s.resp[(ri + 2) % 3][..n_r],
-            &s.resp[ri % 3][..n_r],
+        local_max_row(
+            &s.resp[(ri + 2) % 3][1..n_r - 1],
+            &s.hmax[(ri + 1) % 3][..n_r - 2],
+            &s.hmax[(ri + 2) % 3][..n_r - 2],
+            &s.hmax[ri % 3][..n_r - 2],
+            &mut s.is_max[..n_r - 2],
         );
-        for k in 1..n_r - 1 {
-            let (Some(&r), Some(u3), Some(m3), Some(d3)) = (
-                mid.get(k),
-                up.get(k - 1..k + 2),
-                mid.get(k - 1..k + 2),
-                dn.get(k - 1..k + 2),
-            ) else {
-                continue;
-            };
-            if r <= floor_raw {
+        let mid = &s.resp[(ri + 2) % 3][..n_r];
+        for (k, (&m, &r)) in s.is_max[..n_r - 2].iter().zip(&mid[1..]).enumerate() {
+            if m == 0 {
                 continue;
             }
-            let x = x0 + k - 1;
+            let x = x0 + k;
+            if !mask.is_free(x, ny) {
+                continue;
+            }
             // The best response outside the occupancy mask (OpenCV's masked maximum).
-            if r > best && mask.is_free(x, ny) {
-                best = r;
-            }
-            let is_max = u3.iter().chain(d3).all(|&v| r >= v)
-                && m3.first().is_some_and(|&v| r >= v)
-                && m3.last().is_some_and(|&v| r >= v);
-            if is_max && mask.is_free(x, ny) {
-                out.insert(
-                    Corner {
-                        x: x as u16,
-                        y: ny as u16,
-                        response: r,
-                    },
-                    md2,
-                );
-            }
+            best = best.max(r);
+            out.insert(
+                Corner {
+                    x: x as u16,
+                    y: ny as u16,
+                    response: r,
+                },
+                md2,
+            );
         }
     }
     (best, pixels)
+}
+
+/// `out[k] = v[k] + v[k + 1] + v[k + 2]`.
+#[inline(always)]
+fn hsum3(v: &[f32], out: &mut [f32]) {
+    let n = out.len();
+    let (Some(a), Some(b), Some(c)) = (v.get(..n), v.get(1..n + 1), v.get(2..n + 2)) else {
+        return;
+    };
+    for (((o, &a), &b), &c) in out.iter_mut().zip(a).zip(b).zip(c) {
+        *o = (a + b) + c;
+    }
+}
+
+/// `out[k] = a[k] + b[k] + c[k]`.
+#[inline(always)]
+fn vsum3(a: &[f32], b: &[f32], c: &[f32], out: &mut [f32]) {
+    for (((o, &a), &b), &c) in out.iter_mut().zip(a).zip(b).zip(c) {
+        *o = (a + b) + c;
+    }
 }
 
 /// 3x3 Sobel of the middle row `rb` (rows `ra`, `rc` above and below); `gx.len() + 2` pixels in.
@@ -806,29 +882,6 @@ fn sobel_row(ra: &[u8], rb: &[u8], rc: &[u8], gx: &mut [i32], gy: &mut [i32]) {
         let (c0, c1, c2) = (i32::from(c0), i32::from(c1), i32::from(c2));
         *ox = (a2 - a0) + 2 * (b2 - b0) + (c2 - c0);
         *oy = (c0 + 2 * c1 + c2) - (a0 + 2 * a1 + a2);
-    }
-}
-
-/// Products of one gradient row summed over 3 columns: `hxx[k] = sum gx^2 over k..k+3`.
-#[inline(always)]
-fn products_row(gx: &[i32], gy: &[i32], hxx: &mut [i32], hxy: &mut [i32], hyy: &mut [i32]) {
-    let n = hxx.len();
-    let (Some(x0), Some(x1), Some(x2)) = (gx.get(..n), gx.get(1..n + 1), gx.get(2..n + 2)) else {
-        return;
-    };
-    let (Some(y0), Some(y1), Some(y2)) = (gy.get(..n), gy.get(1..n + 1), gy.get(2..n + 2)) else {
-        return;
-    };
-    let it = hxx
-        .iter_mut()
-        .zip(hxy.iter_mut())
-        .zip(hyy.iter_mut())
-        .zip(x0.iter().zip(x1).zip(x2))
-        .zip(y0.iter().zip(y1).zip(y2));
-    for ((((oxx, oxy), oyy), ((&x0, &x1), &x2)), ((&y0, &y1), &y2)) in it {
-        *oxx = x0 * x0 + x1 * x1 + x2 * x2;
-        *oxy = x0 * y0 + x1 * y1 + x2 * y2;
-        *oyy = y0 * y0 + y1 * y1 + y2 * y2;
     }
 }
 
@@ -1005,5 +1058,27 @@ mod tests {
         m.mark_disc(f64::NAN, 1.0, 5.0);
         m.mark_disc(-50.0, -50.0, 5.0);
         m.mark_disc(1e9, 1e9, 1e12);
+    }
+}
+
+#[cfg(test)]
+mod sqrt_tests {
+    use super::sqrt_newton;
+
+    #[test]
+    fn newton_sqrt_matches_the_correctly_rounded_one() {
+        let mut worst = 0.0f64;
+        let mut x = 0.0f32;
+        while x < 1.0e15 {
+            let e = f64::from(sqrt_newton(x));
+            let t = libm::sqrt(f64::from(x));
+            if t > 0.0 {
+                worst = worst.max((e - t).abs() / t);
+            }
+            x = x * 1.37 + 0.11;
+        }
+        assert!(worst < 3.0e-7, "{worst}");
+        assert!(sqrt_newton(0.0) < 1.0e-19);
+        assert_eq!(sqrt_newton(576.0 * 576.0), 576.0);
     }
 }

@@ -23,7 +23,8 @@
 //! Windows that reach outside the image read replicated border pixels (copied into a small
 //! patch first). As in OpenCV, a weak template or a window entirely off the image at a coarse
 //! level only skips that level; at level 0 it fails the point. The photometric residual is the
-//! mean `|J - T|` over the window at the final position, in grey levels.
+//! mean `|J - T|` over the window in the last iteration at level 0 (less than one step from the
+//! final position), in grey levels.
 
 use super::pyramid::{Pyramid, PyramidFilter};
 use super::view::ImageView;
@@ -44,12 +45,18 @@ const WEIGHT_BITS: u32 = 8;
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LkConfig {
-    /// Window side, px (odd, `5..=MAX_WINDOW`).
+    /// Window side at level 0, px (odd, `5..=MAX_WINDOW`).
     pub window: usize,
+    /// Window side at the coarser levels, px (odd, `5..=MAX_WINDOW`). They only bring the guess
+    /// into level 0's basin; OpenCV uses `window` everywhere.
+    pub coarse_window: usize,
     /// Iteration cap per level.
     pub max_iterations: u32,
-    /// Convergence threshold on the step, level px.
+    /// Convergence threshold on the step at level 0, px.
     pub epsilon_px: f32,
+    /// Convergence threshold on the step at the coarser levels, level px (they only need to
+    /// land the guess inside the next level's basin; OpenCV uses `epsilon_px` everywhere).
+    pub coarse_epsilon_px: f32,
     /// Smallest accepted eigenvalue of the template's mean gradient outer product,
     /// `(grey / px)^2` (OpenCV's `minEigThreshold = 1e-4` is about 0.1 here).
     pub min_eigen: f32,
@@ -61,8 +68,10 @@ impl Default for LkConfig {
     fn default() -> Self {
         LkConfig {
             window: 21,
-            max_iterations: 30,
-            epsilon_px: 0.01,
+            coarse_window: 15,
+            max_iterations: 10,
+            epsilon_px: 0.03,
+            coarse_epsilon_px: 0.1,
             min_eigen: 0.1,
             max_residual: 30.0,
         }
@@ -74,9 +83,13 @@ impl LkConfig {
     pub fn validate(&self) -> Result<(), Error> {
         let ok = self.window % 2 == 1
             && (5..=MAX_WINDOW).contains(&self.window)
+            && self.coarse_window % 2 == 1
+            && (5..=MAX_WINDOW).contains(&self.coarse_window)
             && (1..=1000).contains(&self.max_iterations)
             && self.epsilon_px > 0.0
             && self.epsilon_px <= 10.0
+            && self.coarse_epsilon_px >= self.epsilon_px
+            && self.coarse_epsilon_px <= 10.0
             && (0.0..=1.0e6).contains(&self.min_eigen)
             && self.max_residual > 0.0
             && self.max_residual <= 256.0;
@@ -474,6 +487,7 @@ fn refine_level(
     p: [f64; 2],
     q: &mut [f64; 2],
     cfg: &LkConfig,
+    win: usize,
     eps2: f64,
     scratch: &mut LkScratch,
     final_residual: Option<&mut f32>,
@@ -483,7 +497,6 @@ fn refine_level(
         iterations: 0,
         converged: false,
     };
-    let win = cfg.window;
     let half = (win / 2) as f64;
     let wp = padded(win);
     let LkScratch {
@@ -544,15 +557,9 @@ fn refine_level(
         prev = d;
     }
     if let Some(res) = final_residual {
-        if !(q[0].is_finite() && q[1].is_finite() && in_range(q)) {
-            run.outcome = Err(LkFailure::OutOfImage);
-            return run;
-        }
-        let (xt, yt) = (q[0] - half, q[1] - half);
-        let (fx, fy) = (libm::floor(xt), libm::floor(yt));
-        let wgt = weights(xt - fx, yt - fy);
-        let (src, stride, off) = source_block(to, fx as i64, fy as i64, wp + 1, win + 1, patch);
-        if window_sums(src, stride, off, wgt, tmpl, win, diff).is_none() {
+        // The differences of the last iteration, sampled less than one step (below
+        // `epsilon_px` when converged) from the final position.
+        if !(q[0].is_finite() && q[1].is_finite() && in_range(q)) || run.iterations == 0 {
             run.outcome = Err(LkFailure::OutOfImage);
             return run;
         }
@@ -601,8 +608,7 @@ fn track_point_impl<const B: usize, const L: usize>(
     scratch: &mut LkScratch,
     with_residual: bool,
 ) -> Result<LkTrack, LkFailure> {
-    let win = cfg.window;
-    if win % 2 == 0 || !(5..=MAX_WINDOW).contains(&win) {
+    if cfg.validate().is_err() {
         return Err(LkFailure::OutOfImage);
     }
     if !(p0[0].is_finite() && p0[1].is_finite() && seed[0].is_finite() && seed[1].is_finite()) {
@@ -615,6 +621,7 @@ fn track_point_impl<const B: usize, const L: usize>(
     let top = max_level.min(levels - 1);
     let filter: PyramidFilter = from.filter();
     let eps2 = f64::from(cfg.epsilon_px) * f64::from(cfg.epsilon_px);
+    let coarse_eps2 = f64::from(cfg.coarse_epsilon_px) * f64::from(cfg.coarse_epsilon_px);
     let mut q = [filter.to_level(seed[0], top), filter.to_level(seed[1], top)];
     let mut iterations = 0u32;
     let mut residual = 0.0f32;
@@ -625,7 +632,12 @@ fn track_point_impl<const B: usize, const L: usize>(
         };
         let p = [filter.to_level(p0[0], level), filter.to_level(p0[1], level)];
         let res = (level == 0 && with_residual).then_some(&mut residual);
-        let lv = refine_level(&img_from, &img_to, p, &mut q, cfg, eps2, scratch, res);
+        let (eps2, win) = if level == 0 {
+            (eps2, cfg.window)
+        } else {
+            (coarse_eps2, cfg.coarse_window)
+        };
+        let lv = refine_level(&img_from, &img_to, p, &mut q, cfg, win, eps2, scratch, res);
         iterations += lv.iterations;
         match lv.outcome {
             Ok(()) => converged = lv.converged,

@@ -95,8 +95,8 @@ pub const fn pyramid_bytes(width: usize, height: usize, levels: usize) -> usize 
 /// An image pyramid of at most `LEVELS` levels held in a `BYTES`-byte buffer (levels stored
 /// one after the other, rows packed: stride = width). Size `BYTES` with [`pyramid_bytes`].
 ///
-/// Besides the buffer the struct holds one row of scratch (`2 * MAX_IMAGE_SIDE` bytes) and the
-/// equalizer's lookup tables (see [`Equalizer`]).
+/// Besides the buffer the struct holds two rows of scratch (`4 * MAX_IMAGE_SIDE` bytes, 32 KiB)
+/// and the equalizer's lookup tables (see [`Equalizer`]).
 #[derive(Clone)]
 pub struct Pyramid<const BYTES: usize, const LEVELS: usize> {
     buf: [u8; BYTES],
@@ -104,8 +104,8 @@ pub struct Pyramid<const BYTES: usize, const LEVELS: usize> {
     offsets: [usize; LEVELS],
     levels: usize,
     filter: PyramidFilter,
-    even: [u16; MAX_IMAGE_SIDE / 2],
-    odd: [u16; MAX_IMAGE_SIDE / 2],
+    vert: [u16; MAX_IMAGE_SIDE],
+    horiz: [u16; MAX_IMAGE_SIDE],
     equalizer: Equalizer,
 }
 
@@ -124,8 +124,8 @@ impl<const BYTES: usize, const LEVELS: usize> Pyramid<BYTES, LEVELS> {
             offsets: [0; LEVELS],
             levels: 0,
             filter: PyramidFilter::Gaussian5,
-            even: [0; MAX_IMAGE_SIDE / 2],
-            odd: [0; MAX_IMAGE_SIDE / 2],
+            vert: [0; MAX_IMAGE_SIDE],
+            horiz: [0; MAX_IMAGE_SIDE],
             equalizer: Equalizer::new(),
         }
     }
@@ -209,7 +209,7 @@ impl<const BYTES: usize, const LEVELS: usize> Pyramid<BYTES, LEVELS> {
             let dst = hi.get_mut(..wd * hd).ok_or(Error::CapacityExceeded)?;
             match filter {
                 PyramidFilter::Gaussian5 => {
-                    gaussian_down(src, ws, hs, dst, wd, hd, &mut self.even, &mut self.odd)
+                    gaussian_down(src, ws, hs, dst, wd, hd, &mut self.vert, &mut self.horiz)
                 }
                 PyramidFilter::Box2 => box_down(src, ws, hs, dst, wd, hd),
             }
@@ -236,8 +236,10 @@ fn reflect101(i: isize, n: usize) -> usize {
     r.clamp(0, n - 1) as usize
 }
 
-/// One Gaussian `pyrDown` step: vertical 5-tap into the de-interleaved `even`/`odd` rows, then
-/// horizontal 5-tap at even columns.
+/// One Gaussian `pyrDown` step: vertical 5-tap over the full width into `vert` (`u16`, at most
+/// `16 * 255`), horizontal 5-tap at every column into `horiz` (at most `256 * 255 + 128`, still
+/// `u16`), then every other column rounded (`>> 8`). Contiguous loops that vectorize; the two
+/// columns at each border use reflect-101.
 #[allow(clippy::too_many_arguments)]
 fn gaussian_down(
     src: &[u8],
@@ -246,12 +248,10 @@ fn gaussian_down(
     dst: &mut [u8],
     wd: usize,
     hd: usize,
-    even: &mut [u16],
-    odd: &mut [u16],
+    vert: &mut [u16],
+    horiz: &mut [u16],
 ) {
-    let n_even = ws.div_ceil(2);
-    let n_odd = ws / 2;
-    let (Some(even), Some(odd)) = (even.get_mut(..n_even), odd.get_mut(..n_odd)) else {
+    let (Some(vert), Some(horiz)) = (vert.get_mut(..ws), horiz.get_mut(..ws)) else {
         return;
     };
     let row = |y: usize| src.get(y * ws..y * ws + ws).unwrap_or(&[]);
@@ -262,65 +262,54 @@ fn gaussian_down(
         let r2 = row(reflect101(yc, hs));
         let r3 = row(reflect101(yc + 1, hs));
         let r4 = row(reflect101(yc + 2, hs));
-        // Vertical pass, de-interleaving even and odd columns (max 16 * 255 = 4080).
-        let pairs = r0
-            .chunks_exact(2)
-            .zip(r1.chunks_exact(2))
-            .zip(r2.chunks_exact(2))
-            .zip(r3.chunks_exact(2))
-            .zip(r4.chunks_exact(2));
-        for ((((((a, b), c), d), e), ev), od) in pairs.zip(even.iter_mut()).zip(odd.iter_mut()) {
-            *ev = vtap(a[0], b[0], c[0], d[0], e[0]);
-            *od = vtap(a[1], b[1], c[1], d[1], e[1]);
+        let it = vert
+            .iter_mut()
+            .zip(r0.iter().zip(r4))
+            .zip(r1.iter().zip(r3))
+            .zip(r2);
+        for (((v, (&a, &e)), (&b, &d)), &c) in it {
+            *v = (u16::from(a) + u16::from(e))
+                + 4 * (u16::from(b) + u16::from(d))
+                + 6 * u16::from(c);
+        }
+        // Horizontal at every interior column x in 2..ws-2 (max 16 * 4080 + 128 = 65408).
+        if ws >= 5 {
+            let n = ws - 4;
+            let (Some(t0), Some(t1), Some(t2), Some(t3), Some(t4)) = (
+                vert.get(..n),
+                vert.get(1..n + 1),
+                vert.get(2..n + 2),
+                vert.get(3..n + 3),
+                vert.get(4..n + 4),
+            ) else {
+                return;
+            };
+            let out = horiz.get_mut(2..n + 2).unwrap_or(&mut []);
+            for (((((o, &a), &b), &c), &d), &e) in
+                out.iter_mut().zip(t0).zip(t1).zip(t2).zip(t3).zip(t4)
+            {
+                *o = ((a + e) + 4 * (b + d) + 6 * c + 128) >> 8;
+            }
+        }
+        // Border columns with reflect-101 on the vertical sums.
+        let col = |x: isize| u32::from(vert.get(reflect101(x, ws)).copied().unwrap_or(0));
+        for x in (0..2.min(ws)).chain(ws.saturating_sub(2).max(2)..ws) {
+            let xc = x as isize;
+            let sum = col(xc - 2) + 4 * col(xc - 1) + 6 * col(xc) + 4 * col(xc + 1) + col(xc + 2);
+            if let Some(h) = horiz.get_mut(x) {
+                *h = ((sum + 128) >> 8) as u16;
+            }
+        }
+        // Every other column.
+        for (o, pair) in drow.iter_mut().zip(horiz.chunks_exact(2)) {
+            *o = pair[0] as u8;
         }
         if ws % 2 == 1 {
-            let x = ws - 1;
-            let px = |r: &[u8]| r.get(x).copied().unwrap_or(0);
-            if let Some(ev) = even.get_mut(n_even - 1) {
-                *ev = vtap(px(r0), px(r1), px(r2), px(r3), px(r4));
-            }
-        }
-        // Horizontal pass. Interior outputs i in 1..=n_int read columns 2i-2..=2i+2 (all inside).
-        let n_int = if ws >= 3 { (ws - 3) / 2 } else { 0 };
-        let (e0, o0, e1, o1, e2) = (
-            even.get(..n_int).unwrap_or(&[]),
-            odd.get(..n_int).unwrap_or(&[]),
-            even.get(1..n_int + 1).unwrap_or(&[]),
-            odd.get(1..n_int + 1).unwrap_or(&[]),
-            even.get(2..n_int + 2).unwrap_or(&[]),
-        );
-        if let Some(out) = drow.get_mut(1..n_int + 1) {
-            for (((((o, &a), &b), &c), &d), &e) in
-                out.iter_mut().zip(e0).zip(o0).zip(e1).zip(o1).zip(e2)
-            {
-                // Max 16 * 4080 + 128 = 65408: fits u16.
-                *o = ((a + 4 * b + 6 * c + 4 * d + e + 128) >> 8) as u8;
-            }
-        }
-        // Border outputs with reflect-101 on the vertical sums.
-        let col = |x: isize| -> u32 {
-            let x = reflect101(x, ws);
-            let v = if x % 2 == 0 {
-                even.get(x / 2)
-            } else {
-                odd.get(x / 2)
-            };
-            u32::from(v.copied().unwrap_or(0))
-        };
-        for i in (0..1).chain(n_int + 1..wd) {
-            let xc = 2 * i as isize;
-            let s =
-                col(xc - 2) + 4 * col(xc - 1) + 6 * col(xc) + 4 * col(xc + 1) + col(xc + 2) + 128;
-            if let Some(o) = drow.get_mut(i) {
-                *o = (s >> 8) as u8;
+            if let (Some(o), Some(&h)) = (drow.get_mut(wd - 1), horiz.get(ws - 1)) {
+                *o = h as u8;
             }
         }
     }
-}
-
-#[inline(always)]
-fn vtap(a: u8, b: u8, c: u8, d: u8, e: u8) -> u16 {
-    u16::from(a) + 4 * u16::from(b) + 6 * u16::from(c) + 4 * u16::from(d) + u16::from(e)
 }
 
 /// One 2x2 box step; the last column / row is replicated for odd sizes.

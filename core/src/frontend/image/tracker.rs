@@ -14,8 +14,8 @@ use heapless::Vec;
 
 /// Everything the tracker can be tuned with. [`Default`] follows LE-VINS / VINS-Fusion: 150
 /// features, 21x21 window, pyramid levels 0..=3, one level when the INS predicts the position,
-/// forward-backward check at 0.5 px, epipolar RANSAC at 1.5 px, minimum distance 20 px, an
-/// 8 x 6 grid.
+/// forward-backward check at 0.5 px, epipolar RANSAC at 1.5 px (8-point; 3 px for the 2-point
+/// model with the gyro rotation), minimum distance 20 px, an 8 x 6 grid.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TrackerConfig {
@@ -312,6 +312,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
     /// [`Error::NonFinite`] for a non-finite rotation hint; [`Error::CapacityExceeded`] if the
     /// image's pyramid does not fit in `BYTES`. An image whose size differs from the previous
     /// one (with a matching camera) drops all tracks and starts over (`reset` in the stats).
+    #[inline(never)] // one call per frame; keeps it visible to profilers
     pub fn track(
         &mut self,
         t_ns: i64,
@@ -579,6 +580,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
             RansacModel::Auto | RansacModel::EightPoint => RansacRun::EightPoint,
         };
         let thr_n = rc.threshold_px / focal;
+        let thr2_n = rc.two_point_threshold_px / focal;
         let mut rng = XorShift64::new(rc.seed ^ self.frame.wrapping_mul(0x9e37_79b9_7f4a_7c15));
         let (prev_n, cur_n, inl) = (
             self.r_prev.get(..m).unwrap_or(&[]),
@@ -591,7 +593,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
                     prev_n,
                     cur_n,
                     r,
-                    thr_n,
+                    thr2_n,
                     &rc,
                     &mut rng,
                     &mut self.r_y,
@@ -792,7 +794,9 @@ mod tests {
                 if let Some(f0) = first.iter().find(|g| g.id == f.id) {
                     assert_eq!(age, 5);
                     let e = libm::hypot(f.u_px - f0.u_px - 5.0 * sx, f.v_px - f0.v_px - 5.0 * sy);
-                    assert!(e < 0.05, "id {} error {e:.4} px", f.id);
+                    // Five chained tracks, each stopped within epsilon_px = 0.03 (single shifts
+                    // are tracked to 0.015 px: see the LK tests).
+                    assert!(e < 0.1, "id {} error {e:.4} px", f.id);
                     alive += 1;
                 }
             }
