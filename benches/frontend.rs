@@ -1,13 +1,15 @@
 //! Criterion benches of the image front end on real frames (needs ../shared/data): pyramid,
 //! grid corners (full frame and a 15-corner top-up), KLT of 150 features, and the whole tracker
 //! step per frame on EuRoC V1_01 at rest (752x480) and the moving DM-VIO hand-held sequence
-//! (640x360, first 100 frames, with and without gyro hints) — the frames OpenCV's peer
-//! (`../shared/peers/opencv_klt.py`) times.
+//! (640x360, first 100 frames) — the frames OpenCV's peer (`../shared/peers/opencv_klt.py`)
+//! times — with the default configuration (with and without gyro hints) and with OpenCV's
+//! settings (the same work as the peer: no forward-backward check, no RANSAC).
 use criterion::{criterion_group, criterion_main, Criterion};
 use povins::core::camera::{Distortion, FeatureObs, PinholeCamera};
 use povins::core::frontend::image::{
     track_point, Corner, DetectorConfig, Equalization, EurocTracker, GridDetector, ImageView,
-    LkConfig, LkScratch, Pyramid, PyramidFilter, TrackHints, TrackerConfig,
+    LkConfig, LkScratch, Pyramid, PyramidFilter, RansacConfig, RansacModel, TrackHints,
+    TrackerConfig,
 };
 use povins::core::math::{exp_so3, Mat3, Vec3};
 use std::hint::black_box;
@@ -73,8 +75,9 @@ const DMVIO_CAM: PinholeCamera = PinholeCamera {
     distortion: Distortion::None,
 };
 
-/// `R_cur_prev` (camera) for each DM-VIO frame from the gyro, camera delay -50 ms.
-fn dmvio_rotations(mav0: &Path, frames: &[Frame]) -> Vec<Option<Mat3>> {
+/// `R_cur_prev` (camera axes) for each frame from the gyro of `mav0/imu0` with the camera-IMU
+/// rotation `r_bc` and delay `td` (`t_imu = t_cam + td`).
+fn gyro_rotations(mav0: &Path, frames: &[Frame], r_bc: Mat3, td: i64) -> Vec<Option<Mat3>> {
     let imu = std::fs::read_to_string(mav0.join("imu0/data.csv")).unwrap();
     let gyro: Vec<(i64, Vec3)> = imu
         .lines()
@@ -91,18 +94,6 @@ fn dmvio_rotations(mav0: &Path, frames: &[Frame]) -> Vec<Option<Mat3>> {
             )
         })
         .collect();
-    let r_bc = Mat3::new(
-        0.9999429970,
-        -0.0093268331,
-        0.0052792016,
-        0.0094527379,
-        0.9996590007,
-        -0.0243486997,
-        -0.0050502972,
-        0.0243971986,
-        0.9996900050,
-    );
-    let td = -50_000_000i64;
     (0..frames.len())
         .map(|k| {
             (k > 0).then(|| {
@@ -185,7 +176,31 @@ fn benches(c: &mut Criterion) {
     let eu = load(&data("euroc-v101-images-at-rest/mav0"), 95);
     let dm_dir = data("dmvio-realsense-handheld-60s/mav0");
     let dm = load(&dm_dir, 100);
-    let rot = dmvio_rotations(&dm_dir, &dm);
+    // DM-VIO: T_BS rotation, camera delay -50 ms (its README); EuRoC: T_BS rotation, no delay.
+    let dm_rbc = Mat3::new(
+        0.9999429970,
+        -0.0093268331,
+        0.0052792016,
+        0.0094527379,
+        0.9996590007,
+        -0.0243486997,
+        -0.0050502972,
+        0.0243971986,
+        0.9996900050,
+    );
+    let rot = gyro_rotations(&dm_dir, &dm, dm_rbc, -50_000_000);
+    let eu_rbc = Mat3::new(
+        0.0148655429818,
+        -0.999880929698,
+        0.00414029679422,
+        0.999557249008,
+        0.0149672133247,
+        0.025715529948,
+        -0.0257744366974,
+        0.00375618835797,
+        0.999660727178,
+    );
+    let eu_rot = gyro_rotations(&data("euroc-v101-images-at-rest/mav0"), &eu, eu_rbc, 0);
 
     c.bench_function("frontend/pyramid/752x480_gauss_4_levels", |b| {
         let mut p = Box::new(Pyr::new());
@@ -280,6 +295,14 @@ fn benches(c: &mut Criterion) {
     );
     step_bench(
         c,
+        "frontend/step/euroc_752x480_95_frames_gyro",
+        &eu,
+        PinholeCamera::EUROC_CAM0,
+        Some(&eu_rot),
+        def,
+    );
+    step_bench(
+        c,
         "frontend/step/dmvio_640x360_100_frames",
         &dm,
         DMVIO_CAM,
@@ -293,6 +316,38 @@ fn benches(c: &mut Criterion) {
         DMVIO_CAM,
         Some(&rot),
         def,
+    );
+    // OpenCV's settings (no forward-backward check, no RANSAC, 15 px, no cell cap): the same work
+    // as the peer script.
+    let cv = TrackerConfig {
+        fb_check: false,
+        ransac: RansacConfig {
+            model: RansacModel::Off,
+            ..def.ransac
+        },
+        detector: DetectorConfig {
+            min_distance_px: 15.0,
+            max_per_cell: 16,
+            min_eigen: 0.5,
+            ..def.detector
+        },
+        ..def
+    };
+    step_bench(
+        c,
+        "frontend/step/euroc_752x480_95_frames_opencv_settings",
+        &eu,
+        PinholeCamera::EUROC_CAM0,
+        None,
+        cv,
+    );
+    step_bench(
+        c,
+        "frontend/step/dmvio_640x360_100_frames_opencv_settings",
+        &dm,
+        DMVIO_CAM,
+        None,
+        cv,
     );
 }
 

@@ -13,6 +13,10 @@ use povins_core::frontend::image::{
 
 type Pyr = Pyramid<{ pyramid_bytes(752, 480, 4) }, 4>;
 
+/// Hash of the current implementation (x86-64 and aarch64 agree, `scripts/cross-check.sh`); any
+/// change to the front end's arithmetic or decisions changes it (update deliberately).
+const GOLDEN_FRONTEND_HASH: u64 = 0x973d_c23b_e7a9_a463;
+
 const NEEDS_DATA: &str = "needs ../shared/data (large shared sequences)";
 
 fn summary_line(name: &str, s: &Summary) {
@@ -270,4 +274,5 @@ fn frontend_determinism_hash() {
         h.0
     });
     println!("POVINS_FRONTEND_HASH={h:016x}");
+    assert_eq!(h, GOLDEN_FRONTEND_HASH, "golden hash changed: {h:016x}");
 }
