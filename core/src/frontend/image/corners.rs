@@ -346,7 +346,7 @@ impl CellState {
     };
 }
 
-/// The grid detector with its scratch (about 100 KiB: per-cell candidate lists, the occupancy
+/// The grid detector with its scratch (125 328 bytes: per-cell candidate lists, the occupancy
 /// mask and the row buffers; no image-sized buffer).
 #[derive(Clone)]
 pub struct GridDetector {

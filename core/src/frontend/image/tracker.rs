@@ -173,13 +173,13 @@ pub struct TrackStats {
     pub total: u32,
 }
 
-/// Tracker for 150-256 features on 752x480 images (EuRoC), 4 pyramid levels: about 1.2 MB
-/// (two pyramids of [`pyramid_bytes`]`(752, 480, 4)` = 479 400 bytes plus 40 KiB of scratch
-/// each, the detector's 100 KiB, per-feature arrays). Also fits any smaller image (e.g.
-/// 640x360).
+/// Tracker for up to 256 features on images up to 752x480 pixels (EuRoC; any smaller image
+/// such as 640x360 fits too), 4 pyramid levels: 1 261 920 bytes (two pyramids of 536 856 bytes:
+/// [`pyramid_bytes`]`(752, 480, 4)` = 479 400 plus 32 KiB of row scratch and the 24 KiB
+/// equalizer; the detector's 122 KiB; the LK scratch's 11 KiB; 54 KiB of per-feature arrays).
 pub type EurocTracker = FeatureTracker<256, { pyramid_bytes(752, 480, 4) }, 4>;
 
-/// Tracker for up to 1280x720 images, 256 features, 4 levels: about 2.6 MB.
+/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 751 120 bytes.
 pub type HdTracker = FeatureTracker<256, { pyramid_bytes(1280, 720, 4) }, 4>;
 
 /// Per-feature outcome of the forward pass.
