@@ -4,7 +4,8 @@
 #     (no std and no alloc exist for these targets, so anything in the graph needing them fails),
 #     with and without the `defmt` feature;
 #  2. runs core's tests for aarch64-unknown-linux-gnu under qemu-user, and checks that the golden
-#     preintegration hash over the real EuRoC IMU log printed there equals the x86-64 one.
+#     hashes printed there (preintegration over the real EuRoC IMU log; the image front end over
+#     real EuRoC and DM-VIO frames, an #[ignore]d test run explicitly) equal the x86-64 ones.
 # Usage: scripts/cross-check.sh   (run scripts/setup-cross.sh once first)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,12 +32,15 @@ echo "== core tests on aarch64-unknown-linux-gnu under qemu"
 log_arm="$CARGO_TARGET_DIR/core-tests-aarch64.log"
 status=0
 "$CARGO" test -q -p povins-core -Zbuild-std --target aarch64-unknown-linux-gnu -- --nocapture > "$log_arm" 2>&1 || status=$?
+# The image front end's hash test reads ../shared/data and is #[ignore]d by default: run it here.
+"$CARGO" test -q -p povins-core -Zbuild-std --target aarch64-unknown-linux-gnu --test frontend_image -- --ignored --nocapture frontend_determinism_hash >> "$log_arm" 2>&1 || status=$?
 grep -E "^test result|POVINS_|FAILED|panicked" "$log_arm" || true
 [ "$status" -eq 0 ] || { tail -40 "$log_arm"; echo "cross-check: aarch64 core tests failed (see $log_arm)" >&2; exit 1; }
 
 echo "== core tests on x86_64 (same toolchain) for the hash comparison"
 log_x86="$CARGO_TARGET_DIR/core-tests-x86_64.log"
 "$CARGO" test -q -p povins-core -- --nocapture > "$log_x86" 2>&1 || { tail -40 "$log_x86"; echo "cross-check: x86-64 core tests failed (see $log_x86)" >&2; exit 1; }
+"$CARGO" test -q -p povins-core --test frontend_image -- --ignored --nocapture frontend_determinism_hash >> "$log_x86" 2>&1 || { tail -40 "$log_x86"; echo "cross-check: x86-64 front-end hash test failed (see $log_x86)" >&2; exit 1; }
 
 hashes() { grep -oE "POVINS_[A-Z_]+=[0-9a-f]+" "$1" | sort; }
 h_arm=$(hashes "$log_arm"); h_x86=$(hashes "$log_x86")
