@@ -45,7 +45,7 @@ static GLOBAL: Counting = Counting;
 fn load_imu() -> Vec<ImuSample> {
     let path = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../shared/data/euroc-v101-images-at-rest/mav0/imu0/data.csv"
+        "/tests/data/euroc-v101-imu-145s/mav0/imu0/data.csv"
     );
     let text = std::fs::read_to_string(path)
         .unwrap_or_else(|e| panic!("EuRoC IMU log {path} is missing: {e}"));

@@ -1,7 +1,8 @@
 //! The landmark capacity (`L` = 200 for `PoVins`) is a hard bound: a simulated robot run sees
-//! about 200 tracked features per frame, more than the manager can hold together with the
-//! landmarks still alive from older keyframes. New tracks beyond the capacity are refused and
-//! counted; the run still completes with keyframes and a sane trajectory.
+//! about 200 tracked features per frame, more tracks seen in two or more keyframes than the
+//! manager can hold. The slot policy gives the slots to the most informative tracks (evicting
+//! others, counted), so most slots hold landmarks the solve can use; the run completes with
+//! keyframes and a sane trajectory.
 
 mod common;
 
@@ -25,6 +26,7 @@ fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
         let frames = frames_of(&ds);
         let (mut states, mut keyframes, mut max_landmarks) = (Vec::new(), 0usize, 0usize);
         let mut full_keyframes = 0usize;
+        let mut used = Vec::new();
         drive(&mut est, &ds.imu[start..], &frames, |e, _, o| {
             states.extend(o.nav);
             if let Some(r) = o.keyframe {
@@ -38,6 +40,7 @@ fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
                 assert_eq!(r.landmarks_total as usize, n);
                 assert!(r.landmarks_used as usize <= n);
                 max_landmarks = max_landmarks.max(n);
+                used.push(r.landmarks_used);
                 full_keyframes += usize::from(n == CAPACITY);
             }
             true
@@ -48,7 +51,12 @@ fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
             "simulated robot 15 s: {per_frame:.1} features/frame, {keyframes} keyframes, \
              {full_keyframes} at capacity, max {max_landmarks} landmarks, ATE {ate:.4} m, {c:?}"
         );
-        assert!(c.landmarks_refused_capacity > 0, "{c:?}");
+        assert!(c.landmarks_evicted > 0, "no slot changed hands: {c:?}");
+        // Most slots hold usable landmarks (the first-come policy this replaced used about 40 of
+        // 200 on this robot).
+        used.sort_unstable();
+        let median_used = used.get(used.len() / 2).copied().unwrap_or(0);
+        assert!(median_used > 120, "median {median_used} landmarks used");
         assert_eq!(max_landmarks, CAPACITY, "the capacity was never reached");
         assert!(keyframes > 40, "only {keyframes} keyframes");
         assert_eq!(c.keyframes as usize, keyframes);

@@ -89,6 +89,13 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         association_ns: _,
         rejection_ns: _,
         depth_opt_ns: _,
+        admission,
+        td_s,
+        multi_view_tracks,
+        multi_view_observations,
+        landmarks_promoted,
+        landmarks_evicted,
+        breakdown,
     } = r;
     h.u64(*t_ns as u64);
     h.u64(*t_cam_ns as u64);
@@ -109,11 +116,20 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         depths_associated,
         depths_rejected,
         ldm_count,
+        &admission.admitted,
+        &admission.single_view,
+        &admission.low_parallax,
+        &admission.bad_depth,
+        &admission.uncertain_depth,
+        multi_view_tracks,
+        multi_view_observations,
+        landmarks_promoted,
+        landmarks_evicted,
     ] {
         h.u64(u64::from(*n));
     }
-    h.f64s([residual_rms_px, &cost.0, &cost.1]);
-    h.bytes(format!("{termination:?}").as_bytes());
+    h.f64s([residual_rms_px, &cost.0, &cost.1, td_s]);
+    h.bytes(format!("{termination:?} {breakdown:?}").as_bytes());
 }
 
 /// The hashes of a run: the total and one per state and per report (each over that item only).

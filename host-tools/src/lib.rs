@@ -11,5 +11,6 @@ pub mod config;
 pub mod eval;
 pub mod plot;
 pub mod progress;
+pub mod regress;
 pub mod runner;
 pub mod sim;

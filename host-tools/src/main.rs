@@ -28,6 +28,8 @@ enum Cmd {
     Run(cmd::run::Args),
     /// LiDAR ablation on simulated sequences (PO-VINS vs -WO, rejection, LDM, depth-only opt).
     Ablation(cmd::ablation::Args),
+    /// Accuracy regression suite: shared sequences and simulator seeds against stored figures.
+    Regress(cmd::regress::Args),
 }
 
 /// Stack of the thread that runs a command: the estimator (several MB of fixed-capacity
@@ -47,6 +49,7 @@ fn main() -> anyhow::Result<()> {
             Cmd::Plot(a) => cmd::plot::run(a),
             Cmd::Run(a) => cmd::run::run(a),
             Cmd::Ablation(a) => cmd::ablation::run(a),
+            Cmd::Regress(a) => cmd::regress::run(a),
         })?;
     match worker.join() {
         Ok(r) => r,

@@ -364,7 +364,7 @@ fn run_writes_the_lidar_columns_and_summary_keys() {
         "existing columns keep their place"
     );
     let lidar: Vec<&str> = STATS_LIDAR_COLUMNS.split(',').collect();
-    assert_eq!(&header[20..], &lidar[..]);
+    assert_eq!(&header[20..20 + lidar.len()], &lidar[..]);
     assert_eq!(
         lidar,
         [

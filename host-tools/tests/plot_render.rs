@@ -7,7 +7,13 @@ use povins_host_tools::plot::{plot, read_stats_csv, BackendSample, SIZE_PX};
 use povins_platform::trajectory::{read_trajectory, StampedPose};
 use std::path::{Path, PathBuf};
 
+/// The repository's copy (`tests/data`) when there is one, else `../shared/data` (tests on it
+/// are `#[ignore]`d); fails when missing.
 fn shared(rel: &str) -> PathBuf {
+    let repo = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data")).join(rel);
+    if repo.exists() {
+        return repo;
+    }
     let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")).join(rel);
     assert!(
         p.exists(),

@@ -6,7 +6,13 @@ use std::collections::BTreeMap;
 
 #[test]
 fn scenarios_are_sane() {
-    for sc in [Scenario::Robot, Scenario::Handheld, Scenario::Vehicle] {
+    for sc in [
+        Scenario::Robot,
+        Scenario::Handheld,
+        Scenario::Vehicle,
+        Scenario::Flight,
+        Scenario::Fast,
+    ] {
         let mut cfg = SimConfig::new(sc, 21, 15.0);
         if sc != Scenario::Vehicle {
             cfg.lidar_points = Some(3_000);
@@ -49,10 +55,24 @@ fn scenarios_are_sane() {
                 "handheld {vmin}..{vmax}"
             ),
             Scenario::Vehicle => assert!(vmin >= 15.0 && vmax <= 30.0, "vehicle {vmin}..{vmax}"),
+            // A multicopter hovers at times: no lower bound.
+            Scenario::Flight => assert!(
+                vmax < 2.0 && s.max_rate_rps < 0.8,
+                "flight {vmin}..{vmax}, {} rad/s",
+                s.max_rate_rps
+            ),
+            Scenario::Fast => assert!(
+                vmax < 2.0 && s.max_rate_rps > 150f64.to_radians(),
+                "fast {vmin}..{vmax}, {} rad/s",
+                s.max_rate_rps
+            ),
         }
 
         // Features: within the cap, inside the image, enough of them, sorted ids per frame.
-        let cap = if sc == Scenario::Vehicle { 150 } else { 200 };
+        let cap = match sc {
+            Scenario::Vehicle | Scenario::Flight | Scenario::Fast => 150,
+            _ => 200,
+        };
         let cam = &ds.calib.camera;
         let mut len: BTreeMap<u64, usize> = BTreeMap::new();
         for f in &ds.features {
@@ -74,6 +94,13 @@ fn scenarios_are_sane() {
             s.mean_features
         );
         let mean_len = len.values().sum::<usize>() as f64 / len.len() as f64;
+        if sc == Scenario::Fast {
+            // The tracker of the fast scenario loses every track after 25 frames.
+            assert!(
+                len.values().all(|&n| n <= 26),
+                "fast: a track longer than 25 frames"
+            );
+        }
         assert!(
             (4.0..60.0).contains(&mean_len),
             "{sc:?}: mean track length {mean_len}"

@@ -4,7 +4,13 @@
 use povins_core::math::log_so3;
 use povins_host_tools::sim::scenario::{preset, Scenario};
 
-const ALL: [Scenario; 3] = [Scenario::Robot, Scenario::Handheld, Scenario::Vehicle];
+const ALL: [Scenario; 5] = [
+    Scenario::Robot,
+    Scenario::Handheld,
+    Scenario::Vehicle,
+    Scenario::Flight,
+    Scenario::Fast,
+];
 
 #[test]
 fn analytic_velocity_acceleration_and_rate_match_numerical() {
@@ -68,6 +74,17 @@ fn carrier_envelopes() {
             Scenario::Vehicle => {
                 assert!(vmin >= 15.0 && vmax <= 30.0, "vehicle speed {vmin}..{vmax}");
                 assert!(tilt_max < 3f64.to_radians());
+            }
+            Scenario::Flight => {
+                assert!(vmax < 2.0, "flight speed {vmax}");
+                assert!(wmax < 45f64.to_radians(), "calm flight rotates at {wmax}");
+            }
+            Scenario::Fast => {
+                assert!(vmax < 2.0, "flight speed {vmax}");
+                assert!(
+                    wmax > 150f64.to_radians(),
+                    "fast rotations too slow: {wmax}"
+                );
             }
         }
         // At rest during the static phase.

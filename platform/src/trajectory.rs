@@ -290,7 +290,12 @@ pub fn read_trajectory(path: &Path) -> Result<Vec<StampedPose>, IoError> {
 mod tests {
     use super::*;
 
+    /// The repository's copy (`tests/data`) when there is one, else `../shared/data`.
     fn shared(rel: &str) -> std::path::PathBuf {
+        let repo = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data")).join(rel);
+        if repo.exists() {
+            return repo;
+        }
         let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")).join(rel);
         assert!(
             p.exists(),

@@ -65,6 +65,7 @@ fn reads_euroc_v101_30s_features() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/euroc-v101-images-at-rest (large shared sequence; CI runs it with --ignored)"]
 fn reads_euroc_v101_images_at_rest_and_decodes_pngs() {
     let mut ds = read_dataset(&shared("euroc-v101-images-at-rest/mav0")).unwrap();
     assert_eq!(ds.name, "euroc-v101-images-at-rest");
@@ -92,6 +93,7 @@ fn reads_euroc_v101_images_at_rest_and_decodes_pngs() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/openvins-sim-corridor-mono (large shared sequence; CI runs it with --ignored)"]
 fn reads_openvins_sim_corridor_mono() {
     let ds = read_dataset(&shared("openvins-sim-corridor-mono")).unwrap();
     assert_eq!(ds.imu.len(), 116_881);

@@ -18,8 +18,10 @@ use povins::platform::dataset::Dataset;
 use povins::platform::trajectory::StampedPose;
 use std::path::{Path, PathBuf};
 
-/// The shared data folder, relative to the repository root.
+/// The shared data folder (large sequences), relative to the repository root.
 pub const DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data");
+/// Small sequences kept in the repository (`tests/data/README.md`).
+pub const REPO_DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data");
 /// The EuRoC settings every EuRoC run uses.
 pub const EUROC_TOML: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/euroc.toml");
 /// EuRoC V1_01, first 30 s, with a real front end's tracks.
@@ -27,8 +29,13 @@ pub const EUROC_30S: &str = "euroc-v101-30s-features";
 /// The OpenVINS simulator's corridor sequence (mono tracks, 400 Hz IMU).
 pub const OPENVINS_CORRIDOR: &str = "openvins-sim-corridor-mono";
 
-/// A shared data set folder; panics naming the path when it is missing.
+/// A data set folder: the repository's copy (`tests/data`) when there is one, else the shared
+/// one; panics naming the path when it is missing (tests on shared data are `#[ignore]`d).
 pub fn data_dir(name: &str) -> PathBuf {
+    let repo = Path::new(REPO_DATA_DIR).join(name);
+    if repo.join("mav0").is_dir() {
+        return repo;
+    }
     let p = Path::new(DATA_DIR).join(name);
     assert!(
         p.join("mav0").is_dir(),

@@ -231,6 +231,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     pub fn counters(&self) -> Counters {
         let mut c = self.counters;
         c.landmarks_refused_capacity = self.lms.stats.refused_capacity;
+        c.landmarks_evicted = self.lms.stats.evicted;
         c
     }
 
@@ -764,8 +765,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let mode = self.cfg.mode;
         // Modes that keep an inverse depth per landmark (a state, or the eliminated one's last
         // solution as the next solve's start).
-        let depth_state =
-            mode == VisualMode::InverseDepth || self.cfg.visual_depth == VisualDepth::Eliminated;
+        let depth_state = mode == VisualMode::InverseDepth || self.cfg.depth_eliminated();
         let lc = self.cfg.lidar;
         let test_depths = reject && lc.enabled && lc.depth_outlier_rejection;
         let clock = self.cfg.clock;
@@ -1028,7 +1028,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             .take(self.window.len())
             .filter(|(j, _)| *j != s)
             .filter_map(|(j, (o, pf))| o.as_ref().map(|o| (j, to(o), pf)));
-        let eliminated = self.cfg.visual_depth == VisualDepth::Eliminated && lm.inv_depth > 0.0;
+        let eliminated = self.cfg.depth_eliminated() && lm.inv_depth > 0.0;
         if lidar_tau || eliminated || self.cfg.mode == VisualMode::InverseDepth {
             for (j, obs_j, (pj, _)) in observed {
                 let f = crate::factors::inverse_depth_visual::InverseDepthVisualFactor {

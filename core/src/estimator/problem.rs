@@ -593,7 +593,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 }
                 continue;
             }
-            if self.cfg.visual_depth == VisualDepth::Eliminated && only_j.is_none() {
+            if self.cfg.depth_eliminated() && only_j.is_none() {
                 match self
                     .eliminated_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext)
                 {

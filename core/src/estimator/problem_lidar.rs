@@ -41,10 +41,12 @@ use heapless::Vec as HVec;
 
 use super::window::Block;
 
-/// Iterations of the 1-D inverse-depth solve (it starts from the last solution, so two or three
-/// are normally enough; an unconverged `tau` still gives the exact Schur complement at that
-/// `tau`, only a slightly higher cost).
-const TAU_ITERS: usize = 10;
+/// Most iterations of the 1-D inverse-depth solve. It starts from the last solution, so two or
+/// three are normally enough; a landmark whose Huber weights change (an outlier among its rays)
+/// converges linearly and needs more. Stopping early leaves `dcost/dtau != 0`, and then the
+/// projected gradient is no longer the gradient of the minimized cost (measured: 1.4e-2
+/// relative error at 10 iterations, 7e-6 at convergence).
+const TAU_ITERS: usize = 60;
 /// Relative step at which the 1-D solve stops.
 const TAU_TOL: f64 = 1e-10;
 

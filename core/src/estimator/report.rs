@@ -155,8 +155,10 @@ pub struct Counters {
     /// Feature observations rejected (non-finite, outside image, duplicate id, undistortion,
     /// frame capacity).
     pub features_rejected: u64,
-    /// New tracks refused because the landmark capacity was reached.
+    /// Promotions refused because the landmark capacity was reached.
     pub landmarks_refused_capacity: u64,
+    /// Landmarks evicted to give their slot to a more informative track.
+    pub landmarks_evicted: u64,
     /// Solves that returned an error (the state kept its last accepted value).
     pub solver_failures: u64,
     /// Marginalizations that failed (the prior was dropped).

@@ -255,12 +255,17 @@ mod tests {
             )
             .unwrap();
         assert_eq!(s.accepted, 2);
-        // 40 px in 0.1 s at f = 400 px: 1 /s on the normalized plane.
-        assert!((out[0].vel[0] - 1.0).abs() < 1e-12 && out[0].vel[1] == 0.0);
+        // Only one earlier frame: no velocity yet (the current observation is never used).
+        assert_eq!(out[0].vel, [0.0, 0.0]);
         assert_eq!(out[1].vel, [0.0, 0.0]);
+        // Third frame: the velocity of the two earlier ones, 40 px in 0.1 s at f = 400 px, 1 /s
+        // on the normalized plane, whatever the current observation says.
+        t.process(150_000_000, &[o(5, 600.0, 300.0)], &cam(), &mut out)
+            .unwrap();
+        assert!((out[0].vel[0] - 1.0).abs() < 1e-12 && out[0].vel[1] == 0.0);
 
         assert_eq!(
-            t.process(100_000_000, &[], &cam(), &mut out),
+            t.process(150_000_000, &[], &cam(), &mut out),
             Err(Error::TimeNotIncreasing)
         );
         // After a gap longer than 0.5 s, tracks restart with zero velocity.

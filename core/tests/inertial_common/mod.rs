@@ -7,19 +7,16 @@ use povins_core::inertial::{ImuSample, NavState};
 use povins_core::math::{log_so3, quat_exp, Quat, Vec3};
 use std::path::PathBuf;
 
-/// `shared/data` relative to the repository root.
+/// The repository's small test data (`tests/data`, see its README).
 pub fn data_dir() -> PathBuf {
-    let p = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"));
-    assert!(
-        p.is_dir(),
-        "test data folder {} is missing (expected shared/data next to the repo root)",
-        p.display()
-    );
+    let p = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data"));
+    assert!(p.is_dir(), "test data folder {} is missing", p.display());
     p
 }
 
+/// EuRoC V1_01's whole-flight IMU and ground truth (`euroc-v101-images-at-rest` without images).
 pub fn euroc_dir() -> PathBuf {
-    data_dir().join("euroc-v101-images-at-rest/mav0")
+    data_dir().join("euroc-v101-imu-145s/mav0")
 }
 
 fn read_lines(path: &PathBuf) -> Vec<String> {

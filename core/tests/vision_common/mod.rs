@@ -122,10 +122,11 @@ pub fn depth_in(kf: &KeyframePose, ext: &CameraExtrinsic, p_w: &Vec3) -> f64 {
     (cam.q_wc.inverse() * (p_w - cam.p_wc)).z
 }
 
-/// Data folder `shared/data` next to the repository root (`/work/main` layout); a git worktree
-/// one level deeper (`/work/wt/<name>`) also finds it. Fails loudly when absent.
+/// Data folder: the repository's `tests/data` (small real sequences), else `shared/data` next to
+/// the repository root (a git worktree one level deeper also finds it). Fails loudly when absent.
 pub fn data_dir() -> std::path::PathBuf {
     let candidates = [
+        concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data"),
         concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"),
         concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"),
     ];

@@ -4,5 +4,6 @@ pub mod ablation;
 pub mod demo;
 pub mod eval;
 pub mod plot;
+pub mod regress;
 pub mod run;
 pub mod simulate;

@@ -10,8 +10,13 @@ use povins_platform::dataset::{
 };
 use std::path::PathBuf;
 
-/// A folder of the shared data; fails (never skips) when it is missing.
+/// A data folder: the repository's copy (`tests/data`) when there is one, else the shared one
+/// (tests on it are `#[ignore]`d); fails (never skips) when it is missing.
 pub fn shared(rel: &str) -> PathBuf {
+    let repo = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data")).join(rel);
+    if repo.exists() {
+        return repo;
+    }
     let p = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")).join(rel);
     assert!(
         p.exists(),

@@ -384,7 +384,7 @@ fn prefiltered_render_is_close_to_supersampled() {
 /// Rendering time per frame on one thread (`cargo test --release ... render_speed -- --ignored
 /// --nocapture`).
 #[test]
-#[ignore]
+#[ignore = "a timing report, not a check"]
 fn render_speed() {
     for (sc, seed) in [
         (Scenario::Robot, 1),
@@ -609,7 +609,7 @@ fn rendered_content_follows_the_truth() {
 /// Writes one frame per scenario as PNG for looking at (`POVINS_RENDER_DUMP=dir`, default
 /// `target/render-dump`).
 #[test]
-#[ignore]
+#[ignore = "writes pictures for a person to look at"]
 fn dump_frames() {
     let dir = std::env::var("POVINS_RENDER_DUMP").unwrap_or_else(|_| "target/render-dump".into());
     std::fs::create_dir_all(&dir).unwrap();

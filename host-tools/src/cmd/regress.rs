@@ -1,0 +1,83 @@
+//! `povins regress`: the accuracy regression suite (see [`crate::regress`]).
+
+use crate::progress::Progress;
+use crate::regress::{compare, render, run_all, sequences, Baseline};
+use anyhow::{bail, Context, Result};
+use std::path::PathBuf;
+
+/// Arguments of `povins regress`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The CI form: two 30 s seeds per scenario instead of ten of 60 s (real sequences whole).
+    #[arg(long)]
+    pub quick: bool,
+    /// Seeds per scenario (default 10, or 2 with `--quick`); the stored figures cover seeds
+    /// 1-10, further seeds are judged on divergence only.
+    #[arg(long)]
+    pub seeds: Option<u64>,
+    /// Folder of the shared datasets.
+    #[arg(long, default_value = "../shared/data")]
+    pub data: PathBuf,
+    /// Stored figures to compare with.
+    #[arg(long, default_value = "regress/baseline.json")]
+    pub baseline: PathBuf,
+    /// Parallel runs.
+    #[arg(long, default_value_t = 2)]
+    pub jobs: usize,
+    /// Store this run's figures as the new baseline (the smoother's figures are kept).
+    #[arg(long)]
+    pub bless: bool,
+    /// Also write every run's figures as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// Runs the command; an error (non-zero exit) when a figure regressed or a run diverged.
+pub fn run(args: Args) -> Result<()> {
+    let seqs = sequences(&args.data, args.quick, args.seeds);
+    let progress = Progress::new(seqs.len() as u64, "regress");
+    let runs = run_all(&seqs, args.jobs, &progress)?;
+    let mut base = if args.baseline.exists() {
+        Baseline::read(&args.baseline)?
+    } else if args.bless {
+        Baseline::default()
+    } else {
+        bail!(
+            "no baseline at {} (run with --bless to create it)",
+            args.baseline.display()
+        );
+    };
+    let rows = compare(&runs, &base);
+    println!("{}", render(&rows));
+    if let Some(p) = &args.json {
+        std::fs::write(p, serde_json::to_string_pretty(&runs)?)
+            .with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    if args.bless {
+        for r in &runs {
+            base.ate_m.insert(r.name.clone(), r.ate_m);
+        }
+        let text = serde_json::to_string_pretty(&base)? + "\n";
+        std::fs::write(&args.baseline, text)
+            .with_context(|| format!("cannot write {}", args.baseline.display()))?;
+        println!(
+            "stored {} figures in {}",
+            runs.len(),
+            args.baseline.display()
+        );
+        return Ok(());
+    }
+    let failed: Vec<&str> = rows
+        .iter()
+        .filter(|r| !r.pass)
+        .map(|r| r.name.as_str())
+        .collect();
+    if !failed.is_empty() {
+        bail!(
+            "accuracy regression (more than {:.0}% worse than stored, or diverged): {}",
+            100.0 * (crate::regress::TOLERANCE - 1.0),
+            failed.join(", ")
+        );
+    }
+    Ok(())
+}
