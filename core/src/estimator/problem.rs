@@ -8,7 +8,7 @@
 //! complement (LE-VINS-WO). Visual residuals go through a Huber kernel (IRLS weights; the cost
 //! uses `rho`, so the LM gain ratio sees the robust cost).
 
-use super::config::{EstimatorConfig, VisualDepth, VisualMode};
+use super::config::{EstimatorConfig, VisualMode};
 use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
 use super::problem_lidar::add_inverse_depth_obs;
 use super::window::{Block, Layout, Window, KF_DIM};
