@@ -26,6 +26,8 @@ enum Cmd {
     Plot(cmd::plot::Args),
     /// Replay a dataset through the estimator and evaluate it.
     Run(cmd::run::Args),
+    /// Run the image front end alone: tracks, per-image statistics, pictures.
+    Track(cmd::track::Args),
     /// LiDAR ablation on simulated sequences (PO-VINS vs -WO, rejection, LDM, depth-only opt).
     Ablation(cmd::ablation::Args),
 }
@@ -46,6 +48,7 @@ fn main() -> anyhow::Result<()> {
             Cmd::Eval(a) => cmd::eval::run(a),
             Cmd::Plot(a) => cmd::plot::run(a),
             Cmd::Run(a) => cmd::run::run(a),
+            Cmd::Track(a) => cmd::track::run(a),
             Cmd::Ablation(a) => cmd::ablation::run(a),
         })?;
     match worker.join() {

@@ -23,7 +23,7 @@ use std::sync::OnceLock;
 
 /// DejaVu Sans Book, registered as plotters' `sans-serif`.
 static FONT_TTF: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 
 /// Output size in pixels (SVG user units).
 pub const SIZE_PX: (u32, u32) = (1600, 1100);
@@ -35,7 +35,7 @@ const EST_COLOR: RGBColor = RGBColor(214, 39, 40);
 const ERR_COLOR: RGBColor = RGBColor(31, 119, 180);
 const BACKEND_COLOR: RGBColor = RGBColor(44, 160, 44);
 
-fn register_font() -> Result<()> {
+pub(crate) fn register_font() -> Result<()> {
     static DONE: OnceLock<bool> = OnceLock::new();
     let ok = *DONE
         .get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, FONT_TTF).is_ok());

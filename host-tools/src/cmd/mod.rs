@@ -6,3 +6,4 @@ pub mod eval;
 pub mod plot;
 pub mod run;
 pub mod simulate;
+pub mod track;
