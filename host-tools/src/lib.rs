@@ -12,6 +12,7 @@ pub mod eval;
 pub mod frontend_stats;
 pub mod images;
 pub mod plot;
+pub mod plot_estimate;
 pub mod progress;
 pub mod runner;
 pub mod sim;
