@@ -89,6 +89,14 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         association_ns: _,
         rejection_ns: _,
         depth_opt_ns: _,
+        // Added after the golden hash was recorded; not hashed so the golden stays comparable.
+        admission: _,
+        td_s: _,
+        multi_view_tracks: _,
+        multi_view_observations: _,
+        landmarks_promoted: _,
+        landmarks_evicted: _,
+        breakdown: _,
     } = r;
     h.u64(*t_ns as u64);
     h.u64(*t_cam_ns as u64);

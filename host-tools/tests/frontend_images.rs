@@ -147,6 +147,7 @@ fn odd_copy(dir: &Path) -> PathBuf {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/dmvio-realsense-handheld-60s"]
 fn odd_images_are_counted_never_fatal_and_the_replay_is_deterministic() {
     big_stack(|| {
         let tmp = tempfile::tempdir().unwrap();
