@@ -158,6 +158,7 @@ fn landmark_hidden_behind_a_box_is_never_observed() {
         wrong_track_rate: 0.0,
         pixel_noise_px: 0.0,
         edge_angle_rad: 0.01,
+        max_track_frames: None,
     };
     let t_bc = preset(Scenario::Robot, 0.0).t_bc;
     let t_bc = Extrinsic {
