@@ -174,3 +174,63 @@ fn simulated_robot_with_lidar_msc_does_not_allocate() {
 fn simulated_robot_with_lidar_direct_does_not_allocate() {
     lidar_alloc_free(povins::core::lidar::LdmMode::Direct);
 }
+
+/// The image entry point (`povins_core::vio`: INS predictions, gyro integration, pyramid, LK,
+/// RANSAC, detection, then the whole estimator) on the first 15 s of the real DM-VIO hand-held
+/// sequence (static initialization, delay estimation): the images are decoded first, then every
+/// IMU sample and image is fed under the counting allocator.
+#[test]
+#[ignore = "needs ../shared/data/dmvio-realsense-handheld-60s"]
+fn dmvio_images_through_vio_do_not_allocate() {
+    use povins::core::frontend::image::{ImageView, TrackerConfig};
+    use povins::core::vio::EurocVio;
+    big_stack(|| {
+        let mut ds = load("dmvio-realsense-handheld-60s");
+        truncate(&mut ds, 16.0);
+        ds.images
+            .retain(|im| im.t_ns <= ds.imu.last().map_or(0, |s| s.t_ns));
+        povins::platform::euroc::read_images(&mut ds).expect("decode the images");
+        let mut cfg = povins::host_tools::runner::config_for(&ds);
+        let toml = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/dmvio.toml");
+        povins::host_tools::config::RunConfigFile::read(std::path::Path::new(toml))
+            .expect("configs/dmvio.toml")
+            .apply(&mut cfg);
+        cfg.clock = None;
+        let mut vio: Box<EurocVio> =
+            Box::new(EurocVio::new(cfg, TrackerConfig::default()).expect("vio"));
+        let (mut keyframes, mut images, mut tracks, mut predicted) = (0usize, 0usize, 0u64, 0u64);
+        let mut ii = 0usize;
+        let allocs = count_allocs(|| {
+            for s in &ds.imu {
+                while let Some(im) = ds.images.get(ii).filter(|im| im.t_ns <= s.t_ns) {
+                    let w = im.width as usize;
+                    if let Ok(view) = ImageView::new(&im.mono8, w, im.height as usize, w) {
+                        if let Ok(r) = vio.push_image(im.t_ns, &view) {
+                            images += 1;
+                            tracks += u64::from(r.tracks);
+                            predicted += u64::from(r.predictions);
+                        }
+                    }
+                    ii += 1;
+                }
+                if let Ok(o) = vio.push_imu(s) {
+                    keyframes += usize::from(o.keyframe.is_some());
+                }
+            }
+        });
+        let c = vio.estimator().counters();
+        println!(
+            "DM-VIO images: {images} images, {keyframes} keyframes, {} tracks and {} INS \
+             predictions per image, {allocs} allocations, {c:?} {:?}",
+            tracks / images.max(1) as u64,
+            predicted / images.max(1) as u64,
+            vio.counters()
+        );
+        assert!(images > 200, "{images} images");
+        assert!(keyframes > 20, "only {keyframes} keyframes");
+        assert!(tracks > 100 * images as u64, "{tracks} tracks");
+        assert!(predicted > 30 * images as u64, "{predicted} predictions");
+        assert_eq!(vio.counters().images_rejected, 0);
+        assert_eq!(allocs, 0, "the image entry point allocated {allocs} times");
+    });
+}

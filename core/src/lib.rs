@@ -31,5 +31,6 @@ pub mod landmarks;
 pub mod lidar;
 pub mod math;
 pub mod solver;
+pub mod vio;
 
 pub use error::Error;

@@ -217,6 +217,7 @@ fn check_jacobians(j_is_e: bool, seed: u64) {
         };
         // The rank-structured delay Jacobians of the fast path agree with both.
         let tdj = anchors.td_jacobians(&g, w, &f.obs_j);
+        #[allow(clippy::needless_range_loop)] // k also selects the anchor in `td(k, _)`
         for k in 0..(if j_is_e { 2 } else { 3 }) {
             let n: SMatrix<f64, 2, 1> = num_jac::<2, 1>(h, |d| td(k, d[0]));
             let a: SMatrix<f64, 2, 1> = jac.d_td[k];

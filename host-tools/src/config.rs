@@ -79,15 +79,37 @@
 //! min_incidence_cos = 0.2       # smallest cos(ray, plane normal)
 //! depth_range_m = [0.5, 80.0]   # accepted depth (z in the camera)
 //! span_s = 0.5                  # points older than this before the keyframe are not used
+//!
+//! [frontend]                    # image front end (`povins run --frontend images`, `povins track`)
+//! max_features = 150            # features kept per frame (at most 256)
+//! grid = [8, 6]                 # detection grid: columns, rows
+//! max_per_cell = 8              # features per grid cell
+//! min_distance_px = 20.0        # between features
+//! quality_level = 0.01          # corner response relative to the frame's best
+//! min_eigen = 1.0               # absolute corner response floor, (grey/px)^2
+//! window = 21                   # LK window, px (odd)
+//! max_level = 3                 # coarsest pyramid level without an INS or gyro seed
+//! predicted_max_level = 1       # with an INS prediction
+//! rotation_max_level = 1        # with the gyro rotation
+//! fb_check = true               # forward-backward check
+//! fb_threshold_px = 0.5
+//! ransac = "auto"               # "auto", "eight-point", "two-point" or "off"
+//! ransac_threshold_px = 1.5     # 8-point model
+//! ransac_two_point_threshold_px = 3.0
+//! equalization = "off"          # "off", "global" or "clahe" (clip 3, 8x8 tiles)
+//! predictions = true            # seed features with a depth at their INS prediction
+//! gyro_rotation = true          # seed the others with the gyro rotation
 //! ```
 //!
 //! The command-line switches of `povins run` ([`LidarArgs`]) override the file.
 
 use anyhow::{bail, Context, Result};
 use povins_core::estimator::{EstimatorConfig, VisualMode};
+use povins_core::frontend::image::{Equalization, RansacModel, TrackerConfig};
 use povins_core::inertial::ImuNoise;
 use povins_core::lidar::{LdmMode, LidarConfig};
 use povins_core::math::{Quat, Vec3};
+use povins_core::vio::VioAiding;
 use serde::Deserialize;
 use std::path::Path;
 
@@ -269,6 +291,48 @@ struct LidarSection {
     association: AssociationSection,
 }
 
+/// RANSAC models in TOML.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+enum RansacArg {
+    Auto,
+    EightPoint,
+    TwoPoint,
+    Off,
+}
+
+/// Equalizations in TOML.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+enum EqualizationArg {
+    Off,
+    Global,
+    Clahe,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FrontendSection {
+    max_features: Option<usize>,
+    grid: Option<[usize; 2]>,
+    max_per_cell: Option<usize>,
+    min_distance_px: Option<f32>,
+    quality_level: Option<f32>,
+    min_eigen: Option<f32>,
+    window: Option<usize>,
+    max_level: Option<usize>,
+    predicted_max_level: Option<usize>,
+    rotation_max_level: Option<usize>,
+    fb_check: Option<bool>,
+    fb_threshold_px: Option<f32>,
+    ransac: Option<RansacArg>,
+    ransac_threshold_px: Option<f64>,
+    ransac_two_point_threshold_px: Option<f64>,
+    equalization: Option<EqualizationArg>,
+    predictions: Option<bool>,
+    gyro_rotation: Option<bool>,
+}
+
 /// A quaternion given as `[x, y, z, w]`, normalized; `None` unless its norm is 1 within 1e-3
 /// (a typo should not silently become some other rotation).
 fn unit_quat_xyzw(q: [f64; 4]) -> Option<Quat> {
@@ -318,6 +382,8 @@ pub struct RunConfigFile {
     rest: RestSection,
     #[serde(default)]
     lidar: LidarSection,
+    #[serde(default)]
+    frontend: FrontendSection,
 }
 
 impl RunConfigFile {
@@ -337,6 +403,61 @@ impl RunConfigFile {
             }
         }
         Ok(f)
+    }
+
+    /// Applies the `[frontend]` overrides to the image front end's settings and INS aiding;
+    /// errors when the result is invalid (naming the section).
+    pub fn apply_frontend(&self, t: &mut TrackerConfig, aiding: &mut VioAiding) -> Result<()> {
+        fn set<T: Copy>(dst: &mut T, v: Option<T>) {
+            if let Some(v) = v {
+                *dst = v;
+            }
+        }
+        let f = &self.frontend;
+        set(&mut t.max_features, f.max_features);
+        if let Some([c, r]) = f.grid {
+            t.detector.grid_cols = c;
+            t.detector.grid_rows = r;
+        }
+        set(&mut t.detector.max_per_cell, f.max_per_cell);
+        set(&mut t.detector.min_distance_px, f.min_distance_px);
+        set(&mut t.detector.quality_level, f.quality_level);
+        set(&mut t.detector.min_eigen, f.min_eigen);
+        set(&mut t.lk.window, f.window);
+        set(&mut t.max_level, f.max_level);
+        set(&mut t.predicted_max_level, f.predicted_max_level);
+        set(&mut t.rotation_max_level, f.rotation_max_level);
+        set(&mut t.fb_check, f.fb_check);
+        set(&mut t.fb_threshold_px, f.fb_threshold_px);
+        if let Some(m) = f.ransac {
+            t.ransac.model = match m {
+                RansacArg::Auto => RansacModel::Auto,
+                RansacArg::EightPoint => RansacModel::EightPoint,
+                RansacArg::TwoPoint => RansacModel::TwoPoint,
+                RansacArg::Off => RansacModel::Off,
+            };
+        }
+        set(&mut t.ransac.threshold_px, f.ransac_threshold_px);
+        set(
+            &mut t.ransac.two_point_threshold_px,
+            f.ransac_two_point_threshold_px,
+        );
+        if let Some(e) = f.equalization {
+            t.equalization = match e {
+                EqualizationArg::Off => Equalization::Off,
+                EqualizationArg::Global => Equalization::Global,
+                EqualizationArg::Clahe => Equalization::CLAHE_3_8X8,
+            };
+        }
+        set(&mut aiding.predictions, f.predictions);
+        set(&mut aiding.gyro_rotation, f.gyro_rotation);
+        if t.validate().is_err() || t.max_features > 256 || t.max_level > 3 {
+            bail!(
+                "[frontend]: invalid settings (max_features 1..=256, max_level <= 3, levels of \
+                 the seeds <= max_level, odd window 5..=31, grid and thresholds positive): {t:?}"
+            );
+        }
+        Ok(())
     }
 
     /// The visual mode the file asks for, if any.

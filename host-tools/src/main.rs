@@ -26,6 +26,12 @@ enum Cmd {
     Plot(cmd::plot::Args),
     /// Replay a dataset through the estimator and evaluate it.
     Run(cmd::run::Args),
+    /// Run the image front end alone: tracks, per-image statistics, pictures.
+    Track(cmd::track::Args),
+    /// Compare front ends' tracks on real images: counts, lengths, epipolar violations vs gyro.
+    CompareTracks(cmd::compare_tracks::Args),
+    /// Score feature tracks on a simulated sequence against the true motion of every pixel.
+    ScoreTracks(cmd::score_tracks::Args),
     /// LiDAR ablation on simulated sequences (PO-VINS vs -WO, rejection, LDM, depth-only opt).
     Ablation(cmd::ablation::Args),
     /// Accuracy regression suite: shared sequences and simulator seeds against stored figures.
@@ -48,6 +54,9 @@ fn main() -> anyhow::Result<()> {
             Cmd::Eval(a) => cmd::eval::run(a),
             Cmd::Plot(a) => cmd::plot::run(a),
             Cmd::Run(a) => cmd::run::run(a),
+            Cmd::Track(a) => cmd::track::run(a),
+            Cmd::CompareTracks(a) => cmd::compare_tracks::run(a),
+            Cmd::ScoreTracks(a) => cmd::score_tracks::run(a),
             Cmd::Ablation(a) => cmd::ablation::run(a),
             Cmd::Regress(a) => cmd::regress::run(a),
         })?;

@@ -23,7 +23,7 @@ use std::sync::OnceLock;
 
 /// DejaVu Sans Book, registered as plotters' `sans-serif`.
 static FONT_TTF: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 
 /// Output size in pixels (SVG user units).
 pub const SIZE_PX: (u32, u32) = (1600, 1100);
@@ -31,11 +31,11 @@ pub const SIZE_PX: (u32, u32) = (1600, 1100);
 const MAX_POINTS: usize = 4000;
 
 const GT_COLOR: RGBColor = RGBColor(40, 40, 40);
-const EST_COLOR: RGBColor = RGBColor(214, 39, 40);
-const ERR_COLOR: RGBColor = RGBColor(31, 119, 180);
-const BACKEND_COLOR: RGBColor = RGBColor(44, 160, 44);
+pub(crate) const EST_COLOR: RGBColor = RGBColor(214, 39, 40);
+pub(crate) const ERR_COLOR: RGBColor = RGBColor(31, 119, 180);
+pub(crate) const BACKEND_COLOR: RGBColor = RGBColor(44, 160, 44);
 
-fn register_font() -> Result<()> {
+pub(crate) fn register_font() -> Result<()> {
     static DONE: OnceLock<bool> = OnceLock::new();
     let ok = *DONE
         .get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, FONT_TTF).is_ok());
@@ -122,7 +122,7 @@ struct Figure {
     ate_rmse_m: f64,
 }
 
-fn decimate<T: Copy>(v: &[T]) -> Vec<T> {
+pub(crate) fn decimate<T: Copy>(v: &[T]) -> Vec<T> {
     let stride = v.len().div_ceil(MAX_POINTS).max(1);
     let mut out: Vec<T> = v.iter().step_by(stride).copied().collect();
     // Keep the last point so the curve ends where the data does.
@@ -189,7 +189,7 @@ fn build(
 }
 
 /// Range of `vals` with a margin; never empty.
-fn padded(vals: impl Iterator<Item = f64>, frac: f64, include_zero: bool) -> Range<f64> {
+pub(crate) fn padded(vals: impl Iterator<Item = f64>, frac: f64, include_zero: bool) -> Range<f64> {
     let (mut lo, mut hi) = vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
         (l.min(v), h.max(v))
     });
@@ -209,7 +209,12 @@ fn padded(vals: impl Iterator<Item = f64>, frac: f64, include_zero: bool) -> Ran
 }
 
 /// Grows the shorter range so one metre spans the same pixels on both axes.
-fn equal_aspect(x: Range<f64>, y: Range<f64>, w_px: f64, h_px: f64) -> (Range<f64>, Range<f64>) {
+pub(crate) fn equal_aspect(
+    x: Range<f64>,
+    y: Range<f64>,
+    w_px: f64,
+    h_px: f64,
+) -> (Range<f64>, Range<f64>) {
     let (sx, sy) = ((x.end - x.start) / w_px, (y.end - y.start) / h_px);
     if sx > sy {
         let c = 0.5 * (y.start + y.end);
@@ -222,17 +227,17 @@ fn equal_aspect(x: Range<f64>, y: Range<f64>, w_px: f64, h_px: f64) -> (Range<f6
     }
 }
 
-type DrawResult = Result<()>;
+pub(crate) type DrawResult = Result<()>;
 
 /// A polyline: legend label, points, colour, stroke width in pixels.
-type Series<'a> = (&'a str, &'a [(f64, f64)], RGBColor, u32);
+pub(crate) type Series<'a> = (&'a str, &'a [(f64, f64)], RGBColor, u32);
 
-fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
+pub(crate) fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow!("drawing failed: {e}")
 }
 
 /// A line chart of several series on one panel.
-fn line_panel<DB: DrawingBackend>(
+pub(crate) fn line_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     caption: &str,
     x_desc: &str,

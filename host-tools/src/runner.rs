@@ -4,14 +4,17 @@
 //! sample at or past its last point (`max t_point + td_l`), when the INS can de-skew every
 //! point of it (see [`lidar_schedule`]).
 
+use crate::images::{with_images, LoadedImage};
 use crate::progress::Progress;
 use anyhow::{bail, Result};
 use povins_core::camera::{CameraExtrinsic, FeatureObs};
 use povins_core::estimator::{
-    Counters, DepthEvent, EstimatorConfig, FeaturePrediction, KeyframeReport, PoVins,
+    Counters, DepthEvent, EstimatorConfig, FeaturePrediction, KeyframeReport,
 };
+use povins_core::frontend::image::{ImageView, TrackStats, TrackerConfig};
 use povins_core::inertial::NavState;
 use povins_core::lidar::{LidarConfig, LidarExtrinsic};
+use povins_core::vio::{EurocVio, HdVio, ImageReport, Vio, VioAiding, VioCounters};
 use povins_platform::trajectory::StampedPose;
 use povins_platform::Dataset;
 use std::collections::BTreeMap;
@@ -27,6 +30,70 @@ pub enum InitMode {
     /// Start from the ground-truth state (velocity and biases included) at the first IMU
     /// sample covered by ground truth, as peers do in evaluation.
     Groundtruth,
+}
+
+/// What drives the estimator's camera updates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Frontend {
+    /// The camera images through povins' own front end (`povins_core::vio`).
+    Images,
+    /// The dataset's feature tracks (`features0`, `/cam0/features`).
+    Tracks,
+}
+
+/// How camera frames reach the estimator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrontendOptions {
+    /// Images or tracks.
+    pub frontend: Frontend,
+    /// The image front end's settings (images only).
+    pub tracker: TrackerConfig,
+    /// INS aiding of the tracker (images only).
+    pub aiding: VioAiding,
+}
+
+impl FrontendOptions {
+    /// The dataset's tracks.
+    pub fn tracks() -> Self {
+        FrontendOptions {
+            frontend: Frontend::Tracks,
+            tracker: TrackerConfig::default(),
+            aiding: VioAiding::default(),
+        }
+    }
+
+    /// The images with `tracker`.
+    pub fn images(tracker: TrackerConfig) -> Self {
+        FrontendOptions {
+            frontend: Frontend::Images,
+            tracker,
+            aiding: VioAiding::default(),
+        }
+    }
+}
+
+/// The front end's result for one image of a replay.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameLog {
+    /// Image time (camera clock), ns.
+    pub t_ns: i64,
+    /// What the core reported.
+    pub report: ImageReport,
+    /// Reading and decoding the image (helper thread), ms.
+    pub decode_ms: f64,
+}
+
+impl FrameLog {
+    /// The tracker's statistics.
+    pub fn stats(&self) -> &TrackStats {
+        &self.report.track
+    }
+
+    /// Front-end time (core clock), ms.
+    pub fn frontend_ms(&self) -> f64 {
+        self.report.frontend_ns as f64 * 1e-6
+    }
 }
 
 /// Monotonic nanoseconds since the first call (the core's timing clock).
@@ -116,14 +183,142 @@ pub struct RunOutput {
     /// (`predict_features`, just before the frame is offered) and the frame observes: the
     /// distance between prediction and observation, px. What an INS-aided tracker would gain.
     pub prediction_err_px: Vec<f32>,
+    /// The front end that fed the estimator.
+    pub frontend: Frontend,
+    /// Per image tracked (images only).
+    pub frames: Vec<FrameLog>,
+    /// Images that could not be read or were refused (images only).
+    pub image_failures: usize,
+    /// The first of them with the reason.
+    pub image_errors: Vec<(i64, String)>,
+    /// The image entry point's counters (images only).
+    pub vio_counters: VioCounters,
 }
 
-/// Replays `ds` through a new estimator with `cfg`. LiDAR sweeps are offered whatever
-/// `cfg.lidar.enabled` says: a disabled estimator refuses (and counts) them.
+/// Replays `ds` through a new estimator with `cfg`, fed with the dataset's feature tracks.
+/// LiDAR sweeps are offered whatever `cfg.lidar.enabled` says: a disabled estimator refuses
+/// (and counts) them.
 pub fn replay(
+    ds: &Dataset,
+    cfg: EstimatorConfig,
+    init: InitMode,
+    progress: &Progress,
+) -> Result<RunOutput> {
+    replay_with(ds, cfg, init, &FrontendOptions::tracks(), progress)
+}
+
+/// Replays `ds` with the front end chosen in `fe`: the dataset's tracks, or its images through
+/// the image front end ([`povins_core::vio::Vio`], images decoded lazily on a helper thread).
+/// Errors when the chosen input is missing from the dataset.
+pub fn replay_with(
+    ds: &Dataset,
+    cfg: EstimatorConfig,
+    init: InitMode,
+    fe: &FrontendOptions,
+    progress: &Progress,
+) -> Result<RunOutput> {
+    let (w, h) = (ds.calib.camera.width, ds.calib.camera.height);
+    match fe.frontend {
+        Frontend::Tracks => {
+            if ds.features.is_empty() && !ds.images.is_empty() {
+                bail!(
+                    "{}: the dataset has camera images but no feature tracks (features0, \
+                     /cam0/features): use --frontend images",
+                    ds.name
+                );
+            }
+            replay_vio::<EurocVio>(ds, cfg, init, fe, progress)
+        }
+        Frontend::Images => {
+            if ds.images.is_empty() {
+                bail!(
+                    "{}: the dataset has no camera images (EuRoC cam0/data.csv with \
+                     cam0/data/*.png, MCAP /cam0/image_raw or /cam0/image_raw/compressed){}",
+                    ds.name,
+                    if ds.features.is_empty() {
+                        ""
+                    } else {
+                        "; it has feature tracks: use --frontend tracks"
+                    }
+                );
+            }
+            if w <= 752 && h <= 480 {
+                replay_vio::<EurocVio>(ds, cfg, init, fe, progress)
+            } else if w <= 1280 && h <= 720 {
+                replay_vio::<HdVio>(ds, cfg, init, fe, progress)
+            } else {
+                bail!(
+                    "{}: {w}x{h} images are larger than the front end's largest capacity \
+                     (1280x720)",
+                    ds.name
+                )
+            }
+        }
+    }
+}
+
+/// A [`Vio`] of any capacity, as the replay drives it.
+pub trait VioDriver {
+    /// Builds one.
+    fn build(cfg: EstimatorConfig, tracker: TrackerConfig) -> Result<Box<Self>>;
+    /// The estimator.
+    fn est(&self) -> &povins_core::estimator::PoVins;
+    /// The estimator, mutable.
+    fn est_mut(&mut self) -> &mut povins_core::estimator::PoVins;
+    /// [`Vio::push_imu`].
+    fn imu(
+        &mut self,
+        s: &povins_core::inertial::ImuSample,
+    ) -> Result<povins_core::estimator::ImuOutput, povins_core::Error>;
+    /// [`Vio::push_image`].
+    fn image(&mut self, t_ns: i64, view: &ImageView) -> Result<ImageReport, povins_core::Error>;
+    /// [`Vio::features`].
+    fn tracks(&self) -> &[FeatureObs];
+    /// [`Vio::set_aiding`].
+    fn aiding(&mut self, a: VioAiding);
+    /// [`Vio::counters`].
+    fn vio_counters(&self) -> VioCounters;
+}
+
+impl<const F: usize, const BYTES: usize, const LEVELS: usize> VioDriver
+    for Vio<10, 200, 166, F, BYTES, LEVELS>
+{
+    fn build(cfg: EstimatorConfig, tracker: TrackerConfig) -> Result<Box<Self>> {
+        Ok(Box::new(Vio::new(cfg, tracker).map_err(|e| {
+            anyhow::anyhow!("invalid estimator or front-end configuration: {e}")
+        })?))
+    }
+    fn est(&self) -> &povins_core::estimator::PoVins {
+        self.estimator()
+    }
+    fn est_mut(&mut self) -> &mut povins_core::estimator::PoVins {
+        self.estimator_mut()
+    }
+    fn imu(
+        &mut self,
+        s: &povins_core::inertial::ImuSample,
+    ) -> Result<povins_core::estimator::ImuOutput, povins_core::Error> {
+        self.push_imu(s)
+    }
+    fn image(&mut self, t_ns: i64, view: &ImageView) -> Result<ImageReport, povins_core::Error> {
+        self.push_image(t_ns, view)
+    }
+    fn tracks(&self) -> &[FeatureObs] {
+        self.features()
+    }
+    fn aiding(&mut self, a: VioAiding) {
+        self.set_aiding(a);
+    }
+    fn vio_counters(&self) -> VioCounters {
+        self.counters()
+    }
+}
+
+fn replay_vio<V: VioDriver>(
     ds: &Dataset,
     mut cfg: EstimatorConfig,
     init: InitMode,
+    fe: &FrontendOptions,
     progress: &Progress,
 ) -> Result<RunOutput> {
     if ds.imu.is_empty() {
@@ -161,13 +356,14 @@ pub fn replay(
         });
     }
     let lidar = cfg.lidar;
-    let mut est: Box<PoVins> = Box::new(
-        PoVins::new(cfg).map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?,
-    );
+    let mut vio = V::build(cfg, fe.tracker)?;
+    vio.aiding(fe.aiding);
     if let Some(s0) = gt_start {
-        est.initialize(s0)
+        vio.est_mut()
+            .initialize(s0)
             .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;
     }
+    let images = fe.frontend == Frontend::Images;
     let mut out = RunOutput {
         imu_rate: Vec::with_capacity(ds.imu.len()),
         keyframes: Vec::new(),
@@ -175,62 +371,132 @@ pub fn replay(
         reports: Vec::new(),
         lidar_events: Vec::new(),
         counters: Counters::default(),
-        camera_frames: ds.features.len(),
+        camera_frames: if images {
+            ds.images.len()
+        } else {
+            ds.features.len()
+        },
         lidar_scans: ds.lidar.len(),
         lidar,
         estimator_wall_s: 0.0,
         prediction_err_px: Vec::new(),
+        frontend: fe.frontend,
+        frames: Vec::new(),
+        image_failures: 0,
+        image_errors: Vec::new(),
+        vio_counters: VioCounters::default(),
     };
     let mut predicted = vec![FeaturePrediction::EMPTY; 512];
-    let mut eval_s = 0.0;
+    // Time spent outside the estimator (prediction bookkeeping, waiting for decoded images).
+    let mut other_s = 0.0;
     let mut kf_states: BTreeMap<i64, NavState> = BTreeMap::new();
     let t_start_ns = ds.imu[start].t_ns;
     let mut fi = ds.features.partition_point(|f| f.t_ns < t_start_ns);
+    let first_image = ds.images.partition_point(|f| f.t_ns < t_start_ns);
     // Sweeps due before the first replayed IMU sample are skipped, like frames before it.
     let scans = lidar_schedule(ds, lidar.td_l_s);
     let mut li = scans.partition_point(|&(t, _)| t < t_start_ns);
+    let image_list = if images {
+        ds.images.get(first_image..).unwrap_or(&[])
+    } else {
+        &[]
+    };
     let t_run = Instant::now();
-    for (i, s) in ds.imu.iter().enumerate().skip(start) {
-        while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
-            if let Ok(n) = est.predict_features(f.t_ns, &mut predicted) {
-                let t_eval = Instant::now();
-                prediction_errors(&predicted[..n.min(predicted.len())], &f.obs, &mut out);
-                eval_s += t_eval.elapsed().as_secs_f64();
-            }
-            let _ = est.push_frame(f.t_ns, &f.obs);
-            fi += 1;
-        }
-        if let Ok(o) = est.push_imu(s) {
-            if let Some(r) = o.keyframe {
-                out.lidar_events.push(KeyframeDepthEvents {
-                    t_cam_ns: r.t_cam_ns,
-                    events: est.lidar_events().to_vec(),
-                });
-                out.reports.push(r);
-                for kf in est.keyframes() {
-                    kf_states.insert(kf.state.t_ns, kf.state);
+    with_images(image_list, |stream| -> Result<()> {
+        let mut stream = stream.peekable();
+        for (i, s) in ds.imu.iter().enumerate().skip(start) {
+            if images {
+                loop {
+                    let t_wait = Instant::now();
+                    let due = stream.peek().is_some_and(|im| im.t_ns <= s.t_ns);
+                    let next = if due { stream.next() } else { None };
+                    other_s += t_wait.elapsed().as_secs_f64();
+                    let Some(im) = next else { break };
+                    let t_eval = Instant::now();
+                    let n = vio
+                        .est()
+                        .predict_features(im.t_ns, &mut predicted)
+                        .unwrap_or(0);
+                    other_s += t_eval.elapsed().as_secs_f64();
+                    push_image(&mut *vio, &im, &mut out);
+                    let t_eval = Instant::now();
+                    prediction_errors(&predicted[..n.min(predicted.len())], vio.tracks(), &mut out);
+                    other_s += t_eval.elapsed().as_secs_f64();
+                }
+            } else {
+                while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
+                    if let Ok(n) = vio.est().predict_features(f.t_ns, &mut predicted) {
+                        let t_eval = Instant::now();
+                        prediction_errors(&predicted[..n.min(predicted.len())], &f.obs, &mut out);
+                        other_s += t_eval.elapsed().as_secs_f64();
+                    }
+                    let _ = vio.est_mut().push_frame(f.t_ns, &f.obs);
+                    fi += 1;
                 }
             }
-            if let Some(nav) = o.nav {
-                out.imu_rate.push(nav);
+            if let Ok(o) = vio.imu(s) {
+                if let Some(r) = o.keyframe {
+                    out.lidar_events.push(KeyframeDepthEvents {
+                        t_cam_ns: r.t_cam_ns,
+                        events: vio.est().lidar_events().to_vec(),
+                    });
+                    out.reports.push(r);
+                    for kf in vio.est().keyframes() {
+                        kf_states.insert(kf.state.t_ns, kf.state);
+                    }
+                }
+                if let Some(nav) = o.nav {
+                    out.imu_rate.push(nav);
+                }
+            }
+            while let Some(&(_, k)) = scans.get(li).filter(|(t, _)| *t <= s.t_ns) {
+                if let Some(scan) = ds.lidar.get(k) {
+                    let _ = vio.est_mut().push_lidar(&scan.points);
+                }
+                li += 1;
+            }
+            if i % 1000 == 0 {
+                progress.set_position(i as u64);
             }
         }
-        while let Some(&(_, k)) = scans.get(li).filter(|(t, _)| *t <= s.t_ns) {
-            if let Some(scan) = ds.lidar.get(k) {
-                let _ = est.push_lidar(&scan.points);
-            }
-            li += 1;
-        }
-        if i % 1000 == 0 {
-            progress.set_position(i as u64);
-        }
-    }
-    out.estimator_wall_s = t_run.elapsed().as_secs_f64() - eval_s;
+        Ok(())
+    })?;
+    out.estimator_wall_s = t_run.elapsed().as_secs_f64() - other_s;
     progress.finish();
     out.keyframe_states = kf_states.into_values().collect();
     out.keyframes = out.keyframe_states.iter().map(StampedPose::from).collect();
-    out.counters = est.counters();
+    out.counters = vio.est().counters();
+    out.vio_counters = vio.vio_counters();
     Ok(out)
+}
+
+/// Most image errors kept with their message (the rest are counted).
+const MAX_IMAGE_ERRORS: usize = 20;
+
+/// Tracks one decoded image into the estimator, logging the result or the error.
+fn push_image<V: VioDriver + ?Sized>(vio: &mut V, im: &LoadedImage<'_>, out: &mut RunOutput) {
+    let mut fail = |msg: String| {
+        out.image_failures += 1;
+        if out.image_errors.len() < MAX_IMAGE_ERRORS {
+            out.image_errors.push((im.t_ns, msg));
+        }
+    };
+    let (w, h, px) = match &im.pixels {
+        Ok(p) => p,
+        Err(e) => return fail(e.clone()),
+    };
+    let view = match ImageView::new(px, *w, *h, *w) {
+        Ok(v) => v,
+        Err(e) => return fail(format!("image at {} ns ({w}x{h}): {e}", im.t_ns)),
+    };
+    match vio.image(im.t_ns, &view) {
+        Ok(report) => out.frames.push(FrameLog {
+            t_ns: im.t_ns,
+            report,
+            decode_ms: im.decode_s * 1e3,
+        }),
+        Err(e) => fail(format!("image at {} ns ({w}x{h}) refused: {e}", im.t_ns)),
+    }
 }
 
 /// Appends the pixel distance of each prediction to the observation of the same feature.

@@ -50,6 +50,13 @@ impl FeaturePrediction {
 }
 
 impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+    /// The camera-IMU delay the estimator currently uses, s (`t_imu = t_cam + td`): the newest
+    /// keyframe's estimate, or the configured one before the first keyframe. An image front end
+    /// integrates the gyro over `[t_prev + td, t_cur + td]` for its rotation seed.
+    pub fn td_s(&self) -> f64 {
+        self.current_td()
+    }
+
     /// Predicts where the window's landmarks appear in the image taken at `t_cam_ns` (camera
     /// clock). Writes up to `out.len()` predictions (a buffer of `L` always suffices) and returns
     /// how many it wrote, in landmark order.

@@ -1,9 +1,12 @@
 //! One module per `povins` subcommand: its clap `Args` and its `run`.
 
 pub mod ablation;
+pub mod compare_tracks;
 pub mod demo;
 pub mod eval;
 pub mod plot;
 pub mod regress;
 pub mod run;
+pub mod score_tracks;
 pub mod simulate;
+pub mod track;

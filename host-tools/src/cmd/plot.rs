@@ -1,4 +1,6 @@
-//! `povins plot`: a figure of an estimate against ground truth (SVG or PNG by extension).
+//! `povins plot`: a figure of an estimate against ground truth (SVG or PNG by extension), or of
+//! the estimate alone when there is no ground truth (top view, height, speed, the delay per
+//! keyframe from `--stats`).
 
 use crate::cmd::eval::read;
 use crate::eval::{Alignment, EvalOptions};
@@ -9,13 +11,14 @@ use std::path::PathBuf;
 /// Arguments of `povins plot`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Ground-truth trajectory (TUM or EuRoC CSV).
+    /// Ground-truth trajectory (TUM or EuRoC CSV); without it the estimate is drawn alone.
     #[arg(long)]
-    pub gt: PathBuf,
+    pub gt: Option<PathBuf>,
     /// Estimated trajectory (TUM or EuRoC CSV).
     #[arg(long)]
     pub est: PathBuf,
-    /// Per-keyframe timing CSV with `t_s` and `backend_ms` columns.
+    /// Per-keyframe CSV with `t_s` and `backend_ms` columns (without ground truth: `td_ms` if
+    /// present, else `backend_ms`).
     #[arg(long)]
     pub stats: Option<PathBuf>,
     /// Transform fitted before plotting.
@@ -34,8 +37,26 @@ pub struct Args {
 
 /// Runs the command.
 pub fn run(args: Args) -> Result<()> {
-    let gt = read("ground-truth", &args.gt)?;
     let est = read("estimated", &args.est)?;
+    let Some(gt_path) = &args.gt else {
+        let name = args.est.display().to_string();
+        let f = crate::plot_estimate::plot_estimate(&est, args.stats.as_deref(), &name, &args.out)?;
+        eprintln!(
+            "wrote {} (no ground truth: {:.1} m in {:.1} s, speed median {:.2} m/s, p90 {:.2}, max {:.2}; height range {:.2} m; extent {:.2} x {:.2} m; start to end {:.2} m)",
+            args.out.display(),
+            f.length_m,
+            f.duration_s,
+            f.speed_median_mps,
+            f.speed_p90_mps,
+            f.speed_max_mps,
+            f.height_range_m,
+            f.extent_xy_m.0,
+            f.extent_xy_m.1,
+            f.start_end_m
+        );
+        return Ok(());
+    };
+    let gt = read("ground-truth", gt_path)?;
     let backend = args.stats.as_deref().map(read_stats_csv).transpose()?;
     let opts = EvalOptions {
         alignment: args.align,
@@ -49,7 +70,7 @@ pub fn run(args: Args) -> Result<()> {
             |n| n.to_string_lossy().into_owned(),
         )
     };
-    let title = format!("{} vs ground truth {}", name(&args.est), name(&args.gt));
+    let title = format!("{} vs ground truth {}", name(&args.est), name(gt_path));
     let report = plot(&gt, &est, &opts, backend.as_deref(), &title, &args.out)?;
     eprintln!(
         "wrote {} ({} matched poses, ATE {:.4} m rmse, {} aligned)",

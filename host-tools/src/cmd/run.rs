@@ -1,5 +1,7 @@
-//! `povins run <dataset> --out DIR`: replays an EuRoC folder (with `features0`) or an MCAP file
-//! through the estimator and writes `trajectory.tum` (IMU rate), `keyframes.tum`, `stats.csv`
+//! `povins run <dataset> --out DIR`: replays an EuRoC folder or an MCAP file through the
+//! estimator, fed by the image front end (`--frontend images`, the default when the dataset has
+//! camera images; `frontend.csv` gets a row per image) or by the dataset's feature tracks
+//! (`--frontend tracks`), and writes `trajectory.tum` (IMU rate), `keyframes.tum`, `stats.csv`
 //! (a row per keyframe) and `summary.json`; with ground truth in the dataset it also evaluates
 //! (ATE, position + yaw alignment) and prints the result. LiDAR sweeps in the dataset are used
 //! by default (`--no-lidar`, `--ldm`, `--no-depth-outlier-rejection`, `--no-depth-only-opt`
@@ -8,11 +10,16 @@
 use crate::config::{ldm_name, LidarArgs, ModeArg, RunConfigFile};
 use crate::eval::lidar_assoc::{self, AssocQuality};
 use crate::eval::{evaluate, Alignment, EvalOptions};
+use crate::frontend_stats::{summarize_frames, summary_lines, write_frames_csv, FrontendSummary};
 use crate::progress::Progress;
-use crate::runner::{config_for, percentile, replay, sorted_ms, InitMode, RunOutput};
+use crate::runner::{
+    config_for, percentile, replay_with, sorted_ms, Frontend, FrontendOptions, InitMode, RunOutput,
+};
 use anyhow::{Context, Result};
 use povins_core::estimator::{EstimatorConfig, KeyframeReport};
+use povins_core::frontend::image::TrackerConfig;
 use povins_core::inertial::NavState;
+use povins_core::vio::VioAiding;
 use povins_platform::trajectory::{write_tum, StampedPose};
 use povins_platform::Dataset;
 use std::io::Write;
@@ -35,9 +42,39 @@ pub struct Args {
     /// TOML file of estimator settings (see the `config` module docs / docs/formats.md).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// What feeds the estimator: the camera images through povins' front end, or the
+    /// dataset's feature tracks (default: images when the dataset has them, else tracks).
+    #[arg(long, value_enum)]
+    pub frontend: Option<Frontend>,
     /// LiDAR switches (override the config file).
     #[command(flatten)]
     pub lidar: LidarArgs,
+}
+
+/// The front end of a run: `--frontend` (or the dataset's default) and the `[frontend]`
+/// section of `--config`.
+pub fn frontend_options(
+    config: Option<&Path>,
+    frontend: Option<Frontend>,
+    ds: &Dataset,
+) -> Result<FrontendOptions> {
+    let frontend = frontend.unwrap_or(if ds.images.is_empty() {
+        Frontend::Tracks
+    } else {
+        Frontend::Images
+    });
+    let mut tracker = TrackerConfig::default();
+    let mut aiding = VioAiding::default();
+    if let Some(path) = config {
+        RunConfigFile::read(path)?
+            .apply_frontend(&mut tracker, &mut aiding)
+            .with_context(|| format!("invalid config {}", path.display()))?;
+    }
+    Ok(FrontendOptions {
+        frontend,
+        tracker,
+        aiding,
+    })
 }
 
 /// The estimator configuration of a run: dataset calibration, then `--config`, then the
@@ -140,6 +177,13 @@ pub struct Summary {
     /// Association quality against the simulator's truth (only with simulator truth).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub assoc: Option<AssocSummary>,
+    /// What fed the estimator.
+    pub frontend: Frontend,
+    /// The image front end's figures (images only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub image_frontend: Option<FrontendSummary>,
+    /// Images that could not be read or were refused (images only).
+    pub image_failures: usize,
     /// Rejection counters of the core.
     pub counters: serde_json::Value,
 }
@@ -240,7 +284,10 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         depth_opt_ms_max: depth_opt_ms.last().copied().unwrap_or(0.0),
         assoc: lidar_assoc::assess(ds, &out.lidar_events, out.lidar.sigma_dr_m)
             .map(|q| AssocSummary::from(&q)),
-        counters: serde_json::to_value(format!("{:?}", out.counters))?,
+        frontend: out.frontend,
+        image_frontend: summarize_frames(&out.frames),
+        image_failures: out.image_failures,
+        counters: serde_json::to_value(format!("{:?} {:?}", out.counters, out.vio_counters))?,
     };
     if !ds.ground_truth.is_empty() && !out.imu_rate.is_empty() {
         let gt: Vec<StampedPose> = ds.ground_truth.iter().map(StampedPose::from).collect();
@@ -359,6 +406,9 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
         )?;
     }
     f.flush()?;
+    if out.frontend == Frontend::Images {
+        write_frames_csv(&dir.join("frontend.csv"), &out.frames)?;
+    }
     std::fs::write(
         dir.join("summary.json"),
         serde_json::to_string_pretty(summary)? + "\n",
@@ -369,8 +419,14 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
 /// Prints the human-readable result lines.
 pub fn print_summary(s: &Summary, out_dir: &Path) {
     println!(
-        "dataset   {} ({} mode, {:?} init)",
-        s.dataset, s.mode, s.init
+        "dataset   {} ({} mode, {:?} init, {} front end)",
+        s.dataset,
+        s.mode,
+        s.init,
+        match s.frontend {
+            Frontend::Images => "image",
+            Frontend::Tracks => "tracks",
+        }
     );
     println!(
         "keyframes {} of {} camera frames",
@@ -394,6 +450,17 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
         s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
     );
+    if let Some(fe) = &s.image_frontend {
+        for line in summary_lines(fe) {
+            println!("{line}");
+        }
+    }
+    if s.image_failures > 0 {
+        println!(
+            "images    {} could not be used (see the warnings)",
+            s.image_failures
+        );
+    }
     if let (Some(m), Some(p90)) = (s.prediction_px_median, s.prediction_px_p90) {
         println!(
             "predict   {m:.2} px median, {p90:.2} px p90 from INS pose and landmark depths to the \
@@ -470,9 +537,19 @@ pub fn run(args: Args) -> Result<()> {
              (set enabled, p_bl_m and q_bl_xyzw in the config's [lidar] section to use it)"
         );
     }
+    let fe = frontend_options(args.config.as_deref(), args.frontend, &ds)?;
     let mode = format!("{:?}", cfg.mode);
     let progress = Progress::new(ds.imu.len() as u64, "run");
-    let out = replay(&ds, cfg, args.init, &progress)?;
+    let out = replay_with(&ds, cfg, args.init, &fe, &progress)?;
+    for (t, e) in &out.image_errors {
+        eprintln!("warning: image at {t} ns: {e}");
+    }
+    if out.image_failures > out.image_errors.len() {
+        eprintln!(
+            "warning: {} more images could not be used",
+            out.image_failures - out.image_errors.len()
+        );
+    }
     let summary = summarize(&ds, &mode, args.init, &out)?;
     write_outputs(&args.out, &out, &summary)?;
     print_summary(&summary, &args.out);

@@ -56,6 +56,10 @@ pub struct Args {
     /// Fraction of new feature tracks that jump to a wrong landmark (default 0.02).
     #[arg(long)]
     pub wrong_track_rate: Option<f64>,
+    /// Noise of the simulated feature tracks (1 sigma), px. The rendered images are not affected
+    /// (see --image-noise).
+    #[arg(long, default_value_t = 1.0)]
+    pub pixel_noise: f64,
     /// Maximum tracked features per frame (default per scenario).
     #[arg(long)]
     pub max_features: Option<usize>,
@@ -118,6 +122,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.foliage_porosity = args.foliage_porosity;
     cfg.wrong_track_rate = args.wrong_track_rate;
     cfg.max_features = args.max_features;
+    anyhow::ensure!(
+        args.pixel_noise.is_finite() && (0.0..=100.0).contains(&args.pixel_noise),
+        "--pixel-noise must be within 0..=100 px"
+    );
+    cfg.pixel_noise_px = args.pixel_noise;
     cfg.static_s = args.static_s;
     let render = args.render_options()?;
 

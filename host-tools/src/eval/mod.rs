@@ -17,6 +17,7 @@
 pub mod align;
 pub mod associate;
 pub mod ate;
+pub mod epipolar;
 pub mod lidar_assoc;
 pub mod report;
 pub mod rte;

@@ -1,0 +1,151 @@
+//! Per-frame statistics of the image front end (`frontend.csv` of `povins run`, `frames.csv` of
+//! `povins track`) and their summary.
+
+use crate::runner::{percentile, FrameLog};
+use anyhow::{Context, Result};
+use povins_core::frontend::image::RansacRun;
+use std::io::Write;
+use std::path::Path;
+
+/// Header of the per-frame CSV.
+pub const FRAMES_HEADER: &str = "t_s,frontend_ms,decode_ms,previous,tracked,seeded_prediction,seeded_rotation,seeded_previous,lost_small_eigen,lost_out_of_image,lost_residual,lost_nonfinite,lost_forward_backward,lost_ransac,ransac,ransac_inliers,detected,total,lk_iterations,frame_error";
+
+fn ransac_name(r: RansacRun) -> &'static str {
+    match r {
+        RansacRun::None => "none",
+        RansacRun::TwoPoint => "two-point",
+        RansacRun::EightPoint => "eight-point",
+        RansacRun::SkippedLowFlow => "skipped-low-flow",
+    }
+}
+
+/// Writes one row per frame.
+pub fn write_frames_csv(path: &Path, frames: &[FrameLog]) -> Result<()> {
+    let mut f = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?,
+    );
+    writeln!(f, "{FRAMES_HEADER}")?;
+    for fr in frames {
+        let s = fr.stats();
+        writeln!(
+            f,
+            "{},{:.4},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            povins_platform::trajectory::ns_to_seconds_string(fr.t_ns),
+            fr.frontend_ms(),
+            fr.decode_ms,
+            s.previous,
+            s.tracked,
+            s.seeded_prediction,
+            s.seeded_rotation,
+            s.seeded_previous,
+            s.lost_small_eigen,
+            s.lost_out_of_image,
+            s.lost_residual,
+            s.lost_nonfinite,
+            s.lost_forward_backward,
+            s.lost_ransac,
+            ransac_name(s.ransac_run),
+            s.ransac.inliers,
+            s.detected,
+            s.total,
+            s.lk_iterations,
+            fr.report
+                .frame_error
+                .map_or(String::new(), |e| format!("{e:?}")),
+        )?;
+    }
+    f.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Front-end figures of a run.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct FrontendSummary {
+    /// Images tracked.
+    pub frames: usize,
+    /// Front-end time per image (predictions, gyro, pyramid, LK, RANSAC, detection), median, ms.
+    pub frontend_ms_median: f64,
+    /// Mean, ms.
+    pub frontend_ms_mean: f64,
+    /// 90th percentile, ms.
+    pub frontend_ms_p90: f64,
+    /// Maximum, ms.
+    pub frontend_ms_max: f64,
+    /// Mean tracks per image after top-up.
+    pub tracks_per_frame: f64,
+    /// Mean features tracked from the previous image (after every check).
+    pub tracked_per_frame: f64,
+    /// Share of the previous image's features tracked.
+    pub tracked_share: f64,
+    /// Mean new features per image.
+    pub detected_per_frame: f64,
+    /// Mean features seeded by an INS prediction per image.
+    pub seeded_prediction_per_frame: f64,
+    /// Mean features seeded by the gyro rotation per image.
+    pub seeded_rotation_per_frame: f64,
+    /// Lost per image, by reason: LK (texture, border, residual, non-finite), forward-backward,
+    /// RANSAC.
+    pub lost_lk_per_frame: f64,
+    /// See `lost_lk_per_frame`.
+    pub lost_fb_per_frame: f64,
+    /// See `lost_lk_per_frame`.
+    pub lost_ransac_per_frame: f64,
+    /// Reading and decoding an image (helper thread), mean, ms.
+    pub decode_ms_mean: f64,
+}
+
+/// Summarizes the frames (`None` without frames).
+pub fn summarize_frames(frames: &[FrameLog]) -> Option<FrontendSummary> {
+    if frames.is_empty() {
+        return None;
+    }
+    let n = frames.len() as f64;
+    let mean = |f: &dyn Fn(&FrameLog) -> f64| frames.iter().map(f).sum::<f64>() / n;
+    let mut ms: Vec<f64> = frames.iter().map(FrameLog::frontend_ms).collect();
+    ms.sort_by(f64::total_cmp);
+    let prev: f64 = frames.iter().map(|f| f64::from(f.stats().previous)).sum();
+    let tracked: f64 = frames.iter().map(|f| f64::from(f.stats().tracked)).sum();
+    Some(FrontendSummary {
+        frames: frames.len(),
+        frontend_ms_median: percentile(&ms, 50.0),
+        frontend_ms_mean: ms.iter().sum::<f64>() / n,
+        frontend_ms_p90: percentile(&ms, 90.0),
+        frontend_ms_max: ms.last().copied().unwrap_or(0.0),
+        tracks_per_frame: mean(&|f| f64::from(f.stats().total)),
+        tracked_per_frame: mean(&|f| f64::from(f.stats().tracked)),
+        tracked_share: if prev > 0.0 { tracked / prev } else { 0.0 },
+        detected_per_frame: mean(&|f| f64::from(f.stats().detected)),
+        seeded_prediction_per_frame: mean(&|f| f64::from(f.stats().seeded_prediction)),
+        seeded_rotation_per_frame: mean(&|f| f64::from(f.stats().seeded_rotation)),
+        lost_lk_per_frame: mean(&|f| {
+            let s = f.stats();
+            f64::from(s.lost_small_eigen + s.lost_out_of_image + s.lost_residual + s.lost_nonfinite)
+        }),
+        lost_fb_per_frame: mean(&|f| f64::from(f.stats().lost_forward_backward)),
+        lost_ransac_per_frame: mean(&|f| f64::from(f.stats().lost_ransac)),
+        decode_ms_mean: mean(&|f| f.decode_ms),
+    })
+}
+
+/// The human-readable lines of a summary.
+pub fn summary_lines(s: &FrontendSummary) -> Vec<String> {
+    vec![
+        format!(
+            "front end {} images: {:.3} ms median, {:.3} mean, {:.3} p90, {:.3} max per image (one thread)",
+            s.frames, s.frontend_ms_median, s.frontend_ms_mean, s.frontend_ms_p90, s.frontend_ms_max
+        ),
+        format!(
+            "tracks    {:.1} per image ({:.1} tracked from the previous, {:.1}%; {:.1} new); seeds: {:.1} INS, {:.1} gyro",
+            s.tracks_per_frame,
+            s.tracked_per_frame,
+            100.0 * s.tracked_share,
+            s.detected_per_frame,
+            s.seeded_prediction_per_frame,
+            s.seeded_rotation_per_frame
+        ),
+        format!(
+            "lost      {:.1} LK, {:.1} forward-backward, {:.1} RANSAC per image; decoding {:.2} ms per image (helper thread)",
+            s.lost_lk_per_frame, s.lost_fb_per_frame, s.lost_ransac_per_frame, s.decode_ms_mean
+        ),
+    ]
+}
