@@ -127,7 +127,7 @@ pub(crate) fn decimate<T: Copy>(v: &[T]) -> Vec<T> {
     let mut out: Vec<T> = v.iter().step_by(stride).copied().collect();
     // Keep the last point so the curve ends where the data does.
     if let Some(&last) = v.last() {
-        if (v.len() - 1) % stride != 0 {
+        if !(v.len() - 1).is_multiple_of(stride) {
             out.push(last);
         }
     }

@@ -32,7 +32,11 @@ pub fn checkerboard(w: usize, h: usize, sq: usize) -> Vec<u8> {
     let mut img = Vec::with_capacity(w * h);
     for y in 0..h {
         for x in 0..w {
-            img.push(if (x / sq + y / sq) % 2 == 0 { 40 } else { 210 });
+            img.push(if (x / sq + y / sq).is_multiple_of(2) {
+                40
+            } else {
+                210
+            });
         }
     }
     img
