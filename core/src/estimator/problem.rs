@@ -13,7 +13,7 @@ use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
 use super::problem_lidar::add_inverse_depth_obs;
 use super::window::{Block, Layout, Window, KF_DIM};
 use crate::camera::{CameraExtrinsic, Vec2};
-use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
+use crate::factors::inverse_depth_visual::{InverseDepthVisualFactor, WindowRotations};
 use crate::factors::pose_only_visual::{InJ, PoseOnlyAnchors};
 use crate::factors::robust::Huber;
 use crate::factors::td::TdRandomWalk;
@@ -554,6 +554,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         });
         let mut cost = 0.0;
         let linearize = ne.is_some();
+        // The eliminated landmarks' linearization: rotations once per assembly, not per residual.
+        let rot = (linearize && !est_ext && self.cfg.visual_depth == VisualDepth::Eliminated)
+            .then(|| WindowRotations::new(&poses, count, &ext));
         // Extrinsic not estimated: the landmark's products on anchor e go through the rank
         // structure (`add_pose_only_landmark`), the delays as scalar columns.
         let fast = linearize && !est_ext;
@@ -594,8 +597,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 continue;
             }
             if self.cfg.visual_depth == VisualDepth::Eliminated && only_j.is_none() {
-                match self
-                    .eliminated_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext)
+                let er = (&ext, rot.as_ref());
+                match self.eliminated_landmark(li, ne, &poses, &frames, er, &huber, est_td, est_ext)
                 {
                     Ok((c, n)) => {
                         cost += c;
