@@ -58,25 +58,45 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             .ok_or(Error::DimensionMismatch)?;
         let s = lm.anchor_s as usize;
         let m = TauLandmark::new(&lm.obs, s, None, sqrt_info, count).ok_or(Error::NotEnoughData)?;
-        let rays = m.rays(poses, frames)?;
-        // IRLS on the 1-D problem: each step re-weights the rays by the Huber weight of their
-        // residual at the current tau.
-        let tau = m.gauss_newton_tau(lm.inv_depth, |tau, mut g, mut h| {
-            for ray in rays.iter() {
-                let (r, jt) = ray.residual_and_d_tau(tau)?;
-                let w2 = huber.rho(r.norm_squared())[1];
-                g += w2 * jt.dot(&r);
-                h += w2 * jt.norm_squared();
-            }
-            Ok((g, h))
-        })?;
         let n_obs = m.obs.len() as u32;
-        let Some(ne) = ne.as_deref_mut() else {
-            let mut cost = 0.0;
-            for ray in rays.iter() {
-                cost += huber.rho(ray.residual_and_d_tau(tau)?.0.norm_squared())[0];
+        // A linearization right after a successful cost evaluation at the same state takes the
+        // `tau*` that evaluation computed (bit-identical: same rays, same start).
+        let cached = match (self.tau_fresh, ne.is_some()) {
+            (true, true) => self.saved.tau_ok.get(li).copied().unwrap_or(false),
+            _ => false,
+        };
+        let tau = match self.saved.tau.get(li) {
+            Some(&tau) if cached => tau,
+            _ => {
+                let rays = m.rays(poses, frames)?;
+                // IRLS on the 1-D problem: each step re-weights the rays by the Huber weight of
+                // their residual at the current tau.
+                let tau = m.gauss_newton_tau(lm.inv_depth, |tau, mut g, mut h| {
+                    for ray in rays.iter() {
+                        let (r, jt) = ray.residual_and_d_tau(tau)?;
+                        let w2 = huber.rho(r.norm_squared())[1];
+                        g += w2 * jt.dot(&r);
+                        h += w2 * jt.norm_squared();
+                    }
+                    Ok((g, h))
+                })?;
+                if ne.is_none() {
+                    let mut cost = 0.0;
+                    for ray in rays.iter() {
+                        cost += huber.rho(ray.residual_and_d_tau(tau)?.0.norm_squared())[0];
+                    }
+                    if let (Some(t), Some(ok)) =
+                        (self.saved.tau.get_mut(li), self.saved.tau_ok.get_mut(li))
+                    {
+                        (*t, *ok) = (tau, true);
+                    }
+                    return Ok((cost, n_obs));
+                }
+                tau
             }
-            return Ok((cost, n_obs));
+        };
+        let Some(ne) = ne.as_deref_mut() else {
+            return Err(Error::DimensionMismatch);
         };
         let ps = poses.get(s).ok_or(Error::DimensionMismatch)?;
         let l = self.layout;
@@ -190,7 +210,8 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
 /// segments and single delay columns, each list in ascending column order, all on distinct,
 /// non-overlapping columns. Every entry `(r, c)`, `r <= c`, gets `h -= (v_r / c) v_c` computed as
 /// `(v_r * inv_c) * v_c`, once: the order of the entries does not change any value. Pose rows are
-/// updated block by block with fixed 6-wide kernels.
+/// updated block pair by block pair with fixed 6-wide kernels, delays as runs of consecutive
+/// columns.
 fn fold_rank_one<const N: usize, const D: usize>(
     ne: &mut NormalEquations<D>,
     poses: &[(usize, [f64; 6])],
@@ -227,57 +248,84 @@ fn fold_rank_one<const N: usize, const D: usize>(
     let h = &mut ne.h;
     for (ia, &(ca, xa)) in poses.iter().enumerate() {
         let later = poses.get(ia + 1..).unwrap_or(&[]);
-        for (i, x) in xa.iter().enumerate() {
-            let xi = x * inv_c;
-            let Some(row) = h.get_mut(ca + i) else {
-                continue;
-            };
-            // The diagonal block: upper triangle.
+        let first_run = runs.iter().position(|r| r.0 > ca).unwrap_or(runs.len());
+        let Some(rows) = h.get_mut(ca..ca + 6) else {
+            continue;
+        };
+        let xs: [f64; 6] = xa.map(|x| x * inv_c);
+        // The diagonal block: upper triangle.
+        for (i, (row, xi)) in rows.iter_mut().zip(xs).enumerate() {
             if let (Some(dst), Some(src)) = (row.get_mut(ca + i..ca + 6), xa.get(i..)) {
                 for (h, y) in dst.iter_mut().zip(src) {
                     *h -= xi * y;
                 }
             }
-            for (cb, xb) in later {
-                sub_scaled6(row, *cb, xi, xb);
+        }
+        // Cross blocks pair by pair: the later block's values stay in registers over the rows.
+        for &(cb, xb) in later {
+            for (row, xi) in rows.iter_mut().zip(xs) {
+                if let Some(dst) = row.get_mut(cb..cb + 6) {
+                    sub_scaled6(dst, xi, xb);
+                }
             }
-            for &(c0, k0, w) in runs.iter() {
-                if c0 > ca {
-                    if let (Some(dst), Some(src)) = (row.get_mut(c0..c0 + w), tv.get(k0..k0 + w)) {
-                        for (h, y) in dst.iter_mut().zip(src) {
-                            *h -= xi * y;
-                        }
+        }
+        for &(c0, k0, w) in runs.get(first_run..).unwrap_or(&[]) {
+            let Some(src) = tv.get(k0..k0 + w) else {
+                continue;
+            };
+            for (row, xi) in rows.iter_mut().zip(xs) {
+                if let Some(dst) = row.get_mut(c0..c0 + w) {
+                    for (h, y) in dst.iter_mut().zip(src) {
+                        *h -= xi * y;
                     }
                 }
             }
         }
     }
-    // Delay rows: pose blocks to their right (none in the solve layout) and later delays.
-    for (it, &(ct, xt)) in scalars.iter().enumerate() {
-        let xi = xt * inv_c;
-        let Some(row) = h.get_mut(ct) else {
-            continue;
-        };
-        for (cb, xb) in poses {
-            if *cb > ct {
-                sub_scaled6(row, *cb, xi, xb);
+    // Delay rows, run by run: pose blocks to their right (none in the solve layout), the rest of
+    // the run and the later runs.
+    for (ir, &(c0, k0, w)) in runs.iter().enumerate() {
+        let first_pose = poses.iter().position(|p| p.0 > c0).unwrap_or(poses.len());
+        let right = poses.get(first_pose..).unwrap_or(&[]);
+        let later = runs.get(ir + 1..).unwrap_or(&[]);
+        for u in 0..w {
+            let (Some(row), Some(&xt)) = (h.get_mut(c0 + u), tv.get(k0 + u)) else {
+                continue;
+            };
+            let xi = xt * inv_c;
+            for &(cb, xb) in right {
+                if let Some(dst) = row.get_mut(cb..cb + 6) {
+                    sub_scaled6(dst, xi, xb);
+                }
             }
-        }
-        for &(cu, xu) in scalars.get(it..).unwrap_or(&[]) {
-            if let Some(h) = row.get_mut(cu) {
-                *h -= xi * xu;
+            if let (Some(dst), Some(src)) = (row.get_mut(c0 + u..c0 + w), tv.get(k0 + u..k0 + w)) {
+                for (h, y) in dst.iter_mut().zip(src) {
+                    *h -= xi * y;
+                }
+            }
+            for &(c1, k1, w1) in later {
+                if let (Some(dst), Some(src)) = (row.get_mut(c1..c1 + w1), tv.get(k1..k1 + w1)) {
+                    for (h, y) in dst.iter_mut().zip(src) {
+                        *h -= xi * y;
+                    }
+                }
             }
         }
     }
 }
 
-/// `row[c..c + 6] -= x * y`.
+/// `dst[..6] -= x * y` (the operands as locals: two-wide products, no reloads).
 #[inline(always)]
-fn sub_scaled6(row: &mut [f64], c: usize, x: f64, y: &[f64; 6]) {
-    if let Some(dst) = row.get_mut(c..c + 6) {
-        for (h, v) in dst.iter_mut().zip(y) {
-            *h -= x * v;
-        }
+fn sub_scaled6(dst: &mut [f64], x: f64, y: [f64; 6]) {
+    if let Ok(d) = <&mut [f64; 6]>::try_from(dst) {
+        let [y0, y1, y2, y3, y4, y5] = y;
+        let [d0, d1, d2, d3, d4, d5] = d;
+        *d0 -= x * y0;
+        *d1 -= x * y1;
+        *d2 -= x * y2;
+        *d3 -= x * y3;
+        *d4 -= x * y4;
+        *d5 -= x * y5;
     }
 }
 
