@@ -516,6 +516,45 @@ fn nonfinite_probe(v: &[f64]) -> f64 {
     v.iter().fold(0.0, |acc, x| acc + x * 0.0)
 }
 
+/// `row[c + i..c + 6] += x0 y0[i..] + x1 y1[i..]` (the upper triangle's row `i` of a 6x6
+/// diagonal block), with a constant length per `i` so every row is a fixed kernel.
+#[inline(always)]
+fn tri_row(i: usize, row: &mut [f64], c: usize, x: (f64, f64), y: (&[f64; 6], &[f64; 6])) {
+    #[inline(always)]
+    fn fixed<const I: usize>(row: &mut [f64], c: usize, x: (f64, f64), y: (&[f64; 6], &[f64; 6])) {
+        if let (Some(dst), Some(y0), Some(y1)) =
+            (row.get_mut(c + I..c + 6), y.0.get(I..), y.1.get(I..))
+        {
+            for ((h, a0), a1) in dst.iter_mut().zip(y0).zip(y1) {
+                *h += x.0 * a0 + x.1 * a1;
+            }
+        }
+    }
+    match i {
+        0 => fixed::<0>(row, c, x, y),
+        1 => fixed::<1>(row, c, x, y),
+        2 => fixed::<2>(row, c, x, y),
+        3 => fixed::<3>(row, c, x, y),
+        4 => fixed::<4>(row, c, x, y),
+        _ => fixed::<5>(row, c, x, y),
+    }
+}
+
+/// `dst[..6] += x0 y0 + x1 y1` (the operands as locals).
+#[inline(always)]
+fn add_pair6(dst: &mut [f64], (x0, x1): (f64, f64), (y0, y1): (&[f64; 6], &[f64; 6])) {
+    if let Ok(d) = <&mut [f64; 6]>::try_from(dst) {
+        let ([a0, a1, a2, a3, a4, a5], [b0, b1, b2, b3, b4, b5]) = (*y0, *y1);
+        let [d0, d1, d2, d3, d4, d5] = d;
+        *d0 += x0 * a0 + x1 * b0;
+        *d1 += x0 * a1 + x1 * b1;
+        *d2 += x0 * a2 + x1 * b2;
+        *d3 += x0 * a3 + x1 * b3;
+        *d4 += x0 * a4 + x1 * b4;
+        *d5 += x0 * a5 + x1 * b5;
+    }
+}
+
 /// Fused fast path of one 2-row visual residual over two 6-wide pose blocks and, optionally,
 /// the two keyframes' delay columns (the eliminated-depth landmarks of the estimator).
 impl<const D: usize> NormalEquations<D> {
@@ -566,35 +605,18 @@ impl<const D: usize> NormalEquations<D> {
         } else {
             ((cb, &b), (ca, &a))
         };
-        for i in 0..6 {
-            let (x0, x1) = (l[0][i], l[1][i]);
-            let Some(row) = self.h.get_mut(lo + i) else {
-                continue;
-            };
-            if let Some(dst) = row.get_mut(lo + i..lo + 6) {
-                let (y0, y1) = (&l[0][i..], &l[1][i..]);
-                for ((h, a0), a1) in dst.iter_mut().zip(y0).zip(y1) {
-                    *h += x0 * a0 + x1 * a1;
-                }
-            }
-            if let Some(dst) = row.get_mut(hi..hi + 6) {
-                for ((h, a0), a1) in dst.iter_mut().zip(&u[0]).zip(&u[1]) {
-                    *h += x0 * a0 + x1 * a1;
+        let ([l0, l1], [u0, u1]) = (l, u);
+        if let Some(rows) = self.h.get_mut(lo..lo + 6) {
+            for (i, (row, (&x0, &x1))) in rows.iter_mut().zip(l0.iter().zip(l1)).enumerate() {
+                tri_row(i, row, lo, (x0, x1), (l0, l1));
+                if let Some(dst) = row.get_mut(hi..hi + 6) {
+                    add_pair6(dst, (x0, x1), (u0, u1));
                 }
             }
         }
-        for i in 0..6 {
-            let (x0, x1) = (u[0][i], u[1][i]);
-            let Some(dst) = self
-                .h
-                .get_mut(hi + i)
-                .and_then(|row| row.get_mut(hi + i..hi + 6))
-            else {
-                continue;
-            };
-            let (y0, y1) = (&u[0][i..], &u[1][i..]);
-            for ((h, a0), a1) in dst.iter_mut().zip(y0).zip(y1) {
-                *h += x0 * a0 + x1 * a1;
+        if let Some(rows) = self.h.get_mut(hi..hi + 6) {
+            for (i, (row, (&x0, &x1))) in rows.iter_mut().zip(u0.iter().zip(u1)).enumerate() {
+                tri_row(i, row, hi, (x0, x1), (u0, u1));
             }
         }
         let Some(cols) = delays else {
@@ -616,12 +638,24 @@ impl<const D: usize> NormalEquations<D> {
                 *bt -= dt.x * r.x + dt.y * r.y;
             }
             for (pc, [m0, m1]) in [(ca, &a), (cb, &b)] {
-                for i in 0..6 {
-                    // `(J_pose^T d)_i`, as nalgebra's `transpose() * d` forms it.
-                    let x = m0[i] * dt.x + m1[i] * dt.y;
-                    let (lo, hi) = if pc + i < t { (pc + i, t) } else { (t, pc + i) };
-                    if let Some(h) = self.h.get_mut(lo).and_then(|row| row.get_mut(hi)) {
-                        *h += x;
+                // `(J_pose^T d)_i`, as nalgebra's `transpose() * d` forms it.
+                let mut x = [0.0; 6];
+                for ((xi, a0), a1) in x.iter_mut().zip(m0).zip(m1) {
+                    *xi = a0 * dt.x + a1 * dt.y;
+                }
+                if t > pc {
+                    // Column `t` of the pose block's rows.
+                    if let Some(rows) = self.h.get_mut(pc..pc + 6) {
+                        for (row, xi) in rows.iter_mut().zip(x) {
+                            if let Some(h) = row.get_mut(t) {
+                                *h += xi;
+                            }
+                        }
+                    }
+                } else if let Some(dst) = self.h.get_mut(t).and_then(|row| row.get_mut(pc..pc + 6))
+                {
+                    for (h, xi) in dst.iter_mut().zip(x) {
+                        *h += xi;
                     }
                 }
             }
