@@ -905,6 +905,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             saved: &mut self.saved,
             counts: Default::default(),
             td_hold,
+            tau_fresh: false,
         };
         (problem, &mut self.lm, &mut self.marg_ne)
     }

@@ -13,7 +13,7 @@ use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
 use super::problem_lidar::add_inverse_depth_obs;
 use super::window::{Block, Layout, Window, KF_DIM};
 use crate::camera::{CameraExtrinsic, Vec2};
-use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
+use crate::factors::inverse_depth_visual::{InverseDepthVisualFactor, WindowRotations};
 use crate::factors::pose_only_visual::{InJ, PoseOnlyAnchors};
 use crate::factors::robust::Huber;
 use crate::factors::td::TdRandomWalk;
@@ -80,6 +80,9 @@ pub struct Saved<const N: usize, const L: usize> {
     states: [(NavState, f64); N],
     ext: CameraExtrinsic,
     inv_depth: [f64; L],
+    /// Eliminated landmarks' `tau*` of the last cost evaluation (where `tau_ok`).
+    pub(super) tau: [f64; L],
+    pub(super) tau_ok: [bool; L],
 }
 
 impl<const N: usize, const L: usize> Saved<N, L> {
@@ -92,6 +95,8 @@ impl<const N: usize, const L: usize> Saved<N, L> {
                 q_bc: crate::math::Quat::identity(),
             },
             inv_depth: [0.0; L],
+            tau: [0.0; L],
+            tau_ok: [false; L],
         }
     }
 }
@@ -129,6 +134,10 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     /// Hold every keyframe's delay at these values (a tight factor): too few landmarks to
     /// estimate it ([`EstimatorConfig::td_min_landmarks`]).
     pub td_hold: Option<[f64; N]>,
+    /// The state has not changed since the last successful cost evaluation: its eliminated
+    /// landmarks' `tau*` (in [`Saved`]) are the ones a linearization would compute (same state,
+    /// same start `inv_depth`), so it takes them instead of solving again.
+    pub tau_fresh: bool,
 }
 
 /// Pose-only landmark with only body poses estimated: the geometry of every observation first
@@ -554,6 +563,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         });
         let mut cost = 0.0;
         let linearize = ne.is_some();
+        // The eliminated landmarks' linearization: rotations once per assembly, not per residual.
+        let rot = (linearize && !est_ext && self.cfg.depth_eliminated())
+            .then(|| WindowRotations::new(&poses, count, &ext));
         // Extrinsic not estimated: the landmark's products on anchor e go through the rank
         // structure (`add_pose_only_landmark`), the delays as scalar columns.
         let fast = linearize && !est_ext;
@@ -594,8 +606,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 continue;
             }
             if self.cfg.depth_eliminated() && only_j.is_none() {
-                match self
-                    .eliminated_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext)
+                let er = (&ext, rot.as_ref());
+                match self.eliminated_landmark(li, ne, &poses, &frames, er, &huber, est_td, est_ext)
                 {
                     Ok((c, n)) => {
                         cost += c;
@@ -908,14 +920,21 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
     }
 
     fn linearize(&mut self, ne: &mut NormalEquations<D>) -> Result<(), Error> {
-        self.assemble(Some(ne)).map(|_| ())
+        let res = self.assemble(Some(ne)).map(|_| ());
+        self.tau_fresh = false;
+        res
     }
 
     fn cost(&mut self) -> Result<f64, Error> {
-        self.assemble(None)
+        self.tau_fresh = false;
+        self.saved.tau_ok = [false; L];
+        let cost = self.assemble(None);
+        self.tau_fresh = cost.is_ok();
+        cost
     }
 
     fn apply(&mut self, dx: &[f64]) {
+        self.tau_fresh = false;
         let l = self.layout;
         let get3 = |c: usize| -> Vec3 {
             Vec3::new(
@@ -975,6 +994,7 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
     }
 
     fn restore(&mut self) {
+        self.tau_fresh = false;
         for k in 0..self.window.len() {
             if let (Some(kf), Some(slot)) = (self.window.get_mut(k), self.saved.states.get(k)) {
                 kf.state = slot.0;

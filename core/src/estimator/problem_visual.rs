@@ -26,6 +26,7 @@ use super::problem::Problem;
 use super::problem_lidar::{add_inverse_depth_obs, TauLandmark};
 use super::window::{Block, Layout};
 use crate::camera::CameraExtrinsic;
+use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::robust::Huber;
 use crate::factors::{CamFrame, KeyframePose};
 use crate::solver::NormalEquations;
@@ -43,7 +44,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         ne: &mut Option<&mut NormalEquations<D>>,
         poses: &[KeyframePose; N],
         frames: &[CamFrame; N],
-        ext: &CameraExtrinsic,
+        (ext, rot): (&CameraExtrinsic, Option<&WindowRotations<N>>),
         huber: &Huber,
         est_td: bool,
         est_ext: bool,
@@ -57,30 +58,50 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             .ok_or(Error::DimensionMismatch)?;
         let s = lm.anchor_s as usize;
         let m = TauLandmark::new(&lm.obs, s, None, sqrt_info, count).ok_or(Error::NotEnoughData)?;
-        let rays = m.rays(poses, frames)?;
-        // IRLS on the 1-D problem: each step re-weights the rays by the Huber weight of their
-        // residual at the current tau.
-        let tau = m.gauss_newton_tau(lm.inv_depth, |tau, mut g, mut h| {
-            for ray in rays.iter() {
-                let (r, jt) = ray.residual_and_d_tau(tau)?;
-                let w2 = huber.rho(r.norm_squared())[1];
-                g += w2 * jt.dot(&r);
-                h += w2 * jt.norm_squared();
-            }
-            Ok((g, h))
-        })?;
         let n_obs = m.obs.len() as u32;
-        let Some(ne) = ne.as_deref_mut() else {
-            let mut cost = 0.0;
-            for ray in rays.iter() {
-                cost += huber.rho(ray.residual_and_d_tau(tau)?.0.norm_squared())[0];
+        // A linearization right after a successful cost evaluation at the same state takes the
+        // `tau*` that evaluation computed (bit-identical: same rays, same start).
+        let cached = match (self.tau_fresh, ne.is_some()) {
+            (true, true) => self.saved.tau_ok.get(li).copied().unwrap_or(false),
+            _ => false,
+        };
+        let tau = match self.saved.tau.get(li) {
+            Some(&tau) if cached => tau,
+            _ => {
+                let rays = m.rays(poses, frames)?;
+                // IRLS on the 1-D problem: each step re-weights the rays by the Huber weight of
+                // their residual at the current tau.
+                let tau = m.gauss_newton_tau(lm.inv_depth, |tau, mut g, mut h| {
+                    for ray in rays.iter() {
+                        let (r, jt) = ray.residual_and_d_tau(tau)?;
+                        let w2 = huber.rho(r.norm_squared())[1];
+                        g += w2 * jt.dot(&r);
+                        h += w2 * jt.norm_squared();
+                    }
+                    Ok((g, h))
+                })?;
+                if ne.is_none() {
+                    let mut cost = 0.0;
+                    for ray in rays.iter() {
+                        cost += huber.rho(ray.residual_and_d_tau(tau)?.0.norm_squared())[0];
+                    }
+                    if let (Some(t), Some(ok)) =
+                        (self.saved.tau.get_mut(li), self.saved.tau_ok.get_mut(li))
+                    {
+                        (*t, *ok) = (tau, true);
+                    }
+                    return Ok((cost, n_obs));
+                }
+                tau
             }
-            return Ok((cost, n_obs));
+        };
+        let Some(ne) = ne.as_deref_mut() else {
+            return Err(Error::DimensionMismatch);
         };
         let ps = poses.get(s).ok_or(Error::DimensionMismatch)?;
         let l = self.layout;
-        if !est_ext {
-            let cost = accumulate_eliminated(&m, poses, ext, tau, huber, &l, ne)?;
+        if let (false, Some(rot)) = (est_ext, rot) {
+            let cost = accumulate_eliminated(&m, poses, rot, tau, huber, &l, ne)?;
             if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
                 lm.inv_depth = tau;
             }
@@ -120,13 +141,16 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
 fn accumulate_eliminated<const N: usize, const D: usize>(
     m: &TauLandmark<N>,
     poses: &[KeyframePose; N],
-    ext: &CameraExtrinsic,
+    rot: &WindowRotations<N>,
     tau: f64,
     huber: &Huber,
     l: &Layout<N>,
     ne: &mut NormalEquations<D>,
 ) -> Result<f64, Error> {
     let ps = poses.get(m.s).ok_or(Error::DimensionMismatch)?;
+    // The anchor's side of the chain is the same for every observation (same `s`, `x_s`, `tau`).
+    let (_, f0) = m.obs.first().ok_or(Error::NotEnoughData)?;
+    let anchor = f0.anchor_point(ps, rot, tau);
     let col = |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
     let td_col = |k: usize| l.col(Block::Td(k as u8));
     let (cs, ts) = (col(m.s)?, td_col(m.s));
@@ -137,18 +161,16 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
     let (mut c, mut beta, mut cost) = (0.0, 0.0, 0.0);
     for (j, f) in m.obs.iter() {
         let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
-        let jac = f.evaluate(ps, pj, ext, tau)?;
+        let jac = f.evaluate_poses(ps, pj, rot, &anchor)?;
         let sq = jac.r.norm_squared();
         cost += huber.rho(sq)[0];
         let w = huber.sqrt_weight(sq);
         let (r, a, b, g) = (jac.r * w, jac.d_pose_s * w, jac.d_pose_j * w, jac.d_tau * w);
         let cj = col(*j)?;
-        ne.add_2x6_blocks(&r, &[a, b], &[cs, cj])?;
         let tj = td_col(*j);
         let (t_s, t_j) = (jac.d_td[0] * w, jac.d_td[1] * w);
-        if ts.is_some() {
-            ne.add_scalar_columns(&r, &[(ts, t_s), (tj, t_j)], &[(cs, a), (cj, b)])?;
-        }
+        let delays = ts.map(|ts| [(Some(ts), t_s), (tj, t_j)]);
+        ne.add_2x6_pair(&r, &a, &b, cs, cj, delays)?;
         c += g.norm_squared();
         beta -= g.dot(&r);
         v_s += a.transpose() * g;
@@ -158,73 +180,250 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
     if !(c > 1e-12 && c.is_finite() && beta.is_finite()) {
         return Ok(cost);
     }
-    // The segments of v with their first columns: pose blocks (6 wide) and delays (1 wide).
-    let mut segs: HVec<(usize, [f64; 6], usize), { 2 * 16 }> = HVec::new();
-    let _ = segs.push((cs, v_s.into(), 6));
+    // The segments of v in column order: pose blocks (6 wide) and delays (1 wide).
+    let mut poses6: HVec<(usize, [f64; 6]), N> = HVec::new();
+    let mut scalars: HVec<(usize, f64), N> = HVec::new();
+    let _ = poses6.push((cs, v_s.into()));
     for (cj, x, _, _) in v_j.iter() {
-        let _ = segs.push((*cj, (*x).into(), 6));
+        let _ = poses6.push((*cj, (*x).into()));
     }
     if let Some(ts) = ts {
-        let _ = segs.push((ts, [v_ts, 0.0, 0.0, 0.0, 0.0, 0.0], 1));
+        let _ = scalars.push((ts, v_ts));
         for (_, _, tj, xt) in v_j.iter() {
             if let Some(tj) = tj {
-                let _ = segs.push((*tj, [*xt, 0.0, 0.0, 0.0, 0.0, 0.0], 1));
+                let _ = scalars.push((*tj, *xt));
             }
         }
     }
-    if !segs.iter().all(|(_, x, _)| x.iter().all(|v| v.is_finite())) {
+    let finite = poses6.iter().all(|(_, x)| x.iter().all(|v| v.is_finite()))
+        && scalars.iter().all(|(_, x)| x.is_finite());
+    if !finite {
         return Err(Error::NonFinite);
     }
-    fold_rank_one(ne, &segs, 1.0 / c, beta);
+    poses6.sort_unstable_by_key(|p| p.0);
+    scalars.sort_unstable_by_key(|p| p.0);
+    fold_rank_one(ne, &poses6, &scalars, 1.0 / c, beta);
     Ok(cost)
 }
 
-/// `H -= v v^T / c` (upper triangle) and `b -= v beta / c` for `v` given as segments
-/// `(first column, values, width)` on distinct, non-overlapping columns. Segment pair by segment
-/// pair, each block row a contiguous run, so the work is the `(sum of widths)^2 / 2` products.
-fn fold_rank_one<const D: usize>(
+/// `H -= v v^T / c` (upper triangle) and `b -= v beta / c` for `v` given as 6-wide pose
+/// segments and single delay columns, each list in ascending column order, all on distinct,
+/// non-overlapping columns. Every entry `(r, c)`, `r <= c`, gets `h -= (v_r / c) v_c` computed as
+/// `(v_r * inv_c) * v_c`, once: the order of the entries does not change any value. Pose rows are
+/// updated block pair by block pair with fixed 6-wide kernels, delays as runs of consecutive
+/// columns.
+fn fold_rank_one<const N: usize, const D: usize>(
     ne: &mut NormalEquations<D>,
-    segs: &[(usize, [f64; 6], usize)],
+    poses: &[(usize, [f64; 6])],
+    scalars: &HVec<(usize, f64), N>,
     inv_c: f64,
     beta: f64,
 ) {
-    for (ia, &(ca, xa, wa)) in segs.iter().enumerate() {
-        let xa = xa.get(..wa).unwrap_or(&[]);
-        if let Some(b) = ne.b.get_mut(ca..ca + wa) {
-            for (bi, x) in b.iter_mut().zip(xa) {
+    for &(ca, xa) in poses {
+        if let Some(b) = ne.b.get_mut(ca..ca + 6) {
+            for (bi, x) in b.iter_mut().zip(xa.iter()) {
                 *bi -= x * beta * inv_c;
             }
         }
+    }
+    for &(ct, xt) in scalars {
+        if let Some(bi) = ne.b.get_mut(ct) {
+            *bi -= xt * beta * inv_c;
+        }
+    }
+    // Delays as runs of consecutive columns (a track seen in consecutive keyframes: one run).
+    let mut tv = [0.0; N];
+    let mut runs: HVec<(usize, usize, usize), N> = HVec::new();
+    for (k, &(ct, xt)) in scalars.iter().enumerate() {
+        if let Some(v) = tv.get_mut(k) {
+            *v = xt;
+        }
+        match runs.last_mut() {
+            Some((c0, _, w)) if *c0 + *w == ct => *w += 1,
+            _ => {
+                let _ = runs.push((ct, k, 1));
+            }
+        }
+    }
+    let h = &mut ne.h;
+    for (ia, &(ca, xa)) in poses.iter().enumerate() {
+        let later = poses.get(ia + 1..).unwrap_or(&[]);
+        let first_run = runs.iter().position(|r| r.0 > ca).unwrap_or(runs.len());
+        let Some(rows) = h.get_mut(ca..ca + 6) else {
+            continue;
+        };
+        let xs: [f64; 6] = xa.map(|x| x * inv_c);
         // The diagonal block: upper triangle.
-        for (i, x) in xa.iter().enumerate() {
-            let xi = x * inv_c;
-            if let (Some(dst), Some(src)) = (
-                ne.h.get_mut(ca + i)
-                    .and_then(|row| row.get_mut(ca + i..ca + wa)),
-                xa.get(i..),
-            ) {
+        for (i, (row, xi)) in rows.iter_mut().zip(xs).enumerate() {
+            if let (Some(dst), Some(src)) = (row.get_mut(ca + i..ca + 6), xa.get(i..)) {
                 for (h, y) in dst.iter_mut().zip(src) {
                     *h -= xi * y;
                 }
             }
         }
-        // Cross blocks with the later segments, into whichever triangle is upper.
-        for &(cb, xb, wb) in segs.iter().skip(ia + 1) {
-            let xb = xb.get(..wb).unwrap_or(&[]);
-            let ((r0, xr), (c0, xc)) = if ca < cb {
-                ((ca, xa), (cb, xb))
-            } else {
-                ((cb, xb), (ca, xa))
+        // Cross blocks pair by pair: the later block's values stay in registers over the rows.
+        for &(cb, xb) in later {
+            for (row, xi) in rows.iter_mut().zip(xs) {
+                if let Some(dst) = row.get_mut(cb..cb + 6) {
+                    sub_scaled6(dst, xi, xb);
+                }
+            }
+        }
+        for &(c0, k0, w) in runs.get(first_run..).unwrap_or(&[]) {
+            let Some(src) = tv.get(k0..k0 + w) else {
+                continue;
             };
-            for (i, x) in xr.iter().enumerate() {
-                let xi = x * inv_c;
-                if let Some(dst) =
-                    ne.h.get_mut(r0 + i)
-                        .and_then(|row| row.get_mut(c0..c0 + xc.len()))
-                {
-                    for (h, y) in dst.iter_mut().zip(xc) {
+            for (row, xi) in rows.iter_mut().zip(xs) {
+                if let Some(dst) = row.get_mut(c0..c0 + w) {
+                    for (h, y) in dst.iter_mut().zip(src) {
                         *h -= xi * y;
                     }
+                }
+            }
+        }
+    }
+    // Delay rows, run by run: pose blocks to their right (none in the solve layout), the rest of
+    // the run and the later runs.
+    for (ir, &(c0, k0, w)) in runs.iter().enumerate() {
+        let first_pose = poses.iter().position(|p| p.0 > c0).unwrap_or(poses.len());
+        let right = poses.get(first_pose..).unwrap_or(&[]);
+        let later = runs.get(ir + 1..).unwrap_or(&[]);
+        for u in 0..w {
+            let (Some(row), Some(&xt)) = (h.get_mut(c0 + u), tv.get(k0 + u)) else {
+                continue;
+            };
+            let xi = xt * inv_c;
+            for &(cb, xb) in right {
+                if let Some(dst) = row.get_mut(cb..cb + 6) {
+                    sub_scaled6(dst, xi, xb);
+                }
+            }
+            if let (Some(dst), Some(src)) = (row.get_mut(c0 + u..c0 + w), tv.get(k0 + u..k0 + w)) {
+                for (h, y) in dst.iter_mut().zip(src) {
+                    *h -= xi * y;
+                }
+            }
+            for &(c1, k1, w1) in later {
+                if let (Some(dst), Some(src)) = (row.get_mut(c1..c1 + w1), tv.get(k1..k1 + w1)) {
+                    for (h, y) in dst.iter_mut().zip(src) {
+                        *h -= xi * y;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `dst[..6] -= x * y` (the operands as locals: two-wide products, no reloads).
+#[inline(always)]
+fn sub_scaled6(dst: &mut [f64], x: f64, y: [f64; 6]) {
+    if let Ok(d) = <&mut [f64; 6]>::try_from(dst) {
+        let [y0, y1, y2, y3, y4, y5] = y;
+        let [d0, d1, d2, d3, d4, d5] = d;
+        *d0 -= x * y0;
+        *d1 -= x * y1;
+        *d2 -= x * y2;
+        *d3 -= x * y3;
+        *d4 -= x * y4;
+        *d5 -= x * y5;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The generic segment-pair form the fold had before its 6-wide kernels.
+    /// `H -= v v^T / c` (upper triangle) and `b -= v beta / c` for `v` given as segments
+    /// `(first column, values, width)` on distinct, non-overlapping columns. Segment pair by segment
+    /// pair, each block row a contiguous run, so the work is the `(sum of widths)^2 / 2` products.
+    fn fold_reference<const D: usize>(
+        ne: &mut NormalEquations<D>,
+        segs: &[(usize, [f64; 6], usize)],
+        inv_c: f64,
+        beta: f64,
+    ) {
+        for (ia, &(ca, xa, wa)) in segs.iter().enumerate() {
+            let xa = xa.get(..wa).unwrap_or(&[]);
+            if let Some(b) = ne.b.get_mut(ca..ca + wa) {
+                for (bi, x) in b.iter_mut().zip(xa) {
+                    *bi -= x * beta * inv_c;
+                }
+            }
+            // The diagonal block: upper triangle.
+            for (i, x) in xa.iter().enumerate() {
+                let xi = x * inv_c;
+                if let (Some(dst), Some(src)) = (
+                    ne.h.get_mut(ca + i)
+                        .and_then(|row| row.get_mut(ca + i..ca + wa)),
+                    xa.get(i..),
+                ) {
+                    for (h, y) in dst.iter_mut().zip(src) {
+                        *h -= xi * y;
+                    }
+                }
+            }
+            // Cross blocks with the later segments, into whichever triangle is upper.
+            for &(cb, xb, wb) in segs.iter().skip(ia + 1) {
+                let xb = xb.get(..wb).unwrap_or(&[]);
+                let ((r0, xr), (c0, xc)) = if ca < cb {
+                    ((ca, xa), (cb, xb))
+                } else {
+                    ((cb, xb), (ca, xa))
+                };
+                for (i, x) in xr.iter().enumerate() {
+                    let xi = x * inv_c;
+                    if let Some(dst) =
+                        ne.h.get_mut(r0 + i)
+                            .and_then(|row| row.get_mut(c0..c0 + xc.len()))
+                    {
+                        for (h, y) in dst.iter_mut().zip(xc) {
+                            *h -= xi * y;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fold_is_bit_identical_to_the_segment_pair_form() {
+        let mut rnd = crate::solver::test_rng(17);
+        // Solve layout (delays after every pose) and marginalization layout (delay 0 at 15).
+        let layouts: [(&[usize], &[usize]); 2] = [
+            (&[0, 15, 45, 60, 120], &[150, 151, 153, 154, 158]),
+            (&[0, 16, 46, 61], &[15, 140, 142, 143]),
+        ];
+        for (pcols, tcols) in layouts {
+            let mut a = NormalEquations::<166>::new();
+            a.reset(160).unwrap();
+            for i in 0..160 {
+                a.b[i] = rnd();
+                for j in i..160 {
+                    a.h[i][j] = rnd();
+                }
+            }
+            let mut b = a.clone();
+            let poses: HVec<(usize, [f64; 6]), 10> = pcols
+                .iter()
+                .map(|&c| (c, core::array::from_fn(|_| rnd())))
+                .collect();
+            let scalars: HVec<(usize, f64), 10> = tcols.iter().map(|&c| (c, rnd())).collect();
+            let (inv_c, beta) = (1.0 / (1.0 + rnd().abs()), rnd());
+            // The old order: anchor, observations, then the delays, unsorted pairs.
+            let mut segs: HVec<(usize, [f64; 6], usize), 32> = HVec::new();
+            for &(c, x) in poses.iter().rev() {
+                let _ = segs.push((c, x, 6));
+            }
+            for &(c, x) in scalars.iter().rev() {
+                let _ = segs.push((c, [x, 0.0, 0.0, 0.0, 0.0, 0.0], 1));
+            }
+            fold_reference(&mut a, &segs, inv_c, beta);
+            fold_rank_one(&mut b, &poses, &scalars, inv_c, beta);
+            for i in 0..160 {
+                assert_eq!(a.b[i].to_bits(), b.b[i].to_bits(), "b[{i}]");
+                for j in i..160 {
+                    assert_eq!(a.h[i][j].to_bits(), b.h[i][j].to_bits(), "h[{i}][{j}]");
                 }
             }
         }

@@ -37,7 +37,7 @@ pub use shared_block::SharedBlock;
 
 /// Deterministic uniform numbers in `[-0.5, 0.5)` for the solver's unit tests (a 64-bit LCG).
 #[cfg(test)]
-fn test_rng(mut seed: u64) -> impl FnMut() -> f64 {
+pub(crate) fn test_rng(mut seed: u64) -> impl FnMut() -> f64 {
     move || {
         seed = seed
             .wrapping_mul(6364136223846793005)

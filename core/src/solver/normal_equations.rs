@@ -510,6 +510,167 @@ impl<const D: usize> NormalEquations<D> {
     }
 }
 
+/// `0.0` when every value is finite, NaN otherwise (branch-free: `x * 0` is NaN for inf/NaN).
+#[inline(always)]
+fn nonfinite_probe(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |acc, x| acc + x * 0.0)
+}
+
+/// `row[c + i..c + 6] += x0 y0[i..] + x1 y1[i..]` (the upper triangle's row `i` of a 6x6
+/// diagonal block), with a constant length per `i` so every row is a fixed kernel.
+#[inline(always)]
+fn tri_row(i: usize, row: &mut [f64], c: usize, x: (f64, f64), y: (&[f64; 6], &[f64; 6])) {
+    #[inline(always)]
+    fn fixed<const I: usize>(row: &mut [f64], c: usize, x: (f64, f64), y: (&[f64; 6], &[f64; 6])) {
+        if let (Some(dst), Some(y0), Some(y1)) =
+            (row.get_mut(c + I..c + 6), y.0.get(I..), y.1.get(I..))
+        {
+            for ((h, a0), a1) in dst.iter_mut().zip(y0).zip(y1) {
+                *h += x.0 * a0 + x.1 * a1;
+            }
+        }
+    }
+    match i {
+        0 => fixed::<0>(row, c, x, y),
+        1 => fixed::<1>(row, c, x, y),
+        2 => fixed::<2>(row, c, x, y),
+        3 => fixed::<3>(row, c, x, y),
+        4 => fixed::<4>(row, c, x, y),
+        _ => fixed::<5>(row, c, x, y),
+    }
+}
+
+/// `dst[..6] += x0 y0 + x1 y1` (the operands as locals).
+#[inline(always)]
+fn add_pair6(dst: &mut [f64], (x0, x1): (f64, f64), (y0, y1): (&[f64; 6], &[f64; 6])) {
+    if let Ok(d) = <&mut [f64; 6]>::try_from(dst) {
+        let ([a0, a1, a2, a3, a4, a5], [b0, b1, b2, b3, b4, b5]) = (*y0, *y1);
+        let [d0, d1, d2, d3, d4, d5] = d;
+        *d0 += x0 * a0 + x1 * b0;
+        *d1 += x0 * a1 + x1 * b1;
+        *d2 += x0 * a2 + x1 * b2;
+        *d3 += x0 * a3 + x1 * b3;
+        *d4 += x0 * a4 + x1 * b4;
+        *d5 += x0 * a5 + x1 * b5;
+    }
+}
+
+/// Fused fast path of one 2-row visual residual over two 6-wide pose blocks and, optionally,
+/// the two keyframes' delay columns (the eliminated-depth landmarks of the estimator).
+impl<const D: usize> NormalEquations<D> {
+    /// Exactly [`NormalEquations::add_2x6_blocks`]`(r, &[ja, jb], &[ca, cb])` followed, with
+    /// `delays = Some([(ta, da), (tb, db)])`, by [`NormalEquations::add_scalar_columns`]`(r,
+    /// &[(ta, da), (tb, db)], &[(ca, ja), (cb, jb)])`: every entry receives the same value
+    /// computed the same way (bit-identical), checked and added part by part as those two do.
+    /// Only the upper triangles of the diagonal blocks are written.
+    pub fn add_2x6_pair(
+        &mut self,
+        r: &nalgebra::Vector2<f64>,
+        ja: &nalgebra::Matrix2x6<f64>,
+        jb: &nalgebra::Matrix2x6<f64>,
+        ca: usize,
+        cb: usize,
+        delays: Option<[(Option<usize>, nalgebra::Vector2<f64>); 2]>,
+    ) -> Result<(), Error> {
+        let n = self.n;
+        let fits = |c: usize| c.checked_add(6).is_some_and(|e| e <= n);
+        if !(fits(ca) && fits(cb) && (ca + 6 <= cb || cb + 6 <= ca)) {
+            return Err(Error::DimensionMismatch);
+        }
+        let probe = nonfinite_probe(r.as_slice())
+            + nonfinite_probe(ja.as_slice())
+            + nonfinite_probe(jb.as_slice());
+        if probe != 0.0 {
+            return Err(Error::NonFinite);
+        }
+        self.cost += r.norm_squared();
+        // Rows of the 2x6 blocks as arrays (the kernels run along the 6 columns).
+        let rows = |m: &nalgebra::Matrix2x6<f64>| -> [[f64; 6]; 2] {
+            [
+                core::array::from_fn(|k| m[(0, k)]),
+                core::array::from_fn(|k| m[(1, k)]),
+            ]
+        };
+        let (a, b) = (rows(ja), rows(jb));
+        for (c, [m0, m1]) in [(ca, &a), (cb, &b)] {
+            if let Some(dst) = self.b.get_mut(c..c + 6) {
+                for ((bi, x0), x1) in dst.iter_mut().zip(m0).zip(m1) {
+                    *bi -= x0 * r.x + x1 * r.y;
+                }
+            }
+        }
+        // The block with the smaller columns is the row block of the cross product.
+        let ((lo, l), (hi, u)) = if ca < cb {
+            ((ca, &a), (cb, &b))
+        } else {
+            ((cb, &b), (ca, &a))
+        };
+        let ([l0, l1], [u0, u1]) = (l, u);
+        if let Some(rows) = self.h.get_mut(lo..lo + 6) {
+            for (i, (row, (&x0, &x1))) in rows.iter_mut().zip(l0.iter().zip(l1)).enumerate() {
+                tri_row(i, row, lo, (x0, x1), (l0, l1));
+                if let Some(dst) = row.get_mut(hi..hi + 6) {
+                    add_pair6(dst, (x0, x1), (u0, u1));
+                }
+            }
+        }
+        if let Some(rows) = self.h.get_mut(hi..hi + 6) {
+            for (i, (row, (&x0, &x1))) in rows.iter_mut().zip(u0.iter().zip(u1)).enumerate() {
+                tri_row(i, row, hi, (x0, x1), (u0, u1));
+            }
+        }
+        let Some(cols) = delays else {
+            return Ok(());
+        };
+        let in_pose = |c: usize| (ca..ca + 6).contains(&c) || (cb..cb + 6).contains(&c);
+        let [(ta, da), (tb, db)] = cols;
+        let distinct = ta.is_none() || ta != tb;
+        let bad_col = |t: Option<usize>| t.is_some_and(|c| c >= n || in_pose(c));
+        if !distinct || bad_col(ta) || bad_col(tb) {
+            return Err(Error::DimensionMismatch);
+        }
+        if nonfinite_probe(da.as_slice()) + nonfinite_probe(db.as_slice()) != 0.0 {
+            return Err(Error::NonFinite);
+        }
+        for (k, (t, dt)) in [(ta, da), (tb, db)].into_iter().enumerate() {
+            let Some(t) = t else { continue };
+            if let Some(bt) = self.b.get_mut(t) {
+                *bt -= dt.x * r.x + dt.y * r.y;
+            }
+            for (pc, [m0, m1]) in [(ca, &a), (cb, &b)] {
+                // `(J_pose^T d)_i`, as nalgebra's `transpose() * d` forms it.
+                let mut x = [0.0; 6];
+                for ((xi, a0), a1) in x.iter_mut().zip(m0).zip(m1) {
+                    *xi = a0 * dt.x + a1 * dt.y;
+                }
+                if t > pc {
+                    // Column `t` of the pose block's rows.
+                    if let Some(rows) = self.h.get_mut(pc..pc + 6) {
+                        for (row, xi) in rows.iter_mut().zip(x) {
+                            if let Some(h) = row.get_mut(t) {
+                                *h += xi;
+                            }
+                        }
+                    }
+                } else if let Some(dst) = self.h.get_mut(t).and_then(|row| row.get_mut(pc..pc + 6))
+                {
+                    for (h, xi) in dst.iter_mut().zip(x) {
+                        *h += xi;
+                    }
+                }
+            }
+            for (t2, d2) in [(ta, da), (tb, db)].into_iter().skip(k) {
+                let Some(t2) = t2 else { continue };
+                let (lo, hi) = if t <= t2 { (t, t2) } else { (t2, t) };
+                if let Some(h) = self.h.get_mut(lo).and_then(|row| row.get_mut(hi)) {
+                    *h += dt.x * d2.x + dt.y * d2.y;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Fast path for a dense residual over two equally wide blocks: the IMU preintegration factor
 /// (15 whitened rows, two 15-wide keyframe states). The three block products are formed with
 /// fixed-size arithmetic and added once each.
@@ -716,6 +877,77 @@ mod tests {
             Err(Error::DimensionMismatch)
         );
         assert!(split.h == before.h && split.b == before.b);
+    }
+
+    #[test]
+    fn fused_pair_is_bit_identical_to_the_two_paths() {
+        let mut rnd = crate::solver::test_rng(23);
+        // (pose a, pose b, delay a, delay b): solve layout, a before b and after it; the
+        // marginalization layout with a delay between pose blocks; no delay of b.
+        let cases: [(usize, usize, Option<usize>, Option<usize>); 4] = [
+            (0, 30, Some(45), Some(47)),
+            (30, 6, Some(47), Some(46)),
+            (16, 0, Some(15), Some(40)),
+            (0, 16, Some(15), None),
+        ];
+        for (ca, cb, ta, tb) in cases {
+            for with_delays in [false, true] {
+                let mut old = NormalEquations::<50>::new();
+                old.reset(48).unwrap();
+                for i in 0..48 {
+                    old.b[i] = rnd();
+                    for j in i..48 {
+                        old.h[i][j] = rnd();
+                    }
+                }
+                let mut new = old.clone();
+                let r = nalgebra::Vector2::new(rnd(), rnd());
+                let ja = nalgebra::Matrix2x6::<f64>::from_fn(|_, _| rnd());
+                let jb = nalgebra::Matrix2x6::<f64>::from_fn(|_, _| rnd());
+                let (da, db) = (
+                    nalgebra::Vector2::new(rnd(), rnd()),
+                    nalgebra::Vector2::new(rnd(), rnd()),
+                );
+                old.add_2x6_blocks(&r, &[ja, jb], &[ca, cb]).unwrap();
+                if with_delays {
+                    old.add_scalar_columns(&r, &[(ta, da), (tb, db)], &[(ca, ja), (cb, jb)])
+                        .unwrap();
+                }
+                let delays = with_delays.then_some([(ta, da), (tb, db)]);
+                new.add_2x6_pair(&r, &ja, &jb, ca, cb, delays).unwrap();
+                assert_eq!(old.cost.to_bits(), new.cost.to_bits());
+                for i in 0..48 {
+                    assert_eq!(old.b[i].to_bits(), new.b[i].to_bits(), "b[{i}]");
+                    for j in i..48 {
+                        assert_eq!(old.h[i][j].to_bits(), new.h[i][j].to_bits(), "h[{i}][{j}]");
+                    }
+                }
+            }
+        }
+        let mut ne = NormalEquations::<50>::new();
+        ne.reset(48).unwrap();
+        let z = nalgebra::Matrix2x6::<f64>::zeros();
+        let mut bad = z;
+        bad[(1, 3)] = f64::INFINITY;
+        let r = nalgebra::Vector2::new(1.0, 2.0);
+        assert_eq!(
+            ne.add_2x6_pair(&r, &z, &bad, 0, 6, None),
+            Err(Error::NonFinite)
+        );
+        assert_eq!(
+            ne.add_2x6_pair(&r, &z, &z, 0, 3, None),
+            Err(Error::DimensionMismatch)
+        );
+        assert_eq!(
+            ne.add_2x6_pair(&r, &z, &z, 0, 43, None),
+            Err(Error::DimensionMismatch)
+        );
+        let d = nalgebra::Vector2::new(1.0, 2.0);
+        let overlapping = Some([(Some(7), d), (None, d)]);
+        assert_eq!(
+            ne.add_2x6_pair(&r, &z, &z, 0, 6, overlapping),
+            Err(Error::DimensionMismatch)
+        );
     }
 
     #[test]
