@@ -91,6 +91,7 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         depth_opt_ns: _,
         admission,
         td_s,
+        imu_noise_scale,
         multi_view_tracks,
         multi_view_observations,
         landmarks_promoted,
@@ -128,7 +129,7 @@ fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
     ] {
         h.u64(u64::from(*n));
     }
-    h.f64s([residual_rms_px, &cost.0, &cost.1, td_s]);
+    h.f64s([residual_rms_px, &cost.0, &cost.1, td_s, imu_noise_scale]);
     h.bytes(format!("{termination:?} {breakdown:?}").as_bytes());
 }
 

@@ -37,6 +37,10 @@
 //! gyro_bias_rw = 2.0e-5
 //! accel_bias_rw = 3.0e-3
 //! bias_corr_time_s = 3600.0     # Gauss-Markov biases (omit for random walk)
+//! adapt_noise = true            # raise the white-noise densities to what the window measures
+//! max_noise_scale = 30.0        # largest factor on them (1 = measure and report only)
+//! noise_forgetting = 0.97       # per-keyframe weight of the earlier measurements
+//! noise_tolerance = 2.0         # variance ratio left to the window's own approximations
 //!
 //! [keyframe]                    # LE-VINS rules
 //! min_interval_s = 0.096
@@ -229,6 +233,10 @@ struct ImuSection {
     gyro_bias_rw: Option<f64>,
     accel_bias_rw: Option<f64>,
     bias_corr_time_s: Option<f64>,
+    adapt_noise: Option<bool>,
+    max_noise_scale: Option<f64>,
+    noise_forgetting: Option<f64>,
+    noise_tolerance: Option<f64>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -533,6 +541,11 @@ impl RunConfigFile {
         if i.bias_corr_time_s.is_some() {
             n.bias_corr_time_s = i.bias_corr_time_s;
         }
+        let a = &mut cfg.imu_noise_adapt;
+        set(&mut a.enabled, i.adapt_noise);
+        set(&mut a.max_density_scale, i.max_noise_scale);
+        set(&mut a.forgetting, i.noise_forgetting);
+        set(&mut a.tolerance, i.noise_tolerance);
         let k = &self.keyframe;
         set(&mut cfg.keyframe.min_interval_s, k.min_interval_s);
         set(&mut cfg.keyframe.min_translation_m, k.min_translation_m);

@@ -222,6 +222,20 @@ pub fn ate_m(ds: &Dataset, states: &[NavState]) -> f64 {
         .rmse
 }
 
+/// Position ATE RMSE after an SE3 alignment (evo's `-a`, the figure issue 13's bar uses).
+pub fn ate_se3_m(ds: &Dataset, states: &[NavState]) -> f64 {
+    let gt: Vec<StampedPose> = ds.ground_truth.iter().map(StampedPose::from).collect();
+    let est: Vec<StampedPose> = states.iter().map(StampedPose::from).collect();
+    let opts = EvalOptions {
+        alignment: povins::host_tools::eval::Alignment::Se3,
+        ..EvalOptions::default()
+    };
+    evaluate(&gt, &est, &opts)
+        .unwrap_or_else(|e| panic!("evaluation failed: {e:#}"))
+        .ate_pos_m
+        .rmse
+}
+
 /// True when every number of the state is finite.
 pub fn state_is_finite(s: &NavState) -> bool {
     [s.p_wb, s.v_wb, s.bg, s.ba]

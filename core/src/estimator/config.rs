@@ -150,6 +150,8 @@ pub struct EstimatorConfig {
     pub estimate_extrinsic: bool,
     /// Prior standard deviations of the extrinsic: translation m, rotation rad.
     pub extrinsic_prior: (f64, f64),
+    /// Online scale of the IMU white-noise densities ([`super::ImuNoiseAdapt`]).
+    pub imu_noise_adapt: super::ImuNoiseAdapt,
     /// Health monitor limits and the re-initialization prior.
     pub health: super::HealthConfig,
     /// LiDAR enhancement (off by default: PO-VINS-WO).
@@ -231,6 +233,7 @@ impl EstimatorConfig {
             td_min_landmarks: 20,
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
+            imu_noise_adapt: super::ImuNoiseAdapt::default(),
             health: super::HealthConfig::default(),
             lidar: LidarConfig::default(),
             clock: None,
@@ -272,6 +275,7 @@ impl EstimatorConfig {
                 .all(|v| pos(*v))
             && self.td_s.is_finite()
             && self.imu_noise.is_valid()
+            && self.imu_noise_adapt.is_valid()
             && pos(self.camera.fx)
             && pos(self.camera.fy);
         if ok {

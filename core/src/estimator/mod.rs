@@ -26,6 +26,7 @@
 
 pub mod config;
 mod health;
+mod imu_noise;
 mod lidar;
 mod marginalize;
 mod predict;
@@ -39,6 +40,7 @@ pub mod window;
 
 pub use config::{EstimatorConfig, FirstStatePrior, VisualDepth, VisualMode};
 pub use health::{Breakdown, HealthConfig};
+pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
 pub use report::{Admission, Counters, DepthEvent, DepthEventKind, KeyframeReport};
 
@@ -145,6 +147,8 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     /// Set by a re-initialization: the delay to start the new window with (and its first
     /// keyframe takes the wide re-initialization prior).
     reinit_td: Option<f64>,
+    /// Online scale of the IMU white-noise densities.
+    imu_scale: imu_noise::ImuNoiseScale,
 }
 
 /// Time-delay-corrected observation of `lm` at window position `k` (z = 1), or `None`.
@@ -213,6 +217,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             td_hold: false,
             bad_keyframes: 0,
             reinit_td: None,
+            imu_scale: imu_noise::ImuNoiseScale::new(),
             cfg,
         })
     }
@@ -674,7 +679,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             self.reinit_td = None;
         }
         self.open = Some(Preint::new(
-            self.cfg.imu_noise,
+            self.imu_scale.apply(self.cfg.imu_noise),
             self.cfg.preint,
             &sample,
             nav.bg,
@@ -726,6 +731,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         }
         report.window_len = self.window.len() as u32;
         report.td_s = self.current_td();
+        report.imu_noise_scale = self.imu_scale.density_scale();
         report.landmarks_total = self.lms.len() as u32;
         report.total_ns = now(&self.cfg).saturating_sub(t0);
         Ok(report)
@@ -973,6 +979,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             let second = self.cfg.lm_second;
             self.run_lm(&second, report);
         }
+        self.update_imu_noise_scale(&self.solve_layout());
         if self.cfg.lidar.enabled && self.cfg.lidar.depth_only_opt {
             let t0 = now(&self.cfg);
             self.depth_only_optimization();

@@ -68,6 +68,9 @@ pub struct KeyframeReport {
     pub admission: Admission,
     /// Camera-IMU time delay of the newest keyframe after the solve, s (`t_imu = t_cam + td`).
     pub td_s: f64,
+    /// Factor on the IMU white-noise densities after this keyframe (`estimator::imu_noise`; 1
+    /// until the window has measured the IMU against the camera).
+    pub imu_noise_scale: f64,
     /// Tracks the window offers: valid observations in at least two of its keyframes.
     pub multi_view_tracks: u32,
     /// Their observations (compare with `observations_used + landmarks_used`).

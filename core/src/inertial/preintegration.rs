@@ -382,6 +382,11 @@ impl<const M: usize> Preintegration<M> {
         }
     }
 
+    /// Noise densities the covariance was propagated with.
+    pub fn noise(&self) -> &ImuNoise {
+        &self.noise
+    }
+
     /// Time of keyframe `i`, ns.
     pub fn t_start_ns(&self) -> i64 {
         self.t0_ns

@@ -456,6 +456,24 @@ impl<const D: usize> Ldlt<D> {
         }
     }
 
+    /// `a^T A^-1 a` of the factored matrix, for `a` given in `y` (`n` entries; overwritten with
+    /// `U^-T a`): one forward substitution, `sum_k y_k^2 / d_k` over the kept pivots (a dropped
+    /// pivot's direction counts as unconstrained by `A`, as in [`Ldlt::solve_in_place`]).
+    pub fn inverse_quadratic_form(&self, y: &mut [f64]) -> Result<f64, Error> {
+        self.forward_substitute(y)?;
+        let q = y
+            .iter()
+            .zip(self.d.iter())
+            .filter(|(_, &dk)| dk > 0.0)
+            .map(|(yk, dk)| yk * yk / dk)
+            .sum::<f64>();
+        if q.is_finite() {
+            Ok(q)
+        } else {
+            Err(Error::NonFinite)
+        }
+    }
+
     /// `y <- U^-T y` (first half of a solve), `y` with `n` entries.
     pub fn forward_substitute(&self, y: &mut [f64]) -> Result<(), Error> {
         if !self.factored {
@@ -564,6 +582,21 @@ mod tests {
         f.solve_in_place(&mut x).unwrap();
         for (got, want) in x.iter().zip(x_true.iter()) {
             assert!((got - want).abs() < 1e-10, "{got} vs {want}");
+        }
+        // a^T A^-1 a against the dense inverse, for a sparse a (a factor's row) and a dense one.
+        let inv = full.try_inverse().unwrap();
+        for a in [
+            core::array::from_fn::<f64, NN, _>(|i| if (10..16).contains(&i) { rnd() } else { 0.0 }),
+            core::array::from_fn::<f64, NN, _>(|_| rnd()),
+        ] {
+            let av = nalgebra::SVector::<f64, NN>::from_column_slice(&a);
+            let want = av.dot(&(inv * av));
+            let mut y = a;
+            let got = f.inverse_quadratic_form(&mut y).unwrap();
+            assert!(
+                (got - want).abs() < 1e-10 * want.abs().max(1.0),
+                "{got} vs {want}"
+            );
         }
     }
 

@@ -134,6 +134,10 @@ pub struct Summary {
     pub estimator_ms_per_camera_frame: f64,
     /// Median landmarks in the final solve of a keyframe.
     pub landmarks_used_median: f64,
+    /// Camera-IMU delay of the last keyframe, ms.
+    pub td_end_ms: f64,
+    /// Factor on the IMU white-noise densities at the last keyframe (`estimator::imu_noise`).
+    pub imu_noise_scale_end: f64,
     /// Feature prediction for INS-aided tracking: predicted features the next frame observes.
     pub predictions: usize,
     /// Their distance to the observation, median and 90th percentile, px.
@@ -262,6 +266,8 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         backend_ms_per_camera_frame: total_ms / frames,
         estimator_ms_per_camera_frame: out.estimator_wall_s * 1e3 / frames,
         landmarks_used_median: percentile(&used, 50.0),
+        td_end_ms: out.reports.last().map_or(0.0, |r| r.td_s * 1e3),
+        imu_noise_scale_end: out.reports.last().map_or(1.0, |r| r.imu_noise_scale),
         predictions: pred.len(),
         prediction_px_median: pred_pct(50.0),
         prediction_px_p90: pred_pct(90.0),
@@ -344,7 +350,7 @@ pub const STATS_LIDAR_COLUMNS: &str =
 
 /// The landmark-admission columns appended to `stats.csv` (see `core::estimator::Admission`).
 pub const STATS_ADMISSION_COLUMNS: &str =
-    "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted";
+    "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted,imu_noise_scale";
 
 /// Writes the run's files into `dir`.
 pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<()> {
@@ -364,7 +370,7 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
     for r in &out.reports {
         writeln!(
             f,
-            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{}",
+            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4}",
             povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
             r.backend_ns() as f64 * 1e-6,
             r.solve_ns as f64 * 1e-6,
@@ -403,6 +409,7 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
             r.multi_view_observations,
             r.landmarks_promoted,
             r.landmarks_evicted,
+            r.imu_noise_scale,
         )?;
     }
     f.flush()?;
@@ -449,6 +456,10 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
     println!(
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
         s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
+    );
+    println!(
+        "imu       white-noise densities x{:.2} (measured by the window), delay td {:.2} ms at the end",
+        s.imu_noise_scale_end, s.td_end_ms
     );
     if let Some(fe) = &s.image_frontend {
         for line in summary_lines(fe) {
