@@ -6,6 +6,8 @@
 //! Each test binary uses a different subset of these helpers.
 #![allow(dead_code)]
 
+pub mod golden;
+
 use povins::core::estimator::{EstimatorConfig, ImuOutput, PoVins, VisualMode};
 use povins::core::inertial::{ImuSample, NavState};
 use povins::core::lidar::LidarPoint;

@@ -171,7 +171,11 @@ impl EstimatorConfig {
     }
 
     /// Defaults for a camera and IMU: LE-VINS keyframe rules, sigma_p = 1.5 px, Huber 1 sigma.
-    pub fn new(camera: PinholeCamera, extrinsic: CameraExtrinsic, imu_noise: ImuNoise) -> Self {
+    pub const fn new(
+        camera: PinholeCamera,
+        extrinsic: CameraExtrinsic,
+        imu_noise: ImuNoise,
+    ) -> Self {
         // A relative cost decrease of 1e-3 is far below the noise of the window's cost: iterating
         // further only spends time. The damping starts almost at Gauss-Newton: Marquardt damping
         // scales with diag(H), which a precise IMU makes huge, and then freezes the weakly
@@ -197,9 +201,9 @@ impl EstimatorConfig {
             max_frame_lead_s: 1.0,
             mode: VisualMode::PoseOnly,
             visual_depth: VisualDepth::Eliminated,
-            keyframe: KeyframeConfig::default(),
+            keyframe: KeyframeConfig::DEFAULT,
             static_init: StaticInitConfig::DEFAULT,
-            rest: RestConfig::default(),
+            rest: RestConfig::DEFAULT,
             zupt: true,
             zupt_sigma_mps: 0.01,
             zupt_motion_sigma: (2e-3, 2e-3),
@@ -233,12 +237,171 @@ impl EstimatorConfig {
             td_min_landmarks: 20,
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
-            imu_noise_adapt: super::ImuNoiseAdapt::default(),
-            health: super::HealthConfig::default(),
-            lidar: LidarConfig::default(),
+            imu_noise_adapt: super::ImuNoiseAdapt::DEFAULT,
+            health: super::HealthConfig::DEFAULT,
+            lidar: LidarConfig::DEFAULT,
             clock: None,
         }
     }
+
+    /// What an unconfigured estimator holds ([`super::Estimator::empty`]): every number zero
+    /// (quaternions too), every switch off, every option `None`, every mode its first variant,
+    /// so that its bits are all zero and a `static` estimator lives in `.bss`. Not a usable
+    /// configuration: it fails [`EstimatorConfig::validate`].
+    pub const PLACEHOLDER: EstimatorConfig = {
+        const LM: LmConfig = LmConfig {
+            max_iterations: 0,
+            max_retries: 0,
+            initial_lambda: 0.0,
+            lambda_min: 0.0,
+            lambda_max: 0.0,
+            diag_min: 0.0,
+            diag_max: 0.0,
+            function_tolerance: 0.0,
+            gradient_tolerance: 0.0,
+            step_tolerance: 0.0,
+            min_gain_ratio: 0.0,
+            pivot_floor: crate::solver::PivotFloor {
+                relative: 0.0,
+                absolute: 0.0,
+            },
+        };
+        const PRIOR: FirstStatePrior = FirstStatePrior {
+            p_m: 0.0,
+            theta_rad: 0.0,
+            v_mps: 0.0,
+            bg_rps: 0.0,
+            ba_mps2: 0.0,
+        };
+        const Q0: crate::math::Quat =
+            crate::math::Quat::new_unchecked(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0));
+        EstimatorConfig {
+            camera: PinholeCamera {
+                width: 0,
+                height: 0,
+                fx: 0.0,
+                fy: 0.0,
+                cx: 0.0,
+                cy: 0.0,
+                distortion: crate::camera::Distortion::None,
+            },
+            extrinsic: CameraExtrinsic {
+                p_bc: crate::math::VEC3_ZERO,
+                q_bc: Q0,
+            },
+            td_s: 0.0,
+            imu_noise: ImuNoise {
+                gyro_noise_density: 0.0,
+                accel_noise_density: 0.0,
+                gyro_bias_rw: 0.0,
+                accel_bias_rw: 0.0,
+                bias_corr_time_s: None,
+            },
+            gravity_mps2: 0.0,
+            max_imu_dt_s: 0.0,
+            max_gyro_rps: 0.0,
+            max_accel_mps2: 0.0,
+            max_speed_mps: 0.0,
+            max_frame_lead_s: 0.0,
+            mode: VisualMode::PoseOnly,
+            visual_depth: VisualDepth::TwoView,
+            keyframe: KeyframeConfig {
+                min_interval_s: 0.0,
+                min_translation_m: 0.0,
+                min_translation_interval_s: 0.0,
+                max_rotation_rad: 0.0,
+                max_interval_s: 0.0,
+                min_parallax_px: None,
+            },
+            static_init: StaticInitConfig {
+                gravity_mps2: 0.0,
+                accel_norm_tol_mps2: 0.0,
+                accel_std_max_mps2: 0.0,
+                gyro_std_max_rps: 0.0,
+                vibration_accel_std_max_mps2: 0.0,
+                vibration_gyro_std_max_rps: 0.0,
+                min_static_s: 0.0,
+                max_dt_s: 0.0,
+            },
+            rest: RestConfig {
+                max_px: 0.0,
+                min_features: 0,
+            },
+            zupt: false,
+            zupt_sigma_mps: 0.0,
+            zupt_motion_sigma: (0.0, 0.0),
+            preint: PreintConfig {
+                max_dt_s: 0.0,
+                reint_bg_rps: 0.0,
+                reint_ba_mps2: 0.0,
+            },
+            first_prior: PRIOR,
+            sigma_px: 0.0,
+            huber_delta: 0.0,
+            min_parallax: 0.0,
+            max_rel_depth_std: 0.0,
+            depth_uncertainty_weighting: false,
+            slot_parallax_ref: 0.0,
+            depth_range_m: (0.0, 0.0),
+            chi2_threshold: 0.0,
+            second_pass_min_culled_frac: 0.0,
+            cull_mean_px: 0.0,
+            cull_obs_px: 0.0,
+            cull_whole_tracks: false,
+            lm_first: LM,
+            lm_second: LM,
+            marginalize_visual: false,
+            reuse_marginalized_landmarks: false,
+            estimate_td: false,
+            td_rw_s_per_sqrt_s: 0.0,
+            td_prior_s: 0.0,
+            td_min_landmarks: 0,
+            estimate_extrinsic: false,
+            extrinsic_prior: (0.0, 0.0),
+            imu_noise_adapt: super::ImuNoiseAdapt {
+                enabled: false,
+                max_density_scale: 0.0,
+                forgetting: 0.0,
+                min_redundancy: 0.0,
+                tolerance: 0.0,
+            },
+            health: super::HealthConfig {
+                enabled: false,
+                max_gyro_bias_rps: 0.0,
+                max_accel_bias_mps2: 0.0,
+                max_velocity_correction_mps: 0.0,
+                max_residual_sigmas: 0.0,
+                bad_keyframes: 0,
+                reinit_prior: PRIOR,
+            },
+            lidar: LidarConfig {
+                enabled: false,
+                ldm: crate::lidar::LdmMode::Msc,
+                depth_outlier_rejection: false,
+                depth_only_opt: false,
+                sigma_dr_m: 0.0,
+                sigma_dr_rel: 0.0,
+                rejection_sigma_px: 0.0,
+                rejection_sigmas: 0.0,
+                extrinsic: crate::lidar::LidarExtrinsic {
+                    q_bl: Q0,
+                    p_bl: crate::math::VEC3_ZERO,
+                },
+                td_l_s: 0.0,
+                association: crate::lidar::AssociationConfig {
+                    cell_rad: 0.0,
+                    neighbours: 0,
+                    max_neighbour_rad: 0.0,
+                    max_plane_dist_m: 0.0,
+                    max_range_spread: 0.0,
+                    min_incidence_cos: 0.0,
+                    depth_range_m: (0.0, 0.0),
+                    span_s: 0.0,
+                },
+            },
+            clock: None,
+        }
+    };
 
     /// Checks ranges: positive noise and thresholds, a valid depth range.
     pub fn validate(&self) -> Result<(), Error> {

@@ -37,23 +37,28 @@ pub struct HealthConfig {
     pub reinit_prior: FirstStatePrior,
 }
 
+impl HealthConfig {
+    /// The defaults (what [`Default`] gives); `const` for static configurations.
+    pub const DEFAULT: HealthConfig = HealthConfig {
+        enabled: true,
+        max_gyro_bias_rps: 0.3,
+        max_accel_bias_mps2: 2.0,
+        max_velocity_correction_mps: 2.0,
+        max_residual_sigmas: 4.0,
+        bad_keyframes: 3,
+        reinit_prior: FirstStatePrior {
+            p_m: 1e-3,
+            theta_rad: 0.05,
+            v_mps: 0.5,
+            bg_rps: 0.01,
+            ba_mps2: 0.3,
+        },
+    };
+}
+
 impl Default for HealthConfig {
     fn default() -> Self {
-        HealthConfig {
-            enabled: true,
-            max_gyro_bias_rps: 0.3,
-            max_accel_bias_mps2: 2.0,
-            max_velocity_correction_mps: 2.0,
-            max_residual_sigmas: 4.0,
-            bad_keyframes: 3,
-            reinit_prior: FirstStatePrior {
-                p_m: 1e-3,
-                theta_rad: 0.05,
-                v_mps: 0.5,
-                bg_rps: 0.01,
-                ba_mps2: 0.3,
-            },
-        }
+        Self::DEFAULT
     }
 }
 

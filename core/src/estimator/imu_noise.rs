@@ -61,15 +61,20 @@ pub struct ImuNoiseAdapt {
     pub tolerance: f64,
 }
 
+impl ImuNoiseAdapt {
+    /// The defaults (what [`Default`] gives); `const` for static configurations.
+    pub const DEFAULT: ImuNoiseAdapt = ImuNoiseAdapt {
+        enabled: true,
+        max_density_scale: 30.0,
+        forgetting: 0.97,
+        min_redundancy: 5.0,
+        tolerance: 2.0,
+    };
+}
+
 impl Default for ImuNoiseAdapt {
     fn default() -> Self {
-        ImuNoiseAdapt {
-            enabled: true,
-            max_density_scale: 30.0,
-            forgetting: 0.97,
-            min_redundancy: 5.0,
-            tolerance: 2.0,
-        }
+        Self::DEFAULT
     }
 }
 
@@ -93,7 +98,8 @@ struct Component {
     chi2: f64,
     /// Decayed sum of their redundancies.
     redundancy: f64,
-    /// Current factor on the group's density (>= 1).
+    /// Current factor on the group's density (>= 1), or 0 before the first update (factor 1:
+    /// zero keeps a new component's bits all zero). See [`Component::factor`].
     scale: f64,
 }
 
@@ -102,7 +108,16 @@ impl Component {
         Component {
             chi2: 0.0,
             redundancy: 0.0,
-            scale: 1.0,
+            scale: 0.0,
+        }
+    }
+
+    /// Current factor on the group's density (>= 1).
+    fn factor(&self) -> f64 {
+        if self.scale == 0.0 {
+            1.0
+        } else {
+            self.scale
         }
     }
 
@@ -134,14 +149,14 @@ impl ImuNoiseScale {
 
     /// Factor on both white-noise densities.
     pub(super) fn density_scale(&self) -> f64 {
-        self.0.scale
+        self.0.factor()
     }
 
     /// `noise` with its white-noise densities multiplied by the current scale.
     pub(super) fn apply(&self, noise: ImuNoise) -> ImuNoise {
         ImuNoise {
-            gyro_noise_density: noise.gyro_noise_density * self.0.scale,
-            accel_noise_density: noise.accel_noise_density * self.0.scale,
+            gyro_noise_density: noise.gyro_noise_density * self.0.factor(),
+            accel_noise_density: noise.accel_noise_density * self.0.factor(),
             ..noise
         }
     }
@@ -165,7 +180,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// the IMU factor between keyframes 0 and 1.
     fn oldest_imu_variance_component(&self, layout: &Layout<N>) -> Option<(f64, f64)> {
         let (a, b) = (self.window.get(0)?, self.window.get(1)?);
-        let pre = b.preint.as_ref()?;
+        let pre = b.preint()?;
         let (mut r, mut ji, mut jj) = (Vec15::zeros(), Mat15::zeros(), Mat15::zeros());
         pre.evaluate(
             &a.state,
@@ -213,13 +228,13 @@ mod tests {
         let mut c = Component::new();
         // Too little redundancy yet: stays at 1.
         c.add(&cfg, 50.0, 0.5);
-        assert_eq!(c.scale, 1.0);
+        assert_eq!(c.factor(), 1.0);
         // chi2 25 per unit redundancy -> scale 5 once enough has been seen.
         let mut c = Component::new();
         for _ in 0..40 {
             c.add(&cfg, 100.0, 4.0);
         }
-        assert!((c.scale - 5.0).abs() < 1e-9, "{}", c.scale);
+        assert!((c.factor() - 5.0).abs() < 1e-9, "{}", c.factor());
         // The tolerance is the ratio attributed to the rest of the window: 25 / 4 -> 2.5.
         let mut t = Component::new();
         for _ in 0..40 {
@@ -232,17 +247,17 @@ mod tests {
                 4.0,
             );
         }
-        assert!((t.scale - 2.5).abs() < 1e-9, "{}", t.scale);
+        assert!((t.factor() - 2.5).abs() < 1e-9, "{}", t.factor());
         // Consistent factors (ratio < 1) never lower the densities below the configured ones.
         for _ in 0..40 {
             c.add(&cfg, 1.0, 4.0);
         }
-        assert_eq!(c.scale, 1.0);
+        assert_eq!(c.factor(), 1.0);
         // Capped.
         for _ in 0..40 {
             c.add(&cfg, 1e6, 1.0);
         }
-        assert_eq!(c.scale, 10.0);
+        assert_eq!(c.factor(), 10.0);
         // Non-finite or non-positive redundancy is ignored.
         let before = c;
         c.add(&cfg, f64::NAN, 1.0);

@@ -68,6 +68,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// Associates LiDAR depths with the tracks that start at the new keyframe `pos` (their first
     /// observation, the anchor they get as landmarks), in the keyframe camera at the INS pose
     /// `nav`.
+    // Not inlined: its list of depths (8 kB) must not sit in the keyframe step's frame during
+    // the solve.
+    #[inline(never)]
     pub(super) fn associate_depths(
         &mut self,
         pos: usize,

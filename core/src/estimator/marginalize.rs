@@ -117,11 +117,14 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             &mut self.prior.j0,
             r0,
         )?;
-        self.last_marg = Some((marg_report, prior_report));
+        self.last_marg = Some((
+            (marg_report.n - marg_report.rank) as u32,
+            (prior_report.n - prior_report.rank) as u32,
+        ));
         self.prior.set_dim(p, &self.marg_ne)?;
         self.prior.shift_positions()?;
         self.initial = None;
-        let _ = self.window.pop_oldest();
+        let _ = self.window.drop_oldest();
         if self.cfg.marginalize_visual {
             // Every residual of these is in the prior now.
             while let Some(li) = self

@@ -21,8 +21,12 @@
 //!
 //! Capacities are const generics: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state
 //! dimensions (15 per keyframe, 6 extrinsic, 1 delay per keyframe). The struct holds every
-//! buffer (about 4.6 MB for `N = 10`, `L = 200`, LiDAR buffers included): put it in a `Box` or a
-//! `static`.
+//! buffer (about 5.1 MB for `N = 10`, `L = 200`, LiDAR buffers included): put it in a `static`
+//! built by the `const` [`Estimator::empty`] (all zero bits, so it lives in `.bss`) and
+//! [`Estimator::configure`] it in place, or in a `Box`. Processing needs no large stack: keyframe
+//! intervals and camera frames are swapped between estimator-owned buffers, never moved by
+//! value (the EuRoC replay runs on a 96 KiB stack at the test profile's optimization level; the
+//! test uses 256 KiB).
 
 pub mod config;
 mod health;
@@ -59,7 +63,7 @@ use crate::lidar::association::{GRID_H, GRID_W};
 use crate::lidar::buffer::MAX_LIDAR_POINTS;
 use crate::lidar::{LdmMode, PointBuffer, SphereGrid};
 use crate::math::{log_so3, Vec3};
-use crate::solver::{FactorReport, LandmarkSchur, Ldlt, LmWorkspace, NormalEquations};
+use crate::solver::{LandmarkSchur, Ldlt, LmWorkspace, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
 use prior::MargPrior;
@@ -81,6 +85,9 @@ pub const LATE_SAMPLES: usize = 64;
 /// the oldest (counted in `frames_dropped_no_imu`). Four cover a delay of three frame periods.
 pub const PENDING_FRAMES: usize = 4;
 
+/// Largest frame gap over which feature velocities are kept, s.
+const TRACK_MAX_GAP_S: f64 = 0.5;
+
 /// The PO-VINS configuration of the paper: 10 keyframes, 200 landmarks.
 pub type PoVins = Estimator<10, 200, 166>;
 
@@ -88,6 +95,9 @@ pub type PoVins = Estimator<10, 200, 166>;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Status {
+    /// Built by [`Estimator::empty`] and not configured yet ([`Estimator::configure`]): every
+    /// input is refused.
+    Unconfigured,
     /// Waiting for a static period (or an explicit initial state).
     WaitingForInit,
     /// INS running; keyframes are being added.
@@ -117,14 +127,19 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     selector: KeyframeSelector,
     status: Status,
     static_init: StaticInitializer<INIT_SAMPLES>,
-    ins: Option<Ins>,
+    ins: Held<Ins>,
     last_imu: Option<ImuSample>,
     tracks: TrackTable<MAX_FEATURES>,
     rest: RestDetector<MAX_FEATURES>,
     frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
     pending: heapless::Deque<PendingFrame, PENDING_FRAMES>,
+    /// The frame being processed (taken from `pending` by [`Self::next_frame`]).
+    frame: PendingFrame,
     window: Window<N>,
-    open: Option<Preint>,
+    /// Storage of the open keyframe interval's preintegration, valid with `open_active` (swapped
+    /// into the window with its keyframe, see [`Window::push`]).
+    open: Preint,
+    open_active: bool,
     lms: Landmarks<N, L>,
     ext: CameraExtrinsic,
     prior: MargPrior<D, N>,
@@ -135,7 +150,8 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     schur: [LandmarkSchur<SCHUR_COLS>; L],
     saved: Saved<N, L>,
     counters: Counters,
-    last_marg: Option<(FactorReport, FactorReport)>,
+    /// Rank deficiencies (marginalized block, new prior) of the last marginalization.
+    last_marg: Option<(u32, u32)>,
     ins_window: InsWindow<INS_WINDOW>,
     points: PointBuffer<MAX_LIDAR_POINTS>,
     grid: SphereGrid<GRID_W, GRID_H>,
@@ -149,6 +165,42 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     reinit_td: Option<f64>,
     /// Online scale of the IMU white-noise densities.
     imu_scale: imu_noise::ImuNoiseScale,
+}
+
+/// An optional value kept beside a flag rather than in an `Option`, so that "none" is all zero
+/// bits (an `Option`'s `None` may be any pattern): keeps a `static` estimator in `.bss`.
+#[derive(Clone)]
+struct Held<T> {
+    value: T,
+    held: bool,
+}
+
+impl<T> Held<T> {
+    /// Nothing held; `value` is storage only.
+    const fn empty(value: T) -> Self {
+        Held { value, held: false }
+    }
+
+    fn as_ref(&self) -> Option<&T> {
+        self.held.then_some(&self.value)
+    }
+
+    fn as_mut(&mut self) -> Option<&mut T> {
+        if self.held {
+            Some(&mut self.value)
+        } else {
+            None
+        }
+    }
+
+    fn set(&mut self, value: T) {
+        self.value = value;
+        self.held = true;
+    }
+
+    fn clear(&mut self) {
+        self.held = false;
+    }
 }
 
 /// Time-delay-corrected observation of `lm` at window position `k` (z = 1), or `None`.
@@ -175,40 +227,59 @@ fn now(cfg: &EstimatorConfig) -> u64 {
 impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     const LAYOUT_OK: () = assert!(D == 16 * N + 6 && N >= 2 && N < 128 && 7 * N + 6 <= SCHUR_COLS);
 
-    /// A new estimator ([`Error::InvalidConfig`] for an invalid configuration).
+    /// A new estimator ([`Error::InvalidConfig`] for an invalid configuration): [`Self::empty`]
+    /// then [`Self::configure`].
     ///
-    /// The returned value is large; on a small stack construct it inside a `Box` or a `static`.
+    /// The returned value is large (it is built on the stack and moved out); on a small stack
+    /// put a [`Self::empty`] in a `static` and [`Self::configure`] it there.
     pub fn new(cfg: EstimatorConfig) -> Result<Self, Error> {
+        let mut est = Self::empty();
+        est.configure(cfg)?;
+        Ok(est)
+    }
+
+    /// An unconfigured estimator ([`Status::Unconfigured`]: it refuses every input until
+    /// [`Self::configure`]), with [`EstimatorConfig::PLACEHOLDER`] as its configuration.
+    /// `const`, so it can initialize a `static` and never pass through a stack:
+    ///
+    /// ```
+    /// use povins_core::estimator::{Estimator, PoVins, Status};
+    /// static EST: PoVins = Estimator::empty();
+    /// assert_eq!(EST.status(), Status::Unconfigured);
+    /// ```
+    pub const fn empty() -> Self {
         #[allow(clippy::let_unit_value)]
         let () = Self::LAYOUT_OK;
-        cfg.validate()?;
-        let selector = KeyframeSelector::new(cfg.keyframe)?;
-        let static_init = StaticInitializer::new(cfg.static_init)?;
-        if L > problem::LANDMARK_INDEX || L > u16::MAX as usize {
-            return Err(Error::InvalidConfig);
-        }
-        Ok(Estimator {
-            selector,
-            status: Status::WaitingForInit,
-            static_init,
-            ins: None,
+        Estimator {
+            cfg: EstimatorConfig::PLACEHOLDER,
+            selector: KeyframeSelector {
+                config: EstimatorConfig::PLACEHOLDER.keyframe,
+            },
+            status: Status::Unconfigured,
+            static_init: StaticInitializer::new_unchecked(EstimatorConfig::PLACEHOLDER.static_init),
+            ins: Held::empty(Ins::blank()),
             last_imu: None,
-            tracks: TrackTable::new(0.5),
-            rest: RestDetector::new(cfg.rest),
+            tracks: TrackTable::new(0.0),
+            rest: RestDetector::new(EstimatorConfig::PLACEHOLDER.rest),
             frame_obs: HVec::new(),
             pending: heapless::Deque::new(),
+            frame: PendingFrame {
+                t_cam_ns: 0,
+                obs: HVec::new(),
+            },
             window: Window::new(),
-            open: None,
+            open: Preint::empty(),
+            open_active: false,
             lms: Landmarks::new(),
-            ext: cfg.extrinsic,
+            ext: EstimatorConfig::PLACEHOLDER.extrinsic,
             prior: MargPrior::new(),
             initial: None,
             lm: LmWorkspace::new(),
             marg_ne: NormalEquations::new(),
             marg_ldlt: Ldlt::new(),
-            schur: core::array::from_fn(|_| LandmarkSchur::new()),
+            schur: [const { LandmarkSchur::new() }; L],
             saved: Saved::new(),
-            counters: Counters::default(),
+            counters: Counters::ZERO,
             last_marg: None,
             ins_window: InsWindow::new(),
             points: PointBuffer::new(),
@@ -218,8 +289,61 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             bad_keyframes: 0,
             reinit_td: None,
             imu_scale: imu_noise::ImuNoiseScale::new(),
-            cfg,
-        })
+        }
+    }
+
+    /// Validates `cfg` ([`Error::InvalidConfig`], and then nothing changes) and resets the
+    /// estimator in place to the state [`Self::new`]`(cfg)` builds: whatever it held before
+    /// (keyframes, landmarks, priors, counters, LiDAR points) is dropped, and it waits for
+    /// initialization ([`Status::WaitingForInit`]). Builds nothing large on the stack, so a
+    /// `static` estimator ([`Self::empty`]) can be configured, and re-configured, from a thread
+    /// with a small stack.
+    pub fn configure(&mut self, cfg: EstimatorConfig) -> Result<(), Error> {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::LAYOUT_OK;
+        cfg.validate()?;
+        let selector = KeyframeSelector::new(cfg.keyframe)?;
+        if L > problem::LANDMARK_INDEX || L > u16::MAX as usize {
+            return Err(Error::InvalidConfig);
+        }
+        // The last check: nothing has changed when it fails.
+        self.static_init.reset_to_new(cfg.static_init)?;
+        self.cfg = cfg;
+        self.selector = selector;
+        self.status = Status::WaitingForInit;
+        self.ins.clear();
+        self.last_imu = None;
+        self.tracks.reset_to_new(TRACK_MAX_GAP_S);
+        self.rest.reset_to_new(cfg.rest);
+        self.frame_obs.clear();
+        self.pending.clear();
+        self.frame.t_cam_ns = 0;
+        self.frame.obs.clear();
+        self.window.reset_to_new();
+        self.open.reset_to_empty();
+        self.open_active = false;
+        self.lms.reset_to_new();
+        self.ext = cfg.extrinsic;
+        self.prior.reset_to_new();
+        self.initial = None;
+        self.lm.reset_to_new();
+        self.marg_ne.reset_to_new();
+        self.marg_ldlt.reset_to_new();
+        for s in self.schur.iter_mut() {
+            s.reset_to_new();
+        }
+        self.saved.reset_to_new();
+        self.counters = Counters::ZERO;
+        self.last_marg = None;
+        self.ins_window.clear();
+        self.points.reset_to_new();
+        self.grid.reset_to_new();
+        self.events.clear();
+        self.td_hold = false;
+        self.bad_keyframes = 0;
+        self.reinit_td = None;
+        self.imu_scale = imu_noise::ImuNoiseScale::new();
+        Ok(())
     }
 
     /// The configuration.
@@ -257,11 +381,15 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 
     /// Starts from a known full state (e.g. ground truth in evaluation) instead of waiting for a
     /// static period. Its time should be that of the next IMU sample or earlier.
+    /// [`Error::NotInitialized`] while [`Status::Unconfigured`].
     pub fn initialize(&mut self, state: NavState) -> Result<(), Error> {
+        if self.status == Status::Unconfigured {
+            return Err(Error::NotInitialized);
+        }
         let cfg = self.ins_config();
         let ins = Ins::new(cfg, state)?;
         self.reset_window();
-        self.ins = Some(ins);
+        self.ins.set(ins);
         self.status = Status::Running;
         Ok(())
     }
@@ -278,7 +406,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.lms.clear();
         self.prior.clear();
         self.initial = None;
-        self.open = None;
+        self.open_active = false;
         self.pending.clear();
         self.tracks.clear();
         self.rest.clear();
@@ -288,21 +416,27 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         self.points.clear();
     }
 
-    /// Drops everything and waits for a new initialization (counted).
+    /// Drops everything and waits for a new initialization (counted). Does nothing while
+    /// [`Status::Unconfigured`].
     pub fn reset(&mut self) {
+        if self.status == Status::Unconfigured {
+            return;
+        }
         self.reset_window();
-        self.ins = None;
+        self.ins.clear();
         self.status = Status::WaitingForInit;
         self.counters.resets += 1;
         // A fresh detector: the samples before the reset must not count as static time.
-        if let Ok(s) = StaticInitializer::new(self.cfg.static_init) {
-            self.static_init = s;
-        }
+        let _ = self.static_init.reset_to_new(self.cfg.static_init);
     }
 
     /// Offers a camera frame of tracked features (raw pixels) at camera time `t_cam_ns`. It is
-    /// processed when the IMU reaches `t_cam + td`.
+    /// processed when the IMU reaches `t_cam + td`. [`Error::NotInitialized`] (nothing counted)
+    /// while [`Status::Unconfigured`].
     pub fn push_frame(&mut self, t_cam_ns: i64, obs: &[FeatureObs]) -> Result<(), Error> {
+        if self.status == Status::Unconfigured {
+            return Err(Error::NotInitialized);
+        }
         self.counters.frames += 1;
         // A frame far ahead of the IMU would block every real frame until the IMU caught up
         // (and overflow the open interval): refuse it.
@@ -339,6 +473,20 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         Ok(())
     }
 
+    /// The open keyframe interval's preintegration, if one is open.
+    fn open(&self) -> Option<&Preint> {
+        self.open_active.then_some(&self.open)
+    }
+
+    /// The open interval, mutable.
+    fn open_mut(&mut self) -> Option<&mut Preint> {
+        if self.open_active {
+            Some(&mut self.open)
+        } else {
+            None
+        }
+    }
+
     /// Time of the INS state (the newest propagated sample), ns.
     fn ins_time(&self) -> i64 {
         self.ins.as_ref().map_or(i64::MIN, |i| i.state().t_ns)
@@ -353,7 +501,11 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// Feeds one IMU sample: propagates the INS, and processes a pending frame whose time the
     /// IMU has reached. Rejected samples change nothing ([`Error::NonFinite`],
     /// [`Error::TimeNotIncreasing`]); a gap above `max_imu_dt_s` resets the estimator.
+    /// [`Error::NotInitialized`] (nothing counted) while [`Status::Unconfigured`].
     pub fn push_imu(&mut self, s: &ImuSample) -> Result<ImuOutput, Error> {
+        if self.status == Status::Unconfigured {
+            return Err(Error::NotInitialized);
+        }
         if !s.is_finite() {
             self.counters.imu_rejected_nonfinite += 1;
             return Err(Error::NonFinite);
@@ -382,14 +534,20 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         };
         if self.status == Status::WaitingForInit {
             // Frames before initialization feed the track velocities and the rest detector.
-            while let Some(p) = self.pending.pop_front() {
+            while self.next_frame() {
                 self.counters.frames_before_init += 1;
+                let t_cam_ns = self.frame.t_cam_ns;
                 if self
                     .tracks
-                    .process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs)
+                    .process(
+                        t_cam_ns,
+                        &self.frame.obs,
+                        &self.cfg.camera,
+                        &mut self.frame_obs,
+                    )
                     .is_ok()
                 {
-                    self.rest.push(p.t_cam_ns, &self.frame_obs, self.focal_px());
+                    self.rest.push(t_cam_ns, &self.frame_obs, self.focal_px());
                 }
             }
             let td_ns = (self.cfg.td_s * 1e9) as i64;
@@ -400,7 +558,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             match self.static_init.push_with_rest(s, rest_since) {
                 Ok(Some(state)) => {
                     let ins = Ins::new(self.ins_config(), state)?;
-                    self.ins = Some(ins);
+                    self.ins.set(ins);
                     if let Some(ins) = self.ins.as_mut() {
                         let st = *ins.propagate(s)?;
                         self.record_ins(&st);
@@ -438,8 +596,8 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if self.ins_time() < sample_f.t_ns {
                 self.advance(&sample_f)?;
             }
-            if let Some(p) = self.pending.pop_front() {
-                if let Some(r) = self.process_frame(&p, &sample_f)? {
+            if self.next_frame() {
+                if let Some(r) = self.process_frame(&sample_f)? {
                     out.keyframe = Some(r);
                 }
             }
@@ -475,7 +633,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             }
             Err(e) => return Err(e),
         }
-        if let Some(open) = self.open.as_mut() {
+        if let Some(open) = self.open_mut() {
             match open.push(s) {
                 Ok(()) => {}
                 // The interval cannot be bridged: start over rather than integrate a hole.
@@ -486,27 +644,39 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         Ok(())
     }
 
-    fn process_frame(
-        &mut self,
-        p: &PendingFrame,
-        sample: &ImuSample,
-    ) -> Result<Option<KeyframeReport>, Error> {
+    /// Moves the oldest pending frame into `self.frame` (swapped in place: a frame is too large
+    /// to pass through the stack of the processing path). False when none is pending.
+    #[inline(never)]
+    fn next_frame(&mut self) -> bool {
+        let Some(front) = self.pending.front_mut() else {
+            return false;
+        };
+        core::mem::swap(front, &mut self.frame);
+        // The previous frame, swapped into the queue, is dropped here.
+        let _ = self.pending.pop_front();
+        true
+    }
+
+    /// Processes `self.frame` (see [`Self::next_frame`]) at `sample`.
+    fn process_frame(&mut self, sample: &ImuSample) -> Result<Option<KeyframeReport>, Error> {
         let t0 = now(&self.cfg);
-        let st =
-            match self
-                .tracks
-                .process(p.t_cam_ns, &p.obs, &self.cfg.camera, &mut self.frame_obs)
-            {
-                Ok(st) => st,
-                Err(Error::TimeNotIncreasing) => {
-                    self.counters.frames_rejected_time += 1;
-                    return Ok(None);
-                }
-                Err(e) => return Err(e),
-            };
+        let t_cam_ns = self.frame.t_cam_ns;
+        let st = match self.tracks.process(
+            t_cam_ns,
+            &self.frame.obs,
+            &self.cfg.camera,
+            &mut self.frame_obs,
+        ) {
+            Ok(st) => st,
+            Err(Error::TimeNotIncreasing) => {
+                self.counters.frames_rejected_time += 1;
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        };
         self.counters.features_received += u64::from(st.received);
         self.counters.features_rejected += u64::from(st.received - st.accepted);
-        self.rest.push(p.t_cam_ns, &self.frame_obs, self.focal_px());
+        self.rest.push(t_cam_ns, &self.frame_obs, self.focal_px());
         let Some(ins) = self.ins.as_ref() else {
             return Ok(None);
         };
@@ -520,8 +690,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 let dr = log_so3(&(last.state.q_wb.inverse() * nav.q_wb)).norm();
                 let parallax = self.mean_parallax_px();
                 let nearly_full = self
-                    .open
-                    .as_ref()
+                    .open()
                     .is_some_and(|o| o.len() + 16 >= MAX_INTERVAL_SAMPLES);
                 match self.selector.decide(dt_s, dp, dr, parallax) {
                     KeyframeDecision::No
@@ -544,7 +713,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             None
         };
         let nav = self.ins.as_ref().map_or(nav, |i| *i.state());
-        let report = self.add_keyframe(p.t_cam_ns, nav, sample, decision, t0)?;
+        let report = self.add_keyframe(t_cam_ns, nav, sample, decision, t0)?;
         for s in tail.iter().flatten() {
             self.advance(s)?;
         }
@@ -554,7 +723,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     /// The IMU sample at `t_ns` interpolated from the open interval's samples (strictly after its
     /// start), if it holds that time.
     fn open_sample_at(&self, t_ns: i64) -> Option<ImuSample> {
-        let v = self.open.as_ref()?.samples();
+        let v = self.open()?.samples();
         let k = v.iter().position(|x| x.t_ns >= t_ns).filter(|&k| k > 0)?;
         let (a, b) = (v.get(k - 1)?, v.get(k)?);
         Some(if b.t_ns == t_ns {
@@ -571,7 +740,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
     fn rewind_to(&mut self, sample: &ImuSample) -> Option<HVec<ImuSample, LATE_SAMPLES>> {
         let kf_state = self.window.last()?.state;
         let ins_cfg = self.ins_config();
-        let open = self.open.as_mut()?;
+        let open = self.open_mut()?;
         let mut tail: HVec<ImuSample, LATE_SAMPLES> = HVec::new();
         for s in open.samples().iter().filter(|s| s.t_ns > sample.t_ns) {
             tail.push(*s).ok()?;
@@ -581,7 +750,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         for s in open.samples() {
             ins.propagate(s).ok()?;
         }
-        self.ins = Some(ins);
+        self.ins.set(ins);
         Some(tail)
     }
 
@@ -643,13 +812,13 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 self.counters.marginalization_failures += 1;
                 self.prior.clear();
                 self.initial = None;
-                let _ = self.window.pop_oldest();
+                let _ = self.window.drop_oldest();
                 self.lms.shift_out_oldest();
             }
             report.marginalization_ns = now(&self.cfg).saturating_sub(tm);
             if let Some((m, p)) = self.last_marg {
-                report.marginalized_rank_deficiency = (m.n - m.rank) as u32;
-                report.prior_rank_deficiency = (p.n - p.rank) as u32;
+                report.marginalized_rank_deficiency = m;
+                report.prior_rank_deficiency = p;
             }
         }
 
@@ -660,31 +829,30 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             t_ns: nav.t_ns,
             ..*sample
         };
-        let mut preint = self.open.take();
-        if let Some(p) = preint.as_mut() {
+        let at_rest = self.cfg.zupt && self.at_rest_since_last_keyframe();
+        // The interval closes: swapped into the keyframe's slot (which hands back storage for
+        // the next one).
+        let interval = if core::mem::take(&mut self.open_active) {
             // A closed interval is evaluated at every LM step: factor its covariance once.
-            let _ = p.cache_whitening();
-        }
-        let kf = Keyframe {
-            t_cam_ns,
-            state: nav,
-            td_s: td,
-            preint,
-            at_rest: self.cfg.zupt && self.at_rest_since_last_keyframe(),
+            let _ = self.open.cache_whitening();
+            Some(&mut self.open)
+        } else {
+            None
         };
-        self.window.push(kf)?;
+        self.window.push(t_cam_ns, nav, td, at_rest, interval)?;
         if self.window.len() == 1 {
             self.prior.clear();
             self.initial = Some(self.initial_priors(&nav, td));
             self.reinit_td = None;
         }
-        self.open = Some(Preint::new(
+        self.open.restart_with(
             self.imu_scale.apply(self.cfg.imu_noise),
             self.cfg.preint,
             &sample,
             nav.bg,
             nav.ba,
-        )?);
+        )?;
+        self.open_active = true;
         let pos = self.window.len() - 1;
         // The observations were taken at `t_cam + td_true`; the keyframe's state is at its sample
         // time, so the delay they are referred to is that time minus the camera time (equal to
@@ -725,7 +893,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             if let Some(ins) = self.ins.as_mut() {
                 ins.set_state(st)?;
             }
-            if let Some(open) = self.open.as_mut() {
+            if let Some(open) = self.open_mut() {
                 open.reset(&sample, st.bg, st.ba)?;
             }
         }
@@ -956,7 +1124,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 Some(a) => (a.state.bg, a.state.ba),
                 None => continue,
             };
-            if let Some(pre) = self.window.get_mut(k).and_then(|b| b.preint.as_mut()) {
+            if let Some(pre) = self.window.get_mut(k).and_then(|b| b.preint_mut()) {
                 if pre.needs_reintegration(&bg, &ba) {
                     let _ = pre.reintegrate(bg, ba);
                     let _ = pre.cache_whitening();

@@ -105,6 +105,22 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         self.blocks.clear();
     }
 
+    /// Back to the state [`MargPrior::new`] builds (every buffer zeroed), in place.
+    pub fn reset_to_new(&mut self) {
+        self.clear();
+        for row in self
+            .j0
+            .iter_mut()
+            .chain(self.h0.iter_mut())
+            .chain(self.h_eff.iter_mut())
+        {
+            row.fill(0.0);
+        }
+        self.r0.fill(0.0);
+        self.g0.fill(0.0);
+        self.c0 = 0.0;
+    }
+
     /// Activates the prior after `j0`, `r0` and `blocks` were written, with `h_star` the
     /// marginal system they came from (`J0^T J0 = H*`, `J0^T r0 = -b*`, upper triangle of `H*`).
     pub fn set_dim(&mut self, dim: usize, h_star: &NormalEquations<D>) -> Result<(), Error> {

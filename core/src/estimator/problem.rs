@@ -86,18 +86,31 @@ pub struct Saved<const N: usize, const L: usize> {
 }
 
 impl<const N: usize, const L: usize> Saved<N, L> {
-    /// Zeroed.
-    pub fn new() -> Self {
+    /// Zeroed (all bits: states and extrinsic are written before they are read); `const` so it
+    /// can initialize a `static`.
+    pub const fn new() -> Self {
         Saved {
-            states: [(NavState::identity(0), 0.0); N],
+            states: [(NavState::ZERO, 0.0); N],
             ext: CameraExtrinsic {
-                p_bc: Vec3::zeros(),
-                q_bc: crate::math::Quat::identity(),
+                p_bc: crate::math::VEC3_ZERO,
+                q_bc: NavState::ZERO.q_wb,
             },
             inv_depth: [0.0; L],
             tau: [0.0; L],
             tau_ok: [false; L],
         }
+    }
+
+    /// Back to the state [`Saved::new`] builds, in place.
+    pub fn reset_to_new(&mut self) {
+        self.states.fill((NavState::ZERO, 0.0));
+        self.ext = CameraExtrinsic {
+            p_bc: Vec3::zeros(),
+            q_bc: NavState::ZERO.q_wb,
+        };
+        self.inv_depth.fill(0.0);
+        self.tau.fill(0.0);
+        self.tau_ok.fill(false);
     }
 }
 
@@ -308,7 +321,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let (Some(a), Some(b)) = (self.window.get(k - 1), self.window.get(k)) else {
                 return Err(Error::NotEnoughData);
             };
-            let pre = b.preint.as_ref().ok_or(Error::NotEnoughData)?;
+            let pre = b.preint().ok_or(Error::NotEnoughData)?;
             if ne.is_none() {
                 r = pre.residual_whitened(&a.state, &b.state, g)?;
                 cost += sink(&mut ne, r.as_slice(), &[])?;

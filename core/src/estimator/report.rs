@@ -186,3 +186,33 @@ pub struct Counters {
     /// LiDAR points evicted from the full buffer before use.
     pub lidar_points_evicted: u64,
 }
+
+impl Counters {
+    /// All zero (what [`Default`] gives); `const` for static estimators.
+    pub const ZERO: Counters = Counters {
+        imu_samples: 0,
+        imu_rejected_nonfinite: 0,
+        imu_rejected_range: 0,
+        imu_rejected_time: 0,
+        frames: 0,
+        frames_rejected_time: 0,
+        frames_before_init: 0,
+        frames_dropped_no_imu: 0,
+        keyframes: 0,
+        features_received: 0,
+        features_rejected: 0,
+        landmarks_refused_capacity: 0,
+        landmarks_evicted: 0,
+        solver_failures: 0,
+        marginalization_failures: 0,
+        resets: 0,
+        divergence_resets: 0,
+        reinitializations: 0,
+        lidar_scans: 0,
+        lidar_scans_refused: 0,
+        lidar_points_received: 0,
+        lidar_points_accepted: 0,
+        lidar_points_rejected: 0,
+        lidar_points_evicted: 0,
+    };
+}

@@ -67,6 +67,9 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
 
     /// Gives the landmark slots to the most informative tracks (module docs). Returns (promoted,
     /// evicted).
+    // Not inlined: its candidate lists (about 20 kB) must not sit in the keyframe step's frame
+    // during the solve.
+    #[inline(never)]
     pub(super) fn select_landmarks(&mut self) -> (u32, u32) {
         let count = self.window.len();
         let Some(newest) = count.checked_sub(1).filter(|&n| n > 0) else {

@@ -25,17 +25,50 @@ pub struct Keyframe {
     pub state: NavState,
     /// Camera-IMU time delay estimate of this keyframe, s.
     pub td_s: f64,
-    /// Preintegration from the previous keyframe to this one (`None` for the first keyframe).
-    pub preint: Option<Preint>,
     /// The images show the platform at rest since before the previous keyframe (so over the
     /// whole interval to this one): zero-velocity factors apply.
     pub at_rest: bool,
+    /// Storage of the preintegration from the previous keyframe to this one, valid with
+    /// `has_preint` (it stays in its window slot: intervals are swapped in and out, never moved
+    /// by value, see [`Window::push`]).
+    preint: Preint,
+    has_preint: bool,
 }
 
-/// Ring of at most `N` keyframes.
+impl Keyframe {
+    /// A blank slot (all bits zero).
+    const fn empty() -> Self {
+        Keyframe {
+            t_cam_ns: 0,
+            state: NavState::ZERO,
+            td_s: 0.0,
+            at_rest: false,
+            preint: Preint::empty(),
+            has_preint: false,
+        }
+    }
+
+    /// Preintegration from the previous keyframe to this one (`None` for the first keyframe of
+    /// a new window; the oldest keyframe after a marginalization keeps its own).
+    pub fn preint(&self) -> Option<&Preint> {
+        self.has_preint.then_some(&self.preint)
+    }
+
+    /// The preintegration, mutable.
+    pub fn preint_mut(&mut self) -> Option<&mut Preint> {
+        if self.has_preint {
+            Some(&mut self.preint)
+        } else {
+            None
+        }
+    }
+}
+
+/// Ring of at most `N` keyframes. Every slot holds its keyframe's storage (preintegration
+/// included) for good: adding and dropping keyframes never moves one by value.
 #[derive(Clone)]
 pub struct Window<const N: usize> {
-    slots: [Option<Keyframe>; N],
+    slots: [Keyframe; N],
     head: usize,
     count: usize,
 }
@@ -47,10 +80,10 @@ impl<const N: usize> Default for Window<N> {
 }
 
 impl<const N: usize> Window<N> {
-    /// An empty window.
-    pub fn new() -> Self {
+    /// An empty window; `const` so it can initialize a `static`.
+    pub const fn new() -> Self {
         Window {
-            slots: core::array::from_fn(|_| None),
+            slots: [const { Keyframe::empty() }; N],
             head: 0,
             count: 0,
         }
@@ -93,15 +126,13 @@ impl<const N: usize> Window<N> {
 
     /// Keyframe at `pos`.
     pub fn get(&self, pos: usize) -> Option<&Keyframe> {
-        self.slot(pos)
-            .and_then(|s| self.slots.get(s))
-            .and_then(|k| k.as_ref())
+        self.slot(pos).and_then(|s| self.slots.get(s))
     }
 
     /// Mutable keyframe at `pos`.
     pub fn get_mut(&mut self, pos: usize) -> Option<&mut Keyframe> {
         let s = self.slot(pos)?;
-        self.slots.get_mut(s).and_then(|k| k.as_mut())
+        self.slots.get_mut(s)
     }
 
     /// The newest keyframe.
@@ -109,37 +140,69 @@ impl<const N: usize> Window<N> {
         self.count.checked_sub(1).and_then(|p| self.get(p))
     }
 
-    /// Appends a keyframe ([`Error::CapacityExceeded`] if the window is full).
-    pub fn push(&mut self, kf: Keyframe) -> Result<(), Error> {
+    /// Appends a keyframe: time on the camera clock, state at the IMU time of the image, delay,
+    /// rest flag, and the preintegration from the previous keyframe (`None` for the first one).
+    /// The preintegration is swapped into the slot, not copied: `interval` gets the slot's old
+    /// storage back, to restart in place ([`Preint::restart_with`]).
+    /// [`Error::CapacityExceeded`] (and nothing changes) if the window is full.
+    pub fn push(
+        &mut self,
+        t_cam_ns: i64,
+        state: NavState,
+        td_s: f64,
+        at_rest: bool,
+        interval: Option<&mut Preint>,
+    ) -> Result<(), Error> {
         if self.count >= N {
             return Err(Error::CapacityExceeded);
         }
         let s = (self.head + self.count) % N;
-        match self.slots.get_mut(s) {
-            Some(slot) => {
-                *slot = Some(kf);
-                self.count += 1;
-                Ok(())
-            }
-            None => Err(Error::CapacityExceeded),
+        let Some(slot) = self.slots.get_mut(s) else {
+            return Err(Error::CapacityExceeded);
+        };
+        slot.t_cam_ns = t_cam_ns;
+        slot.state = state;
+        slot.td_s = td_s;
+        slot.at_rest = at_rest;
+        slot.has_preint = interval.is_some();
+        if let Some(p) = interval {
+            core::mem::swap(&mut slot.preint, p);
         }
+        self.count += 1;
+        Ok(())
     }
 
-    /// Removes the oldest keyframe.
-    pub fn pop_oldest(&mut self) -> Option<Keyframe> {
+    /// Removes the oldest keyframe (its slot's storage stays for reuse). False when empty.
+    pub fn drop_oldest(&mut self) -> bool {
         if self.count == 0 {
-            return None;
+            return false;
         }
-        let kf = self.slots.get_mut(self.head).and_then(|s| s.take());
+        if let Some(slot) = self.slots.get_mut(self.head) {
+            slot.has_preint = false;
+        }
         self.head = (self.head + 1) % N;
         self.count -= 1;
-        kf
+        true
     }
 
-    /// Removes everything.
+    /// Removes everything (the slots' storage stays for reuse).
     pub fn clear(&mut self) {
         for s in self.slots.iter_mut() {
-            *s = None;
+            s.has_preint = false;
+        }
+        self.head = 0;
+        self.count = 0;
+    }
+
+    /// Back to the state [`Window::new`] builds (every slot blank), in place.
+    pub fn reset_to_new(&mut self) {
+        for s in self.slots.iter_mut() {
+            s.t_cam_ns = 0;
+            s.state = NavState::ZERO;
+            s.td_s = 0.0;
+            s.at_rest = false;
+            s.preint.reset_to_empty();
+            s.has_preint = false;
         }
         self.head = 0;
         self.count = 0;

@@ -26,16 +26,21 @@ pub struct KeyframeConfig {
     pub min_parallax_px: Option<f64>,
 }
 
+impl KeyframeConfig {
+    /// The LE-VINS thresholds (what [`Default`] gives); `const` for static configurations.
+    pub const DEFAULT: KeyframeConfig = KeyframeConfig {
+        min_interval_s: 0.096,
+        min_translation_m: 0.2,
+        min_translation_interval_s: 0.285,
+        max_rotation_rad: 10.0 * core::f64::consts::PI / 180.0,
+        max_interval_s: 0.475,
+        min_parallax_px: None,
+    };
+}
+
 impl Default for KeyframeConfig {
     fn default() -> Self {
-        KeyframeConfig {
-            min_interval_s: 0.096,
-            min_translation_m: 0.2,
-            min_translation_interval_s: 0.285,
-            max_rotation_rad: 10.0 * core::f64::consts::PI / 180.0,
-            max_interval_s: 0.475,
-            min_parallax_px: None,
-        }
+        Self::DEFAULT
     }
 }
 

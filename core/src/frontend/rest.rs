@@ -22,12 +22,17 @@ pub struct RestConfig {
     pub min_features: usize,
 }
 
+impl RestConfig {
+    /// The defaults (what [`Default`] gives); `const` for static configurations.
+    pub const DEFAULT: RestConfig = RestConfig {
+        max_px: 2.0,
+        min_features: 8,
+    };
+}
+
 impl Default for RestConfig {
     fn default() -> Self {
-        RestConfig {
-            max_px: 2.0,
-            min_features: 8,
-        }
+        Self::DEFAULT
     }
 }
 
@@ -35,6 +40,8 @@ impl Default for RestConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RestVerdict {
+    /// Too few features to tell (first, so that a new detector's bits are all zero).
+    Unknown,
     /// At rest since `since_ns` (camera time of the reference frame).
     Rest {
         /// Camera time at which the rest began, ns.
@@ -42,8 +49,6 @@ pub enum RestVerdict {
     },
     /// Moving.
     Moving,
-    /// Too few features to tell.
-    Unknown,
 }
 
 /// Image rest detector holding up to `F` features of its reference frame.
@@ -58,7 +63,7 @@ pub struct RestDetector<const F: usize> {
 
 impl<const F: usize> RestDetector<F> {
     /// A detector with no reference yet.
-    pub fn new(cfg: RestConfig) -> Self {
+    pub const fn new(cfg: RestConfig) -> Self {
         RestDetector {
             cfg,
             reference: Vec::new(),
@@ -77,6 +82,14 @@ impl<const F: usize> RestDetector<F> {
     pub fn clear(&mut self) {
         self.reference.clear();
         self.verdict = RestVerdict::Unknown;
+    }
+
+    /// Back to the state [`RestDetector::new`] builds with `cfg`, in place.
+    pub fn reset_to_new(&mut self, cfg: RestConfig) {
+        self.cfg = cfg;
+        self.clear();
+        self.reference_t_ns = 0;
+        self.scratch.clear();
     }
 
     /// Feeds a frame's observations (sorted by id, as [`super::TrackTable`] gives them) at camera

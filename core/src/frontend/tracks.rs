@@ -58,7 +58,7 @@ pub struct TrackTable<const F: usize> {
 
 impl<const F: usize> TrackTable<F> {
     /// A table that treats frames further apart than `max_gap_s` as a restart of all tracks.
-    pub fn new(max_gap_s: f64) -> Self {
+    pub const fn new(max_gap_s: f64) -> Self {
         TrackTable {
             prev: Vec::new(),
             prev_t_ns: None,
@@ -74,6 +74,12 @@ impl<const F: usize> TrackTable<F> {
         self.prev_t_ns = None;
         self.prev2.clear();
         self.prev2_t_ns = None;
+    }
+
+    /// Back to the state [`TrackTable::new`] builds with `max_gap_s`, in place.
+    pub fn reset_to_new(&mut self, max_gap_s: f64) {
+        self.clear();
+        self.max_gap_ns = (max_gap_s * 1e9) as i64;
     }
 
     /// Validates and undistorts a frame into `out` (sorted by id). Returns

@@ -133,6 +133,29 @@ impl<const M: usize> StaticInitializer<M> {
         })
     }
 
+    /// An initializer without samples and without the checks of [`StaticInitializer::new`]
+    /// (`cfg` may be a placeholder: give it a valid one with
+    /// [`StaticInitializer::reset_to_new`] before use); `const` so it can initialize a `static`.
+    pub const fn new_unchecked(cfg: StaticInitConfig) -> Self {
+        StaticInitializer {
+            cfg,
+            window: Deque::new(),
+            gaps: 0,
+        }
+    }
+
+    /// Back to the state [`StaticInitializer::new`] builds with `cfg`, in place (the same
+    /// errors, and then nothing changes).
+    pub fn reset_to_new(&mut self, cfg: StaticInitConfig) -> Result<(), Error> {
+        if !cfg.is_valid() || M < 2 {
+            return Err(Error::InvalidConfig);
+        }
+        self.cfg = cfg;
+        self.window.clear();
+        self.gaps = 0;
+        Ok(())
+    }
+
     /// How many time gaps restarted the detection.
     pub fn gaps(&self) -> u32 {
         self.gaps

@@ -98,6 +98,21 @@ impl Ins {
         })
     }
 
+    /// Storage for an INS that has not started: every number zero (not a usable INS; the
+    /// estimator keeps it beside a flag).
+    pub(crate) const fn blank() -> Self {
+        Ins {
+            cfg: InsConfig {
+                gravity_mps2: 0.0,
+                max_dt_s: 0.0,
+            },
+            state: NavState::ZERO,
+            prev_sample: None,
+            older_sample: None,
+            prev_inc: None,
+        }
+    }
+
     /// The configuration.
     pub fn config(&self) -> &InsConfig {
         &self.cfg

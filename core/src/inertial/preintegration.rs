@@ -64,6 +64,24 @@ pub type Mat15 = SMatrix<f64, 15, 15>;
 /// 15-vector (residual).
 pub type Vec15 = SVector<f64, 15>;
 
+/// Zero matrices and the noise, configuration and (non-unit) quaternion of
+/// [`Preintegration::empty`]: all bits zero.
+const Z3: Mat3 = Mat3::from_array_storage(nalgebra::ArrayStorage([[0.0; 3]; 3]));
+const Z15: Mat15 = Mat15::from_array_storage(nalgebra::ArrayStorage([[0.0; 15]; 15]));
+const ZERO_NOISE: ImuNoise = ImuNoise {
+    gyro_noise_density: 0.0,
+    accel_noise_density: 0.0,
+    gyro_bias_rw: 0.0,
+    accel_bias_rw: 0.0,
+    bias_corr_time_s: None,
+};
+const ZERO_CONFIG: PreintConfig = PreintConfig {
+    max_dt_s: 0.0,
+    reint_bg_rps: 0.0,
+    reint_ba_mps2: 0.0,
+};
+const ZERO_QUAT: Quat = Quat::new_unchecked(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0));
+
 /// Residual block offsets (`[dp, dv, dtheta, dbg, dba]`).
 const RP: usize = 0;
 const RV: usize = 3;
@@ -147,31 +165,77 @@ impl<const M: usize> Preintegration<M> {
         bg0: Vec3,
         ba0: Vec3,
     ) -> Result<Self, Error> {
-        let mut p = Preintegration {
-            noise,
-            cfg,
-            bg0: Vec3::zeros(),
-            ba0: Vec3::zeros(),
-            t0_ns: first.t_ns,
+        let mut p = Self::empty();
+        p.restart_with(noise, cfg, first, bg0, ba0)?;
+        Ok(p)
+    }
+
+    /// Storage for a preintegration: no samples, every number zero (the noise and configuration
+    /// too, so it cannot integrate until [`Preintegration::restart_with`]). `const` so it can
+    /// initialize a `static` (its bytes are all zero).
+    pub const fn empty() -> Self {
+        Preintegration {
+            noise: ZERO_NOISE,
+            cfg: ZERO_CONFIG,
+            bg0: crate::math::VEC3_ZERO,
+            ba0: crate::math::VEC3_ZERO,
+            t0_ns: 0,
             dt_s: 0.0,
-            dp: Vec3::zeros(),
-            dv: Vec3::zeros(),
-            dq: Quat::identity(),
-            j_p_bg: Mat3::zeros(),
-            j_p_ba: Mat3::zeros(),
-            j_v_bg: Mat3::zeros(),
-            j_v_ba: Mat3::zeros(),
-            j_r_bg: Mat3::zeros(),
-            bias_decay: 1.0,
-            cov: Mat15::zeros(),
-            a: Mat15::identity(),
-            tmp: Mat15::zeros(),
+            dp: crate::math::VEC3_ZERO,
+            dv: crate::math::VEC3_ZERO,
+            dq: ZERO_QUAT,
+            j_p_bg: Z3,
+            j_p_ba: Z3,
+            j_v_bg: Z3,
+            j_v_ba: Z3,
+            j_r_bg: Z3,
+            bias_decay: 0.0,
+            cov: Z15,
+            a: Z15,
+            tmp: Z15,
             prev_inc: None,
             samples: HVec::new(),
             chol_l: None,
-        };
-        p.reset(first, bg0, ba0)?;
-        Ok(p)
+        }
+    }
+
+    /// Back to [`Preintegration::empty`], in place.
+    pub fn reset_to_empty(&mut self) {
+        self.samples.clear();
+        self.restart(Vec3::zeros(), Vec3::zeros());
+        self.noise = ZERO_NOISE;
+        self.cfg = ZERO_CONFIG;
+        self.t0_ns = 0;
+        self.dq = ZERO_QUAT;
+        self.bias_decay = 0.0;
+        self.a = Z15;
+        self.tmp = Z15;
+    }
+
+    /// Restarts in place (no copy of the sample buffer) with a new noise model and configuration:
+    /// the state [`Preintegration::new`] builds from the same arguments, with the same errors
+    /// (and then the preintegration is unchanged).
+    pub fn restart_with(
+        &mut self,
+        noise: ImuNoise,
+        cfg: PreintConfig,
+        first: &ImuSample,
+        bg0: Vec3,
+        ba0: Vec3,
+    ) -> Result<(), Error> {
+        if !noise.is_valid() || !cfg.is_valid() || M == 0 {
+            return Err(Error::InvalidConfig);
+        }
+        if !first.is_finite() || !bg0.iter().chain(ba0.iter()).all(|x| x.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        self.noise = noise;
+        self.cfg = cfg;
+        self.t0_ns = first.t_ns;
+        // The scratch of the covariance propagation, as a new preintegration has it.
+        self.a = Mat15::identity();
+        self.tmp = Mat15::zeros();
+        self.reset(first, bg0, ba0)
     }
 
     /// Restarts in place (no copy of the sample buffer) at `first` with new linearization biases.

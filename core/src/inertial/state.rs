@@ -21,15 +21,26 @@ pub struct NavState {
 }
 
 impl NavState {
+    /// Every number zero, the attitude too (not a unit quaternion: storage to overwrite, not a
+    /// state to use). All bits zero, for `static` buffers.
+    pub const ZERO: NavState = NavState {
+        t_ns: 0,
+        p_wb: crate::math::VEC3_ZERO,
+        q_wb: Quat::new_unchecked(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0)),
+        v_wb: crate::math::VEC3_ZERO,
+        bg: crate::math::VEC3_ZERO,
+        ba: crate::math::VEC3_ZERO,
+    };
+
     /// A state at rest at the origin with identity attitude and zero biases.
-    pub fn identity(t_ns: i64) -> Self {
+    pub const fn identity(t_ns: i64) -> Self {
         NavState {
             t_ns,
-            p_wb: Vec3::zeros(),
-            q_wb: Quat::identity(),
-            v_wb: Vec3::zeros(),
-            bg: Vec3::zeros(),
-            ba: Vec3::zeros(),
+            p_wb: crate::math::VEC3_ZERO,
+            q_wb: crate::math::QUAT_IDENTITY,
+            v_wb: crate::math::VEC3_ZERO,
+            bg: crate::math::VEC3_ZERO,
+            ba: crate::math::VEC3_ZERO,
         }
     }
 }

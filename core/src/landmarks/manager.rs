@@ -112,6 +112,17 @@ pub struct ManagerStats {
     pub removed_outlier: u64,
 }
 
+impl ManagerStats {
+    /// All zero (what [`Default`] gives).
+    pub const ZERO: ManagerStats = ManagerStats {
+        created: 0,
+        refused_capacity: 0,
+        evicted: 0,
+        removed_unobserved: 0,
+        removed_outlier: 0,
+    };
+}
+
 /// Fixed-capacity landmark store for a window of `N` keyframes and at most `L` landmarks, with
 /// the observations of up to `F` tracks per keyframe. `H` is the capacity of the id index and
 /// must be a power of two `>= L`.
@@ -135,16 +146,25 @@ impl<const N: usize, const L: usize, const H: usize, const F: usize> Default
 }
 
 impl<const N: usize, const L: usize, const H: usize, const F: usize> LandmarkManager<N, L, H, F> {
-    /// An empty manager.
-    pub fn new() -> Self {
+    /// An empty manager; `const` so it can initialize a `static`.
+    pub const fn new() -> Self {
         LandmarkManager {
             lms: Vec::new(),
             index: FnvIndexMap::new(),
             store: ObservationStore::new(),
             banned: Vec::new(),
             banned_next: 0,
-            stats: ManagerStats::default(),
+            stats: ManagerStats::ZERO,
         }
+    }
+
+    /// Back to the state [`LandmarkManager::new`] builds, in place (unlike
+    /// [`LandmarkManager::clear`], the bans and statistics go too).
+    pub fn reset_to_new(&mut self) {
+        self.clear();
+        self.banned.clear();
+        self.banned_next = 0;
+        self.stats = ManagerStats::ZERO;
     }
 
     /// Every track's observations in the window.

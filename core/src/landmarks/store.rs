@@ -44,10 +44,10 @@ impl<const N: usize, const F: usize> Default for ObservationStore<N, F> {
 }
 
 impl<const N: usize, const F: usize> ObservationStore<N, F> {
-    /// Empty.
-    pub fn new() -> Self {
+    /// Empty; `const` so it can initialize a `static`.
+    pub const fn new() -> Self {
         ObservationStore {
-            kfs: core::array::from_fn(|_| HVec::new()),
+            kfs: [const { HVec::new() }; N],
             head: 0,
             count: 0,
         }

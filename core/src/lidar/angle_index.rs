@@ -37,7 +37,7 @@ impl<const N: usize> Axis<N> {
     const FITS: () = assert!(N > 0 && N <= 1 << 16, "an axis has 1 ..= 65536 cells");
 
     /// An axis holding nothing until [`Axis::configure`].
-    pub(crate) fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         let () = Self::FITS;
         Axis {
             lower: [0.0; N],
@@ -48,6 +48,17 @@ impl<const N: usize> Axis<N> {
             inv_step: 0.0,
             one_step: false,
         }
+    }
+
+    /// Back to the state [`Axis::new`] builds, in place.
+    pub(crate) fn reset_to_new(&mut self) {
+        self.lower.fill(0.0);
+        self.first = 0.0;
+        self.upper = 0.0;
+        self.lut.fill(0);
+        self.u0 = 0.0;
+        self.inv_step = 0.0;
+        self.one_step = false;
     }
 
     /// Tabulates cells of `cell_rad` (positive, finite).

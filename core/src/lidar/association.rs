@@ -117,6 +117,12 @@ impl Cell {
         p_c: [0.0; 3],
         r2: f32::INFINITY,
     };
+    /// What a grid that was never built holds (all bits zero): every build starts by emptying
+    /// the cells, and no cell is read before a build (`filled == 0`).
+    const UNBUILT: Cell = Cell {
+        p_c: [0.0; 3],
+        r2: 0.0,
+    };
 }
 
 /// Nearest point per angular cell of a `W x H` grid centred on the optical axis of one camera
@@ -142,16 +148,27 @@ impl<const W: usize, const H: usize> Default for SphereGrid<W, H> {
 impl<const W: usize, const H: usize> SphereGrid<W, H> {
     const NONZERO: () = assert!(W > 0 && H > 0, "SphereGrid needs W > 0 and H > 0");
 
-    /// An empty grid.
-    pub fn new() -> Self {
+    /// An empty grid; `const` so it can initialize a `static`.
+    pub const fn new() -> Self {
         let () = Self::NONZERO;
         SphereGrid {
-            cells: [[Cell::EMPTY; W]; H],
+            cells: [[Cell::UNBUILT; W]; H],
             cols: Axis::new(),
             rows: Axis::new(),
             cell_rad: 0.0,
             filled: 0,
         }
+    }
+
+    /// Back to the state [`SphereGrid::new`] builds, in place.
+    pub fn reset_to_new(&mut self) {
+        for row in self.cells.iter_mut() {
+            row.fill(Cell::UNBUILT);
+        }
+        self.cols.reset_to_new();
+        self.rows.reset_to_new();
+        self.cell_rad = 0.0;
+        self.filled = 0;
     }
 
     /// Fills the grid with the buffered points of the last `cfg.span_s` before `t_kf_ns`,

@@ -124,8 +124,8 @@ impl<const P: usize> Default for PointBuffer<P> {
 impl<const P: usize> PointBuffer<P> {
     const NONZERO: () = assert!(P > 0, "PointBuffer needs a capacity P > 0");
 
-    /// An empty buffer.
-    pub fn new() -> Self {
+    /// An empty buffer; `const` so it can initialize a `static`.
+    pub const fn new() -> Self {
         let () = Self::NONZERO;
         PointBuffer {
             pts: [Packed::ZERO; P],
@@ -140,6 +140,12 @@ impl<const P: usize> PointBuffer<P> {
         self.segs.clear();
         self.head = 0;
         self.len = 0;
+    }
+
+    /// Back to the state [`PointBuffer::new`] builds (the ring zeroed too), in place.
+    pub fn reset_to_new(&mut self) {
+        self.clear();
+        self.pts.fill(Packed::ZERO);
     }
 
     /// Points stored.

@@ -16,11 +16,14 @@ pub struct LidarExtrinsic {
 impl LidarExtrinsic {
     /// The identity (LiDAR frame = body frame).
     pub fn identity() -> Self {
-        LidarExtrinsic {
-            q_bl: Quat::identity(),
-            p_bl: Vec3::zeros(),
-        }
+        Self::IDENTITY
     }
+
+    /// The identity, as a constant.
+    pub const IDENTITY: LidarExtrinsic = LidarExtrinsic {
+        q_bl: crate::math::QUAT_IDENTITY,
+        p_bl: crate::math::VEC3_ZERO,
+    };
 }
 
 /// Which LiDAR-depth measurement the solver uses (paper V.C).
@@ -59,31 +62,34 @@ pub struct AssociationConfig {
 impl AssociationConfig {
     /// Capacity of the neighbour search.
     pub const MAX_NEIGHBOURS: usize = 8;
+
+    /// The defaults (what [`Default`] gives); `const` for static configurations.
+    pub const DEFAULT: AssociationConfig = AssociationConfig {
+        cell_rad: 0.5f64.to_radians(),
+        // 8, not 5: on a Livox-like rosette (0.5 s, 50k points; `association` tests) the
+        // five nearest cells are often one scan line (collinear: no plane), and with 2 cm
+        // range noise five points 5 cm apart give normals too noisy for the incidence gate.
+        // Bearings given a depth, noise-free / 2 cm noise (RMS, worst error with noise):
+        // 5 -> 95% / 87% (2.4 cm, 11 cm); 8 -> 100% / 98% (1.8 cm, 9.9 cm).
+        neighbours: 8,
+        max_neighbour_rad: 2.0f64.to_radians(),
+        max_plane_dist_m: 0.10,
+        // 0.20, not 0.10: eight neighbours span about +-0.75 deg, over which one plane met
+        // at incidence theta spreads its ranges by ~2 * 0.013 * tan(theta): 0.10 already
+        // rejected planes at 76 deg that the incidence gate (78.5 deg) accepts, so grazing
+        // surfaces were reported as "mixing". Real foreground/background mixing is far
+        // above 0.2 (pole at 3 m before a wall at 7 m: 0.8), and mixed sets under it (a
+        // board 0.5 m before a wall at 6 m) fail the plane or incidence checks (tests).
+        max_range_spread: 0.20,
+        min_incidence_cos: 0.2,
+        depth_range_m: (0.5, 80.0),
+        span_s: 0.5,
+    };
 }
 
 impl Default for AssociationConfig {
     fn default() -> Self {
-        AssociationConfig {
-            cell_rad: 0.5f64.to_radians(),
-            // 8, not 5: on a Livox-like rosette (0.5 s, 50k points; `association` tests) the
-            // five nearest cells are often one scan line (collinear: no plane), and with 2 cm
-            // range noise five points 5 cm apart give normals too noisy for the incidence gate.
-            // Bearings given a depth, noise-free / 2 cm noise (RMS, worst error with noise):
-            // 5 -> 95% / 87% (2.4 cm, 11 cm); 8 -> 100% / 98% (1.8 cm, 9.9 cm).
-            neighbours: 8,
-            max_neighbour_rad: 2.0f64.to_radians(),
-            max_plane_dist_m: 0.10,
-            // 0.20, not 0.10: eight neighbours span about +-0.75 deg, over which one plane met
-            // at incidence theta spreads its ranges by ~2 * 0.013 * tan(theta): 0.10 already
-            // rejected planes at 76 deg that the incidence gate (78.5 deg) accepts, so grazing
-            // surfaces were reported as "mixing". Real foreground/background mixing is far
-            // above 0.2 (pole at 3 m before a wall at 7 m: 0.8), and mixed sets under it (a
-            // board 0.5 m before a wall at 6 m) fail the plane or incidence checks (tests).
-            max_range_spread: 0.20,
-            min_incidence_cos: 0.2,
-            depth_range_m: (0.5, 80.0),
-            span_s: 0.5,
-        }
+        Self::DEFAULT
     }
 }
 
@@ -120,21 +126,27 @@ pub struct LidarConfig {
     pub association: AssociationConfig,
 }
 
+impl LidarConfig {
+    /// The paper's settings, LiDAR off (what [`Default`] gives); `const` for static
+    /// configurations.
+    pub const DEFAULT: LidarConfig = LidarConfig {
+        enabled: false,
+        ldm: LdmMode::Msc,
+        depth_outlier_rejection: true,
+        depth_only_opt: true,
+        sigma_dr_m: 0.1,
+        sigma_dr_rel: 0.01,
+        rejection_sigma_px: 1.5,
+        rejection_sigmas: 3.0,
+        extrinsic: LidarExtrinsic::IDENTITY,
+        td_l_s: 0.0,
+        association: AssociationConfig::DEFAULT,
+    };
+}
+
 impl Default for LidarConfig {
     fn default() -> Self {
-        LidarConfig {
-            enabled: false,
-            ldm: LdmMode::Msc,
-            depth_outlier_rejection: true,
-            depth_only_opt: true,
-            sigma_dr_m: 0.1,
-            sigma_dr_rel: 0.01,
-            rejection_sigma_px: 1.5,
-            rejection_sigmas: 3.0,
-            extrinsic: LidarExtrinsic::identity(),
-            td_l_s: 0.0,
-            association: AssociationConfig::default(),
-        }
+        Self::DEFAULT
     }
 }
 

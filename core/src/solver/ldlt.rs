@@ -321,6 +321,16 @@ impl<const D: usize> Ldlt<D> {
         }
     }
 
+    /// Back to the state [`Ldlt::new`] builds (every buffer zeroed), in place.
+    pub fn reset_to_new(&mut self) {
+        for row in self.a.iter_mut() {
+            row.fill(0.0);
+        }
+        self.d.fill(0.0);
+        self.n = 0;
+        self.factored = false;
+    }
+
     /// Dimension of the loaded matrix.
     pub fn dim(&self) -> usize {
         self.n

@@ -182,6 +182,13 @@ impl<const D: usize> LmWorkspace<D> {
         }
     }
 
+    /// Back to the state [`LmWorkspace::new`] builds (every buffer zeroed), in place.
+    pub fn reset_to_new(&mut self) {
+        self.ne.reset_to_new();
+        self.ldlt.reset_to_new();
+        self.dx.fill(0.0);
+    }
+
     /// Last trial step (active entries `0..ne.dim()`).
     pub fn last_step(&self) -> &[f64] {
         self.dx.get(..self.ne.dim()).unwrap_or(&[])

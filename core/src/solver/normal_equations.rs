@@ -77,6 +77,17 @@ impl<const D: usize> NormalEquations<D> {
         }
     }
 
+    /// Back to the state [`NormalEquations::new`] builds (every entry zeroed, dimension 0), in
+    /// place.
+    pub fn reset_to_new(&mut self) {
+        for row in self.h.iter_mut() {
+            row.fill(0.0);
+        }
+        self.b.fill(0.0);
+        self.cost = 0.0;
+        self.n = 0;
+    }
+
     /// Active dimension `n`.
     pub fn dim(&self) -> usize {
         self.n

@@ -69,6 +69,13 @@ impl<const P: usize> LandmarkSchur<P> {
         }
     }
 
+    /// Back to the state [`LandmarkSchur::new`] builds (every buffer zeroed), in place.
+    pub fn reset_to_new(&mut self) {
+        self.clear();
+        self.cols.fill(0);
+        self.h_lp.fill(0.0);
+    }
+
     /// Forgets everything (next landmark).
     pub fn clear(&mut self) {
         self.h_ll = 0.0;

@@ -1,0 +1,323 @@
+//! Golden-file hashing of a run (shared by the tests that compare with `tests/golden/`).
+//!
+//! FNV-1a 64 over the bit patterns of `t, p, q, v, bg, ba` of every IMU-rate state, then every
+//! keyframe report's numbers except the `*_ns` timings (and its LiDAR events). Besides the total,
+//! a golden file keeps one hash per state and per report so a mismatch can say where the output
+//! first changed.
+
+use povins::core::estimator::KeyframeReport;
+use povins::core::inertial::NavState;
+use povins::host_tools::runner::{KeyframeDepthEvents, RunOutput};
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
+
+/// FNV-1a 64.
+#[derive(Clone, Copy)]
+pub struct Fnv(pub u64);
+
+impl Fnv {
+    pub fn new() -> Self {
+        Fnv(FNV_OFFSET)
+    }
+    pub fn bytes(&mut self, b: &[u8]) {
+        for &x in b {
+            self.0 ^= u64::from(x);
+            self.0 = self.0.wrapping_mul(FNV_PRIME);
+        }
+    }
+    pub fn u64(&mut self, v: u64) {
+        self.bytes(&v.to_le_bytes());
+    }
+    pub fn f64(&mut self, v: f64) {
+        self.u64(v.to_bits());
+    }
+    pub fn f64s<'a>(&mut self, vs: impl IntoIterator<Item = &'a f64>) {
+        for v in vs {
+            self.f64(*v);
+        }
+    }
+}
+
+pub fn hash_state(h: &mut Fnv, s: &NavState) {
+    h.u64(s.t_ns as u64);
+    h.f64s(s.p_wb.iter());
+    h.f64s(s.q_wb.coords.iter());
+    h.f64s(s.v_wb.iter());
+    h.f64s(s.bg.iter());
+    h.f64s(s.ba.iter());
+}
+
+/// Every number of the report except the timings (`*_ns`), which depend on the machine's load.
+pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
+    let KeyframeReport {
+        t_ns,
+        t_cam_ns,
+        decision,
+        window_len,
+        landmarks_total,
+        landmarks_used,
+        observations_used,
+        residual_rms_px,
+        iterations,
+        cost,
+        termination,
+        culled_chi2,
+        culled_observations,
+        culled_landmarks,
+        disabled_landmarks,
+        marginalized_rank_deficiency,
+        prior_rank_deficiency,
+        solve_ns: _,
+        marginalization_ns: _,
+        total_ns: _,
+        lidar_points,
+        depths_associated,
+        depths_rejected,
+        ldm_count,
+        association_ns: _,
+        rejection_ns: _,
+        depth_opt_ns: _,
+        admission,
+        td_s,
+        imu_noise_scale,
+        multi_view_tracks,
+        multi_view_observations,
+        landmarks_promoted,
+        landmarks_evicted,
+        breakdown,
+    } = r;
+    h.u64(*t_ns as u64);
+    h.u64(*t_cam_ns as u64);
+    h.bytes(format!("{decision:?}").as_bytes());
+    for n in [
+        window_len,
+        landmarks_total,
+        landmarks_used,
+        observations_used,
+        iterations,
+        culled_chi2,
+        culled_observations,
+        culled_landmarks,
+        disabled_landmarks,
+        marginalized_rank_deficiency,
+        prior_rank_deficiency,
+        lidar_points,
+        depths_associated,
+        depths_rejected,
+        ldm_count,
+        &admission.admitted,
+        &admission.single_view,
+        &admission.low_parallax,
+        &admission.bad_depth,
+        &admission.uncertain_depth,
+        multi_view_tracks,
+        multi_view_observations,
+        landmarks_promoted,
+        landmarks_evicted,
+    ] {
+        h.u64(u64::from(*n));
+    }
+    h.f64s([residual_rms_px, &cost.0, &cost.1, td_s, imu_noise_scale]);
+    h.bytes(format!("{termination:?} {breakdown:?}").as_bytes());
+}
+
+/// The hashes of a run: the total and one per state and per report (each over that item only).
+#[derive(Debug, PartialEq)]
+pub struct Hashes {
+    pub total: u64,
+    pub states: Vec<u64>,
+    pub reports: Vec<u64>,
+}
+
+/// What a golden file covers of a run: the IMU-rate states, the keyframe reports and each
+/// report's LiDAR-depth events (same order; missing entries count as no events).
+#[derive(Clone, Copy)]
+pub struct RunView<'a> {
+    pub imu_rate: &'a [NavState],
+    pub reports: &'a [KeyframeReport],
+    pub lidar_events: &'a [KeyframeDepthEvents],
+}
+
+impl<'a> RunView<'a> {
+    /// The parts of a replay's output.
+    pub fn of(out: &'a RunOutput) -> Self {
+        RunView {
+            imu_rate: &out.imu_rate,
+            reports: &out.reports,
+            lidar_events: &out.lidar_events,
+        }
+    }
+}
+
+/// [`hashes_of`] a replay's output.
+pub fn hashes(out: &RunOutput) -> Hashes {
+    hashes_of(&RunView::of(out))
+}
+
+/// The hashes of a run.
+pub fn hashes_of(out: &RunView<'_>) -> Hashes {
+    let mut total = Fnv::new();
+    let mut one = |f: &dyn Fn(&mut Fnv)| {
+        f(&mut total);
+        let mut h = Fnv::new();
+        f(&mut h);
+        h.0
+    };
+    let states = out
+        .imu_rate
+        .iter()
+        .map(|s| one(&|h| hash_state(h, s)))
+        .collect();
+    let no_events = Vec::new();
+    let reports = out
+        .reports
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let ev = out.lidar_events.get(i).map_or(&no_events, |e| &e.events);
+            one(&|h| {
+                hash_report(h, r);
+                // Empty for runs without LiDAR, so their hashes are unchanged.
+                for e in ev {
+                    h.u64(e.id);
+                    h.bytes(format!("{:?}", e.kind).as_bytes());
+                    h.f64s([&e.depth_m]);
+                }
+            })
+        })
+        .collect();
+    Hashes {
+        total: total.0,
+        states,
+        reports,
+    }
+}
+
+pub const BLESS: &str = "POVINS_BLESS=1 cargo test --test estimator_determinism";
+
+pub fn golden_path(name: &str) -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden")).join(format!("{name}.hash"))
+}
+
+fn render(name: &str, h: &Hashes) -> String {
+    let mut s = format!(
+        "# povins golden replay '{name}': FNV-1a 64 of the IMU-rate states and keyframe reports\n\
+         # (timings excluded). Re-bless after an intended change: {BLESS}\n"
+    );
+    let _ = writeln!(s, "total {:016x}", h.total);
+    let _ = writeln!(s, "states {}", h.states.len());
+    let _ = writeln!(s, "reports {}", h.reports.len());
+    for v in h.states.iter().chain(&h.reports) {
+        let _ = writeln!(s, "{v:016x}");
+    }
+    s
+}
+
+fn parse(text: &str) -> Option<Hashes> {
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let mut field = |key: &str| -> Option<String> {
+        let l = lines.next()?;
+        l.strip_prefix(key)?.strip_prefix(' ').map(str::to_string)
+    };
+    let total = u64::from_str_radix(&field("total")?, 16).ok()?;
+    let n_states: usize = field("states")?.parse().ok()?;
+    let n_reports: usize = field("reports")?.parse().ok()?;
+    let vals: Vec<u64> = lines
+        .map(|l| u64::from_str_radix(l.trim(), 16).ok())
+        .collect::<Option<_>>()?;
+    if vals.len() != n_states + n_reports {
+        return None;
+    }
+    Some(Hashes {
+        total,
+        states: vals[..n_states].to_vec(),
+        reports: vals[n_states..].to_vec(),
+    })
+}
+
+/// Where two hash lists first differ (an index past the shorter one when one is a prefix).
+fn first_difference(a: &[u64], b: &[u64]) -> Option<usize> {
+    (0..a.len().max(b.len())).find(|&i| a.get(i) != b.get(i))
+}
+
+/// Compares a replay's output with `tests/golden/<name>.hash` (or writes the file under
+/// `POVINS_BLESS=1`).
+pub fn check_golden(name: &str, out: &RunOutput) {
+    check_golden_of(name, &RunView::of(out), true);
+}
+
+/// Compares a run with `tests/golden/<name>.hash`, panicking with where it first differs. With
+/// `may_bless` and `POVINS_BLESS=1` it writes the file instead (only the determinism test
+/// blesses: other tests compare with what it blessed).
+pub fn check_golden_of(name: &str, out: &RunView<'_>, may_bless: bool) {
+    let now = hashes_of(out);
+    let path = golden_path(name);
+    if may_bless && std::env::var_os("POVINS_BLESS").is_some_and(|v| v == "1") {
+        std::fs::create_dir_all(path.parent().expect("a parent folder"))
+            .expect("create tests/golden");
+        std::fs::write(&path, render(name, &now))
+            .unwrap_or_else(|e| panic!("cannot write {}: {e}", path.display()));
+        println!("blessed {} (total {:016x})", path.display(), now.total);
+        return;
+    }
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "golden file {} is missing ({e}); create it with `{BLESS}`",
+            path.display()
+        )
+    });
+    let golden = parse(&text).unwrap_or_else(|| {
+        panic!(
+            "golden file {} is malformed; re-bless with `{BLESS}`",
+            path.display()
+        )
+    });
+    if golden == now {
+        println!("{name}: matches golden total {:016x}", now.total);
+        return;
+    }
+    let t_s = |t_ns: i64| (t_ns - out.imu_rate.first().map_or(0, |s| s.t_ns)) as f64 * 1e-9;
+    let mut msg = format!(
+        "{name}: output differs from the golden file {}\n  states: {} now, {} golden; \
+         keyframe reports: {} now, {} golden; total {:016x} now, {:016x} golden\n",
+        path.display(),
+        now.states.len(),
+        golden.states.len(),
+        now.reports.len(),
+        golden.reports.len(),
+        now.total,
+        golden.total
+    );
+    if let Some(i) = first_difference(&now.states, &golden.states) {
+        let at = match out.imu_rate.get(i) {
+            Some(s) => format!(
+                "t = {} ns ({:.3} s after the first state)",
+                s.t_ns,
+                t_s(s.t_ns)
+            ),
+            None => "past the last state of this run".to_string(),
+        };
+        let _ = writeln!(msg, "  first differing state: #{i}, {at}");
+    } else if let Some(i) = first_difference(&now.reports, &golden.reports) {
+        let at = match out.reports.get(i) {
+            Some(r) => format!(
+                "t = {} ns ({:.3} s after the first state)",
+                r.t_ns,
+                t_s(r.t_ns)
+            ),
+            None => "past the last report of this run".to_string(),
+        };
+        let _ = writeln!(
+            msg,
+            "  all states match; first differing keyframe report: #{i}, {at}"
+        );
+    }
+    let _ = write!(
+        msg,
+        "  if the change is intended, re-bless with `{BLESS}` and commit tests/golden/"
+    );
+    panic!("{msg}");
+}
