@@ -1,9 +1,11 @@
 //! `povins eval` end to end: JSON keys and values on real ground truth, and error messages.
 
+mod common;
+use common::povins;
+
 use povins_core::math::Vec3;
 use povins_platform::trajectory::{read_trajectory, write_tum, StampedPose};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// The repository's copy (`tests/data`) when there is one, else `../shared/data` (tests on it
 /// are `#[ignore]`d); fails when missing.
@@ -23,19 +25,6 @@ fn shared(rel: &str) -> PathBuf {
 
 fn gt_path() -> PathBuf {
     shared("euroc-v101-30s-features/mav0/state_groundtruth_estimate0/data.csv")
-}
-
-fn povins(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_povins"))
-        .args(args)
-        .env_remove("RUST_BACKTRACE")
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 #[test]

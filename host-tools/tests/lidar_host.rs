@@ -6,6 +6,9 @@
 //! The core's LiDAR association is a stub on this branch (it associates nothing), so nothing
 //! here asserts that LiDAR improves accuracy.
 
+mod common;
+use common::povins;
+
 use clap::Parser;
 use povins_core::camera::PinholeCamera;
 use povins_core::inertial::{ImuNoise, ImuSample};
@@ -18,7 +21,6 @@ use povins_host_tools::runner::{config_for, lidar_schedule, replay, InitMode};
 use povins_host_tools::sim::{self, LidarKind, Scenario, SimConfig};
 use povins_platform::dataset::{Calibration, Dataset, Extrinsic, LidarScan};
 use std::path::Path;
-use std::process::Command;
 
 const T0_NS: i64 = 1_000_000_000;
 const MS: i64 = 1_000_000;
@@ -264,19 +266,6 @@ fn mcap_round_trip() {
         out.counters.lidar_points_received,
         expected.iter().sum::<usize>() as u64
     );
-}
-
-fn povins(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_povins"))
-        .args(args)
-        .env_remove("RUST_BACKTRACE")
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 fn json(path: &Path) -> serde_json::Value {
