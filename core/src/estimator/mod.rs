@@ -57,7 +57,7 @@ use crate::frontend::{
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
 use crate::inertial::window::InsWindow;
-use crate::inertial::{ImuSample, NavState};
+use crate::inertial::{ImuSample, InsUpdate, NavState};
 use crate::landmarks::{depth_std, TwoView};
 use crate::lidar::association::{GRID_H, GRID_W};
 use crate::lidar::buffer::MAX_LIDAR_POINTS;
@@ -112,6 +112,10 @@ pub struct ImuOutput {
     pub nav: Option<NavState>,
     /// The report of a keyframe processed at this sample.
     pub keyframe: Option<KeyframeReport>,
+    /// Set when the INS changed at this sample other than by propagating it (initialization, a
+    /// keyframe's optimized state, a frame processed at an interpolated sample, a reset): hand
+    /// it to a [`crate::inertial::FastPath`], which then follows `nav` bit for bit.
+    pub ins: Option<InsUpdate>,
 }
 
 #[derive(Clone)]
@@ -165,20 +169,29 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     reinit_td: Option<f64>,
     /// Online scale of the IMU white-noise densities.
     imu_scale: imu_noise::ImuNoiseScale,
+    /// The INS epoch ([`Held::epoch`]) a fast path following [`ImuOutput::ins`] holds.
+    ins_synced: u32,
 }
 
 /// An optional value kept beside a flag rather than in an `Option`, so that "none" is all zero
-/// bits (an `Option`'s `None` may be any pattern): keeps a `static` estimator in `.bss`.
+/// bits (an `Option`'s `None` may be any pattern): keeps a `static` estimator in `.bss`. Every
+/// mutable access counts in `epoch` (how the fast path's updates are found, see
+/// [`Estimator::push_imu`]).
 #[derive(Clone)]
 struct Held<T> {
     value: T,
     held: bool,
+    epoch: u32,
 }
 
 impl<T> Held<T> {
     /// Nothing held; `value` is storage only.
     const fn empty(value: T) -> Self {
-        Held { value, held: false }
+        Held {
+            value,
+            held: false,
+            epoch: 0,
+        }
     }
 
     fn as_ref(&self) -> Option<&T> {
@@ -187,6 +200,7 @@ impl<T> Held<T> {
 
     fn as_mut(&mut self) -> Option<&mut T> {
         if self.held {
+            self.epoch = self.epoch.wrapping_add(1);
             Some(&mut self.value)
         } else {
             None
@@ -196,10 +210,12 @@ impl<T> Held<T> {
     fn set(&mut self, value: T) {
         self.value = value;
         self.held = true;
+        self.epoch = self.epoch.wrapping_add(1);
     }
 
     fn clear(&mut self) {
         self.held = false;
+        self.epoch = self.epoch.wrapping_add(1);
     }
 }
 
@@ -289,6 +305,7 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
             bad_keyframes: 0,
             reinit_td: None,
             imu_scale: imu_noise::ImuNoiseScale::new(),
+            ins_synced: 0,
         }
     }
 
@@ -531,52 +548,81 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         let mut out = ImuOutput {
             nav: None,
             keyframe: None,
+            ins: None,
         };
-        if self.status == Status::WaitingForInit {
-            // Frames before initialization feed the track velocities and the rest detector.
-            while self.next_frame() {
-                self.counters.frames_before_init += 1;
-                let t_cam_ns = self.frame.t_cam_ns;
-                if self
-                    .tracks
-                    .process(
-                        t_cam_ns,
-                        &self.frame.obs,
-                        &self.cfg.camera,
-                        &mut self.frame_obs,
-                    )
-                    .is_ok()
-                {
-                    self.rest.push(t_cam_ns, &self.frame_obs, self.focal_px());
-                }
-            }
-            let td_ns = (self.cfg.td_s * 1e9) as i64;
-            let rest_since = match self.rest.verdict() {
-                RestVerdict::Rest { since_ns } => Some(since_ns.saturating_add(td_ns)),
-                _ => None,
-            };
-            match self.static_init.push_with_rest(s, rest_since) {
-                Ok(Some(state)) => {
-                    let ins = Ins::new(self.ins_config(), state)?;
-                    self.ins.set(ins);
-                    if let Some(ins) = self.ins.as_mut() {
-                        let st = *ins.propagate(s)?;
-                        self.record_ins(&st);
-                    }
-                    self.status = Status::Running;
-                }
-                Ok(None) => {}
-                Err(Error::CapacityExceeded) => return Err(Error::InvalidConfig),
-                Err(e) => return Err(e),
-            }
-            self.last_imu = Some(*s);
-            out.nav = self.ins.as_ref().map(|i| *i.state());
-            return Ok(out);
-        }
+        let plain_from = if self.status == Status::WaitingForInit {
+            self.imu_waiting_for_init(s)?;
+            None
+        } else {
+            self.imu_running(s, &mut out)?
+        };
+        self.last_imu = Some(*s);
+        out.nav = self.ins.as_ref().map(|i| *i.state());
+        out.ins = self.fast_path_update(plain_from);
+        Ok(out)
+    }
 
-        // Pending frames whose IMU time has been reached are processed at exactly that time (or
-        // at this sample when it is already past: the observations' delay correction accounts for
-        // the difference, see `add_keyframe`).
+    /// The update a fast path needs after this sample ([`ImuOutput::ins`]): none when the INS
+    /// only propagated the sample (`plain_from`: the INS epoch that propagation started from)
+    /// from the state the fast path already follows.
+    fn fast_path_update(&mut self, plain_from: Option<u32>) -> Option<InsUpdate> {
+        let synced = core::mem::replace(&mut self.ins_synced, self.ins.epoch);
+        if plain_from == Some(synced) || self.ins.epoch == synced {
+            return None;
+        }
+        Some(match self.ins.as_ref() {
+            Some(ins) => InsUpdate::State(*ins),
+            None => InsUpdate::Reset,
+        })
+    }
+
+    /// One sample before initialization: frames feed the track velocities and the rest
+    /// detector; the static initializer may start the INS.
+    fn imu_waiting_for_init(&mut self, s: &ImuSample) -> Result<(), Error> {
+        while self.next_frame() {
+            self.counters.frames_before_init += 1;
+            let t_cam_ns = self.frame.t_cam_ns;
+            if self
+                .tracks
+                .process(
+                    t_cam_ns,
+                    &self.frame.obs,
+                    &self.cfg.camera,
+                    &mut self.frame_obs,
+                )
+                .is_ok()
+            {
+                self.rest.push(t_cam_ns, &self.frame_obs, self.focal_px());
+            }
+        }
+        let td_ns = (self.cfg.td_s * 1e9) as i64;
+        let rest_since = match self.rest.verdict() {
+            RestVerdict::Rest { since_ns } => Some(since_ns.saturating_add(td_ns)),
+            _ => None,
+        };
+        match self.static_init.push_with_rest(s, rest_since) {
+            Ok(Some(state)) => {
+                let ins = Ins::new(self.ins_config(), state)?;
+                self.ins.set(ins);
+                if let Some(ins) = self.ins.as_mut() {
+                    let st = *ins.propagate(s)?;
+                    self.record_ins(&st);
+                }
+                self.status = Status::Running;
+                Ok(())
+            }
+            Ok(None) => Ok(()),
+            Err(Error::CapacityExceeded) => Err(Error::InvalidConfig),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// One sample while running: pending frames whose IMU time has been reached are processed
+    /// at exactly that time (or at this sample when it is already past: the observations' delay
+    /// correction accounts for the difference, see `add_keyframe`), then the INS propagates to
+    /// the sample. Returns the INS epoch the final propagation started from when it was a plain
+    /// propagation of `s` (see [`Self::fast_path_update`]).
+    fn imu_running(&mut self, s: &ImuSample, out: &mut ImuOutput) -> Result<Option<u32>, Error> {
         while let Some(t_f) = self
             .pending
             .front()
@@ -602,12 +648,13 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
                 }
             }
         }
-        if self.ins.as_ref().is_some_and(|i| i.state().t_ns < s.t_ns) {
-            self.advance(s)?;
+        if !self.ins.as_ref().is_some_and(|i| i.state().t_ns < s.t_ns) {
+            return Ok(None);
         }
-        self.last_imu = Some(*s);
-        out.nav = self.ins.as_ref().map(|i| *i.state());
-        Ok(out)
+        let from = self.ins.epoch;
+        self.advance(s)?;
+        let plain = self.ins.held && self.ins.epoch == from.wrapping_add(1);
+        Ok(plain.then_some(from))
     }
 
     /// INS propagation and preintegration of one sample (real or interpolated).

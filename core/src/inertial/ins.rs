@@ -70,7 +70,7 @@ pub(crate) fn check_sample(s: &ImuSample, prev_t_ns: i64, max_dt_s: f64) -> Resu
 
 /// The INS: current navigation state plus the previous sample and increment the two-sample
 /// scheme needs.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ins {
     cfg: InsConfig,
     state: NavState,

@@ -1,6 +1,8 @@
 //! Inertial layer: IMU samples and noise, INS mechanization, the INS state window with pose
-//! interpolation, static initialization, and IMU preintegration between keyframes.
+//! interpolation, static initialization, IMU preintegration between keyframes, and the IMU-rate
+//! fast path that follows the estimator's INS from another thread ([`fast_path`]).
 
+pub mod fast_path;
 pub mod imu;
 pub mod increment;
 pub mod init;
@@ -9,6 +11,7 @@ pub mod preintegration;
 pub mod state;
 pub mod window;
 
+pub use fast_path::{FastPath, FastPathCounters, InsUpdate};
 pub use imu::{ImuNoise, ImuSample};
 pub use init::{state_from_full, StaticInitConfig, StaticInitializer, StaticStats};
 pub use ins::{Ins, InsConfig};
