@@ -32,6 +32,8 @@ for target in thumbv7em-none-eabihf aarch64-unknown-none; do
     echo "== build povins-core for $target ${feat:+(feature $feat)}"
     "$CARGO" build -q --release -p povins-core -Zbuild-std=core --target "$target" ${feat:+--features "$feat"}
   done
+  echo "== build povins-core for $target without LiDAR storage (--no-default-features)"
+  "$CARGO" build -q --release -p povins-core -Zbuild-std=core --target "$target" --no-default-features
 done
 
 arm=(-Zbuild-std --target aarch64-unknown-linux-gnu)

@@ -76,7 +76,15 @@ pub enum Breakdown {
     Residuals,
 }
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     /// Checks the newest keyframe after its solve (`predicted`: the INS state it started from,
     /// `residual_rms_px` and `landmarks` of the solve). Returns the breakdown, if any.
     pub(super) fn check_health(

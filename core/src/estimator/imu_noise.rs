@@ -162,7 +162,15 @@ impl ImuNoiseScale {
     }
 }
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     /// Measures the oldest IMU factor of a full window against the last solve's factored normal
     /// matrix and updates the noise scales. Does nothing unless the window is full, adaptation is
     /// on and the factorization matches `layout`.

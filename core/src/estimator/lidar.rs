@@ -17,7 +17,15 @@ use crate::lidar::ScanStats;
 
 use super::problem_lidar::TauLandmark;
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     /// Offers one LiDAR sweep (points in the LiDAR frame with their own times). Push a sweep once
     /// the IMU has reached its last point: points without an INS pose to de-skew with are
     /// rejected and counted. A sweep is refused whole (counted in `lidar_scans_refused`) when

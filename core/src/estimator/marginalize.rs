@@ -19,7 +19,15 @@ use crate::landmarks::MargPlan;
 use crate::solver::{schur_complement_in_place, sqrt_prior, PivotFloor};
 use crate::Error;
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     /// Sets the marginalization plan of every landmark (module docs) and re-anchors the ones
     /// that stay. Positions are those before the window shifts.
     fn plan_marginalization(&mut self) {

@@ -59,7 +59,9 @@ use crate::inertial::ins::{Ins, InsConfig};
 use crate::inertial::window::InsWindow;
 use crate::inertial::{ImuSample, InsUpdate, NavState};
 use crate::landmarks::{depth_std, TwoView};
+#[cfg(feature = "lidar")]
 use crate::lidar::association::{GRID_H, GRID_W};
+#[cfg(feature = "lidar")]
 use crate::lidar::buffer::MAX_LIDAR_POINTS;
 use crate::lidar::{LdmMode, PointBuffer, SphereGrid};
 use crate::math::{log_so3, Vec3};
@@ -124,9 +126,43 @@ struct PendingFrame {
     obs: HVec<FeatureObs, MAX_FEATURES>,
 }
 
+/// Points the LiDAR buffer of an [`Estimator`] holds by default: `MAX_LIDAR_POINTS` with the
+/// `lidar` cargo feature (the default), 0 without (the estimator then refuses a configuration
+/// with LiDAR enabled).
+#[cfg(feature = "lidar")]
+pub const LIDAR_POINTS: usize = MAX_LIDAR_POINTS;
+/// Points the LiDAR buffer of an [`Estimator`] holds by default (0: built without `lidar`).
+#[cfg(not(feature = "lidar"))]
+pub const LIDAR_POINTS: usize = 0;
+/// Azimuth cells of the depth-association grid by default (`GRID_W` with `lidar`, else 0).
+#[cfg(feature = "lidar")]
+pub const LIDAR_GRID_W: usize = GRID_W;
+/// Azimuth cells of the depth-association grid by default (0: built without `lidar`).
+#[cfg(not(feature = "lidar"))]
+pub const LIDAR_GRID_W: usize = 0;
+/// Elevation cells of the depth-association grid by default (`GRID_H` with `lidar`, else 0).
+#[cfg(feature = "lidar")]
+pub const LIDAR_GRID_H: usize = GRID_H;
+/// Elevation cells of the depth-association grid by default (0: built without `lidar`).
+#[cfg(not(feature = "lidar"))]
+pub const LIDAR_GRID_H: usize = 0;
+
 /// The sliding-window estimator (see the module docs for the order of the steps).
+///
+/// Capacities: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state dimensions, and for
+/// LiDAR `P` buffered points and a `GW` x `GH` association grid (defaults from the `lidar`
+/// feature: [`LIDAR_POINTS`], [`LIDAR_GRID_W`], [`LIDAR_GRID_H`]; all 0 leaves the LiDAR out of
+/// the footprint, and a configuration with LiDAR enabled is then refused). The README's
+/// footprint table lists `size_of` for a few choices (checked by `core/tests/footprint.rs`).
 #[derive(Clone)]
-pub struct Estimator<const N: usize, const L: usize, const D: usize> {
+pub struct Estimator<
+    const N: usize,
+    const L: usize,
+    const D: usize,
+    const P: usize = LIDAR_POINTS,
+    const GW: usize = LIDAR_GRID_W,
+    const GH: usize = LIDAR_GRID_H,
+> {
     cfg: EstimatorConfig,
     selector: KeyframeSelector,
     status: Status,
@@ -157,8 +193,8 @@ pub struct Estimator<const N: usize, const L: usize, const D: usize> {
     /// Rank deficiencies (marginalized block, new prior) of the last marginalization.
     last_marg: Option<(u32, u32)>,
     ins_window: InsWindow<INS_WINDOW>,
-    points: PointBuffer<MAX_LIDAR_POINTS>,
-    grid: SphereGrid<GRID_W, GRID_H>,
+    points: PointBuffer<P>,
+    grid: SphereGrid<GW, GH>,
     events: HVec<DepthEvent, MAX_EVENTS>,
     /// The delay is held in the current solve (too few landmarks to estimate it).
     td_hold: bool,
@@ -240,7 +276,15 @@ fn now(cfg: &EstimatorConfig) -> u64 {
     cfg.clock.map_or(0, |c| c())
 }
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     const LAYOUT_OK: () = assert!(D == 16 * N + 6 && N >= 2 && N < 128 && 7 * N + 6 <= SCHUR_COLS);
 
     /// A new estimator ([`Error::InvalidConfig`] for an invalid configuration): [`Self::empty`]
@@ -319,6 +363,10 @@ impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
         #[allow(clippy::let_unit_value)]
         let () = Self::LAYOUT_OK;
         cfg.validate()?;
+        if cfg.lidar.enabled && (P == 0 || GW == 0 || GH == 0) {
+            // Built without LiDAR storage (the `lidar` feature, or zero capacities).
+            return Err(Error::InvalidConfig);
+        }
         let selector = KeyframeSelector::new(cfg.keyframe)?;
         if L > problem::LANDMARK_INDEX || L > u16::MAX as usize {
             return Err(Error::InvalidConfig);
@@ -1438,7 +1486,15 @@ fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
     }
 }
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     /// One Levenberg-Marquardt iteration on the current window (landmark preparation,
     /// linearization, damping, factorization, solve, evaluation of the step, accepted or not),
     /// with the first pass's settings. For benchmarks and diagnostics: a keyframe step runs a

@@ -49,7 +49,15 @@ impl FeaturePrediction {
     };
 }
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     /// The camera-IMU delay the estimator currently uses, s (`t_imu = t_cam + td`): the newest
     /// keyframe's estimate, or the configured one before the first keyframe. An image front end
     /// integrates the gyro over `[t_prev + td, t_cur + td]` for its rotation seed.

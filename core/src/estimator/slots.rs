@@ -59,7 +59,15 @@ fn score(n_obs: usize, alive: bool, theta: f64, theta_ref: f64) -> f64 {
 /// A slot must be worth this much more than the landmark it replaces (one observation).
 const SWAP_MARGIN: f64 = 1.0;
 
-impl<const N: usize, const L: usize, const D: usize> Estimator<N, L, D> {
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+    > Estimator<N, L, D, P, GW, GH>
+{
     pub(super) fn window_cams(&self) -> [CameraPose; N] {
         let poses = self.window.poses();
         core::array::from_fn(|k| self.ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb))

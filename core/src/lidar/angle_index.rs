@@ -17,7 +17,7 @@ pub(crate) const LUT_BINS: usize = 2048;
 /// The table covers tangents up to this magnitude (89.4 deg); beyond, the walk finishes.
 const TAN_LIMIT: f64 = 100.0;
 
-/// Cell boundaries and lookup table of one grid axis of `N` cells (`N <= 65536`).
+/// Cell boundaries and lookup table of one grid axis of `N` cells (`N <= 65536`; 0 holds nothing).
 #[derive(Debug, Clone)]
 pub(crate) struct Axis<const N: usize> {
     /// `lower[i] = tan((i - N/2) c)` rounded to `f32`.
@@ -34,7 +34,8 @@ pub(crate) struct Axis<const N: usize> {
 }
 
 impl<const N: usize> Axis<N> {
-    const FITS: () = assert!(N > 0 && N <= 1 << 16, "an axis has 1 ..= 65536 cells");
+    // N = 0: an axis of a grid that holds nothing (an estimator built without LiDAR storage).
+    const FITS: () = assert!(N <= 1 << 16, "an axis has at most 65536 cells");
 
     /// An axis holding nothing until [`Axis::configure`].
     pub(crate) const fn new() -> Self {

@@ -146,11 +146,9 @@ impl<const W: usize, const H: usize> Default for SphereGrid<W, H> {
 }
 
 impl<const W: usize, const H: usize> SphereGrid<W, H> {
-    const NONZERO: () = assert!(W > 0 && H > 0, "SphereGrid needs W > 0 and H > 0");
-
-    /// An empty grid; `const` so it can initialize a `static`.
+    /// An empty grid; `const` so it can initialize a `static`. `W` or `H = 0` gives a grid that
+    /// associates nothing (an estimator built without LiDAR storage).
     pub const fn new() -> Self {
-        let () = Self::NONZERO;
         SphereGrid {
             cells: [[Cell::UNBUILT; W]; H],
             cols: Axis::new(),

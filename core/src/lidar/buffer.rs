@@ -122,11 +122,9 @@ impl<const P: usize> Default for PointBuffer<P> {
 }
 
 impl<const P: usize> PointBuffer<P> {
-    const NONZERO: () = assert!(P > 0, "PointBuffer needs a capacity P > 0");
-
-    /// An empty buffer; `const` so it can initialize a `static`.
+    /// An empty buffer; `const` so it can initialize a `static`. `P = 0` gives a buffer that
+    /// stores nothing (an estimator built without LiDAR storage, which never offers it points).
     pub const fn new() -> Self {
-        let () = Self::NONZERO;
         PointBuffer {
             pts: [Packed::ZERO; P],
             segs: Deque::new(),
