@@ -213,7 +213,8 @@ fn dmvio_images_through_vio_do_not_allocate() {
                     }
                     ii += 1;
                 }
-                if let Ok(o) = vio.push_imu(s) {
+                let _ = vio.push_imu(s);
+                while let Ok(Some(o)) = vio.update() {
                     keyframes += usize::from(o.keyframe.is_some());
                 }
             }

@@ -81,9 +81,10 @@ fn prediction_errors(
         }
         let _ = est.push_imu(s);
         while let Some(w) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
-            est.push_lidar(w.1);
+            let _ = est.push_lidar(w.1);
             li += 1;
         }
+        while step(&mut est).is_some() {}
     }
     e
 }

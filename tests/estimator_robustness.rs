@@ -455,7 +455,8 @@ fn run_offered(ds: &Dataset, frames: &[(i64, i64, Vec<FeatureObs>)]) -> Run {
             let _ = est.push_frame(*t_cam, obs);
             fi += 1;
         }
-        if let Ok(o) = est.push_imu(s) {
+        let _ = est.push_imu(s);
+        while let Some(o) = step(&mut est) {
             states.extend(o.nav);
             keyframe_times.extend(o.keyframe.map(|r| r.t_ns));
         }
@@ -612,6 +613,7 @@ fn extreme_timestamps_do_not_overflow() {
                 let _ = est.push_frame(t, &obs);
             }
             let _ = est.push_imu(&ImuSample { t_ns: t, ..*s });
+            while step(&mut est).is_some() {}
         }
         let _ = est.push_frame(i64::MAX, &obs);
         let _ = est.push_frame(i64::MIN, &obs);
@@ -620,6 +622,7 @@ fn extreme_timestamps_do_not_overflow() {
                 t_ns: t,
                 ..ds.imu[1300]
             });
+            while step(&mut est).is_some() {}
         }
         let c = est.counters();
         println!("extreme stamps: {c:?}");

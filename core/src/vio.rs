@@ -13,8 +13,8 @@
 //! 3. tracks ([`FeatureTracker::track`]) and offers the tracks to the estimator
 //!    ([`Estimator::push_frame`]).
 //!
-//! IMU samples go through [`Vio::push_imu`], which forwards them to the estimator and keeps the
-//! last [`GYRO_SAMPLES`] accepted gyro readings. Front end and back end stay usable separately:
+//! IMU samples go through [`Vio::push_imu`], which queues them in the estimator and keeps the
+//! last [`GYRO_SAMPLES`] accepted gyro readings, and [`Vio::update`] processes them. Front end and back end stay usable separately:
 //! [`Vio::estimator`] / [`Vio::estimator_mut`] and [`Vio::tracker`] give the parts, and an
 //! estimator fed with [`Estimator::push_frame`] directly works as before.
 //!
@@ -184,15 +184,25 @@ impl<
         self.counters
     }
 
-    /// Feeds one IMU sample to the estimator ([`Estimator::push_imu`], same result) and keeps
-    /// its gyro reading for the rotation seed when the estimator accepted it.
-    pub fn push_imu(&mut self, s: &ImuSample) -> Result<ImuOutput, Error> {
-        let out = self.est.push_imu(s)?;
+    /// Queues one IMU sample in the estimator ([`Estimator::push_imu`], same result) and keeps
+    /// its gyro reading for the rotation seed when the estimator accepted it. Drain
+    /// [`Self::update`] after it.
+    pub fn push_imu(&mut self, s: &ImuSample) -> Result<(), Error> {
+        self.est.push_imu(s)?;
         self.gyro.push(s.t_ns, &s.gyro_rps);
-        self.bg = match out.nav {
-            Some(nav) if nav.bg.iter().all(|x| x.is_finite()) => nav.bg,
-            _ => Vec3::zeros(),
-        };
+        Ok(())
+    }
+
+    /// Processes the estimator's next due IMU sample ([`Estimator::update`], same result) and
+    /// takes the gyro bias of the rotation seed from its state.
+    pub fn update(&mut self) -> Result<Option<ImuOutput>, Error> {
+        let out = self.est.update()?;
+        if let Some(o) = &out {
+            self.bg = match o.nav {
+                Some(nav) if nav.bg.iter().all(|x| x.is_finite()) => nav.bg,
+                _ => Vec3::zeros(),
+            };
+        }
         Ok(out)
     }
 
@@ -525,6 +535,7 @@ mod tests {
                     accel_mps2: Vec3::new(0.0, 0.0, 9.81),
                 };
                 vio.push_imu(&s).unwrap();
+                while vio.update().unwrap().is_some() {}
             }
             assert_eq!(vio.estimator().status(), Status::Running);
             assert!(reports.len() >= 15, "{}", reports.len());

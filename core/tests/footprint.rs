@@ -9,11 +9,11 @@ use std::sync::Mutex;
 
 const README: &str = include_str!("../../README.md");
 /// First and last line of the table in the README.
-const TABLE_HEAD: &str = "| type | keyframes | landmarks | LiDAR points, grid | bytes |";
+const TABLE_HEAD: &str = "| type | keyframes | landmarks | LiDAR points, grid, queue | bytes |";
 
 /// The LiDAR capacities of the default build (the `lidar` feature).
 type WithLidar<const N: usize, const L: usize, const D: usize> =
-    Estimator<N, L, D, 65_536, 256, 192>;
+    Estimator<N, L, D, 65_536, 256, 192, 32_768>;
 
 /// Every type the table lists, by the name written in its first cell (the README describes the
 /// default build; without the `lidar` feature the types that take its defaults are skipped).
@@ -24,20 +24,20 @@ fn footprints() -> Vec<(&'static str, usize)> {
             size_of::<WithLidar<10, 200, 166>>(),
         ),
         (
-            "Estimator<10, 200, 166, 0, 0, 0>",
-            size_of::<Estimator<10, 200, 166, 0, 0, 0>>(),
+            "Estimator<10, 200, 166, 0, 0, 0, 0>",
+            size_of::<Estimator<10, 200, 166, 0, 0, 0, 0>>(),
         ),
         (
-            "Estimator<5, 100, 86, 0, 0, 0>",
-            size_of::<Estimator<5, 100, 86, 0, 0, 0>>(),
+            "Estimator<5, 100, 86, 0, 0, 0, 0>",
+            size_of::<Estimator<5, 100, 86, 0, 0, 0, 0>>(),
         ),
         (
             "Estimator<15, 300, 246>",
             size_of::<WithLidar<15, 300, 246>>(),
         ),
         (
-            "Estimator<15, 300, 246, 0, 0, 0>",
-            size_of::<Estimator<15, 300, 246, 0, 0, 0>>(),
+            "Estimator<15, 300, 246, 0, 0, 0, 0>",
+            size_of::<Estimator<15, 300, 246, 0, 0, 0, 0>>(),
         ),
         (
             "FeatureTracker<256, { pyramid_bytes(752, 480, 4) }, 4>",
@@ -107,7 +107,7 @@ fn readme_footprint_table_is_what_size_of_says() {
 #[test]
 fn lidar_storage_is_what_the_lidar_feature_adds() {
     let with = size_of::<WithLidar<10, 200, 166>>();
-    let without = size_of::<Estimator<10, 200, 166, 0, 0, 0>>();
+    let without = size_of::<Estimator<10, 200, 166, 0, 0, 0, 0>>();
     // 16-byte points and 16-byte grid cells, at least.
     assert!(
         with - without >= 65_536 * 16 + 256 * 192 * 16,
@@ -145,7 +145,7 @@ fn an_estimator_without_lidar_storage_refuses_a_lidar_configuration() {
     };
     let mut cfg = EstimatorConfig::new(camera, ext, ImuNoise::EUROC_ADIS16448);
     // In statics: never on the test thread's stack.
-    static WITHOUT: Mutex<Estimator<5, 100, 86, 0, 0, 0>> = Mutex::new(Estimator::empty());
+    static WITHOUT: Mutex<Estimator<5, 100, 86, 0, 0, 0, 0>> = Mutex::new(Estimator::empty());
     static WITH: Mutex<WithLidar<5, 100, 86>> = Mutex::new(Estimator::empty());
     let mut without = WITHOUT.lock().expect("not poisoned");
     without.configure(cfg).expect("a camera-only configuration");

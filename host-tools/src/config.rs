@@ -30,6 +30,7 @@
 //! td_prior_s = 0.005            # prior std of the first keyframe's delay
 //! td_rw_s_per_sqrt_s = 1e-4     # random walk of the delay between keyframes
 //! estimate_extrinsic = false
+//! delay_horizon_s = 0.0         # process an IMU sample once the newest one is this much later
 //!
 //! [imu]                         # replaces the dataset's noise model (continuous densities)
 //! gyro_noise_density = 2.0e-3
@@ -380,6 +381,7 @@ pub struct RunConfigFile {
     marginalize_visual: Option<bool>,
     reuse_marginalized_landmarks: Option<bool>,
     estimate_extrinsic: Option<bool>,
+    delay_horizon_s: Option<f64>,
     #[serde(default)]
     imu: ImuSection,
     #[serde(default)]
@@ -532,6 +534,7 @@ impl RunConfigFile {
             self.reuse_marginalized_landmarks,
         );
         set(&mut cfg.estimate_extrinsic, self.estimate_extrinsic);
+        set(&mut cfg.delay_horizon_s, self.delay_horizon_s);
         let i = &self.imu;
         let n: &mut ImuNoise = &mut cfg.imu_noise;
         set(&mut n.gyro_noise_density, i.gyro_noise_density);

@@ -1,8 +1,9 @@
 //! Replay of a [`Dataset`] through the estimator, in time order, exactly as a live system would
-//! feed it: each camera frame is offered when its stamp is reached and processed by the core at
-//! the first IMU sample past `t_cam + td`; each LiDAR sweep is pushed right after the first IMU
-//! sample at or past its last point (`max t_point + td_l`), when the INS can de-skew every
-//! point of it (see [`lidar_schedule`]).
+//! feed it: every measurement is pushed when the replay clock (the IMU stream) reaches its stamp
+//! (a camera frame its stamp, a LiDAR sweep its last point, see [`lidar_schedule`]) and the core
+//! orders the processing itself ([`povins_core::estimator::timing`]): a frame is processed at
+//! the first IMU sample past `t_cam + td`, a sweep de-skewed once the IMU has passed
+//! `max t_point + td_l`.
 
 use crate::images::{with_images, LoadedImage};
 use crate::progress::Progress;
@@ -266,10 +267,9 @@ pub trait VioDriver {
     /// The estimator, mutable.
     fn est_mut(&mut self) -> &mut povins_core::estimator::PoVins;
     /// [`Vio::push_imu`].
-    fn imu(
-        &mut self,
-        s: &povins_core::inertial::ImuSample,
-    ) -> Result<povins_core::estimator::ImuOutput, povins_core::Error>;
+    fn imu(&mut self, s: &povins_core::inertial::ImuSample) -> Result<(), povins_core::Error>;
+    /// [`Vio::update`].
+    fn update(&mut self) -> Result<Option<povins_core::estimator::ImuOutput>, povins_core::Error>;
     /// [`Vio::push_image`].
     fn image(&mut self, t_ns: i64, view: &ImageView) -> Result<ImageReport, povins_core::Error>;
     /// [`Vio::features`].
@@ -294,11 +294,11 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> VioDriver
     fn est_mut(&mut self) -> &mut povins_core::estimator::PoVins {
         self.estimator_mut()
     }
-    fn imu(
-        &mut self,
-        s: &povins_core::inertial::ImuSample,
-    ) -> Result<povins_core::estimator::ImuOutput, povins_core::Error> {
+    fn imu(&mut self, s: &povins_core::inertial::ImuSample) -> Result<(), povins_core::Error> {
         self.push_imu(s)
+    }
+    fn update(&mut self) -> Result<Option<povins_core::estimator::ImuOutput>, povins_core::Error> {
+        Vio::update(self)
     }
     fn image(&mut self, t_ns: i64, view: &ImageView) -> Result<ImageReport, povins_core::Error> {
         self.push_image(t_ns, view)
@@ -394,7 +394,7 @@ fn replay_vio<V: VioDriver>(
     let mut fi = ds.features.partition_point(|f| f.t_ns < t_start_ns);
     let first_image = ds.images.partition_point(|f| f.t_ns < t_start_ns);
     // Sweeps due before the first replayed IMU sample are skipped, like frames before it.
-    let scans = lidar_schedule(ds, lidar.td_l_s);
+    let scans = lidar_schedule(ds, 0.0);
     let mut li = scans.partition_point(|&(t, _)| t < t_start_ns);
     let image_list = if images {
         ds.images.get(first_image..).unwrap_or(&[])
@@ -434,7 +434,21 @@ fn replay_vio<V: VioDriver>(
                     fi += 1;
                 }
             }
-            if let Ok(o) = vio.imu(s) {
+            let _ = vio.imu(s);
+            // The core holds each sweep until the IMU has passed its last point: offer it when
+            // it is complete (its last point's stamp).
+            while let Some(&(_, k)) = scans.get(li).filter(|(t, _)| *t <= s.t_ns) {
+                if let Some(scan) = ds.lidar.get(k) {
+                    let _ = vio.est_mut().push_lidar(&scan.points);
+                }
+                li += 1;
+            }
+            loop {
+                let o = match vio.update() {
+                    Ok(Some(o)) => o,
+                    Ok(None) => break,
+                    Err(_) => continue,
+                };
                 if let Some(r) = o.keyframe {
                     out.lidar_events.push(KeyframeDepthEvents {
                         t_cam_ns: r.t_cam_ns,
@@ -448,12 +462,6 @@ fn replay_vio<V: VioDriver>(
                 if let Some(nav) = o.nav {
                     out.imu_rate.push(nav);
                 }
-            }
-            while let Some(&(_, k)) = scans.get(li).filter(|(t, _)| *t <= s.t_ns) {
-                if let Some(scan) = ds.lidar.get(k) {
-                    let _ = vio.est_mut().push_lidar(&scan.points);
-                }
-                li += 1;
             }
             if i % 1000 == 0 {
                 progress.set_position(i as u64);

@@ -110,32 +110,21 @@ pub fn gt_start(ds: &Dataset, cfg: &mut EstimatorConfig) -> (usize, NavState) {
 }
 
 /// Replays `imu[start..]` with the frames in time order, as `runner::replay` does: every frame
-/// whose stamp the current IMU sample has reached is offered before the sample. `on_out` sees
-/// every accepted sample's output (and the estimator after it) and returns `false` to stop.
-/// Allocation-free itself.
+/// whose stamp the current IMU sample has reached is pushed before the sample, then the sample,
+/// and the estimator's queue is drained (`update`). `on_out` sees every processed sample's output
+/// (and the estimator after it) and returns `false` to stop. Allocation-free itself.
 pub fn drive(
     est: &mut PoVins,
     imu: &[ImuSample],
     frames: &[(i64, &[povins::core::camera::FeatureObs])],
-    mut on_out: impl FnMut(&mut PoVins, &ImuSample, &ImuOutput) -> bool,
+    on_out: impl FnMut(&mut PoVins, &ImuSample, &ImuOutput) -> bool,
 ) {
-    let t0 = imu.first().map_or(i64::MIN, |s| s.t_ns);
-    let mut fi = frames.partition_point(|f| f.0 < t0);
-    for s in imu {
-        while let Some(f) = frames.get(fi).filter(|f| f.0 <= s.t_ns) {
-            let _ = est.push_frame(f.0, f.1);
-            fi += 1;
-        }
-        if let Ok(o) = est.push_imu(s) {
-            if !on_out(est, s, &o) {
-                return;
-            }
-        }
-    }
+    drive_lidar(est, imu, frames, &[], on_out)
 }
 
 /// [`drive`] with LiDAR sweeps `(t_last_point_ns, points)` (sorted by time): a sweep is pushed
-/// right after the first IMU sample at or past its last point, as `runner::replay` does.
+/// once the IMU stream has reached its last point, as `runner::replay` does (the core de-skews it
+/// when it processes that sample).
 pub fn drive_lidar(
     est: &mut PoVins,
     imu: &[ImuSample],
@@ -151,15 +140,25 @@ pub fn drive_lidar(
             let _ = est.push_frame(f.0, f.1);
             fi += 1;
         }
-        let out = est.push_imu(s);
+        let _ = est.push_imu(s);
         while let Some(w) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
-            est.push_lidar(w.1);
+            let _ = est.push_lidar(w.1);
             li += 1;
         }
-        if let Ok(o) = out {
+        while let Some(o) = step(est) {
             if !on_out(est, s, &o) {
                 return;
             }
+        }
+    }
+}
+
+/// The output of the estimator's next due sample (errors skipped, as a replay does).
+pub fn step(est: &mut PoVins) -> Option<ImuOutput> {
+    loop {
+        match est.update() {
+            Ok(o) => return o,
+            Err(_) => continue,
         }
     }
 }

@@ -70,8 +70,13 @@ pub struct EstimatorConfig {
     pub max_accel_mps2: f64,
     /// The INS is considered diverged (and the estimator reset) above this speed, m/s.
     pub max_speed_mps: f64,
-    /// Frames stamped more than this ahead of the newest IMU sample are rejected, s.
+    /// Frames stamped (and LiDAR sweeps ending) more than this ahead of the newest IMU sample
+    /// are rejected, s.
     pub max_frame_lead_s: f64,
+    /// Delayed horizon of [`super::Estimator::update`]: an IMU sample is processed once the
+    /// newest pushed sample is this much later, so that frames and sweeps arriving up to this
+    /// late are still taken in time order, s (0: at once; at most 1 s).
+    pub delay_horizon_s: f64,
     /// Visual measurement model.
     pub mode: VisualMode,
     /// Depth of the pose-only visual measurements.
@@ -199,6 +204,7 @@ impl EstimatorConfig {
             max_accel_mps2: 160.0,
             max_speed_mps: 100.0,
             max_frame_lead_s: 1.0,
+            delay_horizon_s: 0.0,
             mode: VisualMode::PoseOnly,
             visual_depth: VisualDepth::Eliminated,
             keyframe: KeyframeConfig::DEFAULT,
@@ -303,6 +309,7 @@ impl EstimatorConfig {
             max_accel_mps2: 0.0,
             max_speed_mps: 0.0,
             max_frame_lead_s: 0.0,
+            delay_horizon_s: 0.0,
             mode: VisualMode::PoseOnly,
             visual_depth: VisualDepth::TwoView,
             keyframe: KeyframeConfig {
@@ -413,6 +420,7 @@ impl EstimatorConfig {
             && pos(self.max_accel_mps2)
             && pos(self.max_speed_mps)
             && pos(self.max_frame_lead_s)
+            && (0.0..=1.0).contains(&self.delay_horizon_s)
             && pos(self.sigma_px)
             && pos(self.huber_delta)
             && self.min_parallax.is_finite()

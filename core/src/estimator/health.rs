@@ -83,7 +83,8 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
     /// Checks the newest keyframe after its solve (`predicted`: the INS state it started from,
     /// `residual_rms_px` and `landmarks` of the solve). Returns the breakdown, if any.

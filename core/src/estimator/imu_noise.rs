@@ -169,7 +169,8 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
     /// Measures the oldest IMU factor of a full window against the last solve's factored normal
     /// matrix and updates the noise scales. Does nothing unless the window is full, adaptation is

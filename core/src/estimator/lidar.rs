@@ -13,7 +13,6 @@ use super::{DepthEvent, DepthEventKind, Estimator, KeyframeReport};
 use crate::camera::Vec2;
 use crate::inertial::NavState;
 use crate::landmarks::LidarDepth;
-use crate::lidar::ScanStats;
 
 use super::problem_lidar::TauLandmark;
 
@@ -24,34 +23,9 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
-    /// Offers one LiDAR sweep (points in the LiDAR frame with their own times). Push a sweep once
-    /// the IMU has reached its last point: points without an INS pose to de-skew with are
-    /// rejected and counted. A sweep is refused whole (counted in `lidar_scans_refused`) when
-    /// LiDAR is disabled or the estimator is not running.
-    pub fn push_lidar(&mut self, points: &[crate::lidar::LidarPoint]) -> ScanStats {
-        self.counters.lidar_scans += 1;
-        self.counters.lidar_points_received += points.len() as u64;
-        if !self.cfg.lidar.enabled || self.status != super::Status::Running {
-            self.counters.lidar_scans_refused += 1;
-            return ScanStats {
-                received: points.len() as u32,
-                ..Default::default()
-            };
-        }
-        let st = self
-            .points
-            .push_scan(points, &self.ins_window, &self.cfg.lidar);
-        let c = &mut self.counters;
-        c.lidar_points_accepted += u64::from(st.accepted);
-        c.lidar_points_rejected += u64::from(st.rejected_nonfinite)
-            + u64::from(st.rejected_range)
-            + u64::from(st.rejected_time);
-        c.lidar_points_evicted += u64::from(st.evicted);
-        st
-    }
-
     /// LiDAR-depth events of the last keyframe step.
     pub fn lidar_events(&self) -> &[DepthEvent] {
         &self.events

@@ -26,7 +26,8 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
     /// Sets the marginalization plan of every landmark (module docs) and re-anchors the ones
     /// that stay. Positions are those before the window shifts.

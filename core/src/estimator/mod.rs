@@ -1,6 +1,8 @@
 //! The estimator: the only module that knows the order of the steps.
 //!
-//! Per IMU sample: INS mechanization (the INS-centric design), preintegration into the open
+//! Sensor timing is the estimator's ([`timing`]): `push_*` only queue, [`Estimator::update`]
+//! processes the queued IMU samples in time order on a delayed horizon, with the frames and
+//! sweeps they reach. Per IMU sample: INS mechanization (the INS-centric design), preintegration into the open
 //! keyframe interval, and (with LiDAR) the INS state into the de-skew window. Per LiDAR sweep:
 //! de-skew and store its points ([`crate::lidar::PointBuffer`]). Per camera frame (processed when
 //! the IMU reaches its time `t_cam + td`): track validation and undistortion, keyframe decision
@@ -40,6 +42,7 @@ mod problem_lidar;
 mod problem_visual;
 pub mod report;
 mod slots;
+pub mod timing;
 pub mod window;
 
 pub use config::{EstimatorConfig, FirstStatePrior, VisualDepth, VisualMode};
@@ -47,6 +50,7 @@ pub use health::{Breakdown, HealthConfig};
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
 pub use report::{Admission, Counters, DepthEvent, DepthEventKind, KeyframeReport};
+pub use timing::{IMU_QUEUE, PENDING_LIDAR_POINTS, PENDING_SWEEPS};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
@@ -63,7 +67,7 @@ use crate::landmarks::{depth_std, TwoView};
 use crate::lidar::association::{GRID_H, GRID_W};
 #[cfg(feature = "lidar")]
 use crate::lidar::buffer::MAX_LIDAR_POINTS;
-use crate::lidar::{LdmMode, PointBuffer, SphereGrid};
+use crate::lidar::{LdmMode, PendingSweeps, PointBuffer, SphereGrid};
 use crate::math::{log_so3, Vec3};
 use crate::solver::{LandmarkSchur, Ldlt, LmWorkspace, NormalEquations};
 use crate::Error;
@@ -150,9 +154,10 @@ pub const LIDAR_GRID_H: usize = 0;
 /// The sliding-window estimator (see the module docs for the order of the steps).
 ///
 /// Capacities: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state dimensions, and for
-/// LiDAR `P` buffered points and a `GW` x `GH` association grid (defaults from the `lidar`
-/// feature: [`LIDAR_POINTS`], [`LIDAR_GRID_W`], [`LIDAR_GRID_H`]; all 0 leaves the LiDAR out of
-/// the footprint, and a configuration with LiDAR enabled is then refused). The README's
+/// LiDAR `P` buffered points, a `GW` x `GH` association grid and `Q` queued raw points
+/// (defaults from the `lidar` feature: [`LIDAR_POINTS`], [`LIDAR_GRID_W`], [`LIDAR_GRID_H`],
+/// [`PENDING_LIDAR_POINTS`]; all 0 leaves the LiDAR out of the footprint, and a configuration
+/// with LiDAR enabled is then refused). The README's
 /// footprint table lists `size_of` for a few choices (checked by `core/tests/footprint.rs`).
 #[derive(Clone)]
 pub struct Estimator<
@@ -162,6 +167,7 @@ pub struct Estimator<
     const P: usize = LIDAR_POINTS,
     const GW: usize = LIDAR_GRID_W,
     const GH: usize = LIDAR_GRID_H,
+    const Q: usize = PENDING_LIDAR_POINTS,
 > {
     cfg: EstimatorConfig,
     selector: KeyframeSelector,
@@ -194,6 +200,10 @@ pub struct Estimator<
     last_marg: Option<(u32, u32)>,
     ins_window: InsWindow<INS_WINDOW>,
     points: PointBuffer<P>,
+    /// LiDAR sweeps waiting for the IMU ([`timing`]).
+    sweeps_in: PendingSweeps<Q, PENDING_SWEEPS>,
+    /// IMU samples waiting for [`Estimator::update`] ([`timing`]).
+    imu_in: heapless::Deque<ImuSample, IMU_QUEUE>,
     grid: SphereGrid<GW, GH>,
     events: HVec<DepthEvent, MAX_EVENTS>,
     /// The delay is held in the current solve (too few landmarks to estimate it).
@@ -212,7 +222,7 @@ pub struct Estimator<
 /// An optional value kept beside a flag rather than in an `Option`, so that "none" is all zero
 /// bits (an `Option`'s `None` may be any pattern): keeps a `static` estimator in `.bss`. Every
 /// mutable access counts in `epoch` (how the fast path's updates are found, see
-/// [`Estimator::push_imu`]).
+/// [`Estimator::update`]).
 #[derive(Clone)]
 struct Held<T> {
     value: T,
@@ -283,7 +293,8 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
     const LAYOUT_OK: () = assert!(D == 16 * N + 6 && N >= 2 && N < 128 && 7 * N + 6 <= SCHUR_COLS);
 
@@ -343,6 +354,8 @@ impl<
             last_marg: None,
             ins_window: InsWindow::new(),
             points: PointBuffer::new(),
+            sweeps_in: PendingSweeps::new(),
+            imu_in: heapless::Deque::new(),
             grid: SphereGrid::new(),
             events: HVec::new(),
             td_hold: false,
@@ -363,7 +376,7 @@ impl<
         #[allow(clippy::let_unit_value)]
         let () = Self::LAYOUT_OK;
         cfg.validate()?;
-        if cfg.lidar.enabled && (P == 0 || GW == 0 || GH == 0) {
+        if cfg.lidar.enabled && (P == 0 || GW == 0 || GH == 0 || Q == 0) {
             // Built without LiDAR storage (the `lidar` feature, or zero capacities).
             return Err(Error::InvalidConfig);
         }
@@ -402,6 +415,8 @@ impl<
         self.last_marg = None;
         self.ins_window.clear();
         self.points.reset_to_new();
+        self.sweeps_in.clear();
+        self.imu_in.clear();
         self.grid.reset_to_new();
         self.events.clear();
         self.td_hold = false;
@@ -495,9 +510,12 @@ impl<
         let _ = self.static_init.reset_to_new(self.cfg.static_init);
     }
 
-    /// Offers a camera frame of tracked features (raw pixels) at camera time `t_cam_ns`. It is
-    /// processed when the IMU reaches `t_cam + td`. [`Error::NotInitialized`] (nothing counted)
-    /// while [`Status::Unconfigured`].
+    /// Queues a camera frame of tracked features (raw pixels) at camera time `t_cam_ns`. It is
+    /// processed by [`Self::update`] at the first IMU sample at or past `t_cam + td`
+    /// ([`PENDING_FRAMES`] are held; one more drops the oldest, counted). Refused, counted:
+    /// [`Error::TimeNotIncreasing`], [`Error::OutOfRange`] (more than `max_frame_lead_s` ahead
+    /// of the newest IMU sample pushed). [`Error::NotInitialized`] (nothing counted) while
+    /// [`Status::Unconfigured`].
     pub fn push_frame(&mut self, t_cam_ns: i64, obs: &[FeatureObs]) -> Result<(), Error> {
         if self.status == Status::Unconfigured {
             return Err(Error::NotInitialized);
@@ -506,10 +524,8 @@ impl<
         // A frame far ahead of the IMU would block every real frame until the IMU caught up
         // (and overflow the open interval): refuse it.
         let lead_limit_ns = (self.cfg.max_frame_lead_s * 1e9) as i64;
-        if self
-            .last_imu
-            .is_some_and(|s| t_cam_ns.saturating_sub(s.t_ns) > lead_limit_ns)
-        {
+        let newest = self.imu_in.back().or(self.last_imu.as_ref());
+        if newest.is_some_and(|s| t_cam_ns.saturating_sub(s.t_ns) > lead_limit_ns) {
             self.counters.frames_rejected_time += 1;
             return Err(Error::OutOfRange);
         }
@@ -561,67 +577,6 @@ impl<
         self.window
             .last()
             .map_or(self.reinit_td.unwrap_or(self.cfg.td_s), |k| k.td_s)
-    }
-
-    /// Feeds one IMU sample: propagates the INS, and processes a pending frame whose time the
-    /// IMU has reached. Rejected samples change nothing ([`Error::NonFinite`],
-    /// [`Error::TimeNotIncreasing`]); a gap above `max_imu_dt_s` resets the estimator.
-    /// [`Error::NotInitialized`] (nothing counted) while [`Status::Unconfigured`].
-    pub fn push_imu(&mut self, s: &ImuSample) -> Result<ImuOutput, Error> {
-        if self.status == Status::Unconfigured {
-            return Err(Error::NotInitialized);
-        }
-        if !s.is_finite() {
-            self.counters.imu_rejected_nonfinite += 1;
-            return Err(Error::NonFinite);
-        }
-        if s.gyro_rps.amax() > self.cfg.max_gyro_rps
-            || s.accel_mps2.amax() > self.cfg.max_accel_mps2
-        {
-            self.counters.imu_rejected_range += 1;
-            return Err(Error::OutOfRange);
-        }
-        if let Some(last) = self.last_imu {
-            if s.t_ns <= last.t_ns {
-                self.counters.imu_rejected_time += 1;
-                return Err(Error::TimeNotIncreasing);
-            }
-            if s.t_ns.saturating_sub(last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s
-                && self.status == Status::Running
-            {
-                self.reset();
-            }
-        }
-        self.counters.imu_samples += 1;
-        let mut out = ImuOutput {
-            nav: None,
-            keyframe: None,
-            ins: None,
-        };
-        let plain_from = if self.status == Status::WaitingForInit {
-            self.imu_waiting_for_init(s)?;
-            None
-        } else {
-            self.imu_running(s, &mut out)?
-        };
-        self.last_imu = Some(*s);
-        out.nav = self.ins.as_ref().map(|i| *i.state());
-        out.ins = self.fast_path_update(plain_from);
-        Ok(out)
-    }
-
-    /// The update a fast path needs after this sample ([`ImuOutput::ins`]): none when the INS
-    /// only propagated the sample (`plain_from`: the INS epoch that propagation started from)
-    /// from the state the fast path already follows.
-    fn fast_path_update(&mut self, plain_from: Option<u32>) -> Option<InsUpdate> {
-        let synced = core::mem::replace(&mut self.ins_synced, self.ins.epoch);
-        if plain_from == Some(synced) || self.ins.epoch == synced {
-            return None;
-        }
-        Some(match self.ins.as_ref() {
-            Some(ins) => InsUpdate::State(*ins),
-            None => InsUpdate::Reset,
-        })
     }
 
     /// One sample before initialization: frames feed the track velocities and the rest
@@ -696,7 +651,7 @@ impl<
                 }
             }
         }
-        if !self.ins.as_ref().is_some_and(|i| i.state().t_ns < s.t_ns) {
+        if self.ins.as_ref().is_none_or(|i| i.state().t_ns >= s.t_ns) {
             return Ok(None);
         }
         let from = self.ins.epoch;
@@ -1493,7 +1448,8 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
     /// One Levenberg-Marquardt iteration on the current window (landmark preparation,
     /// linearization, damping, factorization, solve, evaluation of the step, accepted or not),

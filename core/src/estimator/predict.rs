@@ -56,7 +56,8 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
     /// The camera-IMU delay the estimator currently uses, s (`t_imu = t_cam + td`): the newest
     /// keyframe's estimate, or the configured one before the first keyframe. An image front end

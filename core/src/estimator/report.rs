@@ -143,6 +143,8 @@ pub struct Counters {
     pub imu_rejected_range: u64,
     /// IMU samples rejected for non-increasing time.
     pub imu_rejected_time: u64,
+    /// IMU samples refused because the queue was full (`update` not called often enough).
+    pub imu_dropped_queue_full: u64,
     /// Camera frames offered.
     pub frames: u64,
     /// Frames rejected for non-increasing time, or for a stamp too far ahead of the IMU.
@@ -177,6 +179,8 @@ pub struct Counters {
     /// LiDAR sweeps refused whole (LiDAR disabled, not initialized, or larger than the buffer
     /// can take in one piece is *not* a refusal: the oldest points are evicted instead).
     pub lidar_scans_refused: u64,
+    /// Of those: sweeps refused because the sweep queue had no room for them.
+    pub lidar_scans_dropped_queue_full: u64,
     /// LiDAR points offered.
     pub lidar_points_received: u64,
     /// LiDAR points stored.
@@ -194,6 +198,7 @@ impl Counters {
         imu_rejected_nonfinite: 0,
         imu_rejected_range: 0,
         imu_rejected_time: 0,
+        imu_dropped_queue_full: 0,
         frames: 0,
         frames_rejected_time: 0,
         frames_before_init: 0,
@@ -210,6 +215,7 @@ impl Counters {
         reinitializations: 0,
         lidar_scans: 0,
         lidar_scans_refused: 0,
+        lidar_scans_dropped_queue_full: 0,
         lidar_points_received: 0,
         lidar_points_accepted: 0,
         lidar_points_rejected: 0,

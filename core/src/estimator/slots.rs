@@ -66,7 +66,8 @@ impl<
         const P: usize,
         const GW: usize,
         const GH: usize,
-    > Estimator<N, L, D, P, GW, GH>
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
 {
     pub(super) fn window_cams(&self) -> [CameraPose; N] {
         let poses = self.window.poses();

@@ -29,8 +29,10 @@ use super::state::NavState;
 use crate::Error;
 use heapless::Deque;
 
-/// What the estimator hands its fast path (see the module docs).
+/// What the estimator hands its fast path (see the module docs). `Copy` and fixed-size (about
+/// 300 bytes) so it crosses a lock-free queue by value; the `Reset` variant is rare.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[allow(clippy::large_enum_variant)]
 pub enum InsUpdate {
     /// The estimator's INS after the sample at `state().t_ns`.
     State(Ins),
@@ -235,7 +237,7 @@ mod tests {
         for k in 0..=10 {
             assert_eq!(fast.push_imu(&sample(k)), Ok(None));
         }
-        let update = InsUpdate::State(reference.clone());
+        let update = InsUpdate::State(reference);
         for k in 11..40 {
             let r = *reference.propagate(&sample(k)).expect("propagates");
             let f = fast.push_imu(&sample(k)).expect("accepted");

@@ -352,7 +352,7 @@ mod tests {
         ins.propagate(&sample(0, Vec3::zeros(), f)).unwrap();
         ins.propagate(&sample(5_000_000, Vec3::new(0.1, 0.0, 0.0), f))
             .unwrap();
-        let before = ins.clone();
+        let before = ins;
         let bad = [
             (
                 sample(10_000_000, Vec3::new(f64::NAN, 0.0, 0.0), f),

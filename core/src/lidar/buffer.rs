@@ -165,6 +165,16 @@ impl<const P: usize> PointBuffer<P> {
         ins: &InsWindow<K>,
         cfg: &LidarConfig,
     ) -> ScanStats {
+        self.push_points(points.iter().copied(), ins, cfg)
+    }
+
+    /// [`Self::push_scan`] over any sequence of points (the estimator's queued sweeps).
+    pub fn push_points<const K: usize>(
+        &mut self,
+        points: impl ExactSizeIterator<Item = LidarPoint>,
+        ins: &InsWindow<K>,
+        cfg: &LidarConfig,
+    ) -> ScanStats {
         let mut st = ScanStats {
             received: sat_u32(points.len()),
             ..ScanStats::default()

@@ -20,6 +20,7 @@ pub mod association;
 pub mod buffer;
 pub mod config;
 mod deskew;
+pub mod pending;
 mod plane;
 pub mod rejection;
 #[cfg(test)]
@@ -28,6 +29,7 @@ mod testutil;
 pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
 pub use buffer::{PointBuffer, ScanStats, WorldPoint};
 pub use config::{AssociationConfig, LdmMode, LidarConfig, LidarExtrinsic};
+pub use pending::{PendingSweeps, Queued};
 pub use rejection::DepthPair;
 
 /// One LiDAR return in the LiDAR frame `l`, with its own timestamp (so motion distortion can be

@@ -1,0 +1,217 @@
+//! Sensor timing: the estimator owns it (PX4 EKF2's model). `push_*` only queue; [`update`]
+//! processes in time order on a delayed horizon.
+//!
+//! - [`Estimator::push_imu`] validates a sample (finite, within the sensor range, later than
+//!   the previous one) and queues it ([`IMU_QUEUE`] samples).
+//! - [`Estimator::push_frame`] queues a camera frame ([`super::PENDING_FRAMES`]); it is taken at
+//!   the first processed IMU sample at or past `t_cam + td` (interpolated to that time).
+//! - [`Estimator::push_lidar`] queues a whole sweep (up to `Q` points, [`PENDING_SWEEPS`]
+//!   sweeps); it is de-skewed right after the first processed IMU sample at or past its last
+//!   point (`max t_point + td_l`), when the INS covers every point of it.
+//! - [`Estimator::update`] processes the oldest queued IMU sample once it is at least
+//!   `delay_horizon_s` older than the newest one pushed (0 by default: at once), with the frames
+//!   and sweeps that are due, and returns what it produced. Call it until it returns `None`.
+//!
+//! So a caller pushes each measurement when it arrives, in any interleaving of the sensors, and
+//! drains [`update`]: frames and sweeps that arrive up to the horizon after the IMU samples
+//! of their time are still processed in time order (later frames are rewound to their time,
+//! up to [`super::LATE_SAMPLES`] samples). The IMU-rate output is the sample's
+//! [`super::ImuOutput`]; with a horizon, a [`crate::inertial::FastPath`] fed at push time gives
+//! the pose without the horizon's delay.
+//!
+//! [`update`]: Estimator::update
+
+use super::{Estimator, ImuOutput, Status};
+use crate::inertial::{ImuSample, InsUpdate};
+use crate::lidar::{LidarPoint, Queued};
+use crate::Error;
+
+/// IMU samples the estimator queues (2.56 s at 200 Hz): a horizon must stay well below it.
+pub const IMU_QUEUE: usize = 512;
+/// LiDAR sweeps the estimator queues.
+pub const PENDING_SWEEPS: usize = 4;
+/// Raw LiDAR points the estimator queues by default (16 bytes each; 0 without the `lidar`
+/// feature): two sweeps of a 160 000 points/s LiDAR at 10 Hz.
+#[cfg(feature = "lidar")]
+pub const PENDING_LIDAR_POINTS: usize = 32_768;
+/// Raw LiDAR points the estimator queues by default (0: built without `lidar`).
+#[cfg(not(feature = "lidar"))]
+pub const PENDING_LIDAR_POINTS: usize = 0;
+
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
+{
+    /// Queues one IMU sample (processed by [`Self::update`]). Refused and counted, nothing
+    /// changed: [`Error::NonFinite`], [`Error::OutOfRange`] (beyond `max_gyro_rps` /
+    /// `max_accel_mps2`), [`Error::TimeNotIncreasing`], [`Error::CapacityExceeded`] (the queue
+    /// is full: call [`Self::update`]). [`Error::NotInitialized`] (nothing counted) while
+    /// [`Status::Unconfigured`].
+    pub fn push_imu(&mut self, s: &ImuSample) -> Result<(), Error> {
+        if self.status == Status::Unconfigured {
+            return Err(Error::NotInitialized);
+        }
+        if !s.is_finite() {
+            self.counters.imu_rejected_nonfinite += 1;
+            return Err(Error::NonFinite);
+        }
+        if s.gyro_rps.amax() > self.cfg.max_gyro_rps
+            || s.accel_mps2.amax() > self.cfg.max_accel_mps2
+        {
+            self.counters.imu_rejected_range += 1;
+            return Err(Error::OutOfRange);
+        }
+        let newest = self.imu_in.back().or(self.last_imu.as_ref());
+        if newest.is_some_and(|last| s.t_ns <= last.t_ns) {
+            self.counters.imu_rejected_time += 1;
+            return Err(Error::TimeNotIncreasing);
+        }
+        if self.imu_in.push_back(*s).is_err() {
+            self.counters.imu_dropped_queue_full += 1;
+            return Err(Error::CapacityExceeded);
+        }
+        Ok(())
+    }
+
+    /// Queues one LiDAR sweep (points in the LiDAR frame with their own times), de-skewed by
+    /// [`Self::update`] once the IMU has passed its last point. A sweep larger than the queue's
+    /// free room keeps its last points (the others counted as evicted). Refused whole and
+    /// counted in `lidar_scans_refused`: LiDAR disabled ([`Error::InvalidConfig`]), its last
+    /// point more than `max_frame_lead_s` ahead of the newest IMU sample ([`Error::OutOfRange`];
+    /// its points counted as rejected), no room in the queue ([`Error::CapacityExceeded`]), or
+    /// (when it is due) the estimator not running.
+    pub fn push_lidar(&mut self, points: &[LidarPoint]) -> Result<(), Error> {
+        if self.status == Status::Unconfigured {
+            return Err(Error::NotInitialized);
+        }
+        self.counters.lidar_scans += 1;
+        self.counters.lidar_points_received += points.len() as u64;
+        if !self.cfg.lidar.enabled {
+            self.counters.lidar_scans_refused += 1;
+            return Err(Error::InvalidConfig);
+        }
+        let td_ns = crate::lidar::buffer::seconds_to_ns(self.cfg.lidar.td_l_s);
+        let trigger_ns = points
+            .iter()
+            .map(|p| p.t_ns)
+            .max()
+            .map_or(i64::MIN, |t| t.saturating_add(td_ns));
+        // A sweep far ahead of the IMU would hold every later one back: refuse it.
+        let lead_limit_ns = (self.cfg.max_frame_lead_s * 1e9) as i64;
+        let newest = self.imu_in.back().or(self.last_imu.as_ref());
+        if newest.is_some_and(|s| trigger_ns.saturating_sub(s.t_ns) > lead_limit_ns) {
+            self.counters.lidar_scans_refused += 1;
+            self.counters.lidar_points_rejected += points.len() as u64;
+            return Err(Error::OutOfRange);
+        }
+        match self.sweeps_in.push(points, trigger_ns) {
+            Queued::Queued { evicted } => {
+                self.counters.lidar_points_evicted += u64::from(evicted);
+                Ok(())
+            }
+            Queued::Full => {
+                self.counters.lidar_scans_refused += 1;
+                self.counters.lidar_scans_dropped_queue_full += 1;
+                Err(Error::CapacityExceeded)
+            }
+        }
+    }
+
+    /// IMU samples queued and not processed yet.
+    pub fn queued_imu(&self) -> usize {
+        self.imu_in.len()
+    }
+
+    /// Processes the oldest queued IMU sample if it is due (see the module docs): the INS
+    /// propagates to it, the frames it reaches are processed (a keyframe is solved here), the
+    /// sweeps it passes are de-skewed. `Ok(None)`: nothing is due. An error ends this sample's
+    /// processing (the sample is consumed).
+    pub fn update(&mut self) -> Result<Option<ImuOutput>, Error> {
+        let Some(front) = self.imu_in.front().copied() else {
+            return Ok(None);
+        };
+        if self.cfg.delay_horizon_s > 0.0 {
+            let newest = self.imu_in.back().map_or(front.t_ns, |b| b.t_ns);
+            let horizon_ns = (self.cfg.delay_horizon_s * 1e9) as i64;
+            if newest.saturating_sub(front.t_ns) < horizon_ns {
+                return Ok(None);
+            }
+        }
+        let _ = self.imu_in.pop_front();
+        let out = self.process_imu(&front)?;
+        self.deskew_due_sweeps(front.t_ns);
+        Ok(Some(out))
+    }
+
+    /// One validated sample, in time order: a gap above `max_imu_dt_s` resets the estimator;
+    /// then initialization or the running step.
+    fn process_imu(&mut self, s: &ImuSample) -> Result<ImuOutput, Error> {
+        if let Some(last) = self.last_imu {
+            if s.t_ns.saturating_sub(last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s
+                && self.status == Status::Running
+            {
+                self.reset();
+            }
+        }
+        self.counters.imu_samples += 1;
+        let mut out = ImuOutput {
+            nav: None,
+            keyframe: None,
+            ins: None,
+        };
+        let plain_from = if self.status == Status::WaitingForInit {
+            self.imu_waiting_for_init(s)?;
+            None
+        } else {
+            self.imu_running(s, &mut out)?
+        };
+        self.last_imu = Some(*s);
+        out.nav = self.ins.as_ref().map(|i| *i.state());
+        out.ins = self.fast_path_update(plain_from);
+        Ok(out)
+    }
+
+    /// The update a fast path needs after this sample ([`ImuOutput::ins`]): none when the INS
+    /// only propagated the sample (`plain_from`: the INS epoch that propagation started from)
+    /// from the state the fast path already follows.
+    fn fast_path_update(&mut self, plain_from: Option<u32>) -> Option<InsUpdate> {
+        let synced = core::mem::replace(&mut self.ins_synced, self.ins.epoch);
+        if plain_from == Some(synced) || self.ins.epoch == synced {
+            return None;
+        }
+        Some(match self.ins.as_ref() {
+            Some(ins) => InsUpdate::State(*ins),
+            None => InsUpdate::Reset,
+        })
+    }
+
+    /// De-skews and stores the queued sweeps whose last point the IMU has reached (`t_ns`).
+    fn deskew_due_sweeps(&mut self, t_ns: i64) {
+        while self.sweeps_in.next_trigger_ns().is_some_and(|t| t <= t_ns) {
+            let running = self.status == Status::Running;
+            let (points, ins, cfg) = (&mut self.points, &self.ins_window, &self.cfg.lidar);
+            let done = self.sweeps_in.pop_with(|it, received, dropped| {
+                running.then(|| (points.push_points(it, ins, cfg), received, dropped))
+            });
+            let c = &mut self.counters;
+            match done {
+                Some(Some((st, _, dropped))) => {
+                    c.lidar_points_accepted += u64::from(st.accepted);
+                    c.lidar_points_rejected += u64::from(st.rejected_nonfinite)
+                        + u64::from(st.rejected_range)
+                        + u64::from(st.rejected_time)
+                        + u64::from(dropped);
+                    c.lidar_points_evicted += u64::from(st.evicted);
+                }
+                Some(None) => c.lidar_scans_refused += 1,
+                None => break,
+            }
+        }
+    }
+}

@@ -1,0 +1,164 @@
+//! The estimator owns sensor timing (`povins_core::estimator::timing`): measurements pushed
+//! late (within the delayed horizon) or early (LiDAR sweeps before the IMU has passed them) are
+//! processed exactly as if a replay had ordered them, and a full queue is reported.
+
+mod common;
+
+use common::*;
+use povins::core::camera::FeatureObs;
+use povins::core::estimator::{EstimatorConfig, ImuOutput, PoVins, VisualMode, IMU_QUEUE};
+use povins::core::inertial::ImuSample;
+use povins::core::lidar::LidarPoint;
+use povins::core::Error;
+use povins::host_tools::sim::Scenario;
+
+/// Every processed sample's state bits and keyframe time, in order.
+fn record(out: &mut Vec<(i64, Vec<u64>, Option<i64>)>, o: &ImuOutput) {
+    let bits = o.nav.map_or(Vec::new(), |n| {
+        n.p_wb
+            .iter()
+            .chain(n.q_wb.coords.iter())
+            .chain(n.v_wb.iter())
+            .chain(n.bg.iter())
+            .map(|v| v.to_bits())
+            .collect()
+    });
+    out.push((
+        o.nav.map_or(0, |n| n.t_ns),
+        bits,
+        o.keyframe.map(|r| r.t_ns),
+    ));
+}
+
+/// Pushes every measurement `lag_ns` after the IMU stream reached its stamp (frames at their
+/// stamp, sweeps at their first point when `early_sweeps`, else at their last), draining
+/// `update` after each IMU sample.
+fn replay_pushed_late(
+    cfg: EstimatorConfig,
+    imu: &[ImuSample],
+    frames: &[(i64, &[FeatureObs])],
+    sweeps: &[(i64, i64, &[LidarPoint])],
+    lag_ns: i64,
+    early_sweeps: bool,
+    init: Option<povins::core::inertial::NavState>,
+) -> (
+    Vec<(i64, Vec<u64>, Option<i64>)>,
+    povins::core::estimator::Counters,
+) {
+    let mut est: Box<PoVins> = new_estimator(cfg);
+    if let Some(s0) = init {
+        est.initialize(s0).expect("initial state");
+    }
+    let t0 = imu.first().map_or(i64::MIN, |s| s.t_ns);
+    let mut fi = frames.partition_point(|f| f.0 < t0);
+    let mut li = sweeps.partition_point(|w| w.1 < t0);
+    let mut out = Vec::new();
+    for s in imu {
+        est.push_imu(s).expect("a valid sample, queue not full");
+        while let Some(f) = frames.get(fi).filter(|f| f.0 + lag_ns <= s.t_ns) {
+            let _ = est.push_frame(f.0, f.1);
+            fi += 1;
+        }
+        while let Some(w) = sweeps
+            .get(li)
+            .filter(|w| if early_sweeps { w.0 } else { w.1 } + lag_ns <= s.t_ns)
+        {
+            let _ = est.push_lidar(w.2);
+            li += 1;
+        }
+        while let Some(o) = step(&mut est) {
+            record(&mut out, &o);
+        }
+    }
+    (out, est.counters())
+}
+
+#[test]
+fn frames_pushed_late_within_the_horizon_give_the_same_output() {
+    big_stack(|| {
+        let ds = load(EUROC_30S);
+        let cfg = euroc_config(&ds, VisualMode::PoseOnly);
+        let frames: Vec<(i64, &[FeatureObs])> = ds
+            .features
+            .iter()
+            .map(|f| (f.t_ns, f.obs.as_slice()))
+            .collect();
+        let (reference, _) = replay_pushed_late(cfg, &ds.imu, &frames, &[], 0, false, None);
+        let held = EstimatorConfig {
+            delay_horizon_s: 0.1,
+            ..cfg
+        };
+        // Frames arrive 60 ms after the IMU of their time (a camera driver's latency).
+        let (late, c) = replay_pushed_late(held, &ds.imu, &frames, &[], 60_000_000, false, None);
+        let keyframes = reference.iter().filter(|r| r.2.is_some()).count();
+        assert!(keyframes > 40, "only {keyframes} keyframes");
+        // The horizon keeps the last 0.1 s queued at the end.
+        assert!(late.len() + 25 >= reference.len() && late.len() < reference.len());
+        assert_eq!(
+            &reference[..late.len()],
+            &late[..],
+            "the held replay differs"
+        );
+        assert_eq!(c.frames_dropped_no_imu, 0);
+
+        // Without the horizon the same late frames are processed late (rewound): the output
+        // differs, which is what the horizon is for.
+        let (unheld, _) = replay_pushed_late(cfg, &ds.imu, &frames, &[], 60_000_000, false, None);
+        assert_ne!(&reference[..late.len()], &unheld[..late.len()]);
+    });
+}
+
+#[test]
+fn sweeps_pushed_before_the_imu_reaches_them_are_held() {
+    big_stack(|| {
+        let ds = simulate_with_lidar(Scenario::Robot, 1, 12.0);
+        let mut cfg = sim_lidar_config(&ds, true);
+        let (start, s0) = gt_start(&ds, &mut cfg);
+        let frames = frames_of(&ds);
+        let sweeps: Vec<(i64, i64, &[LidarPoint])> = ds
+            .lidar
+            .iter()
+            .map(|w| {
+                let t = |f: fn(i64, i64) -> i64| w.points.iter().map(|p| p.t_ns).fold(w.t_ns, f);
+                (t(i64::min), t(i64::max), w.points.as_slice())
+            })
+            .collect();
+        let imu = &ds.imu[start..];
+        let run = |early| replay_pushed_late(cfg, imu, &frames, &sweeps, 0, early, Some(s0));
+        let (on_time, c_on_time) = run(false);
+        let (early, c_early) = run(true);
+        assert!(c_on_time.lidar_points_accepted > 100_000, "{c_on_time:?}");
+        assert_eq!(c_early.lidar_scans_refused, 0, "{c_early:?}");
+        assert_eq!(
+            c_early.lidar_points_accepted,
+            c_on_time.lidar_points_accepted
+        );
+        assert_eq!(on_time, early, "sweeps pushed early changed the output");
+    });
+}
+
+#[test]
+fn a_full_imu_queue_is_reported_and_drains() {
+    big_stack(|| {
+        let ds = load(EUROC_30S);
+        let mut est: Box<PoVins> = new_estimator(euroc_config(&ds, VisualMode::PoseOnly));
+        for s in &ds.imu[..IMU_QUEUE] {
+            est.push_imu(s).expect("room in the queue");
+        }
+        assert_eq!(est.queued_imu(), IMU_QUEUE);
+        assert_eq!(
+            est.push_imu(&ds.imu[IMU_QUEUE]),
+            Err(Error::CapacityExceeded)
+        );
+        assert_eq!(est.counters().imu_dropped_queue_full, 1);
+        // A sample not later than the newest queued one is refused as such.
+        assert_eq!(est.push_imu(&ds.imu[3]), Err(Error::TimeNotIncreasing));
+        let mut n = 0;
+        while step(&mut est).is_some() {
+            n += 1;
+        }
+        assert_eq!((n, est.queued_imu()), (IMU_QUEUE, 0));
+        assert_eq!(est.counters().imu_samples, IMU_QUEUE as u64);
+        est.push_imu(&ds.imu[IMU_QUEUE]).expect("room again");
+    });
+}
