@@ -31,6 +31,8 @@
 //! [`run`]; the back-end thread only needs the core's processing stack (under 96 KiB), so
 //! both threads get [`THREAD_STACK_BYTES`].
 
+#![warn(missing_docs)]
+
 pub mod backend;
 pub mod imu;
 pub mod rt;
