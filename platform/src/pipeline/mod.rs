@@ -7,13 +7,13 @@
 //!               └──> Sink (pose at IMU rate + latency, keyframe reports)
 //! ```
 //!
-//! - The **IMU thread** ([`imu`]) reads the [`Source`], forwards every event to the back end
+//! - The **IMU thread** (module `imu`) reads the [`Source`], forwards every event to the back end
 //!   over a lock-free single-producer single-consumer queue (`rtrb`), propagates the
-//!   [`FastPath`](povins_core::inertial::FastPath) at every IMU sample, applies the
+//!   [`FastPath`] at every IMU sample, applies the
 //!   estimator's [`InsUpdate`](povins_core::inertial::InsUpdate)s coming back over a second
 //!   queue (re-propagating the samples after them), and publishes every pose to the [`Sink`]
 //!   with its latency from the sample's arrival (and from its stamp, with a paced source).
-//! - The **back-end thread** ([`backend`]) owns the estimator and consumes the events in the
+//! - The **back-end thread** (module `backend`) owns the estimator and consumes the events in the
 //!   source's order, which is the replay's (`DatasetSource`), so the keyframe solves run there
 //!   and the IMU-rate output never waits for them.
 //! - Both threads are pinned to cores and ask for `SCHED_FIFO`; memory is locked ([`rt`]).
@@ -33,8 +33,8 @@
 
 #![warn(missing_docs)]
 
-pub mod backend;
-pub mod imu;
+mod backend;
+mod imu;
 pub mod rt;
 pub mod sink;
 pub mod source;
