@@ -35,7 +35,7 @@ fn snapshot(ds: &Dataset, cfg: EstimatorConfig, k: usize) -> (Box<PoVins>, usize
             ..g0
         })
         .expect("init");
-        let sweeps = povins::host_tools::runner::lidar_schedule(ds, 0.0);
+        let sweeps = povins::host_tools::runner::lidar_schedule(ds, cfg.lidar.td_l_s);
         let mut fi = ds.features.partition_point(|f| f.t_ns < ds.imu[start].t_ns);
         let mut li = sweeps.partition_point(|w| w.0 < ds.imu[start].t_ns);
         let mut kf_at = Vec::new();

@@ -14,6 +14,7 @@ pub mod images;
 pub mod plot;
 pub mod plot_estimate;
 pub mod progress;
+pub mod realtime;
 pub mod regress;
 pub mod runner;
 pub mod sim;

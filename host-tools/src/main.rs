@@ -36,6 +36,12 @@ enum Cmd {
     Ablation(cmd::ablation::Args),
     /// Accuracy regression suite: shared sequences and simulator seeds against stored figures.
     Regress(cmd::regress::Args),
+    /// Replay a dataset through the threaded real-time pipeline (--realtime); writes
+    /// trajectory.tum and prints the timing table.
+    Replay(cmd::replay::Args),
+    /// The real-time pipeline's timing over a dataset (paced): per-stage latency, IMU-output
+    /// latency, back-end lag, misses, drops.
+    Timing(cmd::timing::Args),
 }
 
 /// Stack of the thread that runs a command: the estimator (several MB of fixed-capacity
@@ -59,6 +65,8 @@ fn main() -> anyhow::Result<()> {
             Cmd::ScoreTracks(a) => cmd::score_tracks::run(a),
             Cmd::Ablation(a) => cmd::ablation::run(a),
             Cmd::Regress(a) => cmd::regress::run(a),
+            Cmd::Replay(a) => cmd::replay::run(a),
+            Cmd::Timing(a) => cmd::timing::run(a),
         })?;
     match worker.join() {
         Ok(r) => r,

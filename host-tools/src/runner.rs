@@ -1,6 +1,7 @@
 //! Replay of a [`Dataset`] through the estimator, in time order, exactly as a live system would
 //! feed it: every measurement is pushed when the replay clock (the IMU stream) reaches its stamp
-//! (a camera frame its stamp, a LiDAR sweep its last point, see [`lidar_schedule`]) and the core
+//! (a camera frame its stamp, a LiDAR sweep its last point on the IMU clock, see
+//! [`lidar_schedule`]) and the core
 //! orders the processing itself ([`povins_core::estimator::timing`]): a frame is processed at
 //! the first IMU sample past `t_cam + td`, a sweep de-skewed once the IMU has passed
 //! `max t_point + td_l`.
@@ -124,29 +125,7 @@ pub fn config_for(ds: &Dataset) -> EstimatorConfig {
     cfg
 }
 
-/// When each LiDAR sweep of `ds` is due: `(trigger_ns, index into ds.lidar)` in push order.
-/// The trigger is the sweep's last point time on the IMU clock (`max t_point + td_l_s`; the
-/// sweep stamp for a sweep without points): the INS must have reached it to de-skew the whole
-/// sweep. Ties keep the dataset order.
-pub fn lidar_schedule(ds: &Dataset, td_l_s: f64) -> Vec<(i64, usize)> {
-    let td_ns = (td_l_s * 1e9).round() as i64;
-    let mut due: Vec<(i64, usize)> = ds
-        .lidar
-        .iter()
-        .enumerate()
-        .map(|(k, scan)| {
-            let last = scan
-                .points
-                .iter()
-                .map(|p| p.t_ns)
-                .max()
-                .unwrap_or(scan.t_ns);
-            (last.saturating_add(td_ns), k)
-        })
-        .collect();
-    due.sort_unstable();
-    due
-}
+pub use povins_platform::pipeline::lidar_schedule;
 
 /// The LiDAR-depth events of one keyframe step.
 #[derive(Debug, Clone, PartialEq)]
@@ -314,6 +293,52 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> VioDriver
     }
 }
 
+/// Where a replay of `ds` starts with `init`: the index of the first IMU sample replayed and,
+/// for [`InitMode::Groundtruth`], the true state there (the first keyframe's prior in `cfg` is
+/// tightened accordingly). Errors when the dataset cannot start that way.
+pub fn start_state(
+    ds: &Dataset,
+    cfg: &mut EstimatorConfig,
+    init: InitMode,
+) -> Result<(usize, Option<NavState>)> {
+    if ds.imu.is_empty() {
+        bail!("{}: the dataset has no IMU samples", ds.name);
+    }
+    if init == InitMode::Static {
+        return Ok((0, None));
+    }
+    let Some(g0) = ds.ground_truth.first() else {
+        bail!(
+            "{}: --init groundtruth needs ground truth in the dataset",
+            ds.name
+        );
+    };
+    let start = ds
+        .imu
+        .iter()
+        .position(|s| s.t_ns >= g0.t_ns)
+        .unwrap_or(ds.imu.len());
+    let Some(s0) = ds.imu.get(start) else {
+        bail!(
+            "{}: no IMU sample after the first ground-truth state",
+            ds.name
+        );
+    };
+    let gt0 = interpolate_state(&ds.ground_truth, s0.t_ns).unwrap_or(*g0);
+    // The true state is known: the first keyframe's prior says so (peers do the same).
+    cfg.first_prior.theta_rad = 2e-3;
+    cfg.first_prior.v_mps = 0.01;
+    cfg.first_prior.bg_rps = 1e-4;
+    cfg.first_prior.ba_mps2 = 0.01;
+    Ok((
+        start,
+        Some(NavState {
+            t_ns: s0.t_ns,
+            ..gt0
+        }),
+    ))
+}
+
 fn replay_vio<V: VioDriver>(
     ds: &Dataset,
     mut cfg: EstimatorConfig,
@@ -321,40 +346,7 @@ fn replay_vio<V: VioDriver>(
     fe: &FrontendOptions,
     progress: &Progress,
 ) -> Result<RunOutput> {
-    if ds.imu.is_empty() {
-        bail!("{}: the dataset has no IMU samples", ds.name);
-    }
-    let mut start = 0;
-    let mut gt_start = None;
-    if init == InitMode::Groundtruth {
-        let Some(g0) = ds.ground_truth.first() else {
-            bail!(
-                "{}: --init groundtruth needs ground truth in the dataset",
-                ds.name
-            );
-        };
-        start = ds
-            .imu
-            .iter()
-            .position(|s| s.t_ns >= g0.t_ns)
-            .unwrap_or(ds.imu.len());
-        let Some(s0) = ds.imu.get(start) else {
-            bail!(
-                "{}: no IMU sample after the first ground-truth state",
-                ds.name
-            );
-        };
-        let gt0 = interpolate_state(&ds.ground_truth, s0.t_ns).unwrap_or(*g0);
-        // The true state is known: the first keyframe's prior says so (peers do the same).
-        cfg.first_prior.theta_rad = 2e-3;
-        cfg.first_prior.v_mps = 0.01;
-        cfg.first_prior.bg_rps = 1e-4;
-        cfg.first_prior.ba_mps2 = 0.01;
-        gt_start = Some(NavState {
-            t_ns: s0.t_ns,
-            ..gt0
-        });
-    }
+    let (start, gt_start) = start_state(ds, &mut cfg, init)?;
     let lidar = cfg.lidar;
     let mut vio = V::build(cfg, fe.tracker)?;
     vio.aiding(fe.aiding);
@@ -394,7 +386,7 @@ fn replay_vio<V: VioDriver>(
     let mut fi = ds.features.partition_point(|f| f.t_ns < t_start_ns);
     let first_image = ds.images.partition_point(|f| f.t_ns < t_start_ns);
     // Sweeps due before the first replayed IMU sample are skipped, like frames before it.
-    let scans = lidar_schedule(ds, 0.0);
+    let scans = lidar_schedule(ds, lidar.td_l_s);
     let mut li = scans.partition_point(|&(t, _)| t < t_start_ns);
     let image_list = if images {
         ds.images.get(first_image..).unwrap_or(&[])
@@ -436,7 +428,7 @@ fn replay_vio<V: VioDriver>(
             }
             let _ = vio.imu(s);
             // The core holds each sweep until the IMU has passed its last point: offer it when
-            // it is complete (its last point's stamp).
+            // it is complete (its last point, on the IMU clock).
             while let Some(&(_, k)) = scans.get(li).filter(|(t, _)| *t <= s.t_ns) {
                 if let Some(scan) = ds.lidar.get(k) {
                     let _ = vio.est_mut().push_lidar(&scan.points);

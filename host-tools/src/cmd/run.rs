@@ -80,14 +80,24 @@ pub fn frontend_options(
 /// The estimator configuration of a run: dataset calibration, then `--config`, then the
 /// command-line switches.
 pub fn estimator_config(args: &Args, ds: &Dataset) -> Result<EstimatorConfig> {
+    estimator_config_from(args.config.as_deref(), args.mode, &args.lidar, ds)
+}
+
+/// [`estimator_config`] from its parts (shared with `povins replay` and `povins timing`).
+pub fn estimator_config_from(
+    config: Option<&Path>,
+    mode: Option<ModeArg>,
+    lidar: &LidarArgs,
+    ds: &Dataset,
+) -> Result<EstimatorConfig> {
     let mut cfg = config_for(ds);
-    if let Some(path) = &args.config {
+    if let Some(path) = config {
         RunConfigFile::read(path)?.apply(&mut cfg);
     }
-    if let Some(m) = args.mode {
+    if let Some(m) = mode {
         cfg.mode = m.into();
     }
-    args.lidar.apply(&mut cfg.lidar);
+    lidar.apply(&mut cfg.lidar);
     Ok(cfg)
 }
 

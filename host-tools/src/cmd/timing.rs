@@ -1,0 +1,199 @@
+//! `povins timing DATASET`: the onboard pipeline (`povins_platform::pipeline`: IMU and back-end
+//! threads, pinned, `SCHED_FIFO` when permitted) over a dataset, paced at the recorded rate by
+//! default, then the timing table: per-stage p50/p99/max, IMU-output latency, back-end lag
+//! against the keyframe period, deadline misses and drops (`--json` for a machine-readable
+//! copy). `povins replay --realtime` runs the same pipeline and prints the same table.
+
+use super::run::{estimator_config_from, load_dataset};
+use crate::config::{LidarArgs, ModeArg};
+use crate::progress::Progress;
+use crate::realtime::{imu_period_ns, run_dataset, RealtimeOptions};
+use crate::runner::InitMode;
+use anyhow::Result;
+use povins_platform::pipeline::{
+    CallbackSink, Pacing, PipelineCounters, PipelineReport, PoseOut, RtStatus, Sink, StageSummary,
+    STAGES,
+};
+use povins_platform::Dataset;
+use std::path::PathBuf;
+
+/// What both `povins timing` and `povins replay --realtime` take.
+#[derive(clap::Args, Debug, Clone)]
+pub struct PipelineArgs {
+    /// EuRoC ASL folder (containing `mav0/`) or an `.mcap` file, with feature tracks.
+    pub dataset: PathBuf,
+    /// Pacing factor on the recorded rate (1: real time, 2: twice as fast); 0 runs as fast as
+    /// possible.
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    /// Lockstep: the IMU thread waits for the back end at every sample (poses bit-identical to
+    /// `povins run`'s trajectory.tum).
+    #[arg(long)]
+    pub deterministic: bool,
+    /// How to initialize.
+    #[arg(long, value_enum, default_value = "static")]
+    pub init: InitMode,
+    /// TOML file of estimator settings (as for `povins run`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Visual measurement model (overrides the config file).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// Do not ask for SCHED_FIFO and locked memory.
+    #[arg(long)]
+    pub no_rt: bool,
+    /// LiDAR switches (override the config file).
+    #[command(flatten)]
+    pub lidar: LidarArgs,
+}
+
+/// Arguments of `povins timing`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The pipeline's settings.
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
+    /// Print the figures as JSON instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The timing figures of a run (`--json`).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct TimingSummary {
+    /// Dataset name.
+    pub dataset: String,
+    /// Pacing factor (0: as fast as possible).
+    pub speed: f64,
+    /// Lockstep mode.
+    pub deterministic: bool,
+    /// IMU period, ms.
+    pub imu_period_ms: f64,
+    /// Median keyframe period, ms.
+    pub keyframe_period_ms: Option<f64>,
+    /// Per stage, in the order of the table.
+    pub stages: Vec<(String, StageSummary)>,
+    /// Drops, misses.
+    pub counters: PipelineCounters,
+    /// Real-time settings granted.
+    pub rt: RtStatus,
+    /// Wall time, s.
+    pub wall_s: f64,
+}
+
+impl TimingSummary {
+    /// The figures of `report` on `ds`.
+    pub fn new(ds: &Dataset, a: &PipelineArgs, report: &PipelineReport) -> Self {
+        TimingSummary {
+            dataset: ds.name.clone(),
+            speed: a.speed,
+            deterministic: a.deterministic,
+            imu_period_ms: imu_period_ns(ds) as f64 * 1e-6,
+            keyframe_period_ms: report.keyframe_period_ns.map(|p| p as f64 * 1e-6),
+            stages: STAGES
+                .iter()
+                .zip(report.timing.stages())
+                .map(|(n, h)| (n.to_string(), h.summary_ms()))
+                .collect(),
+            counters: report.counters,
+            rt: report.rt.clone(),
+            wall_s: report.wall_s,
+        }
+    }
+
+    /// The table's lines.
+    pub fn lines(&self) -> Vec<String> {
+        let c = &self.counters;
+        let mut v = vec![
+            format!(
+                "pipeline  {} ({}, {}), {:.1} s wall",
+                self.dataset,
+                if self.speed > 0.0 {
+                    format!("paced x{}", self.speed)
+                } else {
+                    "as fast as possible".to_string()
+                },
+                if self.deterministic {
+                    "deterministic"
+                } else {
+                    "real time"
+                },
+                self.wall_s
+            ),
+            format!("threads   {}", self.rt.summary()),
+            format!(
+                "{:<28} {:>8} {:>10} {:>10} {:>10}",
+                "stage", "count", "p50 ms", "p99 ms", "max ms"
+            ),
+        ];
+        for (name, s) in &self.stages {
+            v.push(format!(
+                "{name:<28} {:>8} {:>10.4} {:>10.4} {:>10.4}",
+                s.count, s.p50_ms, s.p99_ms, s.max_ms
+            ));
+        }
+        v.push(format!(
+            "samples   {} IMU, {} frames, {} sweeps in; {} poses out, {} keyframes",
+            c.imu_in, c.frames_in, c.sweeps_in, c.poses_out, c.keyframes
+        ));
+        v.push(format!(
+            "dropped   {} IMU, {} frames, {} sweeps (queue full); {} waits on the back end",
+            c.dropped_imu, c.dropped_frames, c.dropped_sweeps, c.backpressure_waits
+        ));
+        v.push(format!(
+            "misses    {} poses later than one IMU period ({:.2} ms) after arrival; {} back-end \
+             samples lagging more than one keyframe period ({})",
+            c.imu_deadline_misses,
+            self.imu_period_ms,
+            c.backend_lag_misses,
+            self.keyframe_period_ms
+                .map_or("n/a".to_string(), |p| format!("{p:.1} ms"))
+        ));
+        v.push(format!(
+            "fast path {} updates too old for the ring, at most {} samples re-propagated by one",
+            c.updates_too_old, c.max_replay
+        ));
+        v
+    }
+}
+
+/// The options of a pipeline run from its arguments.
+pub fn options(a: &PipelineArgs) -> RealtimeOptions {
+    RealtimeOptions {
+        pacing: if a.speed > 0.0 {
+            Pacing::Recorded(a.speed)
+        } else {
+            Pacing::AsFastAsPossible
+        },
+        deterministic: a.deterministic,
+        realtime_priority: !a.no_rt,
+    }
+}
+
+/// Loads the dataset, configures the estimator as `povins run` does and runs the pipeline.
+pub fn run_pipeline<K: Sink + Send>(
+    a: &PipelineArgs,
+    ds: &Dataset,
+    sink: &mut K,
+    label: &str,
+) -> Result<PipelineReport> {
+    let cfg = estimator_config_from(a.config.as_deref(), a.mode, &a.lidar, ds)?;
+    let progress = Progress::new(ds.imu.len() as u64, label);
+    run_dataset(ds, cfg, a.init, &options(a), sink, &progress)
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> Result<()> {
+    let ds = load_dataset(&args.pipeline.dataset)?;
+    let mut sink = CallbackSink::poses(|_: &PoseOut| {});
+    let report = run_pipeline(&args.pipeline, &ds, &mut sink, "timing")?;
+    let summary = TimingSummary::new(&ds, &args.pipeline, &report);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        for line in summary.lines() {
+            println!("{line}");
+        }
+    }
+    Ok(())
+}

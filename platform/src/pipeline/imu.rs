@@ -1,0 +1,205 @@
+//! The IMU thread: reads the [`Source`], forwards every event to the back end, runs the
+//! [`FastPath`] on IMU samples, applies the back end's updates and publishes every pose to the
+//! [`Sink`] with its latency.
+//!
+//! Deterministic mode: after forwarding a sample it waits for the back end's reply for that
+//! sample and applies its update before publishing (lockstep: the poses are the estimator's
+//! own IMU-rate output, bit for bit). Real-time mode: it never waits for the back end except,
+//! with a source that is not real time, to stay at most `max_lead_samples` ahead of it.
+
+use super::backend::{elapsed_ns, FromBackend, WAIT};
+use super::sink::{PoseOut, Sink};
+use super::source::{SensorEvent, Source};
+use super::stats::{PipelineCounters, Timing};
+use super::{PipelineConfig, Shared, ToBackend, FAST_PATH_RING};
+use povins_core::inertial::{FastPath, ImuSample, NavState};
+use rtrb::{Consumer, Producer, PushError};
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+/// The IMU thread's state.
+pub(crate) struct ImuWorker<'a, S, K> {
+    pub source: S,
+    pub sink: &'a mut K,
+    pub tx: Producer<ToBackend>,
+    pub rx: Consumer<FromBackend>,
+    /// Boxed: the ring of samples is 2048 x 56 bytes.
+    pub fast: Box<FastPath<FAST_PATH_RING>>,
+    pub cfg: &'a PipelineConfig,
+    pub shared: &'a Shared,
+    pub timing: Timing,
+    pub counters: PipelineCounters,
+    /// IMU samples forwarded to the back end.
+    pub sent: u64,
+}
+
+impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
+    /// Runs to the end of the source, then until the back end has finished.
+    pub fn run(&mut self) {
+        while let Some(ev) = self.source.next() {
+            let arrival = Instant::now();
+            match ev {
+                SensorEvent::Imu(s) => self.on_imu(&s, arrival),
+                SensorEvent::Frame { t_cam_ns, obs } => {
+                    self.counters.frames_in += 1;
+                    if !self.forward(ToBackend::Frame { t_cam_ns, obs }) {
+                        self.counters.dropped_frames += 1;
+                    }
+                }
+                SensorEvent::Lidar(points) => {
+                    self.counters.sweeps_in += 1;
+                    if !self.forward(ToBackend::Lidar(points)) {
+                        self.counters.dropped_sweeps += 1;
+                    }
+                }
+            }
+        }
+        self.wait_until(|w| w.forward_blocking(ToBackend::End));
+        while !self.shared.backend_finished.load(Ordering::Acquire) {
+            self.drain();
+            std::thread::park_timeout(WAIT);
+        }
+        self.drain();
+        let fc = self.fast.counters();
+        self.counters.updates_too_old = fc.updates_too_old;
+        self.counters.max_replay = fc.max_replay;
+    }
+
+    /// One IMU sample: forward, propagate, (deterministic: wait and apply), publish.
+    fn on_imu(&mut self, s: &ImuSample, arrival: Instant) {
+        self.counters.imu_in += 1;
+        self.shared.newest_imu_ns.store(s.t_ns, Ordering::Release);
+        self.shared.imu_seen.fetch_add(1, Ordering::Relaxed);
+        let mut fast_ns = self.drain();
+        let sent = self.forward(ToBackend::Imu(*s));
+        if sent {
+            self.sent += 1;
+        } else {
+            self.counters.dropped_imu += 1;
+        }
+        let t0 = Instant::now();
+        let mut latest = self.fast.push_imu(s).ok().flatten();
+        fast_ns += elapsed_ns(t0);
+        if sent && self.cfg.deterministic {
+            let mut done = false;
+            while !done {
+                let mut got: Option<NavState> = None;
+                let (ns, seen) = self.drain_until(s.t_ns, &mut got);
+                fast_ns += ns;
+                if seen {
+                    done = true;
+                    if got.is_some() {
+                        latest = got;
+                    }
+                } else {
+                    self.counters.backpressure_waits += 1;
+                    std::thread::park_timeout(WAIT);
+                }
+            }
+        } else if !self.source.is_realtime() {
+            while self.sent
+                > self.shared.backend_done.load(Ordering::Acquire) + self.cfg.max_lead_samples
+            {
+                self.counters.backpressure_waits += 1;
+                fast_ns += self.drain();
+                std::thread::park_timeout(WAIT);
+            }
+        }
+        self.timing.fast_path.record(fast_ns);
+        if let Some(nav) = latest {
+            self.publish(nav, arrival);
+        }
+    }
+
+    /// Publishes one pose with its latencies.
+    fn publish(&mut self, nav: NavState, arrival: Instant) {
+        let now = Instant::now();
+        let latency_ns = u64::try_from(now.duration_since(arrival).as_nanos()).unwrap_or(u64::MAX);
+        let stamp_latency_ns = self.source.stamp_instant(nav.t_ns).map(|t| {
+            u64::try_from(now.saturating_duration_since(t).as_nanos()).unwrap_or(u64::MAX)
+        });
+        self.timing.arrival_to_pose.record(latency_ns);
+        if let Some(l) = stamp_latency_ns {
+            self.timing.stamp_to_pose.record(l);
+        }
+        if latency_ns > self.cfg.imu_period_ns {
+            self.counters.imu_deadline_misses += 1;
+        }
+        self.counters.poses_out += 1;
+        self.sink.pose(&PoseOut {
+            nav,
+            latency_ns,
+            stamp_latency_ns,
+        });
+    }
+
+    /// Applies every reply waiting; returns the time spent in the fast path, ns.
+    fn drain(&mut self) -> u64 {
+        let mut unused = None;
+        self.drain_until(i64::MAX, &mut unused).0
+    }
+
+    /// Applies replies up to and including the one for sample `t_ns`; `got` is the state after
+    /// the last update applied. Returns the fast-path time, ns, and whether that reply came.
+    fn drain_until(&mut self, t_ns: i64, got: &mut Option<NavState>) -> (u64, bool) {
+        let mut ns = 0;
+        while let Ok(r) = self.rx.pop() {
+            if let Some(u) = &r.ins {
+                let t0 = Instant::now();
+                *got = self.fast.apply(u);
+                ns += elapsed_ns(t0);
+            }
+            if let Some(k) = &r.keyframe {
+                self.counters.keyframes += 1;
+                self.sink.keyframe(k);
+            }
+            if r.t_ns >= t_ns {
+                return (ns, true);
+            }
+        }
+        (ns, false)
+    }
+
+    /// Forwards a message; a real-time source's message is dropped when the queue is full
+    /// (`false`), otherwise the thread waits for room (applying replies meanwhile).
+    fn forward(&mut self, msg: ToBackend) -> bool {
+        let drop_when_full = self.source.is_realtime() && !self.cfg.deterministic;
+        let mut msg = msg;
+        loop {
+            match self.tx.push(msg) {
+                Ok(()) => {
+                    self.shared.wake_backend();
+                    return true;
+                }
+                Err(PushError::Full(back)) => {
+                    if drop_when_full || self.tx.is_abandoned() {
+                        return false;
+                    }
+                    msg = back;
+                    self.counters.backpressure_waits += 1;
+                    self.drain();
+                    std::thread::park_timeout(WAIT);
+                }
+            }
+        }
+    }
+
+    /// Forwards a message whatever the source (the end marker).
+    fn forward_blocking(&mut self, msg: ToBackend) -> bool {
+        match self.tx.push(msg) {
+            Ok(()) => {
+                self.shared.wake_backend();
+                true
+            }
+            Err(PushError::Full(_)) => self.tx.is_abandoned(),
+        }
+    }
+
+    /// Retries `f` (applying replies in between) until it returns true.
+    fn wait_until(&mut self, mut f: impl FnMut(&mut Self) -> bool) {
+        while !f(self) {
+            self.drain();
+            std::thread::park_timeout(WAIT);
+        }
+    }
+}

@@ -1,0 +1,276 @@
+//! The onboard runtime: a pipeline of two threads around the estimator, for Linux (x86-64 and
+//! aarch64).
+//!
+//! ```text
+//!  Source ──> IMU thread ──(SPSC: IMU, frames, sweeps)──> back-end thread (estimator)
+//!               │  FastPath <──(SPSC: InsUpdate, keyframe reports)──┘
+//!               └──> Sink (pose at IMU rate + latency, keyframe reports)
+//! ```
+//!
+//! - The **IMU thread** (module `imu`) reads the [`Source`], forwards every event to the back end
+//!   over a lock-free single-producer single-consumer queue (`rtrb`), propagates the
+//!   [`FastPath`] at every IMU sample, applies the
+//!   estimator's [`InsUpdate`](povins_core::inertial::InsUpdate)s coming back over a second
+//!   queue (re-propagating the samples after them), and publishes every pose to the [`Sink`]
+//!   with its latency from the sample's arrival (and from its stamp, with a paced source).
+//! - The **back-end thread** (module `backend`) owns the estimator and consumes the events in the
+//!   source's order, which is the replay's (`DatasetSource`), so the keyframe solves run there
+//!   and the IMU-rate output never waits for them.
+//! - Both threads are pinned to cores and ask for `SCHED_FIFO`; memory is locked ([`rt`]).
+//!   What is not permitted is reported in [`PipelineReport::rt`] (and printed with
+//!   [`PipelineConfig::announce`]) and the pipeline goes on.
+//! - **Deterministic mode** ([`PipelineConfig::deterministic`]): the IMU thread waits for the
+//!   back end at every sample and applies its update before publishing: the poses are then
+//!   bit-identical to the single-threaded replay's IMU-rate output. Real-time mode never
+//!   waits for the back end (a real-time source's messages are dropped and counted when the
+//!   queue is full; a replay that is not paced stays at most
+//!   [`PipelineConfig::max_lead_samples`] ahead of the back end instead).
+//!
+//! The estimator (`PoVins`, about 5 MB) is never on these threads' stacks: the caller owns it
+//! (in a `Box` or a `static`, see the README's "Embedding the core") and lends it to
+//! [`run`]; the back-end thread only needs the core's processing stack (under 96 KiB), so
+//! both threads get [`THREAD_STACK_BYTES`].
+
+#![warn(missing_docs)]
+
+mod backend;
+mod imu;
+pub mod rt;
+pub mod sink;
+pub mod source;
+pub mod stats;
+
+pub use rt::RtStatus;
+pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};
+pub use source::{
+    lidar_schedule, Clock, DatasetSource, Pacer, Pacing, SensorEvent, Source, SystemClock,
+};
+pub use stats::{LatencyHist, PipelineCounters, StageSummary, Timing, STAGES};
+
+use crate::error::IoError;
+use povins_core::camera::FeatureObs;
+use povins_core::estimator::{Counters, PoVins};
+use povins_core::inertial::{FastPath, FastPathCounters, ImuSample};
+use povins_core::lidar::LidarPoint;
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::OnceLock;
+use std::thread::Thread;
+use std::time::{Duration, Instant};
+
+/// IMU samples the fast path keeps to re-propagate late updates (an update more than this
+/// many samples late is refused and counted).
+pub const FAST_PATH_RING: usize = 2048;
+
+/// Stack of each pipeline thread: the core's processing needs under 96 KiB; the rest is
+/// margin for the sink's and the source's code.
+pub const THREAD_STACK_BYTES: usize = 1 << 20;
+
+/// How the pipeline runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PipelineConfig {
+    /// Lockstep (bit-identical to the single-threaded replay) instead of real time.
+    pub deterministic: bool,
+    /// The IMU period, ns: a pose published later than this after its sample's arrival is a
+    /// deadline miss.
+    pub imu_period_ns: u64,
+    /// With a source that is not real time (unpaced replay), in real-time mode: the most IMU
+    /// samples the IMU thread runs ahead of the back end.
+    pub max_lead_samples: u64,
+    /// Capacity of each queue, messages.
+    pub queue_capacity: usize,
+    /// `SCHED_FIFO` priority to ask for (1-99), `None` for normal scheduling.
+    pub fifo_priority: Option<u8>,
+    /// Lock the process's memory for the run (`mlockall`), unlocked at the end.
+    pub lock_memory: bool,
+    /// Print a line on stderr for each real-time setting not permitted.
+    pub announce: bool,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            deterministic: false,
+            imu_period_ns: 5_000_000,
+            max_lead_samples: 40,
+            queue_capacity: 1024,
+            fifo_priority: Some(80),
+            lock_memory: true,
+            announce: true,
+        }
+    }
+}
+
+/// Everything the pipeline measured.
+#[derive(Debug, Clone)]
+pub struct PipelineReport {
+    /// Per-stage histograms.
+    pub timing: Timing,
+    /// Counters (drops, misses).
+    pub counters: PipelineCounters,
+    /// The fast path's counters.
+    pub fast_path: FastPathCounters,
+    /// The estimator's counters at the end.
+    pub estimator: Counters,
+    /// IMU stamps of the keyframes, ns.
+    pub keyframe_t_ns: Vec<i64>,
+    /// Median interval between keyframes, ns (the back-end lag deadline).
+    pub keyframe_period_ns: Option<u64>,
+    /// What real-time settings were granted.
+    pub rt: RtStatus,
+    /// Wall time of the run, s.
+    pub wall_s: f64,
+}
+
+/// A message to the back end, in the source's order.
+#[derive(Debug)]
+pub(crate) enum ToBackend {
+    Imu(ImuSample),
+    Frame { t_cam_ns: i64, obs: Vec<FeatureObs> },
+    Lidar(Vec<LidarPoint>),
+    End,
+}
+
+/// What the two threads share besides the queues.
+#[derive(Debug, Default)]
+pub(crate) struct Shared {
+    /// Stamp of the newest IMU sample the IMU thread received, ns.
+    pub newest_imu_ns: AtomicI64,
+    /// IMU samples the IMU thread received (progress).
+    pub imu_seen: AtomicU64,
+    /// IMU samples the back end finished.
+    pub backend_done: AtomicU64,
+    /// The back end has left its loop.
+    pub backend_finished: AtomicBool,
+    imu_thread: OnceLock<Thread>,
+    backend_thread: OnceLock<Thread>,
+}
+
+impl Shared {
+    /// Wakes the IMU thread if it waits.
+    pub fn wake_imu(&self) {
+        if let Some(t) = self.imu_thread.get() {
+            t.unpark();
+        }
+    }
+
+    /// Wakes the back end if it waits.
+    pub fn wake_backend(&self) {
+        if let Some(t) = self.backend_thread.get() {
+            t.unpark();
+        }
+    }
+}
+
+/// Runs `source` through the estimator `est` (configured, and initialized when the run
+/// starts from a known state) on the two pinned threads, publishing to `sink`, and returns
+/// what was measured once the source is exhausted and the back end has caught up. The calling
+/// thread only waits, calling `on_tick(imu_samples_so_far)` about every 100 ms (a progress
+/// bar). `sink.finish()` is called at the end, on the calling thread.
+pub fn run<S, K>(
+    est: &mut PoVins,
+    source: S,
+    sink: &mut K,
+    cfg: &PipelineConfig,
+    mut on_tick: impl FnMut(u64),
+) -> Result<PipelineReport, IoError>
+where
+    S: Source + Send,
+    K: Sink + Send,
+{
+    let shared = Shared::default();
+    let mut rt = RtStatus {
+        mlock: cfg.lock_memory.then(rt::lock_memory),
+        threads: Vec::new(),
+    };
+    let limits = (est.config().max_gyro_rps, est.config().max_accel_mps2);
+    let t_run = Instant::now();
+    let (to_tx, to_rx) = rtrb::RingBuffer::<ToBackend>::new(cfg.queue_capacity.max(2));
+    let (from_tx, from_rx) = rtrb::RingBuffer::new(cfg.queue_capacity.max(2) + 1);
+    let sink_on_imu: &mut K = &mut *sink;
+    let joined = std::thread::scope(|sc| {
+        let shared = &shared;
+        let backend = std::thread::Builder::new()
+            .name("povins-backend".into())
+            .stack_size(THREAD_STACK_BYTES)
+            .spawn_scoped(sc, move || {
+                let r = rt::setup_current_thread(
+                    "back-end",
+                    1,
+                    cfg.fifo_priority.map(|p| p.saturating_sub(10).max(1)),
+                );
+                let _ = shared.backend_thread.set(std::thread::current());
+                let out = backend::run(est, to_rx, from_tx, shared);
+                shared.backend_finished.store(true, Ordering::Release);
+                shared.wake_imu();
+                (r, out, est.counters())
+            })?;
+        let imu = std::thread::Builder::new()
+            .name("povins-imu".into())
+            .stack_size(THREAD_STACK_BYTES)
+            .spawn_scoped(sc, move || {
+                let r = rt::setup_current_thread("IMU", 0, cfg.fifo_priority);
+                let _ = shared.imu_thread.set(std::thread::current());
+                let mut w = imu::ImuWorker {
+                    source,
+                    sink: sink_on_imu,
+                    tx: to_tx,
+                    rx: from_rx,
+                    fast: Box::new(FastPath::with_limits(limits.0, limits.1)),
+                    cfg,
+                    shared,
+                    timing: Timing::default(),
+                    counters: PipelineCounters::default(),
+                    sent: 0,
+                };
+                w.run();
+                (r, w.timing, w.counters, w.fast.counters())
+            })?;
+        while !(imu.is_finished() && backend.is_finished()) {
+            on_tick(shared.imu_seen.load(Ordering::Relaxed));
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        on_tick(shared.imu_seen.load(Ordering::Relaxed));
+        let i = imu.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
+        let b = backend
+            .join()
+            .unwrap_or_else(|p| std::panic::resume_unwind(p));
+        Ok::<_, std::io::Error>((i, b))
+    });
+    if cfg.lock_memory {
+        rt::unlock_memory();
+    }
+    let ((imu_rt, mut timing, mut counters, fast_path), (be_rt, (be_timing, kf_t), est_counters)) =
+        joined.map_err(|e| IoError::io("<pipeline thread>", e))?;
+    rt.threads = vec![imu_rt, be_rt];
+    if cfg.announce {
+        for line in rt.notes() {
+            eprintln!("{line}");
+        }
+    }
+    timing.merge(&be_timing);
+    let keyframe_period_ns = median_interval(&kf_t);
+    if let Some(p) = keyframe_period_ns {
+        counters.backend_lag_misses = timing.backend_lag.count_above(p);
+    }
+    sink.finish()?;
+    Ok(PipelineReport {
+        timing,
+        counters,
+        fast_path,
+        estimator: est_counters,
+        keyframe_t_ns: kf_t,
+        keyframe_period_ns,
+        rt,
+        wall_s: t_run.elapsed().as_secs_f64(),
+    })
+}
+
+/// Median of the positive differences of increasing stamps, ns.
+fn median_interval(t: &[i64]) -> Option<u64> {
+    let mut d: Vec<u64> = t
+        .windows(2)
+        .filter_map(|w| u64::try_from(w[1] - w[0]).ok())
+        .collect();
+    d.sort_unstable();
+    d.get(d.len() / 2).copied()
+}

@@ -1,0 +1,199 @@
+//! Outputs of the pipeline: a [`Sink`] receives every IMU-rate pose ([`PoseOut`], with its
+//! latency) and every keyframe report ([`KeyframeOut`]) on the IMU thread. Provided:
+//! [`CallbackSink`] (closures) and [`TumSink`] (a TUM trajectory file, written at the end so the
+//! IMU thread never waits on the disk).
+
+use crate::error::IoError;
+use crate::trajectory::{write_tum, StampedPose};
+use povins_core::estimator::KeyframeReport;
+use povins_core::inertial::NavState;
+use std::path::PathBuf;
+
+/// One IMU-rate pose as published.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseOut {
+    /// The state at the IMU sample (`nav.t_ns` is the sample's stamp).
+    pub nav: NavState,
+    /// From the sample's arrival on the IMU thread (the source returned it) to publication, ns.
+    pub latency_ns: u64,
+    /// From the wall time the sample's stamp was due to publication, ns, when the source knows
+    /// it ([`super::Source::stamp_instant`]).
+    pub stamp_latency_ns: Option<u64>,
+}
+
+/// One keyframe processed by the back end.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeyframeOut {
+    /// The estimator's report.
+    pub report: KeyframeReport,
+    /// The newest keyframe's optimized state after the step.
+    pub state: Option<NavState>,
+}
+
+/// Receives the pipeline's outputs, on the IMU thread: keep the calls short (no disk, no
+/// blocking), or hand the data to another thread.
+pub trait Sink {
+    /// An IMU-rate pose.
+    fn pose(&mut self, p: &PoseOut);
+    /// A keyframe report (arrives at most a few IMU samples after the keyframe's sample in
+    /// real-time mode).
+    fn keyframe(&mut self, _k: &KeyframeOut) {}
+    /// The end of the stream: write files, flush.
+    fn finish(&mut self) -> Result<(), IoError> {
+        Ok(())
+    }
+}
+
+/// A sink made of closures.
+pub struct CallbackSink<P, K> {
+    on_pose: P,
+    on_keyframe: K,
+}
+
+impl<P: FnMut(&PoseOut)> CallbackSink<P, fn(&KeyframeOut)> {
+    /// Calls `on_pose` for every pose; keyframes are ignored.
+    pub fn poses(on_pose: P) -> Self {
+        CallbackSink {
+            on_pose,
+            on_keyframe: |_| {},
+        }
+    }
+}
+
+impl<P: FnMut(&PoseOut), K: FnMut(&KeyframeOut)> CallbackSink<P, K> {
+    /// Calls `on_pose` for every pose and `on_keyframe` for every keyframe.
+    pub fn new(on_pose: P, on_keyframe: K) -> Self {
+        CallbackSink {
+            on_pose,
+            on_keyframe,
+        }
+    }
+}
+
+impl<P: FnMut(&PoseOut), K: FnMut(&KeyframeOut)> Sink for CallbackSink<P, K> {
+    fn pose(&mut self, p: &PoseOut) {
+        (self.on_pose)(p);
+    }
+
+    fn keyframe(&mut self, k: &KeyframeOut) {
+        (self.on_keyframe)(k);
+    }
+}
+
+/// Collects the poses and writes them as a TUM trajectory ([`write_tum`]) at
+/// [`Sink::finish`].
+#[derive(Debug)]
+pub struct TumSink {
+    path: PathBuf,
+    poses: Vec<StampedPose>,
+}
+
+impl TumSink {
+    /// A sink writing `path`, with room for `capacity` poses reserved up front (the number of
+    /// IMU samples: no allocation on the IMU thread then).
+    pub fn new(path: impl Into<PathBuf>, capacity: usize) -> Self {
+        TumSink {
+            path: path.into(),
+            poses: Vec::with_capacity(capacity),
+        }
+    }
+
+    /// The poses collected so far.
+    pub fn poses(&self) -> &[StampedPose] {
+        &self.poses
+    }
+}
+
+impl Sink for TumSink {
+    fn pose(&mut self, p: &PoseOut) {
+        self.poses.push(StampedPose::from(&p.nav));
+    }
+
+    fn finish(&mut self) -> Result<(), IoError> {
+        write_tum(&self.path, &self.poses)
+    }
+}
+
+/// Both sinks get every output (`(a, b)`).
+impl<A: Sink, B: Sink> Sink for (A, B) {
+    fn pose(&mut self, p: &PoseOut) {
+        self.0.pose(p);
+        self.1.pose(p);
+    }
+
+    fn keyframe(&mut self, k: &KeyframeOut) {
+        self.0.keyframe(k);
+        self.1.keyframe(k);
+    }
+
+    fn finish(&mut self) -> Result<(), IoError> {
+        self.0.finish()?;
+        self.1.finish()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trajectory::read_tum;
+
+    fn pose(k: i64) -> PoseOut {
+        PoseOut {
+            nav: NavState {
+                t_ns: 1_000_000_000 + k * 5_000_000,
+                p_wb: povins_core::math::Vec3::new(k as f64, 2.0, -0.5),
+                q_wb: povins_core::math::Quat::identity(),
+                ..NavState::ZERO
+            },
+            latency_ns: 1000,
+            stamp_latency_ns: None,
+        }
+    }
+
+    #[test]
+    fn callback_sink_sees_every_output() {
+        let mut poses = Vec::new();
+        let mut kfs = Vec::new();
+        {
+            let mut sink = CallbackSink::new(
+                |p: &PoseOut| poses.push(p.nav.t_ns),
+                |k: &KeyframeOut| kfs.push(k.report.t_ns),
+            );
+            for k in 0..3 {
+                sink.pose(&pose(k));
+            }
+            sink.keyframe(&KeyframeOut {
+                report: KeyframeReport {
+                    t_ns: 42,
+                    ..Default::default()
+                },
+                state: None,
+            });
+            sink.finish().expect("nothing to write");
+        }
+        assert_eq!(poses, vec![1_000_000_000, 1_005_000_000, 1_010_000_000]);
+        assert_eq!(kfs, vec![42]);
+    }
+
+    #[test]
+    fn tum_sink_writes_the_poses_at_finish() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("trajectory.tum");
+        let mut count = 0usize;
+        let mut sink = (
+            TumSink::new(&path, 4),
+            CallbackSink::poses(|_: &PoseOut| count += 1),
+        );
+        for k in 0..4 {
+            sink.pose(&pose(k));
+        }
+        assert!(!path.exists(), "written before finish");
+        sink.finish().expect("written");
+        let back = read_tum(&path).expect("readable");
+        assert_eq!(back.len(), 4);
+        assert_eq!(back[3].t_ns, pose(3).nav.t_ns);
+        assert_eq!(back[3].p_wb.x, 3.0);
+        drop(sink);
+        assert_eq!(count, 4);
+    }
+}

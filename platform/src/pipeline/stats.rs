@@ -1,0 +1,176 @@
+//! Timing of the pipeline: one [`hdrhistogram`] per stage (ns, 3 significant digits), kept by
+//! the thread that measures it and merged at the end, and the counters of drops and deadline
+//! misses.
+
+use hdrhistogram::Histogram;
+
+/// Largest value a histogram records, ns (60 s; larger values are clamped).
+const MAX_NS: u64 = 60_000_000_000;
+
+/// The measured stages (see [`Timing`]).
+pub const STAGES: [&str; 7] = [
+    "imu fast path",
+    "back end per IMU sample",
+    "back end keyframe solve",
+    "back end frame / sweep in",
+    "IMU arrival -> pose out",
+    "IMU stamp -> pose out",
+    "back-end lag",
+];
+
+/// A latency histogram in ns.
+#[derive(Debug, Clone)]
+pub struct LatencyHist(Histogram<u64>);
+
+impl Default for LatencyHist {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl LatencyHist {
+    /// An empty histogram (1 ns to 60 s, 3 significant digits).
+    pub fn new() -> Self {
+        // The bounds are constants that hdrhistogram accepts: 1 <= low, 2 * low <= high, 3 digits.
+        LatencyHist(Histogram::new_with_bounds(1, MAX_NS, 3).unwrap_or_else(|_| unreachable!()))
+    }
+
+    /// Records one value, ns (clamped to 60 s).
+    pub fn record(&mut self, ns: u64) {
+        self.0.saturating_record(ns.clamp(1, MAX_NS));
+    }
+
+    /// Adds another histogram's values.
+    pub fn merge(&mut self, other: &LatencyHist) {
+        // Same bounds: cannot fail.
+        let _ = self.0.add(&other.0);
+    }
+
+    /// Values recorded.
+    pub fn count(&self) -> u64 {
+        self.0.len()
+    }
+
+    /// The value at percentile `p` (0-100), ns; 0 when empty.
+    pub fn percentile_ns(&self, p: f64) -> u64 {
+        if self.0.is_empty() {
+            0
+        } else {
+            self.0.value_at_percentile(p)
+        }
+    }
+
+    /// The largest value, ns.
+    pub fn max_ns(&self) -> u64 {
+        self.0.max()
+    }
+
+    /// Values above `limit_ns`.
+    pub fn count_above(&self, limit_ns: u64) -> u64 {
+        if self.0.is_empty() {
+            return 0;
+        }
+        let below = self.0.count_between(0, limit_ns.min(MAX_NS));
+        self.count().saturating_sub(below)
+    }
+
+    /// p50, p99 and max in ms.
+    pub fn summary_ms(&self) -> StageSummary {
+        StageSummary {
+            count: self.count(),
+            p50_ms: self.percentile_ns(50.0) as f64 * 1e-6,
+            p99_ms: self.percentile_ns(99.0) as f64 * 1e-6,
+            max_ms: self.max_ns() as f64 * 1e-6,
+        }
+    }
+}
+
+/// p50 / p99 / max of one stage, ms.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct StageSummary {
+    /// Values recorded.
+    pub count: u64,
+    /// Median, ms.
+    pub p50_ms: f64,
+    /// 99th percentile, ms.
+    pub p99_ms: f64,
+    /// Maximum, ms.
+    pub max_ms: f64,
+}
+
+/// Every stage's histogram (the index of [`STAGES`] each field is).
+#[derive(Debug, Clone, Default)]
+pub struct Timing {
+    /// The IMU thread's fast path per sample (updates applied, propagation): `STAGES[0]`.
+    pub fast_path: LatencyHist,
+    /// The back end's `push_imu` for samples that processed no keyframe: `STAGES[1]`.
+    pub backend_imu: LatencyHist,
+    /// The back end's `push_imu` for samples that processed a keyframe: `STAGES[2]`.
+    pub backend_keyframe: LatencyHist,
+    /// The back end's `push_frame` / `push_lidar`: `STAGES[3]`.
+    pub backend_input: LatencyHist,
+    /// IMU sample arrival (the source returned it) to its pose out: `STAGES[4]`.
+    pub arrival_to_pose: LatencyHist,
+    /// IMU stamp's wall time to its pose out (paced or live sources only): `STAGES[5]`.
+    pub stamp_to_pose: LatencyHist,
+    /// How far the back end is behind the newest IMU sample when it finishes a sample, in
+    /// sensor time: `STAGES[6]`.
+    pub backend_lag: LatencyHist,
+}
+
+impl Timing {
+    /// The histograms in [`STAGES`] order.
+    pub fn stages(&self) -> [&LatencyHist; 7] {
+        [
+            &self.fast_path,
+            &self.backend_imu,
+            &self.backend_keyframe,
+            &self.backend_input,
+            &self.arrival_to_pose,
+            &self.stamp_to_pose,
+            &self.backend_lag,
+        ]
+    }
+
+    /// Adds the histograms of `other` (another thread's).
+    pub fn merge(&mut self, other: &Timing) {
+        self.fast_path.merge(&other.fast_path);
+        self.backend_imu.merge(&other.backend_imu);
+        self.backend_keyframe.merge(&other.backend_keyframe);
+        self.backend_input.merge(&other.backend_input);
+        self.arrival_to_pose.merge(&other.arrival_to_pose);
+        self.stamp_to_pose.merge(&other.stamp_to_pose);
+        self.backend_lag.merge(&other.backend_lag);
+    }
+}
+
+/// What the pipeline counted.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct PipelineCounters {
+    /// IMU samples from the source.
+    pub imu_in: u64,
+    /// Camera frames from the source.
+    pub frames_in: u64,
+    /// LiDAR sweeps from the source.
+    pub sweeps_in: u64,
+    /// Poses published.
+    pub poses_out: u64,
+    /// Keyframes reported.
+    pub keyframes: u64,
+    /// IMU samples dropped: the back end's queue was full (real-time sources only).
+    pub dropped_imu: u64,
+    /// Camera frames dropped (queue full).
+    pub dropped_frames: u64,
+    /// LiDAR sweeps dropped (queue full).
+    pub dropped_sweeps: u64,
+    /// Times the IMU thread waited for the back end (unpaced sources and deterministic mode).
+    pub backpressure_waits: u64,
+    /// Poses published later than one IMU period after their sample's arrival.
+    pub imu_deadline_misses: u64,
+    /// Back-end samples finished more than one keyframe period behind the newest IMU sample.
+    pub backend_lag_misses: u64,
+    /// Estimator updates the fast path could not apply (older than its ring).
+    pub updates_too_old: u64,
+    /// Most IMU samples one update re-propagated on the fast path.
+    pub max_replay: u32,
+}
