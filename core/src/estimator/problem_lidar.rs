@@ -66,7 +66,7 @@ fn timed(o: &KfObs) -> TimedObs {
 pub(super) struct TauLandmark<const N: usize> {
     /// Anchor position.
     pub s: usize,
-    /// `(position j, factor)` per observation.
+    /// `(position j, factor)` per observation, all with the same anchor `s` and `obs_s`.
     pub obs: HVec<(usize, InverseDepthVisualFactor), N>,
     /// The LiDAR depth, if any.
     pub depth: Option<LidarDepth>,
@@ -121,15 +121,20 @@ impl<const N: usize> TauLandmark<N> {
         let ps = poses.get(self.s).ok_or(Error::DimensionMismatch)?;
         let fs = frames.get(self.s).ok_or(Error::DimensionMismatch)?;
         let mut out = HVec::new();
+        // Every factor of the landmark has the same anchor observation: its ray in the world
+        // is formed once.
+        let Some((_, f0)) = self.obs.first() else {
+            return Ok(out);
+        };
+        let ray_s = fs.r_wc * f0.obs_s.corrected(ps.td);
         for (j, f) in self.obs.iter() {
             let (pj, fj) = (
                 poses.get(*j).ok_or(Error::DimensionMismatch)?,
                 frames.get(*j).ok_or(Error::DimensionMismatch)?,
             );
-            let x_s = f.obs_s.corrected(ps.td);
             let x_j = f.obs_j.corrected(pj.td);
             let r_jw = fj.r_wc.transpose();
-            let a = r_jw * (fs.r_wc * x_s);
+            let a = r_jw * ray_s;
             let b = r_jw * (fs.p_wc - fj.p_wc);
             let ok = a
                 .iter()
