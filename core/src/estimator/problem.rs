@@ -567,13 +567,17 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let poses = self.window.poses();
         // Camera frames once per keyframe rather than three times per residual.
         let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
-        // Relative poses `(R_js, t_js)` once per keyframe pair rather than per observation.
-        let rel: [[(Mat3, Vec3); N]; N] = core::array::from_fn(|j| {
-            core::array::from_fn(|s| match (frames.get(j), frames.get(s)) {
-                (Some(fj), Some(fs)) if j < count && s < count => fj.relative_from(fs),
-                _ => (Mat3::identity(), Vec3::zeros()),
+        // Relative poses `(R_js, t_js)` once per keyframe pair rather than per observation,
+        // formed on first use (landmarks whose depth is eliminated do not need them).
+        let mut rel_cache: Option<[[(Mat3, Vec3); N]; N]> = None;
+        let relative_poses = || -> [[(Mat3, Vec3); N]; N] {
+            core::array::from_fn(|j| {
+                core::array::from_fn(|s| match (frames.get(j), frames.get(s)) {
+                    (Some(fj), Some(fs)) if j < count && s < count => fj.relative_from(fs),
+                    _ => (Mat3::identity(), Vec3::zeros()),
+                })
             })
-        });
+        };
         let mut cost = 0.0;
         let linearize = ne.is_some();
         // The eliminated landmarks' linearization: rotations once per assembly, not per residual.
@@ -655,6 +659,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             // Evaluate every observation first: a landmark enters the system whole or not at all.
             let mut jacs: HVec<(usize, crate::factors::pose_only_visual::PoseOnlyJacobians), N> =
                 HVec::new();
+            let rel = &*rel_cache.get_or_insert_with(relative_poses);
             let rel_js = |j: usize| rel.get(j).and_then(|row| row.get(s)).copied();
             let Some(rel_es) = rel_js(e) else {
                 continue;

@@ -66,7 +66,7 @@ fn timed(o: &KfObs) -> TimedObs {
 pub(super) struct TauLandmark<const N: usize> {
     /// Anchor position.
     pub s: usize,
-    /// `(position j, factor)` per observation.
+    /// `(position j, factor)` per observation, all with the same anchor `s` and `obs_s`.
     pub obs: HVec<(usize, InverseDepthVisualFactor), N>,
     /// The LiDAR depth, if any.
     pub depth: Option<LidarDepth>,
@@ -74,6 +74,8 @@ pub(super) struct TauLandmark<const N: usize> {
 
 impl<const N: usize> TauLandmark<N> {
     /// The landmark's measurements, or `None` without an anchor observation or any `j != s`.
+    /// (Inlined: built in place instead of copied out.)
+    #[inline(always)]
     pub fn new(
         obs: &[Option<KfObs>; N],
         s: usize,
@@ -113,6 +115,8 @@ impl<const N: usize> TauLandmark<N> {
     /// The observations as rays in `tau`: camera `j` sees the landmark at `P_j ~ a + tau b`
     /// with `a = R_jw R_ws x_s`, `b = R_jw (p_ws - p_wj)` (`P_j = (a + tau b) / tau`, and the
     /// projection is scale-free), so once `(a, b)` are known every 1-D step costs a few flops.
+    /// (Inlined: the rays are built in place instead of copied out.)
+    #[inline(always)]
     pub(super) fn rays(
         &self,
         poses: &[KeyframePose; N],
@@ -121,15 +125,20 @@ impl<const N: usize> TauLandmark<N> {
         let ps = poses.get(self.s).ok_or(Error::DimensionMismatch)?;
         let fs = frames.get(self.s).ok_or(Error::DimensionMismatch)?;
         let mut out = HVec::new();
+        // Every factor of the landmark has the same anchor observation: its ray in the world
+        // is formed once.
+        let Some((_, f0)) = self.obs.first() else {
+            return Ok(out);
+        };
+        let ray_s = fs.r_wc * f0.obs_s.corrected(ps.td);
         for (j, f) in self.obs.iter() {
             let (pj, fj) = (
                 poses.get(*j).ok_or(Error::DimensionMismatch)?,
                 frames.get(*j).ok_or(Error::DimensionMismatch)?,
             );
-            let x_s = f.obs_s.corrected(ps.td);
             let x_j = f.obs_j.corrected(pj.td);
             let r_jw = fj.r_wc.transpose();
-            let a = r_jw * (fs.r_wc * x_s);
+            let a = r_jw * ray_s;
             let b = r_jw * (fs.p_wc - fj.p_wc);
             let ok = a
                 .iter()

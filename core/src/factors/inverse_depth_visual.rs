@@ -63,8 +63,16 @@ struct Chain {
     p_bj: Vec3,
     p_cj: Vec3,
     r_s: Mat3,
+    r_j: Mat3,
     r_bc: Mat3,
-    a: Mat3,
+}
+
+impl Chain {
+    /// `A = R_bc^T R_j^T` (the residual alone does not need it).
+    #[inline]
+    fn a(&self) -> Mat3 {
+        self.r_bc.transpose() * self.r_j.transpose()
+    }
 }
 
 impl InverseDepthVisualFactor {
@@ -117,8 +125,8 @@ impl InverseDepthVisualFactor {
             p_bj,
             p_cj,
             r_s,
+            r_j,
             r_bc,
-            a: r_bc.transpose() * r_j.transpose(),
         })
     }
 
@@ -151,7 +159,7 @@ impl InverseDepthVisualFactor {
     ) -> Result<(Vec2, Vec2), Error> {
         let c = self.chain(s, j, ext, tau)?;
         let h = self.projection_jacobian(&c);
-        let d_tau = h * (c.a * c.r_s * c.r_bc * c.x_s) * (-1.0 / (tau * tau));
+        let d_tau = h * (c.a() * c.r_s * c.r_bc * c.x_s) * (-1.0 / (tau * tau));
         Ok((self.whitened(&c), d_tau))
     }
 
@@ -171,17 +179,18 @@ impl InverseDepthVisualFactor {
     ) -> Result<InverseDepthJacobians, Error> {
         let c = self.chain(s, j, ext, tau)?;
         let h = self.projection_jacobian(&c);
-        let a_rs = c.a * c.r_s;
+        let a = c.a();
+        let a_rs = a * c.r_s;
         let a_rs_rbc = a_rs * c.r_bc;
 
         let mut d_pose_s = Matrix2x6::zeros();
-        d_pose_s.fixed_columns_mut::<3>(0).copy_from(&(h * c.a));
+        d_pose_s.fixed_columns_mut::<3>(0).copy_from(&(h * a));
         d_pose_s
             .fixed_columns_mut::<3>(3)
             .copy_from(&(h * (-(a_rs * skew(&c.p_bs)))));
 
         let mut d_pose_j = Matrix2x6::zeros();
-        d_pose_j.fixed_columns_mut::<3>(0).copy_from(&(-(h * c.a)));
+        d_pose_j.fixed_columns_mut::<3>(0).copy_from(&(-(h * a)));
         d_pose_j
             .fixed_columns_mut::<3>(3)
             .copy_from(&(h * (c.r_bc.transpose() * skew(&c.p_bj))));

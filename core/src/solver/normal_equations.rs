@@ -717,12 +717,14 @@ impl<const D: usize> NormalEquations<D> {
                 }
             }
         }
-        // Diagonal blocks: upper triangle only (the lower one is never read).
-        for (c, m) in [(ca, ja.tr_mul(ja)), (cb, jb.tr_mul(jb))] {
+        // Diagonal blocks: upper triangle only (the lower one is never read), each entry the
+        // column dot product `tr_mul` would form for it (bit-identical, half the products).
+        for (c, m) in [(ca, ja), (cb, jb)] {
             for i in 0..W {
                 if let Some(row) = self.h.get_mut(c + i).and_then(|h| h.get_mut(c + i..c + W)) {
+                    let mi = m.column(i);
                     for (k, h) in row.iter_mut().enumerate() {
-                        *h += m[(i, i + k)];
+                        *h += mi.dot(&m.column(i + k));
                     }
                 }
             }
@@ -746,6 +748,24 @@ impl<const D: usize> NormalEquations<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dense_pair_diagonal_is_bit_identical_to_tr_mul() {
+        let mut rnd = crate::solver::test_rng(11);
+        let r = nalgebra::SVector::<f64, 15>::from_fn(|_, _| rnd());
+        let ja = nalgebra::SMatrix::<f64, 15, 15>::from_fn(|_, _| rnd());
+        let jb = nalgebra::SMatrix::<f64, 15, 15>::from_fn(|_, _| rnd());
+        let mut ne = NormalEquations::<40>::new();
+        ne.reset(35).unwrap();
+        ne.add_dense_pair(&r, &ja, &jb, 2, 20).unwrap();
+        for (c, m) in [(2, ja.tr_mul(&ja)), (20, jb.tr_mul(&jb))] {
+            for i in 0..15 {
+                for j in i..15 {
+                    assert_eq!(ne.h[c + i][c + j].to_bits(), m[(i, j)].to_bits());
+                }
+            }
+        }
+    }
 
     #[test]
     fn dense_pair_equals_the_block_path() {
