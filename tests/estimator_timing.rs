@@ -12,8 +12,11 @@ use povins::core::lidar::LidarPoint;
 use povins::core::Error;
 use povins::host_tools::sim::Scenario;
 
+/// One processed sample: its state's time and bits, and the keyframe time if one was made.
+type Processed = (i64, Vec<u64>, Option<i64>);
+
 /// Every processed sample's state bits and keyframe time, in order.
-fn record(out: &mut Vec<(i64, Vec<u64>, Option<i64>)>, o: &ImuOutput) {
+fn record(out: &mut Vec<Processed>, o: &ImuOutput) {
     let bits = o.nav.map_or(Vec::new(), |n| {
         n.p_wb
             .iter()
@@ -41,10 +44,7 @@ fn replay_pushed_late(
     lag_ns: i64,
     early_sweeps: bool,
     init: Option<povins::core::inertial::NavState>,
-) -> (
-    Vec<(i64, Vec<u64>, Option<i64>)>,
-    povins::core::estimator::Counters,
-) {
+) -> (Vec<Processed>, povins::core::estimator::Counters) {
     let mut est: Box<PoVins> = new_estimator(cfg);
     if let Some(s0) = init {
         est.initialize(s0).expect("initial state");
