@@ -70,28 +70,14 @@ fn run(ds: &Dataset, imu: &[ImuSample], frames: &Frames) -> Run {
     run_with(ds, imu, frames, |_, _| {})
 }
 
-fn bits(s: &NavState) -> Vec<u64> {
-    let mut v = vec![s.t_ns as u64];
-    v.extend(
-        s.p_wb
-            .iter()
-            .chain(s.q_wb.coords.iter())
-            .chain(s.v_wb.iter())
-            .chain(s.bg.iter())
-            .chain(s.ba.iter())
-            .map(|x| x.to_bits()),
-    );
-    v
-}
-
 fn assert_same_states(clean: &Run, other: &Run, what: &str) {
     assert_eq!(
         clean.states.len(),
         other.states.len(),
         "{what}: state counts differ"
     );
-    if let Some(i) =
-        (0..clean.states.len()).find(|&i| bits(&clean.states[i]) != bits(&other.states[i]))
+    if let Some(i) = (0..clean.states.len())
+        .find(|&i| state_bits(&clean.states[i]) != state_bits(&other.states[i]))
     {
         panic!(
             "{what}: the output changed at state #{i} (t = {} ns)",

@@ -17,15 +17,7 @@ type Processed = (i64, Vec<u64>, Option<i64>);
 
 /// Every processed sample's state bits and keyframe time, in order.
 fn record(out: &mut Vec<Processed>, o: &ImuOutput) {
-    let bits = o.nav.map_or(Vec::new(), |n| {
-        n.p_wb
-            .iter()
-            .chain(n.q_wb.coords.iter())
-            .chain(n.v_wb.iter())
-            .chain(n.bg.iter())
-            .map(|v| v.to_bits())
-            .collect()
-    });
+    let bits = o.nav.as_ref().map_or(Vec::new(), state_bits);
     out.push((
         o.nav.map_or(0, |n| n.t_ns),
         bits,

@@ -8,23 +8,8 @@ mod common;
 use common::*;
 use povins::core::camera::FeatureObs;
 use povins::core::estimator::{PoVins, VisualMode};
-use povins::core::inertial::{FastPath, ImuSample, InsUpdate, NavState};
+use povins::core::inertial::{FastPath, ImuSample, InsUpdate};
 use std::collections::VecDeque;
-
-/// Bit patterns of a state, for exact comparison (`NaN`-safe, `-0.0 != 0.0`).
-fn bits(s: &NavState) -> Vec<u64> {
-    let mut b = vec![s.t_ns as u64];
-    b.extend(
-        s.p_wb
-            .iter()
-            .chain(s.q_wb.coords.iter())
-            .chain(s.v_wb.iter())
-            .chain(s.bg.iter())
-            .chain(s.ba.iter())
-            .map(|v| v.to_bits()),
-    );
-    b
-}
 
 struct Tally {
     compared: usize,
@@ -68,8 +53,8 @@ fn follow_euroc(delay: usize) -> Tally {
         }
         if in_flight.is_empty() {
             assert_eq!(
-                latest.map(|n| bits(&n)),
-                out.nav.map(|n| bits(&n)),
+                latest.map(|n| state_bits(&n)),
+                out.nav.map(|n| state_bits(&n)),
                 "fast path differs from the estimator at sample {k} (t = {} ns, delay {delay})",
                 s.t_ns
             );

@@ -15,21 +15,6 @@ use povins::host_tools::runner::{replay, InitMode};
 use povins::platform::dataset::Dataset;
 use povins::platform::pipeline::{CallbackSink, Pacing, PipelineReport, PoseOut};
 
-/// Bit patterns of a state (`NaN`-safe, `-0.0 != 0.0`).
-fn bits(s: &NavState) -> Vec<u64> {
-    let mut b = vec![s.t_ns as u64];
-    b.extend(
-        s.p_wb
-            .iter()
-            .chain(s.q_wb.coords.iter())
-            .chain(s.v_wb.iter())
-            .chain(s.bg.iter())
-            .chain(s.ba.iter())
-            .map(|v| v.to_bits()),
-    );
-    b
-}
-
 fn hidden() -> Progress {
     Progress::with_visibility(0, "test", false)
 }
@@ -67,7 +52,12 @@ fn deterministic_pipeline_is_the_replay_bit_for_bit() {
         assert!(want.len() > 4000, "only {} reference states", want.len());
         assert_eq!(got.len(), want.len(), "number of IMU-rate poses");
         for (k, (g, w)) in got.iter().zip(&want).enumerate() {
-            assert_eq!(bits(g), bits(w), "pose {k} (t = {} ns) differs", w.t_ns);
+            assert_eq!(
+                state_bits(g),
+                state_bits(w),
+                "pose {k} (t = {} ns) differs",
+                w.t_ns
+            );
         }
         let c = report.counters;
         assert_eq!(c.imu_in as usize, ds.imu.len());

@@ -207,6 +207,22 @@ pub fn frames_of(ds: &Dataset) -> Vec<(i64, &[povins::core::camera::FeatureObs])
         .collect()
 }
 
+/// Bit patterns of a whole state (time, position, attitude, velocity, biases) for exact
+/// comparison (`NaN`-safe, `-0.0 != 0.0`).
+pub fn state_bits(s: &NavState) -> Vec<u64> {
+    let mut b = vec![s.t_ns as u64];
+    b.extend(
+        s.p_wb
+            .iter()
+            .chain(s.q_wb.coords.iter())
+            .chain(s.v_wb.iter())
+            .chain(s.bg.iter())
+            .chain(s.ba.iter())
+            .map(|v| v.to_bits()),
+    );
+    b
+}
+
 /// A new boxed estimator.
 pub fn new_estimator(cfg: EstimatorConfig) -> Box<PoVins> {
     Box::new(PoVins::new(cfg).expect("a valid estimator configuration"))
