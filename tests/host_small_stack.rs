@@ -43,9 +43,10 @@ fn host_replay_and_pipeline_run_on_a_small_stack() {
             deterministic: true,
             realtime_priority: false,
         };
-        let mut sink = CallbackSink::poses(|p: &PoseOut| poses.push(p.nav));
-        run_dataset(&ds, cfg, InitMode::Static, &opts, &mut sink, &quiet()).expect("pipeline");
-        drop(sink);
+        {
+            let mut sink = CallbackSink::poses(|p: &PoseOut| poses.push(p.nav));
+            run_dataset(&ds, cfg, InitMode::Static, &opts, &mut sink, &quiet()).expect("pipeline");
+        }
         poses
     });
     assert_eq!(poses.len(), out.imu_rate.len());

@@ -4,7 +4,7 @@
 //! `Box::new(PoVins::new(cfg)?)` builds the estimator (about 5.6 MB) on the stack and moves
 //! it into the box: optimized builds usually elide the copy, unoptimized ones do not (and keep
 //! several temporaries), so the host tools used to run on 64-256 MB stacks. Here the memory
-//! is allocated zeroed (pages the kernel maps lazily) and the object is configured in place
+//! is allocated zeroed (`alloc_zeroed`: pages the kernel maps lazily) and the object is configured in place
 //! ([`Estimator::configure`], [`Vio::configure`]), which builds nothing large on the stack.
 //!
 //! [`boxed_estimator`] relies on [`Estimator::empty`] being all zero bits (a zeroed
@@ -31,13 +31,22 @@ pub fn boxed_estimator<
     const GH: usize,
     const Q: usize,
 >() -> Box<Estimator<N, L, D, P, GW, GH, Q>> {
-    let zeroed = Box::<Estimator<N, L, D, P, GW, GH, Q>>::new_zeroed();
-    // SAFETY: the core guarantees that `Estimator::empty()` is all zero bits for every
-    // capacity (its documentation; checked by `tests/estimator_static.rs`, whose `static`
-    // estimator the linker puts in `.bss`, which only holds all-zero initializers; the
-    // capacities only change array lengths). So the zeroed allocation holds exactly the valid
-    // value `Estimator::empty()`.
-    unsafe { zeroed.assume_init() }
+    let layout = std::alloc::Layout::new::<Estimator<N, L, D, P, GW, GH, Q>>();
+    // The estimator always holds buffers (`alloc_zeroed` needs a non-zero size).
+    assert!(layout.size() > 0);
+    // SAFETY: `layout` has a non-zero size.
+    let ptr =
+        unsafe { std::alloc::alloc_zeroed(layout) }.cast::<Estimator<N, L, D, P, GW, GH, Q>>();
+    if ptr.is_null() {
+        std::alloc::handle_alloc_error(layout);
+    }
+    // SAFETY: `ptr` is a fresh allocation of the global allocator with the layout of the
+    // estimator (what `Box` frees), and it holds a valid estimator: the core guarantees that
+    // `Estimator::empty()` is all zero bits for every capacity (its documentation; checked by
+    // `tests/estimator_static.rs`, whose `static` estimator the linker puts in `.bss`, which
+    // only holds all-zero initializers; the capacities only change array lengths). So the
+    // zeroed allocation is exactly the value `Estimator::empty()`.
+    unsafe { Box::from_raw(ptr) }
 }
 
 /// [`PoVins`] configured with `cfg`, on the heap ([`boxed_estimator`], then
