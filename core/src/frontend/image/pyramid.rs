@@ -130,6 +130,15 @@ impl<const BYTES: usize, const LEVELS: usize> Pyramid<BYTES, LEVELS> {
         }
     }
 
+    /// Back to the state [`Self::new`] builds: no level built, the default filter (the image
+    /// bytes and scratch are left as they are: a build writes them before reading).
+    pub fn reset_to_new(&mut self) {
+        self.dims = [(0, 0); LEVELS];
+        self.offsets = [0; LEVELS];
+        self.levels = 0;
+        self.filter = PyramidFilter::Gaussian5;
+    }
+
     /// Number of levels built (0 before the first build or after a failed one).
     #[inline]
     pub fn levels(&self) -> usize {
