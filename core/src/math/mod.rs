@@ -67,3 +67,30 @@ pub mod serde_quat_xyzw {
         })
     }
 }
+
+#[cfg(all(test, feature = "serde"))]
+mod serde_tests {
+    use super::serde_quat_xyzw::{from_xyzw, to_xyzw};
+    use super::Quat;
+
+    #[test]
+    fn unit_quaternions_read_back_bit_for_bit() {
+        for q in [
+            Quat::identity(),
+            Quat::from_euler_angles(0.1, -0.2, 1.3),
+            Quat::from_euler_angles(3.0, 0.01, -0.5),
+        ] {
+            let back = from_xyzw(to_xyzw(&q)).expect("unit");
+            assert_eq!(to_xyzw(&back), to_xyzw(&q));
+        }
+    }
+
+    #[test]
+    fn nearly_unit_quaternions_are_normalized_and_others_rejected() {
+        let q = from_xyzw([0.0, 0.0, 0.7072, 0.7072]).expect("within 1e-3");
+        assert!((q.quaternion().norm() - 1.0).abs() < 1e-15);
+        assert!(from_xyzw([0.0, 0.0, 0.0, 0.5]).is_none());
+        assert!(from_xyzw([0.0, 0.0, 0.0, 1.01]).is_none());
+        assert!(from_xyzw([f64::NAN, 0.0, 0.0, 1.0]).is_none());
+    }
+}
