@@ -124,8 +124,10 @@ fn non_defaults_round_trip_bit_for_bit() {
     cfg.lidar.extrinsic.q_bl = povins_core::math::Quat::from_euler_angles(3.0, 0.01, -0.5);
     cfg.lidar.association.cell_rad = 0.7f64.to_radians();
     cfg.td_s = -0.0123456789;
-    let mut t = TrackerConfig::default();
-    t.equalization = Equalization::CLAHE_3_8X8;
+    let mut t = TrackerConfig {
+        equalization: Equalization::CLAHE_3_8X8,
+        ..TrackerConfig::default()
+    };
     t.ransac.model = RansacModel::TwoPoint;
     t.detector.quality_level = 0.013;
     let a = VioAiding {
