@@ -194,7 +194,8 @@ fn dmvio_images_through_vio_do_not_allocate() {
         let toml = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/dmvio.toml");
         povins::host_tools::config::RunConfigFile::read(std::path::Path::new(toml))
             .expect("configs/dmvio.toml")
-            .apply(&mut cfg);
+            .apply(&mut cfg)
+            .expect("configs/dmvio.toml applies");
         cfg.clock = None;
         let mut vio: Box<EurocVio> =
             Box::new(EurocVio::new(cfg, TrackerConfig::default()).expect("vio"));

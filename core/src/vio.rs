@@ -58,6 +58,11 @@ pub type HdVio = Vio<10, 200, 166, 256, { pyramid_bytes(1280, 720, 4) }, 4>;
 /// Which parts of the INS aid the tracker.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct VioAiding {
     /// Seed features with a landmark depth at their INS-predicted pixel.
     pub predictions: bool,

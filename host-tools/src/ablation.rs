@@ -410,7 +410,7 @@ impl Pair {
                 }
                 let mut base = config_for(&ds);
                 if let Some(f) = overrides {
-                    f.apply(&mut base);
+                    f.apply(&mut base).map_err(|e| format!("{e:#}"))?;
                 }
                 Ok(Arc::new((ds, base)))
             });

@@ -1,6 +1,7 @@
 //! `povins replay --realtime` and `povins timing` on the repository's EuRoC 30 s tracks: the
 //! deterministic pipeline writes `povins run`'s `trajectory.tum` byte for byte (same
-//! configuration code, same start, same order), and `timing --json` reports a run with no drop.
+//! configuration code, same start, same order), the run's `config.toml` repeats it byte for byte,
+//! and `timing --json` reports a run with no drop.
 //! No timed assertion.
 
 mod common;
@@ -53,6 +54,22 @@ fn deterministic_replay_writes_the_runs_trajectory() {
         a == b,
         "the deterministic pipeline's trajectory differs from povins run's"
     );
+    // The run's `config.toml`, given back as `--config`, repeats the run byte for byte.
+    let again = dir.path().join("again");
+    let effective = run_dir.join("config.toml");
+    let (ok, _, err) = povins(&[
+        "run",
+        EUROC,
+        "--config",
+        effective.to_str().expect("utf-8 path"),
+        "--frontend",
+        "tracks",
+        "--out",
+        again.to_str().expect("utf-8 path"),
+    ]);
+    assert!(ok, "run with the written config failed: {err}");
+    let c = std::fs::read(again.join("trajectory.tum")).expect("the second run's trajectory");
+    assert!(b == c, "the written config.toml does not repeat the run");
 }
 
 #[test]

@@ -68,7 +68,8 @@ pub fn euroc_config(ds: &Dataset, mode: VisualMode) -> EstimatorConfig {
     let mut cfg = config_for(ds);
     let file = RunConfigFile::read(Path::new(EUROC_TOML))
         .unwrap_or_else(|e| panic!("cannot read {EUROC_TOML}: {e:#}"));
-    file.apply(&mut cfg);
+    file.apply(&mut cfg)
+        .unwrap_or_else(|e| panic!("cannot apply {EUROC_TOML}: {e:#}"));
     cfg.mode = mode;
     cfg
 }

@@ -21,6 +21,11 @@ pub const MIN_LEVEL_SIDE: usize = 8;
 /// Downsampling filter between pyramid levels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum PyramidFilter {
     /// `[1 4 6 4 1] / 16` separable Gaussian, reflect-101 borders (OpenCV `pyrDown`).
     #[default]

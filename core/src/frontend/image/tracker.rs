@@ -18,6 +18,11 @@ use heapless::Vec;
 /// model with the gyro rotation), minimum distance 20 px, an 8 x 6 grid.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct TrackerConfig {
     /// Features kept per frame (top-up target), at most the tracker's `F`.
     pub max_features: usize,
