@@ -11,7 +11,7 @@ use povins::host_tools::sim::{simulate, LidarKind, Scenario, SimConfig};
 
 #[test]
 fn euroc_30s_pose_only_static_init() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let cfg = euroc_config(&ds, VisualMode::PoseOnly);
         let out = replay(&ds, cfg, InitMode::Static, &quiet()).expect("replay");
@@ -37,7 +37,7 @@ fn euroc_30s_pose_only_static_init() {
 /// observation at 0 left as a two-view residual.
 #[test]
 fn euroc_30s_marginalization_without_reuse() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let mut cfg = povins::host_tools::runner::config_for(&ds);
         cfg.reuse_marginalized_landmarks = false;
@@ -54,7 +54,7 @@ fn euroc_30s_marginalization_without_reuse() {
 /// (`estimator::imu_noise`); without that it is 0.041 m.
 #[test]
 fn euroc_30s_default_config_measures_the_vibration() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let run = |adapt: bool| {
             let mut cfg = povins::host_tools::runner::config_for(&ds);
@@ -80,7 +80,7 @@ fn euroc_30s_default_config_measures_the_vibration() {
 /// approximations it would raise the noise).
 #[test]
 fn exact_imu_noise_is_left_alone() {
-    big_stack(|| {
+    small_stack(|| {
         let mut sc = SimConfig::new(Scenario::Flight, 3, 40.0);
         sc.lidar = Some(LidarKind::None);
         let ds = simulate(&sc, &|_, _, _| {}).expect("simulation").dataset;
@@ -110,7 +110,7 @@ fn exact_imu_noise_is_left_alone() {
 
 #[test]
 fn euroc_30s_inverse_depth_static_init() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let cfg = euroc_config(&ds, VisualMode::InverseDepth);
         let out = replay(&ds, cfg, InitMode::Static, &quiet()).expect("replay");
@@ -132,7 +132,7 @@ fn euroc_30s_inverse_depth_static_init() {
 #[test]
 #[ignore = "needs ../shared/data/openvins-sim-corridor-mono (large shared sequence; CI runs it with --ignored)"]
 fn openvins_corridor_first_100s_gt_init() {
-    big_stack(|| {
+    small_stack(|| {
         let mut ds = load(OPENVINS_CORRIDOR);
         truncate(&mut ds, 100.0);
         let cfg = povins::host_tools::runner::config_for(&ds);
@@ -154,7 +154,7 @@ fn openvins_corridor_first_100s_gt_init() {
 }
 #[test]
 fn gradient_check_after_30_keyframes_of_euroc() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let cfg = euroc_config(&ds, VisualMode::PoseOnly);
         let mut est = new_estimator(cfg);

@@ -15,28 +15,17 @@ use povins::platform::pipeline::{CallbackSink, Pacing, PoseOut};
 
 const SMALL_STACK: usize = 512 * 1024;
 
-fn on_small_stack<T: Send>(f: impl FnOnce() -> T + Send) -> T {
-    std::thread::scope(|s| {
-        let h = std::thread::Builder::new()
-            .stack_size(SMALL_STACK)
-            .spawn_scoped(s, f)
-            .expect("spawn a small-stack thread");
-        match h.join() {
-            Ok(v) => v,
-            Err(p) => std::panic::resume_unwind(p),
-        }
-    })
-}
-
 #[test]
 fn host_replay_and_pipeline_run_on_a_small_stack() {
     assert!(std::mem::size_of::<PoVins>() > 8 * SMALL_STACK);
     let ds = load(EUROC_30S);
     let cfg = euroc_config(&ds, VisualMode::PoseOnly);
     let quiet = || Progress::with_visibility(0, "test", false);
-    let out = on_small_stack(|| replay(&ds, cfg, InitMode::Static, &quiet()).expect("replay"));
+    let out = on_stack(SMALL_STACK, || {
+        replay(&ds, cfg, InitMode::Static, &quiet()).expect("replay")
+    });
     check_golden_of("euroc-v101-30s-static", &RunView::of(&out), false);
-    let poses = on_small_stack(|| {
+    let poses = on_stack(SMALL_STACK, || {
         let mut poses = Vec::new();
         let opts = RealtimeOptions {
             pacing: Pacing::AsFastAsPossible,

@@ -54,7 +54,7 @@ fn pipeline_from(
 
 #[test]
 fn deterministic_pipeline_is_the_replay_bit_for_bit() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let want = reference(&ds);
         let (got, report) = pipeline(&ds, true);
@@ -80,7 +80,7 @@ fn deterministic_pipeline_is_the_replay_bit_for_bit() {
 
 #[test]
 fn realtime_pipeline_runs_to_the_end_without_drops() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let (det, _) = pipeline(&ds, true);
         let (got, report) = pipeline(&ds, false);
@@ -115,7 +115,7 @@ fn realtime_pipeline_runs_to_the_end_without_drops() {
 /// fast path propagates the same INS over the same samples until the first keyframe's update).
 #[test]
 fn realtime_pipeline_from_ground_truth_publishes_from_the_first_sample() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let cfg = euroc_config(&ds, VisualMode::PoseOnly);
         let want = replay(&ds, cfg, InitMode::Groundtruth, &hidden())

@@ -68,7 +68,8 @@ pub mod serde_quat_xyzw {
     }
 }
 
-#[cfg(all(test, feature = "serde"))]
+#[cfg(test)]
+#[cfg(feature = "serde")]
 mod serde_tests {
     use super::serde_quat_xyzw::{from_xyzw, to_xyzw};
     use super::Quat;
