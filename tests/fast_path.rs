@@ -7,7 +7,7 @@ mod common;
 
 use common::*;
 use povins::core::camera::FeatureObs;
-use povins::core::estimator::{PoVins, VisualMode};
+use povins::core::estimator::VisualMode;
 use povins::core::inertial::{FastPath, ImuSample, InsUpdate};
 use std::collections::VecDeque;
 
