@@ -874,6 +874,9 @@ impl<
             if let Some((m, p)) = self.last_marg {
                 report.marginalized_rank_deficiency = m;
                 report.prior_rank_deficiency = p;
+                if let Some((pos, yaw)) = self.prior.gauge_std() {
+                    report.prior_gauge_std = (pos[0].max(pos[1]).max(pos[2]), yaw);
+                }
             }
         }
 
