@@ -23,7 +23,7 @@
 
 use super::prior::LinPoint;
 use super::problem::FactorSet;
-use super::slots::max_parallax;
+use super::slots::{max_parallax, relative_rotations};
 use super::window::Block;
 use super::window::Layout;
 use super::{corrected_obs, Estimator, VisualMode};
@@ -45,7 +45,7 @@ impl<
     /// that stay. Positions are those before the window shifts.
     fn plan_marginalization(&mut self) {
         let count = self.window.len();
-        let cams = self.window_cams();
+        let rel = relative_rotations(&self.window_cams(), count);
         let td: [f64; N] = core::array::from_fn(|k| self.window.get(k).map_or(0.0, |kf| kf.td_s));
         let min_par = self.cfg.min_parallax;
         let lidar_on = self.cfg.lidar.enabled;
@@ -79,7 +79,7 @@ impl<
                 .filter(|&k| lm.obs.get(k).is_some_and(|o| o.is_some()))
                 .count();
             let ok = |theta: f64| theta >= min_par || (eliminated && after_0 >= 2);
-            match max_parallax(&cams, count, s1, obs_after_0) {
+            match max_parallax(&rel, count, s1, obs_after_0) {
                 Some((e1, theta, _)) if ok(theta) => {
                     lm.anchor_s = s1 as u8;
                     lm.anchor_e = Some(e1 as u8);

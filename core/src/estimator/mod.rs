@@ -75,6 +75,7 @@ use crate::Error;
 use heapless::Vec as HVec;
 use prior::MargPrior;
 use problem::{FactorSet, InitialPriors, Landmarks, Problem, Saved, SCHUR_COLS};
+use problem_lidar::TauLandmark;
 use window::{Keyframe, Layout, Preint, Window, MAX_INTERVAL_SAMPLES};
 
 /// Most feature observations per camera frame.
@@ -1000,6 +1001,8 @@ impl<
         let poses = self.window.poses();
         let cams: [crate::camera::CameraPose; N] =
             core::array::from_fn(|k| ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb));
+        // Relative rotations once per camera pair, not per landmark and pair.
+        let rel = slots::relative_rotations(&cams, count);
         let (dmin, dmax) = self.cfg.depth_range_m;
         let min_par = self.cfg.min_parallax;
         let max_rel = self.cfg.max_rel_depth_std;
@@ -1026,15 +1029,14 @@ impl<
                 continue;
             };
             let mut best: Option<(usize, f64, Vec3)> = None;
-            for (k, ck) in cams.iter().enumerate().take(count) {
+            for (k, row) in rel.iter().enumerate().take(count) {
                 if k == s {
                     continue;
                 }
                 let td_k = self.window.get(k).map_or(0.0, |kf| kf.td_s);
-                let Some(x_k) = corrected_obs(lm, k, td_k) else {
+                let (Some(x_k), Some(r_ks)) = (corrected_obs(lm, k, td_k), row.get(s)) else {
                     continue;
                 };
-                let (r_ks, _) = ck.relative_from(cs);
                 let theta = x_k.cross(&(r_ks * x_s)).norm();
                 if theta.is_finite() && best.is_none_or(|(_, t, _)| theta > t) {
                     best = Some((k, theta, x_k));
@@ -1275,16 +1277,15 @@ impl<
             .filter_map(|(j, (o, pf))| o.as_ref().map(|o| (j, to(o), pf)));
         let eliminated = self.cfg.depth_eliminated() && lm.inv_depth > 0.0;
         if lidar_tau || eliminated || self.cfg.mode == VisualMode::InverseDepth {
-            for (j, obs_j, (pj, _)) in observed {
-                let f = crate::factors::inverse_depth_visual::InverseDepthVisualFactor {
-                    kf_s: s,
-                    kf_j: j,
-                    obs_s,
-                    obs_j,
-                    sqrt_info,
-                };
-                if let Some(o) = out.get_mut(j) {
-                    *o = f.residual(ps, pj, &self.ext, lm.inv_depth).ok();
+            // The inverse-depth residuals on the landmark's rays: the anchor's ray formed once,
+            // a few flops per observation instead of the whole factor chain.
+            let m = TauLandmark::new(&lm.obs, s, None, sqrt_info, self.window.len());
+            let rays = m.as_ref().map(|m| m.rays(poses, frames));
+            if let (Some(m), Some(Ok(rays))) = (m, rays) {
+                for ((j, _), ray) in m.obs.iter().zip(rays.iter()) {
+                    if let Some(o) = out.get_mut(*j) {
+                        *o = ray.residual_and_d_tau(lm.inv_depth).ok().map(|(r, _)| r);
+                    }
                 }
             }
             return out;

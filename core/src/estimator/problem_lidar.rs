@@ -288,6 +288,16 @@ impl Ray {
         );
         Ok((r, d))
     }
+
+    /// [`Self::residual_and_d_tau`] and the ray's curvature `kappa = b_z / q_z`: the second
+    /// derivative is `d2r/dtau2 = -2 kappa dr/dtau` (`u'' = -2 u' b_z / q_z` for
+    /// `u = q_x / q_z`, `q = a + tau b`).
+    #[inline]
+    pub(super) fn residual_d_tau_curvature(&self, tau: f64) -> Result<(Vec2, Vec2, f64), Error> {
+        let (r, d) = self.residual_and_d_tau(tau)?;
+        let q_z = self.a.z + self.b.z * tau;
+        Ok((r, d, self.b.z / q_z))
+    }
 }
 
 /// Robust cost of an MSC block of `n` observations with stacked squared norm `sq`, and the
@@ -683,6 +693,19 @@ mod tests {
                     / (2.0 * h);
                 assert!((num - d).norm() <= 1e-6 * (1.0 + d.norm()), "{num} vs {d}");
             }
+        }
+        // The curvature: `d2r/dtau2 = -2 kappa dr/dtau` against a central difference of `dr`.
+        for ray in rays.iter() {
+            let (_, d, kappa) = ray.residual_d_tau_curvature(tau).unwrap();
+            let h = 1e-6 * tau;
+            let num = (ray.residual_and_d_tau(tau + h).unwrap().1
+                - ray.residual_and_d_tau(tau - h).unwrap().1)
+                / (2.0 * h);
+            let dd = d * (-2.0 * kappa);
+            assert!(
+                (num - dd).norm() <= 1e-6 * (1.0 + dd.norm()),
+                "{num} vs {dd}"
+            );
         }
         // Behind camera j: an error, not a number.
         let behind = Ray {

@@ -23,25 +23,45 @@
 use super::{corrected_obs, Estimator, MAX_FEATURES};
 use crate::camera::CameraPose;
 use crate::landmarks::KfObs;
-use crate::math::Vec3;
+use crate::math::{Mat3, Vec3};
 use heapless::Vec as HVec;
 
-/// Largest parallax `|x_k x R_ks x_s|` of a track against its first observation `s`, over the
-/// other observations; `obs(k)` gives the delay-corrected observation at position `k`.
-pub(super) fn max_parallax<const N: usize>(
+/// Relative rotations `R_ks = R_kw R_ws` (`[k][s]`) of the first `count` cameras, each formed
+/// as [`CameraPose::relative_from`] forms it (the same values), but once per pair and from one
+/// rotation matrix per camera instead of two quaternion conversions per landmark and pair.
+pub(super) fn relative_rotations<const N: usize>(
     cams: &[CameraPose; N],
+    count: usize,
+) -> [[Mat3; N]; N] {
+    let r_wc: [Mat3; N] = core::array::from_fn(|k| match cams.get(k) {
+        Some(c) if k < count => c.q_wc.to_rotation_matrix().into_inner(),
+        _ => Mat3::identity(),
+    });
+    core::array::from_fn(|k| {
+        core::array::from_fn(|s| match (r_wc.get(k), r_wc.get(s)) {
+            (Some(r_wk), Some(r_ws)) => r_wk.transpose() * r_ws,
+            _ => Mat3::identity(),
+        })
+    })
+}
+
+/// Largest parallax `|x_k x R_ks x_s|` of a track against its first observation `s`, over the
+/// other observations; `obs(k)` gives the delay-corrected observation at position `k`, `rel`
+/// the window's [`relative_rotations`].
+pub(super) fn max_parallax<const N: usize>(
+    rel: &[[Mat3; N]; N],
     count: usize,
     s: usize,
     obs: impl Fn(usize) -> Option<Vec3>,
 ) -> Option<(usize, f64, Vec3)> {
-    let (x_s, cs) = (obs(s)?, cams.get(s)?);
+    let x_s = obs(s)?;
     let mut best: Option<(usize, f64, Vec3)> = None;
-    for (k, ck) in cams.iter().enumerate().take(count) {
+    for (k, row) in rel.iter().enumerate().take(count) {
         if k == s {
             continue;
         }
         let Some(x_k) = obs(k) else { continue };
-        let (r_ks, _) = ck.relative_from(cs);
+        let Some(r_ks) = row.get(s) else { continue };
         let theta = x_k.cross(&(r_ks * x_s)).norm();
         if theta.is_finite() && best.is_none_or(|(_, t, _)| theta > t) {
             best = Some((k, theta, x_k));
@@ -84,7 +104,7 @@ impl<
         let Some(newest) = count.checked_sub(1).filter(|&n| n > 0) else {
             return (0, 0);
         };
-        let cams = self.window_cams();
+        let rel = relative_rotations(&self.window_cams(), count);
         let theta_ref = self.cfg.slot_parallax_ref;
         let td = |k: usize| self.window.get(k).map_or(0.0, |kf| kf.td_s);
         let timed = |o: &KfObs, k: usize| {
@@ -107,7 +127,7 @@ impl<
             let first = (0..count).find(|&k| store.find(k, id).is_some());
             let theta = first
                 .and_then(|s| {
-                    max_parallax(&cams, count, s, |k| {
+                    max_parallax(&rel, count, s, |k| {
                         store.find(k, id).map(|o| timed(&o.obs, k))
                     })
                 })
@@ -117,7 +137,7 @@ impl<
         let mut ls: HVec<(f64, u64), L> = HVec::new();
         for lm in self.lms.landmarks() {
             let alive = lm.obs.get(newest).is_some_and(|o| o.is_some());
-            let theta = max_parallax(&cams, count, lm.anchor_s as usize, |k| {
+            let theta = max_parallax(&rel, count, lm.anchor_s as usize, |k| {
                 corrected_obs(lm, k, td(k))
             })
             .map_or(0.0, |(_, t, _)| t);

@@ -9,10 +9,11 @@ use std::path::PathBuf;
 /// Arguments of `povins regress`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The CI form: two 30 s seeds per scenario instead of ten of 60 s (real sequences whole).
+    /// The CI form: eight 30 s seeds per scenario instead of ten of 60 s (real sequences whole;
+    /// two seeds were a coin flip, see `regress::QUICK_SEEDS`).
     #[arg(long)]
     pub quick: bool,
-    /// Seeds per scenario (default 10, or 2 with `--quick`); the stored figures cover seeds
+    /// Seeds per scenario (default 10, or 8 with `--quick`); the stored figures cover seeds
     /// 1-10, further seeds are judged on divergence only.
     #[arg(long)]
     pub seeds: Option<u64>,
