@@ -35,8 +35,8 @@ CARGO=/usr/bin/cargo
 for target in thumbv7em-none-eabihf aarch64-unknown-none; do
   echo "== build povins-core for $target"
   "$CARGO" build -q --release -p povins-core -Zbuild-std=core --target "$target"
-  echo "== check povins-core for $target with defmt, and without LiDAR storage (--no-default-features)"
-  "$CARGO" check -q --release -p povins-core -Zbuild-std=core --target "$target" --features defmt
+  echo "== check povins-core for $target with defmt and serde, and without LiDAR storage (--no-default-features)"
+  "$CARGO" check -q --release -p povins-core -Zbuild-std=core --target "$target" --features defmt,serde
   "$CARGO" check -q --release -p povins-core -Zbuild-std=core --target "$target" --no-default-features
 done
 

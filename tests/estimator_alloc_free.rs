@@ -67,7 +67,7 @@ fn counter_sees_allocations() {
 }
 
 fn euroc_alloc_free(mode: VisualMode) {
-    big_stack(move || {
+    small_stack(move || {
         let ds = load(EUROC_30S);
         let cfg = euroc_config(&ds, mode);
         let frames = frames_of(&ds);
@@ -105,7 +105,7 @@ fn euroc_inverse_depth_does_not_allocate() {
 
 #[test]
 fn simulated_robot_gt_init_does_not_allocate() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_robot(3, 15.0);
         let mut cfg = povins::host_tools::runner::config_for(&ds);
         let (start, s0) = gt_start(&ds, &mut cfg);
@@ -133,7 +133,7 @@ fn simulated_robot_gt_init_does_not_allocate() {
 /// LiDAR enhancement on (sweep intake and de-skew, association, rejection, MSC and direct
 /// LDM, depth-only optimization): still no heap.
 fn lidar_alloc_free(ldm: povins::core::lidar::LdmMode) {
-    big_stack(move || {
+    small_stack(move || {
         let ds = simulate_with_lidar(povins::host_tools::sim::Scenario::Robot, 3, 15.0);
         let mut cfg = sim_lidar_config(&ds, true);
         cfg.lidar.ldm = ldm;
@@ -184,7 +184,7 @@ fn simulated_robot_with_lidar_direct_does_not_allocate() {
 fn dmvio_images_through_vio_do_not_allocate() {
     use povins::core::frontend::image::{ImageView, TrackerConfig};
     use povins::core::vio::EurocVio;
-    big_stack(|| {
+    small_stack(|| {
         let mut ds = load("dmvio-realsense-handheld-60s");
         truncate(&mut ds, 16.0);
         ds.images
@@ -194,10 +194,11 @@ fn dmvio_images_through_vio_do_not_allocate() {
         let toml = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/dmvio.toml");
         povins::host_tools::config::RunConfigFile::read(std::path::Path::new(toml))
             .expect("configs/dmvio.toml")
-            .apply(&mut cfg);
+            .apply(&mut cfg)
+            .expect("configs/dmvio.toml applies");
         cfg.clock = None;
         let mut vio: Box<EurocVio> =
-            Box::new(EurocVio::new(cfg, TrackerConfig::default()).expect("vio"));
+            povins::platform::boxed::boxed_vio(cfg, TrackerConfig::default()).expect("vio");
         let (mut keyframes, mut images, mut tracks, mut predicted) = (0usize, 0usize, 0u64, 0u64);
         let mut ii = 0usize;
         let allocs = count_allocs(|| {

@@ -13,7 +13,7 @@ const CAPACITY: usize = 200;
 
 #[test]
 fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_robot(3, 15.0);
         let per_frame = ds.features.iter().map(|f| f.obs.len()).sum::<usize>() as f64
             / ds.features.len() as f64;
@@ -72,7 +72,7 @@ fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
 /// running afterwards.
 #[test]
 fn lm_iteration_and_explicit_marginalization() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let cfg = euroc_config(&ds, povins::core::estimator::VisualMode::PoseOnly);
         let frames = frames_of(&ds);

@@ -66,7 +66,7 @@ fn run_twice(
 
 #[test]
 fn euroc_30s_static_init_is_deterministic_and_golden() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let out = run_twice(
             &ds,
@@ -79,7 +79,7 @@ fn euroc_30s_static_init_is_deterministic_and_golden() {
 
 #[test]
 fn simulated_robot_20s_gt_init_is_deterministic_and_golden() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_robot(2, 20.0);
         let out = run_twice(&ds, config_for(&ds), InitMode::Groundtruth);
         check_golden("sim-robot-seed2-20s-gt", &out);
@@ -90,7 +90,7 @@ fn simulated_robot_20s_gt_init_is_deterministic_and_golden() {
 /// same bits run after run, and against the golden file. The LiDAR events are part of the hash.
 #[test]
 fn simulated_robot_20s_with_lidar_is_deterministic_and_golden() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_with_lidar(povins::host_tools::sim::Scenario::Robot, 2, 20.0);
         let cfg = config_for(&ds);
         assert!(
@@ -112,7 +112,7 @@ fn simulated_robot_20s_with_lidar_is_deterministic_and_golden() {
 /// The hash covers every reported number but none of the timings.
 #[test]
 fn report_hash_ignores_timings_only() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let out = replay(
             &ds,

@@ -71,7 +71,7 @@ fn run_sweeps(
 
 #[test]
 fn lidar_depths_are_associated_used_and_improve_accuracy() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_with_lidar(Scenario::Robot, 2, 40.0);
         let off = run(&ds, lidar_config(&ds, false, LdmMode::Msc, true, true));
         let on = run(&ds, lidar_config(&ds, true, LdmMode::Msc, true, true));
@@ -102,7 +102,7 @@ fn lidar_depths_are_associated_used_and_improve_accuracy() {
 #[test]
 fn corrupt_sweeps_are_rejected_and_counted() {
     use povins::core::lidar::LidarPoint;
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_with_lidar(Scenario::Robot, 4, 15.0);
         let clean = run(&ds, lidar_config(&ds, true, LdmMode::Msc, true, true));
         let mut bad = ds.clone();
@@ -167,7 +167,7 @@ fn corrupt_sweeps_are_rejected_and_counted() {
 /// cost, after 30 keyframes of the robot with LiDAR.
 #[test]
 fn gradient_check_with_lidar_depths() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_with_lidar(Scenario::Robot, 5, 12.0);
         for ldm in [LdmMode::Msc, LdmMode::Direct] {
             let mut cfg = lidar_config(&ds, true, ldm, true, true);

@@ -91,7 +91,7 @@ fn prediction_errors(
 
 #[test]
 fn euroc_predictions_land_near_the_tracked_features() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let e = prediction_errors(&ds, euroc_config(&ds, VisualMode::PoseOnly), None, &[]);
         let (mp, ms) = (median(&e.predicted), median(&e.still));
@@ -107,7 +107,7 @@ fn euroc_predictions_land_near_the_tracked_features() {
 
 #[test]
 fn lidar_landmarks_are_predicted_from_their_depth_only_optimized_depth() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_with_lidar(Scenario::Handheld, 3, 20.0);
         let mut cfg = sim_lidar_config(&ds, true);
         let start = gt_start(&ds, &mut cfg);
@@ -129,7 +129,7 @@ fn lidar_landmarks_are_predicted_from_their_depth_only_optimized_depth() {
 
 #[test]
 fn prediction_refuses_what_it_cannot_know() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let mut est: Box<PoVins> = new_estimator(euroc_config(&ds, VisualMode::PoseOnly));
         let mut buf = [FeaturePrediction::EMPTY; 4];

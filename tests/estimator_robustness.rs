@@ -119,7 +119,7 @@ fn assert_counters_equal_except(
 
 #[test]
 fn nonfinite_imu_samples_are_rejected_counted_and_change_nothing() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let clean = run(&ds, &ds.imu, &frames);
         let mut imu = Vec::new();
@@ -155,7 +155,7 @@ fn nonfinite_imu_samples_are_rejected_counted_and_change_nothing() {
 
 #[test]
 fn imu_time_going_backwards_or_repeating_is_rejected_counted_and_changes_nothing() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let clean = run(&ds, &ds.imu, &frames);
         let mut imu = Vec::new();
@@ -200,7 +200,7 @@ fn imu_time_going_backwards_or_repeating_is_rejected_counted_and_changes_nothing
 /// period after the gap initializes it again.
 #[test]
 fn imu_gap_at_rest_resets_and_reinitializes_from_the_next_static_period() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let (gap0, gap1) = (secs(&ds, 2.4), secs(&ds, 3.4));
         let imu: Vec<ImuSample> = ds
@@ -241,7 +241,7 @@ fn imu_gap_at_rest_resets_and_reinitializes_from_the_next_static_period() {
 /// `initialize` with the true state restarts it and it produces keyframes again.
 #[test]
 fn imu_gap_in_flight_resets_and_restarts_after_initialize() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let (gap0, gap1) = (secs(&ds, 15.0), secs(&ds, 16.0));
         let imu: Vec<ImuSample> = ds
@@ -288,7 +288,7 @@ fn imu_gap_in_flight_resets_and_restarts_after_initialize() {
 /// longer than `MAX_FEATURES`. Every one is counted and none changes the output.
 #[test]
 fn junk_observations_are_rejected_counted_and_change_nothing() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, mut frames) = euroc();
         let clean = run(&ds, &ds.imu, &frames);
         // Frames before the initialization only feed track velocities and are not counted.
@@ -360,7 +360,7 @@ fn junk_observations_are_rejected_counted_and_change_nothing() {
 /// flight: the estimator keeps running on the INS and recovers when features return.
 #[test]
 fn empty_frames_and_a_camera_blackout_are_survived() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let (b0, b1) = (secs(&ds, 14.0), secs(&ds, 15.0));
         let mut corrupted: Frames = Vec::new();
@@ -395,7 +395,7 @@ fn empty_frames_and_a_camera_blackout_are_survived() {
 /// initialization: the frame they follow is still pending) and change nothing.
 #[test]
 fn frame_time_going_backwards_is_rejected_counted_and_changes_nothing() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let clean = run(&ds, &ds.imu, &frames);
         let t_init = init_time(&clean);
@@ -481,7 +481,7 @@ fn frame_far_ahead(lead_s: f64) -> (Dataset, Run, u64, i64) {
 /// resets.
 #[test]
 fn frames_far_ahead_of_the_imu_are_refused_counted() {
-    big_stack(|| {
+    small_stack(|| {
         for lead_s in [2.0, 5.0] {
             let (ds, r, _blocked, t_far) = frame_far_ahead(lead_s);
             let ate = ate_m(&ds, &r.states);
@@ -506,7 +506,7 @@ fn frames_far_ahead_of_the_imu_are_refused_counted() {
 /// own time; in bursts of six the two oldest of each burst are dropped and counted.
 #[test]
 fn frames_arriving_ahead_of_the_imu_in_bursts_are_queued_or_dropped_counted() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let burst = 6;
         let offered: Vec<(i64, i64, Vec<FeatureObs>)> = frames
@@ -536,7 +536,7 @@ fn frames_arriving_ahead_of_the_imu_in_bursts_are_queued_or_dropped_counted() {
 /// with finite output. The trajectory after them is lost (see the printed numbers).
 #[test]
 fn absurd_finite_imu_values_do_not_panic_and_keep_the_output_finite() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let i0 = ds.imu.partition_point(|s| s.t_ns < secs(&ds, 15.0));
         let mut imu = ds.imu.clone();
@@ -567,7 +567,7 @@ fn absurd_finite_imu_values_do_not_panic_and_keep_the_output_finite() {
 /// range check, so the output stays finite.
 #[test]
 fn huge_finite_imu_values_keep_the_output_finite() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
         let i0 = ds.imu.partition_point(|s| s.t_ns < secs(&ds, 15.0));
         let mut imu = ds.imu.clone();
@@ -584,10 +584,9 @@ fn huge_finite_imu_values_keep_the_output_finite() {
 /// starts near `i64::MIN` and jumps to `i64::MAX`, with frames at both ends.
 #[test]
 fn extreme_timestamps_do_not_overflow() {
-    big_stack(|| {
+    small_stack(|| {
         let (ds, frames) = euroc();
-        let mut est =
-            Box::new(PoVins::new(euroc_config(&ds, VisualMode::PoseOnly)).expect("config"));
+        let mut est = new_estimator(euroc_config(&ds, VisualMode::PoseOnly));
         let t0 = i64::MIN + 1_000;
         let g0 = interpolate_state(&ds.ground_truth, ds.imu[1200].t_ns).expect("gt");
         est.initialize(NavState { t_ns: t0, ..g0 }).expect("init");

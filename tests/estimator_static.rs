@@ -43,25 +43,11 @@ impl Run {
     }
 }
 
-/// Runs `f` on a thread with a [`SMALL_STACK`] and propagates its panic.
-fn on_small_stack<T: Send>(f: impl FnOnce() -> T + Send) -> T {
-    std::thread::scope(|s| {
-        let h = std::thread::Builder::new()
-            .stack_size(SMALL_STACK)
-            .spawn_scoped(s, f)
-            .expect("spawn a small-stack thread");
-        match h.join() {
-            Ok(v) => v,
-            Err(p) => std::panic::resume_unwind(p),
-        }
-    })
-}
-
 /// Configures the static estimator with `cfg` and replays `ds` through it (IMU samples and
 /// camera frames in time order, as `runner::replay` feeds them), on a small stack.
 fn run_static(ds: &Dataset, cfg: EstimatorConfig) -> Run {
     let frames = frames_of(ds);
-    on_small_stack(|| {
+    on_stack(SMALL_STACK, || {
         let mut est = EST.lock().unwrap_or_else(|p| p.into_inner());
         est.configure(cfg).expect("a valid configuration");
         assert_eq!(est.status(), Status::WaitingForInit);
@@ -151,7 +137,7 @@ fn unconfigured_estimator_refuses_input_until_configured() {
     static FRESH: Mutex<PoVins> = Mutex::new(PoVins::empty());
     let ds = load(EUROC_30S);
     let cfg = euroc_config(&ds, VisualMode::PoseOnly);
-    on_small_stack(|| {
+    on_stack(SMALL_STACK, || {
         let mut est = FRESH.lock().unwrap_or_else(|p| p.into_inner());
         assert_eq!(est.status(), Status::Unconfigured);
         let s: ImuSample = ds.imu[0];

@@ -67,7 +67,7 @@ fn replay_pushed_late(
 
 #[test]
 fn frames_pushed_late_within_the_horizon_give_the_same_output() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let cfg = euroc_config(&ds, VisualMode::PoseOnly);
         let frames: Vec<(i64, &[FeatureObs])> = ds
@@ -102,7 +102,7 @@ fn frames_pushed_late_within_the_horizon_give_the_same_output() {
 
 #[test]
 fn sweeps_pushed_before_the_imu_reaches_them_are_held() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = simulate_with_lidar(Scenario::Robot, 1, 12.0);
         let mut cfg = sim_lidar_config(&ds, true);
         let (start, s0) = gt_start(&ds, &mut cfg);
@@ -131,7 +131,7 @@ fn sweeps_pushed_before_the_imu_reaches_them_are_held() {
 
 #[test]
 fn a_full_imu_queue_is_reported_and_drains() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let mut est: Box<PoVins> = new_estimator(euroc_config(&ds, VisualMode::PoseOnly));
         for s in &ds.imu[..IMU_QUEUE] {

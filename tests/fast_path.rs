@@ -7,7 +7,7 @@ mod common;
 
 use common::*;
 use povins::core::camera::FeatureObs;
-use povins::core::estimator::{PoVins, VisualMode};
+use povins::core::estimator::VisualMode;
 use povins::core::inertial::{FastPath, ImuSample, InsUpdate};
 use std::collections::VecDeque;
 
@@ -22,7 +22,7 @@ struct Tally {
 fn follow_euroc(delay: usize) -> Tally {
     let ds = load(EUROC_30S);
     let cfg = euroc_config(&ds, VisualMode::PoseOnly);
-    let mut est = PoVins::new(cfg).expect("valid configuration");
+    let mut est = new_estimator(cfg);
     let mut fast: FastPath<256> = FastPath::with_limits(cfg.max_gyro_rps, cfg.max_accel_mps2);
     let frames: Vec<(i64, &[FeatureObs])> = ds
         .features
@@ -70,7 +70,7 @@ fn follow_euroc(delay: usize) -> Tally {
 
 #[test]
 fn fast_path_in_lockstep_is_the_estimators_output() {
-    let t = big_stack(|| follow_euroc(0));
+    let t = small_stack(|| follow_euroc(0));
     // Every running sample compared; updates at keyframes and interpolated frames only.
     assert!(t.keyframes > 40, "only {} keyframes", t.keyframes);
     assert!(t.compared > 4000, "only {} states compared", t.compared);
@@ -87,7 +87,7 @@ fn late_updates_replay_to_the_estimators_output() {
     // Updates come at most once per camera frame (10 IMU samples on EuRoC): delays below that
     // leave samples with none in flight, where the states must agree exactly.
     for delay in [1, 5, 9] {
-        let t = big_stack(move || follow_euroc(delay));
+        let t = small_stack(move || follow_euroc(delay));
         assert!(
             t.compared > 500,
             "delay {delay}: only {} compared",

@@ -29,6 +29,15 @@ fn reference(ds: &Dataset) -> Vec<NavState> {
 
 /// The pipeline's published poses and its report.
 fn pipeline(ds: &Dataset, deterministic: bool) -> (Vec<NavState>, PipelineReport) {
+    pipeline_from(ds, deterministic, InitMode::Static)
+}
+
+/// The pipeline's published poses and its report, the estimator started by `init`.
+fn pipeline_from(
+    ds: &Dataset,
+    deterministic: bool,
+    init: InitMode,
+) -> (Vec<NavState>, PipelineReport) {
     let cfg = euroc_config(ds, VisualMode::PoseOnly);
     let mut poses = Vec::with_capacity(ds.imu.len());
     let opts = RealtimeOptions {
@@ -38,14 +47,14 @@ fn pipeline(ds: &Dataset, deterministic: bool) -> (Vec<NavState>, PipelineReport
     };
     let report = {
         let mut sink = CallbackSink::poses(|p: &PoseOut| poses.push(p.nav));
-        run_dataset(ds, cfg, InitMode::Static, &opts, &mut sink, &hidden()).expect("pipeline")
+        run_dataset(ds, cfg, init, &opts, &mut sink, &hidden()).expect("pipeline")
     };
     (poses, report)
 }
 
 #[test]
 fn deterministic_pipeline_is_the_replay_bit_for_bit() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let want = reference(&ds);
         let (got, report) = pipeline(&ds, true);
@@ -71,7 +80,7 @@ fn deterministic_pipeline_is_the_replay_bit_for_bit() {
 
 #[test]
 fn realtime_pipeline_runs_to_the_end_without_drops() {
-    big_stack(|| {
+    small_stack(|| {
         let ds = load(EUROC_30S);
         let (det, _) = pipeline(&ds, true);
         let (got, report) = pipeline(&ds, false);
@@ -97,5 +106,40 @@ fn realtime_pipeline_runs_to_the_end_without_drops() {
         );
         // The back end's updates were applied late (re-propagated), yet in order.
         assert!(report.fast_path.updates > 40);
+    });
+}
+
+/// Started from ground truth, the real-time pipeline publishes a pose at every sample from the
+/// first one, as the replay does (the fast path starts with the estimator's initial state,
+/// not with the back end's first reply): as many poses, and the first ones bit for bit (the
+/// fast path propagates the same INS over the same samples until the first keyframe's update).
+#[test]
+fn realtime_pipeline_from_ground_truth_publishes_from_the_first_sample() {
+    small_stack(|| {
+        let ds = load(EUROC_30S);
+        let cfg = euroc_config(&ds, VisualMode::PoseOnly);
+        let want = replay(&ds, cfg, InitMode::Groundtruth, &hidden())
+            .expect("replay")
+            .imu_rate;
+        let (got, report) = pipeline_from(&ds, false, InitMode::Groundtruth);
+        assert!(want.len() > 4000, "only {} reference states", want.len());
+        assert_eq!(got.len(), want.len(), "number of IMU-rate poses");
+        assert_eq!(report.counters.poses_out as usize, want.len());
+        assert_eq!(
+            got.first().map(state_bits),
+            want.first().map(state_bits),
+            "first pose"
+        );
+        let (last, last_want) = (got.last().expect("poses"), want.last().expect("poses"));
+        assert_eq!(last.t_ns, last_want.t_ns);
+        let (det, _) = pipeline_from(&ds, true, InitMode::Groundtruth);
+        assert_eq!(det.len(), want.len(), "deterministic, from ground truth");
+        for (k, (g, w)) in det.iter().zip(&want).enumerate() {
+            assert_eq!(
+                state_bits(g),
+                state_bits(w),
+                "deterministic pose {k} differs"
+            );
+        }
     });
 }

@@ -58,6 +58,11 @@ pub type HdVio = Vio<10, 200, 166, 256, { pyramid_bytes(1280, 720, 4) }, 4>;
 /// Which parts of the INS aid the tracker.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct VioAiding {
     /// Seed features with a landmark depth at their INS-predicted pixel.
     pub predictions: bool,
@@ -152,6 +157,55 @@ impl<
             hints: [(0, [0.0; 2]); L],
             counters: VioCounters::default(),
         })
+    }
+
+    /// An unconfigured estimator and tracker ([`Estimator::empty`], [`FeatureTracker::empty`]),
+    /// to be [`Self::configure`]d: `const`, so it can initialize a `static` or be written to the
+    /// heap without passing through a stack (`povins_platform::boxed::boxed_vio`).
+    pub const fn empty() -> Self {
+        Vio {
+            est: Estimator::empty(),
+            tracker: FeatureTracker::empty(),
+            aiding: VioAiding {
+                predictions: true,
+                gyro_rotation: true,
+            },
+            gyro: GyroIntegrator::new(),
+            bg: Vec3::new(0.0, 0.0, 0.0),
+            last_image_ns: None,
+            preds: [FeaturePrediction::EMPTY; L],
+            hints: [(0, [0.0; 2]); L],
+            counters: VioCounters {
+                images: 0,
+                images_rejected: 0,
+                frames_rejected: 0,
+                no_rotation_seed: 0,
+            },
+        }
+    }
+
+    /// Validates both configurations as [`Self::new`] does (and then nothing changes) and
+    /// resets the estimator ([`Estimator::configure`]) and the tracker
+    /// ([`FeatureTracker::configure`]) in place: the state `new(estimator, tracker)` builds,
+    /// default aiding included. Builds nothing large on the stack.
+    pub fn configure(
+        &mut self,
+        estimator: crate::estimator::EstimatorConfig,
+        tracker: TrackerConfig,
+    ) -> Result<(), Error> {
+        // Checked first, so that nothing changes when either is invalid (the estimator's
+        // `configure` changes nothing when it fails).
+        FeatureTracker::<F, BYTES, LEVELS>::check(&tracker)?;
+        self.est.configure(estimator)?;
+        self.tracker.configure(tracker)?;
+        self.aiding = VioAiding::default();
+        self.gyro.clear();
+        self.bg = Vec3::zeros();
+        self.last_image_ns = None;
+        self.preds.fill(FeaturePrediction::EMPTY);
+        self.hints.fill((0, [0.0; 2]));
+        self.counters = VioCounters::default();
+        Ok(())
     }
 
     /// Chooses which INS aids the tracker gets (both by default).

@@ -410,7 +410,7 @@ impl Pair {
                 }
                 let mut base = config_for(&ds);
                 if let Some(f) = overrides {
-                    f.apply(&mut base);
+                    f.apply(&mut base).map_err(|e| format!("{e:#}"))?;
                 }
                 Ok(Arc::new((ds, base)))
             });
@@ -472,53 +472,50 @@ pub fn run_ablation(
         let mut workers = Vec::new();
         for _ in 0..cfg.jobs.min(units) {
             let (pairs, next, failed) = (&pairs, &next, &failed);
-            // The estimator is built on the stack before it is boxed: give it room.
-            let h = std::thread::Builder::new()
-                .stack_size(64 << 20)
-                .spawn_scoped(sc, move || {
-                    let mut done = Vec::new();
-                    while !failed.load(Ordering::Relaxed) {
-                        let u = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(pair) = pairs.get(u / nv) else { break };
-                        let vi = (u % nv + u / nv) % nv;
-                        let v = Variant::ALL[vi];
-                        let r = pair
-                            .prepared(
-                                cfg.duration_s,
-                                cfg.lidar_extrinsic_error_deg,
-                                cfg.foliage_porosity,
-                                overrides,
-                                progress,
-                            )
-                            .map_err(|e| anyhow!(e))
-                            .and_then(|d| run_one(&d.0, &d.1, pair.scenario, pair.seed, v))
-                            .map_err(|e| {
-                                e.context(format!(
-                                    "{} seed {} {}",
-                                    pair.scenario.name(),
-                                    pair.seed,
-                                    v.name()
-                                ))
-                            });
-                        pair.release();
-                        match &r {
-                            Ok(r) => progress.note(&format!(
-                                "{} seed {} {:<12} ATE {} m, {} keyframes, back end median {:.2} ms",
-                                r.scenario,
-                                r.seed,
-                                v.name(),
-                                r.ate_pos_rmse_m
-                                    .map_or("n/a".to_string(), |a| format!("{a:.4}")),
-                                r.keyframes,
-                                r.backend_ms_median
-                            )),
-                            Err(_) => failed.store(true, Ordering::Relaxed),
-                        }
-                        progress.inc(1);
-                        done.push((u / nv * nv + vi, r));
+            let h = std::thread::Builder::new().spawn_scoped(sc, move || {
+                let mut done = Vec::new();
+                while !failed.load(Ordering::Relaxed) {
+                    let u = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(pair) = pairs.get(u / nv) else { break };
+                    let vi = (u % nv + u / nv) % nv;
+                    let v = Variant::ALL[vi];
+                    let r = pair
+                        .prepared(
+                            cfg.duration_s,
+                            cfg.lidar_extrinsic_error_deg,
+                            cfg.foliage_porosity,
+                            overrides,
+                            progress,
+                        )
+                        .map_err(|e| anyhow!(e))
+                        .and_then(|d| run_one(&d.0, &d.1, pair.scenario, pair.seed, v))
+                        .map_err(|e| {
+                            e.context(format!(
+                                "{} seed {} {}",
+                                pair.scenario.name(),
+                                pair.seed,
+                                v.name()
+                            ))
+                        });
+                    pair.release();
+                    match &r {
+                        Ok(r) => progress.note(&format!(
+                            "{} seed {} {:<12} ATE {} m, {} keyframes, back end median {:.2} ms",
+                            r.scenario,
+                            r.seed,
+                            v.name(),
+                            r.ate_pos_rmse_m
+                                .map_or("n/a".to_string(), |a| format!("{a:.4}")),
+                            r.keyframes,
+                            r.backend_ms_median
+                        )),
+                        Err(_) => failed.store(true, Ordering::Relaxed),
                     }
-                    done
-                })?;
+                    progress.inc(1);
+                    done.push((u / nv * nv + vi, r));
+                }
+                done
+            })?;
             workers.push(h);
         }
         for h in workers {

@@ -44,32 +44,21 @@ enum Cmd {
     Timing(cmd::timing::Args),
 }
 
-/// Stack of the thread that runs a command: the estimator (several MB of fixed-capacity
-/// buffers) is built by value before it is boxed, which the 8 MB main stack does not survive
-/// in unoptimized builds. Only the pages actually touched are committed.
-const COMMAND_STACK_BYTES: usize = 256 << 20;
-
 fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
-    let worker = std::thread::Builder::new()
-        .name("povins".into())
-        .stack_size(COMMAND_STACK_BYTES)
-        .spawn(move || match cli.cmd {
-            Cmd::Demo(a) => cmd::demo::run(a),
-            Cmd::Simulate(a) => cmd::simulate::run(a),
-            Cmd::Eval(a) => cmd::eval::run(a),
-            Cmd::Plot(a) => cmd::plot::run(a),
-            Cmd::Run(a) => cmd::run::run(a),
-            Cmd::Track(a) => cmd::track::run(a),
-            Cmd::CompareTracks(a) => cmd::compare_tracks::run(a),
-            Cmd::ScoreTracks(a) => cmd::score_tracks::run(a),
-            Cmd::Ablation(a) => cmd::ablation::run(a),
-            Cmd::Regress(a) => cmd::regress::run(a),
-            Cmd::Replay(a) => cmd::replay::run(a),
-            Cmd::Timing(a) => cmd::timing::run(a),
-        })?;
-    match worker.join() {
-        Ok(r) => r,
-        Err(p) => std::panic::resume_unwind(p),
+    // On the main thread's stack: the estimator and the image front end are built in place on
+    // the heap (`povins_platform::boxed`), and processing needs no large stack.
+    match Cli::parse().cmd {
+        Cmd::Demo(a) => cmd::demo::run(a),
+        Cmd::Simulate(a) => cmd::simulate::run(a),
+        Cmd::Eval(a) => cmd::eval::run(a),
+        Cmd::Plot(a) => cmd::plot::run(a),
+        Cmd::Run(a) => cmd::run::run(a),
+        Cmd::Track(a) => cmd::track::run(a),
+        Cmd::CompareTracks(a) => cmd::compare_tracks::run(a),
+        Cmd::ScoreTracks(a) => cmd::score_tracks::run(a),
+        Cmd::Ablation(a) => cmd::ablation::run(a),
+        Cmd::Regress(a) => cmd::regress::run(a),
+        Cmd::Replay(a) => cmd::replay::run(a),
+        Cmd::Timing(a) => cmd::timing::run(a),
     }
 }

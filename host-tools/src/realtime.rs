@@ -6,7 +6,7 @@
 use crate::progress::Progress;
 use crate::runner::{start_state, InitMode};
 use anyhow::{bail, Context, Result};
-use povins_core::estimator::{EstimatorConfig, PoVins};
+use povins_core::estimator::EstimatorConfig;
 use povins_platform::pipeline::{
     self, DatasetSource, Pacing, PipelineConfig, PipelineReport, Sink,
 };
@@ -59,12 +59,10 @@ pub fn run_dataset<K: Sink + Send>(
         );
     }
     let (start, gt_start) = start_state(ds, &mut cfg, init)?;
-    // Built by value and boxed on the calling thread, as `runner::replay` does (the povins
-    // command runs on a 256 MB stack; tests use a big-stack thread); the pipeline's threads
-    // only borrow it and need the core's processing stack.
-    let mut est = Box::new(
-        PoVins::new(cfg).map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?,
-    );
+    // Built in place on the heap (never on a stack, also in unoptimized builds); the
+    // pipeline's threads only borrow it and need the core's processing stack.
+    let mut est = povins_platform::boxed::boxed_povins(cfg)
+        .map_err(|e| anyhow::anyhow!("invalid estimator configuration: {e}"))?;
     if let Some(s0) = gt_start {
         est.initialize(s0)
             .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;

@@ -236,31 +236,26 @@ pub fn run_all(seqs: &[Sequence], jobs: usize, progress: &Progress) -> Result<Ve
         let mut hs = Vec::new();
         for _ in 0..jobs.clamp(1, seqs.len().max(1)) {
             let (next, slots) = (&next, &slots);
-            hs.push(
-                std::thread::Builder::new()
-                    // The estimator is built by value before it is boxed.
-                    .stack_size(64 << 20)
-                    .spawn_scoped(sc, move || loop {
-                        let i = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(seq) = seqs.get(i) else { break };
-                        progress.set_message(seq.name());
-                        let r = run_sequence(seq);
-                        if let Ok(r) = &r {
-                            progress.note(&format!(
-                                "{:<28} ATE {:.4} m{}",
-                                r.name,
-                                r.ate_m,
-                                if r.diverged { "  DIVERGED" } else { "" }
-                            ));
-                        }
-                        progress.inc(1);
-                        if let Ok(mut s) = slots.lock() {
-                            if let Some(slot) = s.get_mut(i) {
-                                *slot = Some(r);
-                            }
-                        }
-                    })?,
-            );
+            hs.push(std::thread::Builder::new().spawn_scoped(sc, move || loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(seq) = seqs.get(i) else { break };
+                progress.set_message(seq.name());
+                let r = run_sequence(seq);
+                if let Ok(r) = &r {
+                    progress.note(&format!(
+                        "{:<28} ATE {:.4} m{}",
+                        r.name,
+                        r.ate_m,
+                        if r.diverged { "  DIVERGED" } else { "" }
+                    ));
+                }
+                progress.inc(1);
+                if let Ok(mut s) = slots.lock() {
+                    if let Some(slot) = s.get_mut(i) {
+                        *slot = Some(r);
+                    }
+                }
+            })?);
         }
         for h in hs {
             h.join()

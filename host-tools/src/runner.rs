@@ -263,9 +263,9 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> VioDriver
     for Vio<10, 200, 166, F, BYTES, LEVELS>
 {
     fn build(cfg: EstimatorConfig, tracker: TrackerConfig) -> Result<Box<Self>> {
-        Ok(Box::new(Vio::new(cfg, tracker).map_err(|e| {
-            anyhow::anyhow!("invalid estimator or front-end configuration: {e}")
-        })?))
+        // Built in place on the heap: never on the stack, also in unoptimized builds.
+        povins_platform::boxed::boxed_vio(cfg, tracker)
+            .map_err(|e| anyhow::anyhow!("invalid estimator or front-end configuration: {e}"))
     }
     fn est(&self) -> &povins_core::estimator::PoVins {
         self.estimator()

@@ -375,6 +375,26 @@ fn run_writes_the_lidar_columns_and_summary_keys() {
 
     check_keyframe_states(&out, &ds);
 
+    // `config.toml` is the run's effective configuration: given back as `--config` (without the
+    // switches), it gives the same configuration, bit for bit.
+    let loaded = povins_host_tools::cmd::run::load_dataset(&mcap).unwrap();
+    let m = mcap.to_str().unwrap();
+    let effective = out.join("config.toml");
+    let text = std::fs::read_to_string(&effective).unwrap();
+    assert!(text.contains("[lidar.association]"), "{text}");
+    let cfg = estimator_config(
+        &run_args(&[m, "--ldm", "direct", "--no-depth-only-opt"]),
+        &loaded,
+    );
+    let back = estimator_config(
+        &run_args(&[m, "--config", effective.to_str().unwrap()]),
+        &loaded,
+    );
+    assert_eq!(
+        format!("{:?}", cfg.unwrap()),
+        format!("{:?}", back.unwrap())
+    );
+
     let s = json(&out.join("summary.json"));
     assert_eq!(s["lidar"], true);
     assert_eq!(s["ldm"], "direct");

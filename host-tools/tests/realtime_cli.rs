@@ -1,6 +1,7 @@
 //! `povins replay --realtime` and `povins timing` on the repository's EuRoC 30 s tracks: the
 //! deterministic pipeline writes `povins run`'s `trajectory.tum` byte for byte (same
-//! configuration code, same start, same order), and `timing --json` reports a run with no drop.
+//! configuration code, same start, same order), the run's `config.toml` repeats it byte for byte,
+//! and `timing --json` reports a run with no drop.
 //! No timed assertion.
 
 mod common;
@@ -53,6 +54,22 @@ fn deterministic_replay_writes_the_runs_trajectory() {
         a == b,
         "the deterministic pipeline's trajectory differs from povins run's"
     );
+    // The run's `config.toml`, given back as `--config`, repeats the run byte for byte.
+    let again = dir.path().join("again");
+    let effective = run_dir.join("config.toml");
+    let (ok, _, err) = povins(&[
+        "run",
+        EUROC,
+        "--config",
+        effective.to_str().expect("utf-8 path"),
+        "--frontend",
+        "tracks",
+        "--out",
+        again.to_str().expect("utf-8 path"),
+    ]);
+    assert!(ok, "run with the written config failed: {err}");
+    let c = std::fs::read(again.join("trajectory.tum")).expect("the second run's trajectory");
+    assert!(b == c, "the written config.toml does not repeat the run");
 }
 
 #[test]
@@ -77,4 +94,110 @@ fn timing_json_reports_no_drop_and_replay_needs_realtime() {
     let (ok, _, err) = povins(&["replay", EUROC]);
     assert!(!ok);
     assert!(err.contains("--realtime"), "{err}");
+}
+
+/// The TUM file's poses as (time string, the other seven numbers as written).
+fn tum_lines(path: &std::path::Path) -> Vec<(String, Vec<f64>)> {
+    std::fs::read_to_string(path)
+        .expect("a TUM file")
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let mut it = l.split_whitespace();
+            let t = it.next().expect("a time").to_string();
+            (t, it.map(|v| v.parse().expect("a number")).collect())
+        })
+        .collect()
+}
+
+/// Real time (not lockstep) from ground truth: the pipeline publishes a pose at every sample
+/// from the first, as many as `povins run --init groundtruth` writes; `--mcap-out` writes the
+/// same poses as `foxglove.PoseInFrame` JSON messages on /povins/pose (and the keyframes on
+/// /povins/keyframe), read back here with the mcap crate.
+#[test]
+fn realtime_replay_from_ground_truth_writes_every_pose_and_an_mcap() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (rt_dir, run_dir) = (dir.path().join("rt"), dir.path().join("run"));
+    let mcap_path = dir.path().join("poses.mcap");
+    let (ok, out, err) = povins(&[
+        "replay",
+        "--realtime",
+        EUROC,
+        "--config",
+        CONFIG,
+        "--init",
+        "groundtruth",
+        "--speed",
+        "0",
+        "--no-rt",
+        "--out",
+        rt_dir.to_str().expect("utf-8 path"),
+        "--mcap-out",
+        mcap_path.to_str().expect("utf-8 path"),
+    ]);
+    assert!(ok, "replay failed: {err}");
+    assert!(out.contains("mcap "), "no mcap line: {out}");
+    let (ok, _, err) = povins(&[
+        "run",
+        EUROC,
+        "--config",
+        CONFIG,
+        "--init",
+        "groundtruth",
+        "--frontend",
+        "tracks",
+        "--out",
+        run_dir.to_str().expect("utf-8 path"),
+    ]);
+    assert!(ok, "run failed: {err}");
+    let rt = tum_lines(&rt_dir.join("trajectory.tum"));
+    let run = tum_lines(&run_dir.join("trajectory.tum"));
+    assert!(run.len() > 5000, "only {} poses from povins run", run.len());
+    assert_eq!(rt.len(), run.len(), "poses: real-time replay vs povins run");
+    assert_eq!(rt.first(), run.first(), "first pose");
+    assert_eq!(
+        rt.last().map(|p| &p.0),
+        run.last().map(|p| &p.0),
+        "last stamp"
+    );
+
+    let bytes = std::fs::read(&mcap_path).expect("the MCAP file");
+    let mut poses = Vec::new();
+    let mut keyframes = 0usize;
+    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let m = m.expect("a message");
+        let schema = m.channel.schema.as_ref().expect("a schema");
+        assert_eq!(schema.name, "foxglove.PoseInFrame");
+        assert_eq!(schema.encoding, "jsonschema");
+        assert_eq!(m.channel.message_encoding, "json");
+        let v: serde_json::Value = serde_json::from_slice(&m.data).expect("a JSON message");
+        match m.channel.topic.as_str() {
+            "/povins/pose" => poses.push((m.log_time, v)),
+            "/povins/keyframe" => keyframes += 1,
+            t => panic!("unexpected topic {t}"),
+        }
+    }
+    assert_eq!(poses.len(), rt.len(), "MCAP poses vs TUM poses");
+    assert!(keyframes > 40, "only {keyframes} keyframes");
+    let (t0, first) = &poses[0];
+    let (sec, nsec) = (
+        first["timestamp"]["sec"].as_u64().expect("sec"),
+        first["timestamp"]["nsec"].as_u64().expect("nsec"),
+    );
+    assert_eq!(sec * 1_000_000_000 + nsec, *t0);
+    let t_tum: f64 = rt[0].0.parse().expect("a time");
+    assert!(
+        (*t0 as f64 * 1e-9 - t_tum).abs() < 1e-6,
+        "{t0} ns vs {t_tum} s"
+    );
+    assert_eq!(first["frame_id"], "world");
+    let p = &first["pose"]["position"];
+    let q = &first["pose"]["orientation"];
+    let got: Vec<f64> = [
+        &p["x"], &p["y"], &p["z"], &q["x"], &q["y"], &q["z"], &q["w"],
+    ]
+    .iter()
+    .map(|v| v.as_f64().expect("a number"))
+    .collect();
+    assert_eq!(got, rt[0].1, "first MCAP pose vs the TUM file's");
 }

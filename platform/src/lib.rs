@@ -6,6 +6,7 @@
 //! back-end threads (SPSC queues, pinned cores, `SCHED_FIFO`, latency histograms) fed by a
 //! [`pipeline::Source`] and publishing to a [`pipeline::Sink`].
 
+pub mod boxed;
 pub mod cdr;
 pub mod dataset;
 pub mod error;

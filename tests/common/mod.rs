@@ -68,7 +68,8 @@ pub fn euroc_config(ds: &Dataset, mode: VisualMode) -> EstimatorConfig {
     let mut cfg = config_for(ds);
     let file = RunConfigFile::read(Path::new(EUROC_TOML))
         .unwrap_or_else(|e| panic!("cannot read {EUROC_TOML}: {e:#}"));
-    file.apply(&mut cfg);
+    file.apply(&mut cfg)
+        .unwrap_or_else(|e| panic!("cannot apply {EUROC_TOML}: {e:#}"));
     cfg.mode = mode;
     cfg
 }
@@ -225,7 +226,7 @@ pub fn state_bits(s: &NavState) -> Vec<u64> {
 
 /// A new boxed estimator.
 pub fn new_estimator(cfg: EstimatorConfig) -> Box<PoVins> {
-    Box::new(PoVins::new(cfg).expect("a valid estimator configuration"))
+    povins::platform::boxed::boxed_povins(cfg).expect("a valid estimator configuration")
 }
 
 /// Position ATE RMSE (position + yaw alignment, evo's matching rules) of `states` against the
@@ -261,17 +262,26 @@ pub fn state_is_finite(s: &NavState) -> bool {
         && s.q_wb.coords.iter().all(|x| x.is_finite())
 }
 
-/// Runs `f` on a thread with a 64 MB stack and propagates its panic. `PoVins::new` returns the
-/// 1.5 MB estimator by value, so `Box::new(PoVins::new(..))` (also in `runner::replay`) can
-/// overflow the test harness's 2 MB thread stacks at this optimization level.
-pub fn big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
-    match std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(f)
-        .expect("spawn a test thread")
-        .join()
-    {
-        Ok(v) => v,
-        Err(p) => std::panic::resume_unwind(p),
-    }
+/// Stack of the threads the tests run the estimator on: half the test harness's default. The
+/// estimator (5.6 MB) and the image front end are built on the heap ([`new_estimator`],
+/// `povins::platform::boxed`), so a test that overflows this has put one on the stack.
+pub const TEST_STACK: usize = 1 << 20;
+
+/// Runs `f` on a thread with a `bytes` stack and propagates its panic.
+pub fn on_stack<T: Send>(bytes: usize, f: impl FnOnce() -> T + Send) -> T {
+    std::thread::scope(|s| {
+        let h = std::thread::Builder::new()
+            .stack_size(bytes)
+            .spawn_scoped(s, f)
+            .expect("spawn a test thread");
+        match h.join() {
+            Ok(v) => v,
+            Err(p) => std::panic::resume_unwind(p),
+        }
+    })
+}
+
+/// Runs `f` on a thread with a [`TEST_STACK`] stack and propagates its panic.
+pub fn small_stack<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+    on_stack(TEST_STACK, f)
 }

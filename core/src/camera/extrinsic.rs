@@ -9,10 +9,16 @@ use crate::math::{Mat3, Quat, Vec3};
 
 /// Camera–IMU extrinsic: pose of the camera frame `c` in the body (IMU) frame `b`.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct CameraExtrinsic {
     /// Camera origin in the body frame, m.
     pub p_bc: Vec3,
-    /// Rotation camera -> body.
+    /// Rotation camera -> body (serialized as `[x, y, z, w]`: `math::serde_quat_xyzw`).
+    #[cfg_attr(feature = "serde", serde(with = "crate::math::serde_quat_xyzw"))]
     pub q_bc: Quat,
 }
 

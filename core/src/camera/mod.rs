@@ -34,6 +34,11 @@ pub struct FeatureObs {
 /// Lens distortion model of a [`PinholeCamera`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum Distortion {
     /// No distortion.
     None,
@@ -58,6 +63,11 @@ pub enum Distortion {
 /// Pinhole camera intrinsics with distortion.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct PinholeCamera {
     /// Image width, px.
     pub width: u32,

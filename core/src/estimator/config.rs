@@ -13,6 +13,11 @@ use crate::Error;
 /// How visual landmarks enter the optimization.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum VisualMode {
     /// PO-VINS: landmarks are not states; pose-only reprojection measurements.
     PoseOnly,
@@ -23,6 +28,11 @@ pub enum VisualMode {
 /// Where a pose-only landmark's depth comes from (see `estimator::problem_visual`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum VisualDepth {
     /// The paper's two-view depth from the anchors `(s, e)`, exact in every residual.
     TwoView,
@@ -36,6 +46,11 @@ pub enum VisualDepth {
 /// first marginalization folds it into the marginalization prior).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct FirstStatePrior {
     /// Position, m.
     pub p_m: f64,
@@ -51,6 +66,11 @@ pub struct FirstStatePrior {
 
 /// Everything the estimator needs to know before the first sample.
 #[derive(Debug, Clone, Copy)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct EstimatorConfig {
     /// Camera intrinsics and distortion.
     pub camera: PinholeCamera,
@@ -162,6 +182,7 @@ pub struct EstimatorConfig {
     /// LiDAR enhancement (off by default: PO-VINS-WO).
     pub lidar: LidarConfig,
     /// Monotonic clock for the timing statistics, nanoseconds (none: timings are zero).
+    #[cfg_attr(feature = "serde", serde(skip))]
     pub clock: Option<fn() -> u64>,
 }
 

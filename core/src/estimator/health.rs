@@ -19,6 +19,11 @@ use crate::inertial::NavState;
 /// Limits of the health monitor.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct HealthConfig {
     /// Check at all.
     pub enabled: bool,

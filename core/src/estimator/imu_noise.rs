@@ -45,6 +45,11 @@ const NOISE_ROWS: usize = 9;
 /// Settings of the online IMU noise scale.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct ImuNoiseAdapt {
     /// Estimate the scale at all (off: the configured densities are used as they are).
     pub enabled: bool,

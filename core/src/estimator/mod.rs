@@ -313,6 +313,11 @@ impl<
     /// [`Self::configure`]), with [`EstimatorConfig::PLACEHOLDER`] as its configuration.
     /// `const`, so it can initialize a `static` and never pass through a stack:
     ///
+    /// Guaranteed to be all zero bits for every capacity (checked by the `.bss` test of
+    /// `tests/estimator_static.rs`): a zeroed allocation is an
+    /// empty estimator, which is how `povins_platform::boxed::boxed_estimator` puts one on the
+    /// heap without a stack temporary. New fields must keep it so.
+    ///
     /// ```
     /// use povins_core::estimator::{Estimator, PoVins, Status};
     /// static EST: PoVins = Estimator::empty();

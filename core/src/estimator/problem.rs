@@ -59,6 +59,11 @@ pub enum FactorSet {
     /// Only those the oldest keyframe's marginalization needs: priors, the IMU and delay factors
     /// from position 0 to 1, and the visual factors of landmarks anchored at 0.
     Oldest,
+    /// What stays in the window of the re-anchored landmarks whose depth is eliminated (their
+    /// factor without the observation at 0), to be taken back from [`FactorSet::Oldest`]'s
+    /// system, which holds their whole factor: the difference is exactly the information the
+    /// observation at 0 adds given the others (`estimator::marginalize`).
+    OldestRest,
 }
 
 /// Counts of what one assembly visited.
@@ -292,6 +297,13 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         let count = self.window.len();
         let est_td = l.col(Block::Td(0)).is_some();
         let est_ext = l.col(Block::Ext).is_some();
+        if self.set == FactorSet::OldestRest {
+            cost += self.pose_only_visual(&mut ne, est_td, est_ext)?;
+            if let Some(ne) = ne {
+                ne.cost = cost;
+            }
+            return Ok(cost);
+        }
 
         // Priors.
         if self.prior.dim() > 0 {
@@ -399,7 +411,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             // Re-anchored landmarks leave their observation at 0 as a pose-only residual (the
             // pose-only form is the inverse-depth one with the depth eliminated by the anchors);
             // the others leave whole, their depth eliminated with them.
-            (VisualMode::InverseDepth, FactorSet::Oldest) => {
+            (VisualMode::InverseDepth, FactorSet::Oldest | FactorSet::OldestRest) => {
                 self.pose_only_visual(&mut ne, est_td, est_ext)?
                     + self.inverse_depth_visual(&mut ne, est_td, est_ext)?
             }
@@ -597,6 +609,12 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             // the re-anchored ones: the others leave with their depth in `inverse_depth_visual`).
             let only_j = match (self.set, lm.marg, self.cfg.mode) {
                 (FactorSet::All, _, _) => None,
+                // The whole factor, less what stays (`FactorSet::OldestRest`).
+                (
+                    FactorSet::Oldest | FactorSet::OldestRest,
+                    MargPlan::ObsZero,
+                    VisualMode::PoseOnly,
+                ) if self.cfg.depth_eliminated() => None,
                 (FactorSet::Oldest, MargPlan::ObsZero, _) => Some(0),
                 (FactorSet::Oldest, MargPlan::Whole | MargPlan::Reuse, VisualMode::PoseOnly) => {
                     None

@@ -22,7 +22,7 @@
 //! landmark has no state, its cost is `min_tau` of the reprojection cost, so the LM's gain ratio
 //! compares what the linear model predicts.
 
-use super::problem::Problem;
+use super::problem::{FactorSet, Problem};
 use super::problem_lidar::{add_inverse_depth_obs, TauLandmark};
 use super::window::{Block, Layout};
 use crate::camera::CameraExtrinsic;
@@ -57,7 +57,14 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             .get(li)
             .ok_or(Error::DimensionMismatch)?;
         let s = lm.anchor_s as usize;
-        let m = TauLandmark::new(&lm.obs, s, None, sqrt_info, count).ok_or(Error::NotEnoughData)?;
+        // What stays in the window after the marginalization: the factor without position 0.
+        let mut rest = lm.obs;
+        if self.set == FactorSet::OldestRest {
+            if let Some(o) = rest.get_mut(0) {
+                *o = None;
+            }
+        }
+        let m = TauLandmark::new(&rest, s, None, sqrt_info, count).ok_or(Error::NotEnoughData)?;
         let n_obs = m.obs.len() as u32;
         // A linearization right after a successful cost evaluation at the same state takes the
         // `tau*` that evaluation computed (bit-identical: same rays, same start).

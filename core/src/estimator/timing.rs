@@ -177,6 +177,17 @@ impl<
         Ok(out)
     }
 
+    /// The estimator's current INS as an update for a [`crate::inertial::FastPath`] (`None`
+    /// while it has none: waiting for initialization, or after a reset). Hand it to a fast path
+    /// that starts beside an estimator already holding a state (e.g. after
+    /// [`Self::initialize`]): the fast path then publishes from the first sample instead of
+    /// waiting for the first [`ImuOutput::ins`]. Changes nothing in the estimator: its next
+    /// [`Self::update`] still reports the same INS, which the fast path applies again to the
+    /// same result.
+    pub fn fast_path_seed(&self) -> Option<InsUpdate> {
+        self.ins.as_ref().map(|ins| InsUpdate::State(*ins))
+    }
+
     /// The update a fast path needs after this sample ([`ImuOutput::ins`]): none when the INS
     /// only propagated the sample (`plain_from`: the INS epoch that propagation started from)
     /// from the state the fast path already follows.

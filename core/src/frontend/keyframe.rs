@@ -11,6 +11,11 @@
 /// Keyframe thresholds.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct KeyframeConfig {
     /// No keyframe closer than this to the previous one, s.
     pub min_interval_s: f64,
@@ -23,6 +28,10 @@ pub struct KeyframeConfig {
     /// A keyframe is forced after this long, s.
     pub max_interval_s: f64,
     /// When set, mean pixel parallax replaces the translation test (IC-GVINS), px.
+    #[cfg_attr(
+        feature = "serde",
+        serde(default, skip_serializing_if = "Option::is_none")
+    )]
     pub min_parallax_px: Option<f64>,
 }
 

@@ -15,6 +15,11 @@ use heapless::Vec;
 /// Thresholds of the image rest detector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct RestConfig {
     /// Largest median displacement of the features since the rest began, px.
     pub max_px: f64,

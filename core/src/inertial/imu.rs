@@ -29,6 +29,11 @@ impl ImuSample {
 /// `bias_corr_time_s` is set (LE-VINS): `db/dt = -b/T + w`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct ImuNoise {
     /// Gyro white-noise density, rad/s/sqrt(Hz).
     pub gyro_noise_density: f64,
@@ -39,6 +44,10 @@ pub struct ImuNoise {
     /// Accelerometer bias random-walk density, m/s^3/sqrt(Hz).
     pub accel_bias_rw: f64,
     /// Gauss-Markov correlation time of both biases, s; `None` = pure random walk.
+    #[cfg_attr(
+        feature = "serde",
+        serde(default, skip_serializing_if = "Option::is_none")
+    )]
     pub bias_corr_time_s: Option<f64>,
 }
 

@@ -47,6 +47,11 @@ pub fn state_from_full(s: &NavState) -> Result<NavState, Error> {
 /// Thresholds of the static detector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct StaticInitConfig {
     /// Gravity magnitude, m/s^2.
     pub gravity_mps2: f64,

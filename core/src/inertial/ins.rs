@@ -23,6 +23,11 @@ use crate::Error;
 /// INS configuration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct InsConfig {
     /// Gravity magnitude, m/s^2 (acts along `-z` of the world).
     pub gravity_mps2: f64,

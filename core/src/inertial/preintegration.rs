@@ -98,6 +98,11 @@ const XBA: usize = 12;
 /// Preintegration settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct PreintConfig {
     /// Largest accepted sample spacing, s ([`Error::TimeGap`] beyond).
     pub max_dt_s: f64,

@@ -6,8 +6,14 @@ use crate::Error;
 
 /// LiDAR in the body frame: `P_b = R_bl P_l + p_bl`.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct LidarExtrinsic {
-    /// Rotation LiDAR -> body.
+    /// Rotation LiDAR -> body (serialized as `[x, y, z, w]`: `math::serde_quat_xyzw`).
+    #[cfg_attr(feature = "serde", serde(with = "crate::math::serde_quat_xyzw"))]
     pub q_bl: Quat,
     /// LiDAR origin in the body frame, m.
     pub p_bl: Vec3,
@@ -29,6 +35,11 @@ impl LidarExtrinsic {
 /// Which LiDAR-depth measurement the solver uses (paper V.C).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum LdmMode {
     /// MSC-based LDM (eq. 25-30): the landmark's observations and depth in one measurement with
     /// the inverse depth projected out; no separate visual measurement (PO-VINS).
@@ -39,6 +50,11 @@ pub enum LdmMode {
 
 /// Depth association on the camera's unit sphere (LE-VINS).
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct AssociationConfig {
     /// Angular size of a grid cell, rad.
     pub cell_rad: f64,
@@ -95,6 +111,11 @@ impl Default for AssociationConfig {
 
 /// LiDAR enhancement settings. `enabled = false` is PO-VINS-WO (LiDAR ignored).
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct LidarConfig {
     /// Use LiDAR depths at all.
     pub enabled: bool,

@@ -25,6 +25,11 @@ use crate::Error;
 
 /// Threshold under which a pivot is dropped: `max(absolute, relative * max_i |a_ii|)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct PivotFloor {
     /// Fraction of the largest diagonal magnitude (scale-free part of the floor).
     pub relative: f64,

@@ -42,6 +42,11 @@ pub trait LmProblem<const D: usize> {
 
 /// Tuning of [`LmWorkspace::solve`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct LmConfig {
     /// Maximum number of linearizations (outer iterations).
     pub max_iterations: usize,

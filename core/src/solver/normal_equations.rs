@@ -126,6 +126,29 @@ impl<const D: usize> NormalEquations<D> {
         self.n = n;
     }
 
+    /// `H -= H_other`, `b -= b_other`, `cost -= cost_other` over the active upper triangle (both
+    /// of the same dimension): takes back a part of the system assembled separately.
+    pub fn subtract(&mut self, other: &Self) -> Result<(), Error> {
+        let n = self.n;
+        if other.n != n {
+            return Err(Error::DimensionMismatch);
+        }
+        for (i, (dst, src)) in self.h.iter_mut().zip(other.h.iter()).enumerate().take(n) {
+            if let (Some(dst), Some(src)) = (dst.get_mut(i..n), src.get(i..n)) {
+                for (d, s) in dst.iter_mut().zip(src) {
+                    *d -= s;
+                }
+            }
+        }
+        if let (Some(dst), Some(src)) = (self.b.get_mut(..n), other.b.get(..n)) {
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d -= s;
+            }
+        }
+        self.cost -= other.cost;
+        Ok(())
+    }
+
     /// Shrinks the active dimension without touching the buffers (`n <= dim()`).
     pub(crate) fn truncate(&mut self, n: usize) {
         self.n = n.min(self.n);

@@ -1,13 +1,14 @@
 //! `povins replay --realtime DATASET --out DIR`: the onboard pipeline (see `povins timing`)
 //! over a dataset, writing the IMU-rate poses it published to `DIR/trajectory.tum` and
-//! printing the timing table. With `--deterministic` the trajectory is bit-identical to
+//! printing the timing table (and, with `--mcap-out FILE`, an MCAP file of the poses for
+//! Foxglove: [`McapSink`]). With `--deterministic` the trajectory is bit-identical to
 //! `povins run`'s on the same input and settings (tracks front end).
 
 use super::run::load_dataset;
 use super::timing::{run_pipeline, PipelineArgs, TimingSummary};
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use anyhow::{bail, Context, Result};
-use povins_platform::pipeline::TumSink;
+use povins_platform::pipeline::{McapSink, TumSink};
 use povins_platform::trajectory::StampedPose;
 use std::path::PathBuf;
 
@@ -24,6 +25,11 @@ pub struct Args {
     /// Output folder (created if missing).
     #[arg(long, default_value = "out/replay")]
     pub out: PathBuf,
+    /// Also write the published poses to this MCAP file for Foxglove: `foxglove.PoseInFrame`
+    /// (JSON) on /povins/pose at IMU rate and each keyframe's optimized state on
+    /// /povins/keyframe.
+    #[arg(long, value_name = "FILE")]
+    pub mcap_out: Option<PathBuf>,
 }
 
 /// Runs the command.
@@ -35,8 +41,13 @@ pub fn run(args: Args) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let path = args.out.join("trajectory.tum");
-    let mut sink = TumSink::new(&path, ds.imu.len());
-    let report = run_pipeline(&args.pipeline, &ds, &mut sink, "replay")?;
+    let mcap = args
+        .mcap_out
+        .as_ref()
+        .map(|f| McapSink::new(f, ds.imu.len()));
+    let mut both = (TumSink::new(&path, ds.imu.len()), mcap);
+    let report = run_pipeline(&args.pipeline, &ds, &mut both, "replay")?;
+    let (sink, mcap) = both;
     for line in TimingSummary::new(&ds, &args.pipeline, &report).lines() {
         println!("{line}");
     }
@@ -55,5 +66,13 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     println!("output    {}", path.display());
+    if let (Some(m), Some(f)) = (&mcap, &args.mcap_out) {
+        println!(
+            "mcap      {} ({} poses, {} keyframes)",
+            f.display(),
+            m.poses().len(),
+            m.keyframes().len()
+        );
+    }
     Ok(())
 }

@@ -2,12 +2,13 @@
 //! estimator, fed by the image front end (`--frontend images`, the default when the dataset has
 //! camera images; `frontend.csv` gets a row per image) or by the dataset's feature tracks
 //! (`--frontend tracks`), and writes `trajectory.tum` (IMU rate), `keyframes.tum`, `stats.csv`
-//! (a row per keyframe) and `summary.json`; with ground truth in the dataset it also evaluates
+//! (a row per keyframe), `summary.json` and `config.toml` (the run's effective configuration,
+//! every key; `--config` it to repeat the run); with ground truth in the dataset it also evaluates
 //! (ATE, position + yaw alignment) and prints the result. LiDAR sweeps in the dataset are used
 //! by default (`--no-lidar`, `--ldm`, `--no-depth-outlier-rejection`, `--no-depth-only-opt`
 //! switch parts off); with simulator truth the LiDAR depth association is checked against it.
 
-use crate::config::{ldm_name, LidarArgs, ModeArg, RunConfigFile};
+use crate::config::{effective_toml, ldm_name, LidarArgs, ModeArg, RunConfigFile};
 use crate::eval::lidar_assoc::{self, AssocQuality};
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::frontend_stats::{summarize_frames, summary_lines, write_frames_csv, FrontendSummary};
@@ -66,9 +67,7 @@ pub fn frontend_options(
     let mut tracker = TrackerConfig::default();
     let mut aiding = VioAiding::default();
     if let Some(path) = config {
-        RunConfigFile::read(path)?
-            .apply_frontend(&mut tracker, &mut aiding)
-            .with_context(|| format!("invalid config {}", path.display()))?;
+        RunConfigFile::read(path)?.apply_frontend(&mut tracker, &mut aiding)?;
     }
     Ok(FrontendOptions {
         frontend,
@@ -92,7 +91,7 @@ pub fn estimator_config_from(
 ) -> Result<EstimatorConfig> {
     let mut cfg = config_for(ds);
     if let Some(path) = config {
-        RunConfigFile::read(path)?.apply(&mut cfg);
+        RunConfigFile::read(path)?.apply(&mut cfg)?;
     }
     if let Some(m) = mode {
         cfg.mode = m.into();
@@ -555,7 +554,7 @@ pub fn run(args: Args) -> Result<()> {
     if !ds.lidar.is_empty() && ds.calib.t_bl.is_none() && !cfg.lidar.enabled {
         eprintln!(
             "note: the dataset has LiDAR sweeps but no LiDAR extrinsic T_bl, so LiDAR is off \
-             (set enabled, p_bl_m and q_bl_xyzw in the config's [lidar] section to use it)"
+             (set lidar.enabled and lidar.extrinsic.p_bl / q_bl in the config to use it)"
         );
     }
     let fe = frontend_options(args.config.as_deref(), args.frontend, &ds)?;
@@ -573,6 +572,9 @@ pub fn run(args: Args) -> Result<()> {
     }
     let summary = summarize(&ds, &mode, args.init, &out)?;
     write_outputs(&args.out, &out, &summary)?;
+    let effective = effective_toml(&cfg, &fe.tracker, &fe.aiding)?;
+    let path = args.out.join("config.toml");
+    std::fs::write(&path, effective).with_context(|| format!("cannot write {}", path.display()))?;
     print_summary(&summary, &args.out);
     Ok(())
 }

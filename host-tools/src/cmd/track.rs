@@ -21,6 +21,7 @@ use povins_core::frontend::image::{
 };
 use povins_core::math::{Mat3, Vec3};
 use povins_core::vio::{GyroIntegrator, ImageReport, GYRO_SAMPLES};
+use povins_platform::boxed::boxed_tracker;
 use povins_platform::dataset::FeatureFrame;
 use povins_platform::Dataset;
 use std::collections::HashMap;
@@ -101,16 +102,12 @@ pub fn track_dataset(
     let cam = ds.calib.camera;
     let (w, h) = (cam.width, cam.height);
     if w <= 752 && h <= 480 {
-        let mut t = Box::new(
-            EurocTracker::new(opts.tracker)
-                .map_err(|e| anyhow::anyhow!("invalid front-end settings: {e}"))?,
-        );
+        let mut t: Box<EurocTracker> = boxed_tracker(opts.tracker)
+            .map_err(|e| anyhow::anyhow!("invalid front-end settings: {e}"))?;
         run_tracker(&mut t, ds, opts, progress)
     } else if w <= 1280 && h <= 720 {
-        let mut t = Box::new(
-            HdTracker::new(opts.tracker)
-                .map_err(|e| anyhow::anyhow!("invalid front-end settings: {e}"))?,
-        );
+        let mut t: Box<HdTracker> = boxed_tracker(opts.tracker)
+            .map_err(|e| anyhow::anyhow!("invalid front-end settings: {e}"))?;
         run_tracker(&mut t, ds, opts, progress)
     } else {
         bail!(

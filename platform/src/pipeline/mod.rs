@@ -35,11 +35,13 @@
 
 mod backend;
 mod imu;
+pub mod mcap_sink;
 pub mod rt;
 pub mod sink;
 pub mod source;
 pub mod stats;
 
+pub use mcap_sink::McapSink;
 pub use rt::RtStatus;
 pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};
 pub use source::{
@@ -183,6 +185,9 @@ where
         threads: Vec::new(),
     };
     let limits = (est.config().max_gyro_rps, est.config().max_accel_mps2);
+    // An estimator that already holds a state (initialized from ground truth) starts the fast
+    // path with it: poses from the first sample, not from the back end's first reply.
+    let seed = est.fast_path_seed();
     let t_run = Instant::now();
     let (to_tx, to_rx) = rtrb::RingBuffer::<ToBackend>::new(cfg.queue_capacity.max(2));
     let (from_tx, from_rx) = rtrb::RingBuffer::new(cfg.queue_capacity.max(2) + 1);
@@ -210,12 +215,16 @@ where
             .spawn_scoped(sc, move || {
                 let r = rt::setup_current_thread("IMU", 0, cfg.fifo_priority);
                 let _ = shared.imu_thread.set(std::thread::current());
+                let mut fast = Box::new(FastPath::with_limits(limits.0, limits.1));
+                if let Some(u) = &seed {
+                    let _ = fast.apply(u);
+                }
                 let mut w = imu::ImuWorker {
                     source,
                     sink: sink_on_imu,
                     tx: to_tx,
                     rx: from_rx,
-                    fast: Box::new(FastPath::with_limits(limits.0, limits.1)),
+                    fast,
                     cfg,
                     shared,
                     timing: Timing::default(),

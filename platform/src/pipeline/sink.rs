@@ -1,7 +1,7 @@
 //! Outputs of the pipeline: a [`Sink`] receives every IMU-rate pose ([`PoseOut`], with its
 //! latency) and every keyframe report ([`KeyframeOut`]) on the IMU thread. Provided:
-//! [`CallbackSink`] (closures) and [`TumSink`] (a TUM trajectory file, written at the end so the
-//! IMU thread never waits on the disk).
+//! [`CallbackSink`] (closures), [`TumSink`] (a TUM trajectory file, written at the end so the
+//! IMU thread never waits on the disk) and [`super::McapSink`] (MCAP for Foxglove, likewise).
 
 use crate::error::IoError;
 use crate::trajectory::{write_tum, StampedPose};
@@ -111,6 +111,25 @@ impl Sink for TumSink {
 
     fn finish(&mut self) -> Result<(), IoError> {
         write_tum(&self.path, &self.poses)
+    }
+}
+
+/// An optional sink: `None` ignores every output.
+impl<S: Sink> Sink for Option<S> {
+    fn pose(&mut self, p: &PoseOut) {
+        if let Some(s) = self {
+            s.pose(p);
+        }
+    }
+
+    fn keyframe(&mut self, k: &KeyframeOut) {
+        if let Some(s) = self {
+            s.keyframe(k);
+        }
+    }
+
+    fn finish(&mut self) -> Result<(), IoError> {
+        self.as_mut().map_or(Ok(()), Sink::finish)
     }
 }
 

@@ -47,6 +47,11 @@ const MASK_WORDS_PER_ROW: usize = MASK_BLOCKS / 64;
 /// Parameters of the grid detector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct DetectorConfig {
     /// Grid columns.
     pub grid_cols: usize,

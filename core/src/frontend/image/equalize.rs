@@ -17,6 +17,11 @@ pub const MAX_CLAHE_TILES: usize = 8;
 /// Contrast equalization applied to the input before the pyramid is built.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum Equalization {
     /// Copy the image unchanged (default).
     #[default]

@@ -44,6 +44,11 @@ const WEIGHT_BITS: u32 = 8;
 /// Lucas-Kanade parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct LkConfig {
     /// Window side at level 0, px (odd, `5..=MAX_WINDOW`).
     pub window: usize,

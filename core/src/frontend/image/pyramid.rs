@@ -21,6 +21,11 @@ pub const MIN_LEVEL_SIDE: usize = 8;
 /// Downsampling filter between pyramid levels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum PyramidFilter {
     /// `[1 4 6 4 1] / 16` separable Gaussian, reflect-101 borders (OpenCV `pyrDown`).
     #[default]
@@ -128,6 +133,15 @@ impl<const BYTES: usize, const LEVELS: usize> Pyramid<BYTES, LEVELS> {
             horiz: [0; MAX_IMAGE_SIDE],
             equalizer: Equalizer::new(),
         }
+    }
+
+    /// Back to the state [`Self::new`] builds: no level built, the default filter (the image
+    /// bytes and scratch are left as they are: a build writes them before reading).
+    pub fn reset_to_new(&mut self) {
+        self.dims = [(0, 0); LEVELS];
+        self.offsets = [0; LEVELS];
+        self.levels = 0;
+        self.filter = PyramidFilter::Gaussian5;
     }
 
     /// Number of levels built (0 before the first build or after a failed one).

@@ -24,6 +24,11 @@ use crate::Error;
 /// Which geometric model rejects outliers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
 pub enum RansacModel {
     /// No geometric check.
     Off,
@@ -43,6 +48,11 @@ pub enum RansacModel {
 /// RANSAC parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct RansacConfig {
     /// Model choice.
     pub model: RansacModel,

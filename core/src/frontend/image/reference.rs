@@ -39,6 +39,11 @@ const REF_HALF: usize = MAX_WINDOW / 2 + 1;
 /// Anchored refinement parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct ReferenceConfig {
     /// Whether tracks are refined against their reference patch.
     pub enabled: bool,
@@ -73,6 +78,17 @@ impl Default for ReferenceConfig {
 }
 
 impl ReferenceConfig {
+    /// What an unconfigured tracker holds: off, every number zero.
+    pub const PLACEHOLDER: ReferenceConfig = ReferenceConfig {
+        enabled: false,
+        max_shift_px: 0.0,
+        drop_shift_px: 0.0,
+        max_residual: 0.0,
+        affine: false,
+        window: 0,
+        max_iterations: 0,
+    };
+
     /// Checks every parameter's range ([`Error::InvalidConfig`] otherwise).
     pub fn validate(&self) -> Result<(), Error> {
         let ok = self.max_shift_px > 0.0

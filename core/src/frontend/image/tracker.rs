@@ -19,6 +19,11 @@ use heapless::Vec;
 /// model with the gyro rotation), minimum distance 20 px, an 8 x 6 grid.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
 pub struct TrackerConfig {
     /// Features kept per frame (top-up target), at most the tracker's `F`.
     pub max_features: usize,
@@ -70,6 +75,49 @@ impl Default for TrackerConfig {
 }
 
 impl TrackerConfig {
+    /// What an unconfigured tracker holds ([`FeatureTracker::empty`]): every number zero
+    /// (invalid: [`Self::validate`] refuses it).
+    pub const PLACEHOLDER: TrackerConfig = TrackerConfig {
+        max_features: 0,
+        detector: DetectorConfig {
+            grid_cols: 0,
+            grid_rows: 0,
+            max_per_cell: 0,
+            min_distance_px: 0.0,
+            quality_level: 0.0,
+            min_eigen: 0.0,
+            border_px: 0,
+            quality_from_tracks: false,
+        },
+        lk: LkConfig {
+            window: 0,
+            coarse_window: 0,
+            max_iterations: 0,
+            epsilon_px: 0.0,
+            coarse_epsilon_px: 0.0,
+            min_eigen: 0.0,
+            max_residual: 0.0,
+        },
+        max_level: 0,
+        predicted_max_level: 0,
+        rotation_max_level: 0,
+        fb_check: false,
+        fb_threshold_px: 0.0,
+        fb_max_level: 0,
+        ransac: RansacConfig {
+            model: RansacModel::Off,
+            threshold_px: 0.0,
+            two_point_threshold_px: 0.0,
+            confidence: 0.0,
+            max_iterations: 0,
+            seed: 0,
+            eight_point_min_flow_px: 0.0,
+        },
+        pyramid_filter: PyramidFilter::Gaussian5,
+        equalization: Equalization::Off,
+        reference: ReferenceConfig::PLACEHOLDER,
+    };
+
     /// Checks every parameter's range ([`Error::InvalidConfig`] otherwise). The capacities of a
     /// particular tracker are checked by [`FeatureTracker::new`].
     pub fn validate(&self) -> Result<(), Error> {
@@ -243,12 +291,52 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
     /// Errors: [`Error::InvalidConfig`] for an invalid configuration, `max_features > F`,
     /// `max_level + 1 > LEVELS`, or `F` above 65 535.
     pub fn new(cfg: TrackerConfig) -> Result<Self, Error> {
+        Self::check(&cfg)?;
+        let mut t = Self::empty();
+        t.cfg = cfg;
+        Ok(t)
+    }
+
+    /// Whether `cfg` is valid and fits the capacities (see [`Self::new`]).
+    pub(crate) fn check(cfg: &TrackerConfig) -> Result<(), Error> {
         cfg.validate()?;
         if cfg.max_features > F || cfg.max_level + 1 > LEVELS || F > usize::from(u16::MAX) {
             return Err(Error::InvalidConfig);
         }
-        Ok(FeatureTracker {
-            cfg,
+        Ok(())
+    }
+
+    /// Validates `cfg` as [`Self::new`] does (and then nothing changes) and resets the tracker
+    /// in place to the state `new(cfg)` builds: no tracks, no previous image, ids from 0, the
+    /// detector's history forgotten (the scratch buffers keep their bytes: every frame writes
+    /// them before reading). Builds nothing large on the stack.
+    pub fn configure(&mut self, cfg: TrackerConfig) -> Result<(), Error> {
+        Self::check(&cfg)?;
+        self.cfg = cfg;
+        for p in self.pyr.iter_mut() {
+            p.reset_to_new();
+        }
+        self.cur = 0;
+        self.has_prev = false;
+        self.dims = (0, 0);
+        self.last_t_ns = None;
+        self.frame = 0;
+        self.next_id = 0;
+        self.features.clear();
+        self.ages.clear();
+        self.norm.clear();
+        self.fate.fill(Fate::Lost);
+        self.pred.fill(None);
+        self.detector.reset();
+        Ok(())
+    }
+
+    /// A tracker with [`TrackerConfig::PLACEHOLDER`], to be [`Self::configure`]d: `const`, so
+    /// it can initialize a `static` or be written to the heap without passing through a stack
+    /// (`povins_platform::boxed`).
+    pub const fn empty() -> Self {
+        FeatureTracker {
+            cfg: TrackerConfig::PLACEHOLDER,
             pyr: [Pyramid::new(), Pyramid::new()],
             cur: 0,
             has_prev: false,
@@ -270,11 +358,15 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
             r_y: [[0.0; 3]; F],
             r_m: [[0.0; 3]; F],
             flow: [0.0; F],
-            corners: [Corner::default(); F],
+            corners: [Corner {
+                x: 0,
+                y: 0,
+                response: 0.0,
+            }; F],
             detector: GridDetector::new(),
             lk: LkScratch::new(),
             refs: References::new(),
-        })
+        }
     }
 
     /// The configuration.
