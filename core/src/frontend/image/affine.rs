@@ -1,41 +1,63 @@
-//! Inverse-compositional affine Lucas-Kanade of one window against a stored reference patch
-//! (the anchored refinement of [`super::reference`]).
+//! Inverse-compositional affine Lucas-Kanade of one window against a stored reference template
+//! (the anchored refinement of [`super::reference`]), in fixed point.
 //!
-//! The warp maps a window offset `x` (px from the reference point) to `A x + q` in the target
-//! image. The template (bilinear samples of the reference patch around its point) and its
-//! central-difference gradients are computed once; each iteration samples the target at the
-//! warped offsets (bilinear, border pixels replicated), accumulates the 6-vector
-//! `b = sum SD^T (I(W(x)) - T(x))` with the steepest-descent images
-//! `SD = [gx x, gx y, gy x, gy y, gx, gy]`, solves `H dp = b` with the 6x6 Gauss-Newton
-//! Hessian (Cholesky, computed once) and composes the warp with the inverse increment.
+//! The template is the `(win + 2)^2` raw level-0 pixels around the integer pixel `c` nearest the
+//! reference point `c + delta` (no interpolation: the sub-pixel offset `delta` is carried by the
+//! warp). Its 3x3 Scharr gradients (`32 x grey / px`, `|g| <= 4080`), the steepest-descent images
+//! `SD = [gx x, gx y, gy x, gy y, gx, gy]` and the 6x6 Gauss-Newton Hessian `H = sum SD SD^T`
+//! (exact in `i64`) are fixed by the template: `H^-1` is computed once per reference
+//! ([`Template::build`]), never per frame.
 //!
-//! Plain `f64` in a fixed order without fused multiply-add: bit-identical on every IEEE
+//! The warp maps a template offset `x` (px from `c`) to `A x + t` in the target; the tracked point
+//! is `A delta + t`. Each iteration samples the target at the warped offsets row by row in
+//! 16.16 fixed point (the row's start from `f64`, then a constant integer step: the positions of
+//! an affine warp along a row are linear), bilinearly with 8-bit weights to `1/8` grey, and
+//! accumulates `b = sum SD^T (I(W(x)) - T(x))` in integers (per row in `i32`, which cannot
+//! overflow: `4080 * 2040 * 10 * 21 < 2^31`; across rows in `i64`), then `dp = H^-1 b` (`f64`)
+//! and composes `W <- W o W(dp)^-1`. Rows whose samples stay inside the image read it directly,
+//! the others clamp (border pixels replicated).
+//!
+//! Integers, and `f64` in a fixed order without fused multiply-add: bit-identical on every IEEE
 //! platform.
 
 use super::view::ImageView;
 
-/// Largest window side handled, px.
-pub const MAX_AFFINE_WINDOW: usize = super::lk::MAX_WINDOW;
+/// Largest refinement window side, px (sizes the per-track storage).
+pub const MAX_AFFINE_WINDOW: usize = 21;
+/// Side of a stored template (window plus the gradients' one-pixel border).
+pub const TEMPLATE_SIDE: usize = MAX_AFFINE_WINDOW + 2;
 const MAX_N: usize = MAX_AFFINE_WINDOW * MAX_AFFINE_WINDOW;
-/// Template grid side (window plus a one-pixel border for the gradients).
-const MAX_G: usize = MAX_AFFINE_WINDOW + 2;
+/// Fractional bits of the sampling positions.
+const FRAC: u32 = 16;
+const ONE: f64 = (1u32 << FRAC) as f64;
 
-/// An affine warp: window offset `x` -> `a x + q`.
+/// An affine warp: template offset `x` (px from the template's centre pixel) -> `a x + t`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Affine {
     /// Linear part, row-major `[[a00, a01], [a10, a11]]`.
     pub a: [f64; 4],
-    /// Translation: the tracked point in the target image, px.
-    pub q: [f64; 2],
+    /// Translation: where the template's centre pixel lands in the target, px.
+    pub t: [f64; 2],
 }
 
 impl Affine {
-    /// The identity linear part at `q`.
-    pub const fn at(q: [f64; 2]) -> Self {
+    /// The warp with linear part `a` that maps the point `c + delta` to `q`.
+    pub fn through(a: [f64; 4], delta: [f64; 2], q: [f64; 2]) -> Self {
         Affine {
-            a: [1.0, 0.0, 0.0, 1.0],
-            q,
+            a,
+            t: [
+                q[0] - (a[0] * delta[0] + a[1] * delta[1]),
+                q[1] - (a[2] * delta[0] + a[3] * delta[1]),
+            ],
         }
+    }
+
+    /// Where the point `c + delta` lands.
+    pub fn point(&self, delta: [f64; 2]) -> [f64; 2] {
+        [
+            self.a[0] * delta[0] + self.a[1] * delta[1] + self.t[0],
+            self.a[2] * delta[0] + self.a[3] * delta[1] + self.t[1],
+        ]
     }
 
     fn det(&self) -> f64 {
@@ -48,7 +70,7 @@ impl Affine {
 pub struct AffineFit {
     /// The final warp.
     pub warp: Affine,
-    /// Mean absolute photometric error over the window at the final warp, grey levels.
+    /// Mean absolute photometric error over the window in the last iteration, grey levels.
     pub residual: f64,
     /// Whether the last step moved the window's corners less than `eps_px`.
     pub converged: bool,
@@ -56,173 +78,297 @@ pub struct AffineFit {
     pub iterations: u32,
 }
 
-/// Scratch of one affine refinement (template values and steepest-descent images).
-#[derive(Clone)]
-pub struct AffineScratch {
-    grid: [f64; MAX_G * MAX_G],
-    t: [f64; MAX_N],
-    sd: [[f64; 6]; MAX_N],
+/// One reference template: raw pixels and the inverse of its Gauss-Newton Hessian. All zero
+/// is the empty (invalid) template.
+#[derive(Clone, Copy)]
+pub struct Template {
+    /// `(win + 2)^2` raw pixels, row stride [`TEMPLATE_SIDE`].
+    pix: [u8; TEMPLATE_SIDE * TEMPLATE_SIDE],
+    /// Upper triangle of `4 H^-1` (row by row), `H` from the raw gradients.
+    hinv: [f64; 21],
+    /// Window side (0: invalid).
+    win: u8,
 }
 
-impl Default for AffineScratch {
+impl Template {
+    /// The empty template.
+    pub const EMPTY: Template = Template {
+        pix: [0; TEMPLATE_SIDE * TEMPLATE_SIDE],
+        hinv: [0.0; 21],
+        win: 0,
+    };
+
+    /// Makes the template invalid.
+    pub fn clear(&mut self) {
+        self.win = 0;
+    }
+
+    /// Whether the template can be refined against.
+    pub fn is_valid(&self) -> bool {
+        self.win != 0
+    }
+
+    /// Captures the `win x win` template (odd, `5..=MAX_AFFINE_WINDOW`) centred on the integer
+    /// pixel `c` of `img` (outside pixels replicate the border) and inverts its Hessian. An
+    /// invalid template (bad window, empty image, flat or one-dimensional texture) results
+    /// otherwise; `g` is gradient scratch.
+    pub fn build(&mut self, img: &ImageView, c: [i64; 2], win: usize, g: &mut Gradients) {
+        self.win = 0;
+        if win.is_multiple_of(2) || !(5..=MAX_AFFINE_WINDOW).contains(&win) {
+            return;
+        }
+        let (w, h) = (img.width() as i64, img.height() as i64);
+        if w == 0 || h == 0 || c[0].abs() > 1 << 20 || c[1].abs() > 1 << 20 {
+            return;
+        }
+        let side = win + 2;
+        let r = (win / 2 + 1) as i64;
+        let (x0, y0) = (c[0] - r, c[1] - r);
+        for (row, dst) in self
+            .pix
+            .chunks_exact_mut(TEMPLATE_SIDE)
+            .take(side)
+            .enumerate()
+        {
+            let src = img.row((y0 + row as i64).clamp(0, h - 1) as usize);
+            for (col, d) in dst.iter_mut().take(side).enumerate() {
+                let x = (x0 + col as i64).clamp(0, w - 1) as usize;
+                *d = src.get(x).copied().unwrap_or(0);
+            }
+        }
+        g.compute(&self.pix, win);
+        if let Some(hinv) = inverse_hessian(g, win) {
+            self.hinv = hinv;
+            self.win = win as u8;
+        }
+    }
+}
+
+/// Per-call scratch: the template's values (`8 x grey`) and Scharr gradients.
+#[derive(Clone)]
+pub struct Gradients {
+    t8: [i16; MAX_N],
+    gx: [i16; MAX_N],
+    gy: [i16; MAX_N],
+    e: [i32; MAX_AFFINE_WINDOW],
+}
+
+impl Default for Gradients {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl AffineScratch {
+impl Gradients {
     /// Zeroed scratch.
     pub const fn new() -> Self {
-        AffineScratch {
-            grid: [0.0; MAX_G * MAX_G],
-            t: [0.0; MAX_N],
-            sd: [[0.0; 6]; MAX_N],
+        Gradients {
+            t8: [0; MAX_N],
+            gx: [0; MAX_N],
+            gy: [0; MAX_N],
+            e: [0; MAX_AFFINE_WINDOW],
+        }
+    }
+
+    /// Values and Scharr gradients of the `win x win` interior of `pix` (stride
+    /// [`TEMPLATE_SIDE`]).
+    fn compute(&mut self, pix: &[u8; TEMPLATE_SIDE * TEMPLATE_SIDE], win: usize) {
+        let p =
+            |x: usize, y: usize| i16::from(pix.get(y * TEMPLATE_SIDE + x).copied().unwrap_or(0));
+        for r in 0..win {
+            for c in 0..win {
+                let (x, y) = (c + 1, r + 1);
+                let gx = 3 * (p(x + 1, y - 1) - p(x - 1, y - 1))
+                    + 10 * (p(x + 1, y) - p(x - 1, y))
+                    + 3 * (p(x + 1, y + 1) - p(x - 1, y + 1));
+                let gy = 3 * (p(x - 1, y + 1) - p(x - 1, y - 1))
+                    + 10 * (p(x, y + 1) - p(x, y - 1))
+                    + 3 * (p(x + 1, y + 1) - p(x + 1, y - 1));
+                let k = r * win + c;
+                if let (Some(t), Some(a), Some(b)) =
+                    (self.t8.get_mut(k), self.gx.get_mut(k), self.gy.get_mut(k))
+                {
+                    *t = 8 * p(x, y);
+                    *a = gx;
+                    *b = gy;
+                }
+            }
         }
     }
 }
 
-/// Bilinear sample of `img` at `(x, y)`, border pixels replicated; `None` if non-finite or far
-/// outside.
-#[inline]
-fn sample(img: &ImageView, x: f64, y: f64) -> Option<f64> {
-    let (fx, fy) = (libm::floor(x), libm::floor(y));
-    if !(fx.is_finite() && fy.is_finite()) || fx.abs() > 1e6 || fy.abs() > 1e6 {
-        return None;
-    }
-    let (ax, ay) = (x - fx, y - fy);
-    let (ix, iy) = (fx as isize, fy as isize);
-    let p = |dx: isize, dy: isize| f64::from(img.clamped(ix + dx, iy + dy));
-    let top = p(0, 0) + ax * (p(1, 0) - p(0, 0));
-    let bot = p(0, 1) + ax * (p(1, 1) - p(0, 1));
-    Some(top + ay * (bot - top))
+/// Index of `(i, j)`, `i <= j`, in a packed upper triangle of a 6x6 matrix.
+const fn upper(i: usize, j: usize) -> usize {
+    i * 6 - i * (i + 1) / 2 + j
 }
 
-/// Bilinear sample at `(x, y)` known to have its 2x2 neighbourhood inside the image (`data`
-/// with `stride`); same arithmetic as [`sample`].
-#[inline(always)]
-fn sample_inside(data: &[u8], stride: usize, x: f64, y: f64) -> Option<f64> {
-    // Non-negative: truncation is the floor.
-    let (ix, iy) = (x as usize, y as usize);
-    let (ax, ay) = (x - ix as f64, y - iy as f64);
-    let o = iy * stride + ix;
-    let r0: &[u8; 2] = data.get(o..o + 2)?.try_into().ok()?;
-    let r1: &[u8; 2] = data.get(o + stride..o + stride + 2)?.try_into().ok()?;
-    let p = |v: u8| f64::from(v);
-    let top = p(r0[0]) + ax * (p(r0[1]) - p(r0[0]));
-    let bot = p(r1[0]) + ax * (p(r1[1]) - p(r1[0]));
-    Some(top + ay * (bot - top))
-}
-
-/// In-place Cholesky of the 6x6 `h` (lower triangle); `None` if not positive definite.
+/// `4 H^-1` (packed upper triangle) of the template in `g`, `None` if `H` is not positive
+/// definite or badly conditioned.
 #[allow(clippy::needless_range_loop)] // fixed 6x6 indices, clearer than iterators
-fn cholesky(h: &mut [[f64; 6]; 6]) -> Option<()> {
-    for j in 0..6 {
-        let mut d = h[j][j];
-        for k in 0..j {
-            d -= h[j][k] * h[j][k];
+fn inverse_hessian(g: &Gradients, win: usize) -> Option<[f64; 21]> {
+    let half = (win / 2) as i64;
+    let mut h = [0i64; 21];
+    for k in 0..win * win {
+        let (x, y) = ((k % win) as i64 - half, (k / win) as i64 - half);
+        let (gx, gy) = (i64::from(*g.gx.get(k)?), i64::from(*g.gy.get(k)?));
+        let sd = [gx * x, gx * y, gy * x, gy * y, gx, gy];
+        for i in 0..6 {
+            for j in i..6 {
+                h[upper(i, j)] += sd[i] * sd[j];
+            }
         }
-        if d.is_nan() || d <= 0.0 {
+    }
+    // Cholesky of H / 1024 (gradients in grey/px: keeps the numbers moderate), then the inverse.
+    let mut l = [[0.0f64; 6]; 6];
+    for j in 0..6 {
+        let mut d = h[upper(j, j)] as f64 / 1024.0;
+        for k in 0..j {
+            d -= l[j][k] * l[j][k];
+        }
+        // A near-singular H (a flat window or an edge) gives no reliable warp.
+        if d.is_nan() || d <= 1e-6 * (h[upper(j, j)] as f64 / 1024.0) || d <= 0.0 {
             return None;
         }
         let d = libm::sqrt(d);
-        h[j][j] = d;
+        l[j][j] = d;
         for i in j + 1..6 {
-            let mut s = h[i][j];
+            let mut s = h[upper(j, i)] as f64 / 1024.0;
             for k in 0..j {
-                s -= h[i][k] * h[j][k];
+                s -= l[i][k] * l[j][k];
             }
-            h[i][j] = s / d;
+            l[i][j] = s / d;
         }
     }
-    Some(())
-}
-
-/// Solves `L L^T x = b` with the factor of [`cholesky`].
-#[allow(clippy::needless_range_loop)]
-fn solve(l: &[[f64; 6]; 6], b: [f64; 6]) -> [f64; 6] {
-    let mut y = [0.0; 6];
-    for i in 0..6 {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= l[i][k] * y[k];
-        }
-        y[i] = s / l[i][i];
-    }
-    let mut x = [0.0; 6];
-    for i in (0..6).rev() {
-        let mut s = y[i];
-        for k in i + 1..6 {
-            s -= l[k][i] * x[k];
-        }
-        x[i] = s / l[i][i];
-    }
-    x
-}
-
-/// Template values and steepest-descent images of the `win x win` window around `at` in
-/// `reference` (into `s`), and the lower triangle of their Gauss-Newton Hessian.
-fn template(
-    reference: &ImageView,
-    at: [f64; 2],
-    win: usize,
-    s: &mut AffineScratch,
-) -> Option<[[f64; 6]; 6]> {
-    let half = (win / 2) as isize;
-    let g = win + 2;
-    // Template grid with a one-pixel border, then values and steepest-descent images.
-    for (k, v) in s.grid.iter_mut().take(g * g).enumerate() {
-        let (dx, dy) = ((k % g) as isize - half - 1, (k / g) as isize - half - 1);
-        *v = sample(reference, at[0] + dx as f64, at[1] + dy as f64)?;
-    }
-    let mut h = [[0.0f64; 6]; 6];
-    let n = win * win;
-    for k in 0..n {
-        let (c, r) = (k % win + 1, k / win + 1);
-        let gv = |cc: usize, rr: usize| s.grid.get(rr * g + cc).copied().unwrap_or(0.0);
-        let gx = 0.5 * (gv(c + 1, r) - gv(c - 1, r));
-        let gy = 0.5 * (gv(c, r + 1) - gv(c, r - 1));
-        let (x, y) = (
-            (c as isize - 1 - half) as f64,
-            (r as isize - 1 - half) as f64,
-        );
-        let sd = [gx * x, gx * y, gy * x, gy * y, gx, gy];
+    // Columns of (H/1024)^-1 by forward and back substitution; the stored 4 H^-1 is that over 256
+    // (dp = H^-1 b with g in 32 grey/px and e in 8 grey: dp = 4 H_raw^-1 b_raw).
+    let mut out = [0.0f64; 21];
+    for col in 0..6 {
+        let mut y = [0.0f64; 6];
         for i in 0..6 {
-            for j in 0..=i {
-                h[i][j] += sd[i] * sd[j];
+            let mut s = if i == col { 1.0 } else { 0.0 };
+            for k in 0..i {
+                s -= l[i][k] * y[k];
             }
+            y[i] = s / l[i][i];
         }
-        if let (Some(t), Some(o)) = (s.t.get_mut(k), s.sd.get_mut(k)) {
-            *t = gv(c, r);
-            *o = sd;
+        let mut x = [0.0f64; 6];
+        for i in (0..6).rev() {
+            let mut s = y[i];
+            for k in i + 1..6 {
+                s -= l[k][i] * x[k];
+            }
+            x[i] = s / l[i][i];
+        }
+        for i in 0..=col {
+            out[upper(i, col)] = x[i] / 256.0;
         }
     }
-    Some(h)
+    Some(out)
 }
 
-/// Refines `init` (the warp from the reference point `at` in `reference` to the target `img`)
-/// with a `win x win` window (odd, `5..=MAX_AFFINE_WINDOW`), at most `max_iter` iterations,
-/// stopping when the window's corners move less than `eps_px`. `None` for a bad window, a
-/// singular template, or a degenerate or non-finite warp.
-#[allow(clippy::too_many_arguments)]
-pub fn refine_affine(
-    reference: &ImageView,
-    at: [f64; 2],
-    img: &ImageView,
-    init: Affine,
-    win: usize,
-    max_iter: u32,
-    eps_px: f64,
-    s: &mut AffineScratch,
-) -> Option<AffineFit> {
-    if win.is_multiple_of(2) || !(5..=MAX_AFFINE_WINDOW).contains(&win) {
+/// `M b` for the symmetric `M` stored as [`inverse_hessian`]'s packed upper triangle.
+#[allow(clippy::needless_range_loop)]
+fn sym_mul(m: &[f64; 21], b: &[i64; 6]) -> [f64; 6] {
+    let mut out = [0.0f64; 6];
+    for i in 0..6 {
+        let mut s = 0.0;
+        for j in 0..6 {
+            let k = if i <= j { upper(i, j) } else { upper(j, i) };
+            s += m[k] * b[j] as f64;
+        }
+        out[i] = s;
+    }
+    out
+}
+
+/// 16.16 fixed point of `v`, `None` if non-finite or beyond +-16384 px.
+#[inline]
+fn fixed(v: f64) -> Option<i32> {
+    if !(-16384.0..16384.0).contains(&v) {
         return None;
     }
-    let half = (win / 2) as isize;
-    let n = win * win;
-    let mut h = template(reference, at, win, s)?;
-    cholesky(&mut h)?;
+    Some(libm::floor(v * ONE + 0.5) as i32)
+}
+
+/// Bilinear value of the four pixels with 8-bit weights `fx`, `fy`, in `1/8` grey.
+#[inline(always)]
+fn blend(p00: u8, p01: u8, p10: u8, p11: u8, fx: i32, fy: i32) -> i32 {
+    let top = i32::from(p00) * (256 - fx) + i32::from(p01) * fx;
+    let bot = i32::from(p10) * (256 - fx) + i32::from(p11) * fx;
+    (top * (256 - fy) + bot * fy + (1 << 12)) >> 13
+}
+
+/// Samples one row of the warped window (`win` positions from `(u, v)` in steps `(du, dv)`,
+/// 16.16) into `e` as `J - T` (`1/8` grey); returns `sum |e|`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn sample_row(
+    img: &ImageView,
+    (u, v): (i32, i32),
+    (du, dv): (i32, i32),
+    win: usize,
+    t8: &[i16],
+    e: &mut [i32],
+) -> i64 {
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    let last = win as i64 - 1;
+    let (ue, ve) = (
+        i64::from(u) + last * i64::from(du),
+        i64::from(v) + last * i64::from(dv),
+    );
+    let ok = |p: i64, lim: i64| p >= 0 && (p >> FRAC) < lim - 1;
+    let inside = ok(i64::from(u), w) && ok(ue, w) && ok(i64::from(v), h) && ok(ve, h);
+    let (data, stride) = (img.data(), img.stride());
+    let mut abs_sum = 0i64;
+    let (mut uu, mut vv) = (u, v);
+    for (ei, &t) in e.iter_mut().zip(t8).take(win) {
+        let (ix, iy) = (uu >> FRAC, vv >> FRAC);
+        let (fx, fy) = ((uu >> (FRAC - 8)) & 255, (vv >> (FRAC - 8)) & 255);
+        let j = if inside {
+            let o = iy as usize * stride + ix as usize;
+            match (data.get(o..o + 2), data.get(o + stride..o + stride + 2)) {
+                (Some(&[p00, p01]), Some(&[p10, p11])) => blend(p00, p01, p10, p11, fx, fy),
+                _ => 0,
+            }
+        } else {
+            let (ix, iy) = (ix as isize, iy as isize);
+            blend(
+                img.clamped(ix, iy),
+                img.clamped(ix + 1, iy),
+                img.clamped(ix, iy + 1),
+                img.clamped(ix + 1, iy + 1),
+                fx,
+                fy,
+            )
+        };
+        let d = j - i32::from(t);
+        *ei = d;
+        abs_sum += i64::from(d.abs());
+        uu = uu.wrapping_add(du);
+        vv = vv.wrapping_add(dv);
+    }
+    abs_sum
+}
+
+/// Refines `init` (the warp of `tpl`'s centre pixel into `img`), at most `max_iter` iterations,
+/// stopping when the window's corners move less than `eps_px`. `None` for an invalid template or
+/// a degenerate or non-finite warp.
+pub fn refine_affine(
+    tpl: &Template,
+    img: &ImageView,
+    init: Affine,
+    max_iter: u32,
+    eps_px: f64,
+    g: &mut Gradients,
+) -> Option<AffineFit> {
+    let win = usize::from(tpl.win);
+    if win == 0 {
+        return None;
+    }
+    g.compute(&tpl.pix, win);
+    let half = (win / 2) as i64;
+    let hf = half as f64;
     let mut w = init;
-    let corner2 = (half * half) as f64;
     let mut fit = AffineFit {
         warp: w,
         residual: 0.0,
@@ -230,36 +376,43 @@ pub fn refine_affine(
         iterations: 0,
     };
     for _ in 0..max_iter {
-        let mut b = [0.0f64; 6];
-        let mut abs_sum = 0.0f64;
-        // The window's extent in the target: direct reads when its bounding box is inside.
-        let hf = half as f64;
-        let ext_u = (libm::fabs(w.a[0]) + libm::fabs(w.a[1])) * hf;
-        let ext_v = (libm::fabs(w.a[2]) + libm::fabs(w.a[3])) * hf;
-        let inside = w.q[0] - ext_u >= 0.0
-            && w.q[1] - ext_v >= 0.0
-            && w.q[0] + ext_u < (img.width() as f64) - 1.0
-            && w.q[1] + ext_v < (img.height() as f64) - 1.0;
-        let (data, stride) = (img.data(), img.stride());
-        for (k, (t, sd)) in s.t.iter().zip(s.sd.iter()).take(n).enumerate() {
-            let (x, y) = ((k % win) as isize - half, (k / win) as isize - half);
-            let (x, y) = (x as f64, y as f64);
-            let u = w.a[0] * x + w.a[1] * y + w.q[0];
-            let v = w.a[2] * x + w.a[3] * y + w.q[1];
-            let val = if inside {
-                sample_inside(data, stride, u, v)?
-            } else {
-                sample(img, u, v)?
-            };
-            let e = val - t;
-            abs_sum += libm::fabs(e);
-            for (bi, si) in b.iter_mut().zip(sd) {
-                *bi += si * e;
+        let mut b = [0i64; 6];
+        let mut abs_sum = 0i64;
+        let step = (fixed(w.a[0])?, fixed(w.a[2])?);
+        for r in 0..win {
+            let y = r as i64 - half;
+            let yf = y as f64;
+            let start = (
+                fixed(w.t[0] - w.a[0] * hf + w.a[1] * yf)?,
+                fixed(w.t[1] - w.a[2] * hf + w.a[3] * yf)?,
+            );
+            let row = r * win..(r + 1) * win;
+            let (t8, gx, gy) = (
+                g.t8.get(row.clone())?,
+                g.gx.get(row.clone())?,
+                g.gy.get(row)?,
+            );
+            abs_sum += sample_row(img, start, step, win, t8, &mut g.e);
+            // Row sums (i32: see the module doc), x-weighted and plain.
+            let (mut sx, mut sxx, mut sy, mut syx) = (0i32, 0i32, 0i32, 0i32);
+            for (c, ((&e, &gxv), &gyv)) in g.e.iter().zip(gx).zip(gy).enumerate() {
+                let x = c as i32 - half as i32;
+                let (a, bb) = (i32::from(gxv) * e, i32::from(gyv) * e);
+                sx += a;
+                sxx += a * x;
+                sy += bb;
+                syx += bb * x;
             }
+            b[0] += i64::from(sxx);
+            b[1] += y * i64::from(sx);
+            b[2] += i64::from(syx);
+            b[3] += y * i64::from(sy);
+            b[4] += i64::from(sx);
+            b[5] += i64::from(sy);
         }
         fit.iterations += 1;
-        fit.residual = abs_sum / n as f64;
-        let dp = solve(&h, b);
+        fit.residual = abs_sum as f64 / (8 * win * win) as f64;
+        let dp = sym_mul(&tpl.hinv, &b);
         // W <- W o W(dp)^-1, W(dp): x -> (I + D) x + d.
         let (d00, d01, d10, d11) = (1.0 + dp[0], dp[1], dp[2], 1.0 + dp[3]);
         let det = d00 * d11 - d01 * d10;
@@ -274,21 +427,21 @@ pub fn refine_affine(
             a[2] * inv[0] + a[3] * inv[2],
             a[2] * inv[1] + a[3] * inv[3],
         ];
-        let nq = [
-            w.q[0] - (na[0] * dp[4] + na[1] * dp[5]),
-            w.q[1] - (na[2] * dp[4] + na[3] * dp[5]),
+        let nt = [
+            w.t[0] - (na[0] * dp[4] + na[1] * dp[5]),
+            w.t[1] - (na[2] * dp[4] + na[3] * dp[5]),
         ];
         // How far the window's corner moves: translation plus the linear change at `half`.
-        let (du, dv) = (nq[0] - w.q[0], nq[1] - w.q[1]);
+        let (du, dv) = (nt[0] - w.t[0], nt[1] - w.t[1]);
         let lin = (na[0] - a[0]) * (na[0] - a[0])
             + (na[1] - a[1]) * (na[1] - a[1])
             + (na[2] - a[2]) * (na[2] - a[2])
             + (na[3] - a[3]) * (na[3] - a[3]);
-        w = Affine { a: na, q: nq };
-        if !(w.q[0].is_finite() && w.q[1].is_finite() && (0.25..=4.0).contains(&w.det())) {
+        w = Affine { a: na, t: nt };
+        if !(w.t[0].is_finite() && w.t[1].is_finite() && (0.25..=4.0).contains(&w.det())) {
             return None;
         }
-        if du * du + dv * dv + lin * corner2 <= eps_px * eps_px {
+        if du * du + dv * dv + lin * hf * hf <= eps_px * eps_px {
             fit.converged = true;
             break;
         }
@@ -298,60 +451,5 @@ pub fn refine_affine(
 }
 
 #[cfg(test)]
-mod tests {
-    extern crate std;
-    use super::super::testutil::{render, texture};
-    use super::*;
-
-    const W: usize = 160;
-    const H: usize = 120;
-
-    /// The texture warped by `a` about `c` and moved by `s`: `b(c + s + a x) = tex(c + x)`.
-    fn warped(a: [f64; 4], c: [f64; 2], s: [f64; 2]) -> std::vec::Vec<u8> {
-        let det = a[0] * a[3] - a[1] * a[2];
-        render(W, H, 0.0, 0.0, |x, y| {
-            let (dx, dy) = (x - c[0] - s[0], y - c[1] - s[1]);
-            let u = (a[3] * dx - a[1] * dy) / det;
-            let v = (-a[2] * dx + a[0] * dy) / det;
-            texture(c[0] + u, c[1] + v)
-        })
-    }
-
-    #[test]
-    fn recovers_rotation_scale_and_shift() {
-        let c = [80.3, 60.7];
-        let reference = render(W, H, 0.0, 0.0, texture);
-        let rv = ImageView::new(&reference, W, H, W).unwrap();
-        let mut s = std::boxed::Box::new(AffineScratch::new());
-        let (th, k) = (0.14f64, 1.06);
-        let a = [
-            k * libm::cos(th),
-            -k * libm::sin(th),
-            k * libm::sin(th),
-            k * libm::cos(th),
-        ];
-        for &sh in &[[0.0, 0.0], [3.4, -2.2], [-0.37, 0.81]] {
-            let img = warped(a, c, sh);
-            let iv = ImageView::new(&img, W, H, W).unwrap();
-            let truth = [c[0] + sh[0], c[1] + sh[1]];
-            let init = Affine::at([truth[0] + 0.6, truth[1] - 0.5]);
-            let fit = refine_affine(&rv, c, &iv, init, 21, 30, 0.01, &mut s).unwrap();
-            let e = libm::hypot(fit.warp.q[0] - truth[0], fit.warp.q[1] - truth[1]);
-            assert!(fit.converged && e < 0.03, "{sh:?}: {fit:?} error {e}");
-            for (x, y) in fit.warp.a.iter().zip(&a) {
-                assert!(libm::fabs(x - y) < 0.01, "{:?} vs {a:?}", fit.warp.a);
-            }
-            assert!(fit.residual < 2.0, "{fit:?}");
-        }
-        // Bad windows and a flat reference.
-        let img = warped(a, c, [0.0, 0.0]);
-        let iv = ImageView::new(&img, W, H, W).unwrap();
-        assert!(refine_affine(&rv, c, &iv, Affine::at(c), 20, 10, 0.01, &mut s).is_none());
-        assert!(refine_affine(&rv, c, &iv, Affine::at(c), 33, 10, 0.01, &mut s).is_none());
-        let flat = std::vec![90u8; W * H];
-        let fv = ImageView::new(&flat, W, H, W).unwrap();
-        assert!(refine_affine(&fv, c, &iv, Affine::at(c), 21, 10, 0.01, &mut s).is_none());
-        let nan = Affine::at([f64::NAN, 1.0]);
-        assert!(refine_affine(&rv, c, &iv, nan, 21, 10, 0.01, &mut s).is_none());
-    }
-}
+#[path = "affine_tests.rs"]
+mod tests;

@@ -602,46 +602,6 @@ pub fn track_point_no_residual<const B: usize, const L: usize>(
     track_point_impl(from, to, p0, seed, max_level, cfg, scratch, false)
 }
 
-/// One level of LK (`cfg.window`, `epsilon_px`, the residual check): the template around `p`
-/// in `from` (any image, e.g. a stored reference patch), the search from `seed` in `to`. For
-/// the anchored refinement ([`super::reference`]).
-pub(super) fn refine_single_level(
-    from: &ImageView,
-    p: [f64; 2],
-    to: &ImageView,
-    seed: [f64; 2],
-    cfg: &LkConfig,
-    scratch: &mut LkScratch,
-) -> Result<LkTrack, LkFailure> {
-    if !(p[0].is_finite() && p[1].is_finite() && seed[0].is_finite() && seed[1].is_finite()) {
-        return Err(LkFailure::NonFinite);
-    }
-    let eps2 = f64::from(cfg.epsilon_px) * f64::from(cfg.epsilon_px);
-    let mut q = seed;
-    let mut residual = 0.0f32;
-    let lv = refine_level(
-        from,
-        to,
-        p,
-        &mut q,
-        cfg,
-        cfg.window,
-        eps2,
-        scratch,
-        Some(&mut residual),
-    );
-    lv.outcome?;
-    if !(q[0].is_finite() && q[1].is_finite()) {
-        return Err(LkFailure::NonFinite);
-    }
-    Ok(LkTrack {
-        pos: q,
-        residual,
-        iterations: lv.iterations,
-        converged: lv.converged,
-    })
-}
-
 #[allow(clippy::too_many_arguments)]
 fn track_point_impl<const B: usize, const L: usize>(
     from: &Pyramid<B, L>,

@@ -37,7 +37,7 @@ pub use equalize::{Equalization, Equalizer};
 pub use lk::{track_point, track_point_no_residual, LkConfig, LkFailure, LkScratch, LkTrack};
 pub use pyramid::{level_size, pyramid_bytes, Pyramid, PyramidFilter};
 pub use ransac::{RansacConfig, RansacModel, RansacOutcome, XorShift64};
-pub use reference::{ReferenceConfig, References, Refined, REF_SIDE};
+pub use reference::{ReferenceConfig, References, Refined, TEMPLATE_SIDE};
 pub use tracker::{
     EurocTracker, FeatureTracker, HdTracker, RansacRun, TrackHints, TrackStats, TrackerConfig,
 };

@@ -627,19 +627,17 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
         };
         let (wf, hf) = ((self.dims.0 as f64) - 1.0, (self.dims.1 as f64) - 1.0);
         let inside = |p: &[f64; 2]| (0.0..=wf).contains(&p[0]) && (0.0..=hf).contains(&p[1]);
+        let every = u64::from(self.cfg.reference.every_frames.max(1));
         let items = self.fate.iter_mut().zip(self.new_pos.iter_mut()).take(n);
         for (i, (fate, pos)) in items.enumerate() {
             if *fate != Fate::Alive {
                 continue;
             }
-            let r = self.refs.refine(
-                i,
-                &img,
-                *pos,
-                &self.cfg.reference,
-                &self.cfg.lk,
-                &mut self.lk,
-            );
+            let id = self.features.get(i).map_or(0, |f| f.id);
+            if !(self.frame.wrapping_add(id)).is_multiple_of(every) {
+                continue;
+            }
+            let r = self.refs.refine(i, &img, *pos, &self.cfg.reference);
             match r {
                 Refined::Accepted(p) if inside(&p) => {
                     *pos = p;
@@ -650,7 +648,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
                     st.lost_reference += 1;
                 }
                 Refined::Accepted(_) | Refined::Reanchor => {
-                    self.refs.capture(i, &img, *pos);
+                    self.refs.capture(i, &img, *pos, &self.cfg.reference);
                     st.reanchored += 1;
                 }
             }
@@ -843,7 +841,8 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
             let _ = self.ages.push(0);
             let _ = self.norm.push(nn);
             if self.cfg.reference.enabled {
-                self.refs.capture(self.features.len() - 1, &img, [u, v]);
+                self.refs
+                    .capture(self.features.len() - 1, &img, [u, v], &self.cfg.reference);
             }
             self.next_id += 1;
             st.detected += 1;
