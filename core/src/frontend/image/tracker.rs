@@ -233,13 +233,13 @@ pub struct TrackStats {
 }
 
 /// Tracker for up to 256 features on images up to 752x480 pixels (EuRoC; any smaller image
-/// such as 640x360 fits too), 4 pyramid levels: 1 632 704 bytes (two pyramids of 536 856 bytes:
+/// such as 640x360 fits too), 4 pyramid levels: 1 457 208 bytes (two pyramids of 536 856 bytes:
 /// [`pyramid_bytes`]`(752, 480, 4)` = 479 400 plus 32 KiB of row scratch and the 24 KiB
 /// equalizer; the detector's 122 KiB; the LK scratch's 11 KiB; 54 KiB of per-feature arrays;
-/// 362 KiB of reference patches and affine scratch for the anchored refinement).
+/// 191 KiB of reference templates and scratch for the anchored refinement).
 pub type EurocTracker = FeatureTracker<256, { pyramid_bytes(752, 480, 4) }, 4>;
 
-/// Tracker for up to 1280x720 images, 256 features, 4 levels: 3 121 904 bytes.
+/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 946 408 bytes.
 pub type HdTracker = FeatureTracker<256, { pyramid_bytes(1280, 720, 4) }, 4>;
 
 /// Per-feature outcome of the forward pass.
