@@ -3,6 +3,11 @@
 //! in deterministic mode its IMU-rate poses are bit-identical to the single-threaded
 //! `runner::replay`'s; in real-time mode (as fast as possible) it runs to the end without
 //! dropping a sample and ends near the deterministic run. No timed assertions.
+//!
+//! With camera images (`../shared/data/euroc-v101-images-at-rest`, `#[ignore]`d: shared data)
+//! the pipeline's front-end stage feeds the core's `Vio`; in deterministic mode its poses are
+//! `runner::replay_with(.., --frontend images)`'s (what `povins run --frontend images` writes),
+//! bit for bit.
 
 mod common;
 
@@ -10,8 +15,8 @@ use common::*;
 use povins::core::estimator::VisualMode;
 use povins::core::inertial::NavState;
 use povins::host_tools::progress::Progress;
-use povins::host_tools::realtime::{run_dataset, RealtimeOptions};
-use povins::host_tools::runner::{replay, InitMode};
+use povins::host_tools::realtime::{run_dataset, run_dataset_with, RealtimeOptions};
+use povins::host_tools::runner::{replay, replay_with, FrontendOptions, InitMode};
 use povins::platform::dataset::Dataset;
 use povins::platform::pipeline::{CallbackSink, Pacing, PipelineReport, PoseOut};
 
@@ -141,5 +146,86 @@ fn realtime_pipeline_from_ground_truth_publishes_from_the_first_sample() {
                 "deterministic pose {k} differs"
             );
         }
+    });
+}
+
+/// EuRoC V1_01's real images at rest (95 images, 4.7 s) with the IMU cut 3 s after the last
+/// image: the image front end on the pipeline gives `povins run --frontend images`'s states bit
+/// for bit in deterministic mode, and the real-time mode drops nothing.
+#[test]
+#[ignore = "needs ../shared/data/euroc-v101-images-at-rest (large shared sequence; CI runs it with --ignored)"]
+fn deterministic_pipeline_with_images_is_the_image_replay_bit_for_bit() {
+    big_stack(|| {
+        let mut ds = load("euroc-v101-images-at-rest");
+        assert!(ds.images.len() >= 90, "only {} images", ds.images.len());
+        assert!(ds.features.is_empty(), "expected an images-only data set");
+        let t_end = ds.images.last().expect("images").t_ns + 3_000_000_000;
+        ds.imu.retain(|s| s.t_ns <= t_end);
+        ds.ground_truth.retain(|g| g.t_ns <= t_end);
+        let cfg = euroc_config(&ds, VisualMode::PoseOnly);
+        let fe = FrontendOptions::images(Default::default());
+        let want = replay_with(&ds, cfg, InitMode::Static, &fe, &hidden()).expect("replay");
+        assert!(
+            want.frames.len() >= 90,
+            "the replay tracked {} images",
+            want.frames.len()
+        );
+        assert!(
+            want.reports.len() > 5,
+            "only {} keyframes",
+            want.reports.len()
+        );
+        let run = |deterministic: bool| {
+            let mut poses = Vec::with_capacity(ds.imu.len());
+            let opts = RealtimeOptions {
+                pacing: Pacing::AsFastAsPossible,
+                deterministic,
+                realtime_priority: false,
+            };
+            let report = {
+                let mut sink = CallbackSink::poses(|p: &PoseOut| poses.push(p.nav));
+                run_dataset_with(&ds, cfg, InitMode::Static, &fe, &opts, &mut sink, &hidden())
+                    .expect("pipeline")
+            };
+            (poses, report)
+        };
+        let (got, report) = run(true);
+        let want = want.imu_rate;
+        assert!(want.len() > 1000, "only {} reference states", want.len());
+        assert_eq!(got.len(), want.len(), "number of IMU-rate poses");
+        for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(
+                state_bits(g),
+                state_bits(w),
+                "pose {k} (t = {} ns) differs",
+                w.t_ns
+            );
+        }
+        let c = report.counters;
+        assert_eq!(c.images_in as usize, ds.images.len());
+        assert_eq!(c.frames_in, 0);
+        assert_eq!(c.image_failures, 0);
+        assert_eq!(c.dropped_imu + c.dropped_images, 0);
+        assert_eq!(report.timing.frontend_image.count(), c.images_in);
+        assert_eq!(report.timing.image_arrival_to_frame.count(), c.images_in);
+        assert!(c.keyframes > 5, "only {} keyframes", c.keyframes);
+
+        let (rt, report) = run(false);
+        let c = report.counters;
+        assert_eq!(c.images_in as usize, ds.images.len());
+        assert_eq!(c.dropped_imu + c.dropped_images + c.image_failures, 0);
+        assert_eq!(report.fast_path.updates_too_old, 0);
+        // The estimator resets about 1.4 s after the last image (no camera): the real-time
+        // fast path may publish a few samples more before the reset reaches it.
+        let last_det = got.last().expect("poses");
+        let last = rt
+            .iter()
+            .find(|p| p.t_ns == last_det.t_ns)
+            .expect("the pipeline stopped early");
+        let d = (last.p_wb - last_det.p_wb).norm();
+        assert!(
+            d < 0.1,
+            "final position {d:.3} m from the deterministic run"
+        );
     });
 }

@@ -18,6 +18,7 @@
 //! seeds are stable to a few percent; a single simulated run is not (the same data with a
 //! microsecond change of a stamp moves its ATE by tens of percent), so runs are not judged alone.
 
+use crate::config::RunConfigFile;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::progress::Progress;
 use crate::runner::{config_for, percentile, replay, sorted_ms, InitMode};
@@ -168,8 +169,9 @@ fn load_real(path: &Path) -> Result<Dataset> {
         .with_context(|| format!("cannot read {}", path.display()))
 }
 
-/// Runs one sequence with the default configuration.
-pub fn run_sequence(seq: &Sequence) -> Result<RunResult> {
+/// Runs one sequence with the default configuration, or with `overlay`'s keys laid over it
+/// (the simulated runs' delay is still not told to the estimator).
+pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<RunResult> {
     let (ds, init) = match seq {
         Sequence::Real { path, init, .. } => (load_real(path)?, *init),
         Sequence::Sim {
@@ -182,6 +184,9 @@ pub fn run_sequence(seq: &Sequence) -> Result<RunResult> {
         }
     };
     let mut cfg = config_for(&ds);
+    if let Some(f) = overlay {
+        f.apply(&mut cfg)?;
+    }
     if seq.scenario().is_some() {
         // The estimator is not told the simulated delay.
         cfg.td_s = 0.0;
@@ -228,7 +233,12 @@ pub fn run_sequence(seq: &Sequence) -> Result<RunResult> {
 }
 
 /// Runs every sequence with `jobs` workers; results in the order of `seqs`.
-pub fn run_all(seqs: &[Sequence], jobs: usize, progress: &Progress) -> Result<Vec<RunResult>> {
+pub fn run_all(
+    seqs: &[Sequence],
+    overlay: Option<&RunConfigFile>,
+    jobs: usize,
+    progress: &Progress,
+) -> Result<Vec<RunResult>> {
     let next = AtomicUsize::new(0);
     let slots: Mutex<Vec<Option<Result<RunResult>>>> =
         Mutex::new((0..seqs.len()).map(|_| None).collect());
@@ -240,7 +250,7 @@ pub fn run_all(seqs: &[Sequence], jobs: usize, progress: &Progress) -> Result<Ve
                 let i = next.fetch_add(1, Ordering::Relaxed);
                 let Some(seq) = seqs.get(i) else { break };
                 progress.set_message(seq.name());
-                let r = run_sequence(seq);
+                let r = run_sequence(seq, overlay);
                 if let Ok(r) = &r {
                     progress.note(&format!(
                         "{:<28} ATE {:.4} m{}",
@@ -429,6 +439,30 @@ pub fn render(rows: &[Row]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--config`'s overlay reaches the estimator of every run, and a bad key names the file.
+    #[test]
+    fn an_overlay_changes_the_run_and_bad_keys_are_refused() {
+        let seq = Sequence::Real {
+            name: "euroc-v101-30s".into(),
+            path: Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../tests/data/euroc-v101-30s-features"),
+            init: InitMode::Static,
+        };
+        let plain = run_sequence(&seq, None).expect("the default run");
+        let same = run_sequence(&seq, Some(&RunConfigFile::parse("").expect("empty")))
+            .expect("an empty overlay");
+        assert_eq!(plain.ate_m.to_bits(), same.ate_m.to_bits());
+        let overlay = RunConfigFile::parse("sigma_px = 1.0\n").expect("toml");
+        let other = run_sequence(&seq, Some(&overlay)).expect("the overlaid run");
+        assert_ne!(plain.ate_m.to_bits(), other.ate_m.to_bits());
+        let bad = RunConfigFile::parse("sigma_pix = 1.0\n").expect("toml");
+        let err = format!(
+            "{:#}",
+            run_sequence(&seq, Some(&bad)).expect_err("unknown key")
+        );
+        assert!(err.contains("sigma_pix"), "{err}");
+    }
 
     fn run(name: &str, scenario: Option<&str>, ate: f64, diverged: bool) -> RunResult {
         RunResult {

@@ -1,7 +1,9 @@
 //! `povins replay --realtime` and `povins timing` on the repository's EuRoC 30 s tracks: the
 //! deterministic pipeline writes `povins run`'s `trajectory.tum` byte for byte (same
 //! configuration code, same start, same order), the run's `config.toml` repeats it byte for byte,
-//! and `timing --json` reports a run with no drop.
+//! and `timing --json` reports a run with no drop. On simulated images (`povins simulate
+//! --images`, PNG files) the pipeline's image front-end stage does the same: the deterministic
+//! replay writes `povins run --frontend images`'s trajectory byte for byte.
 //! No timed assertion.
 
 mod common;
@@ -90,7 +92,8 @@ fn timing_json_reports_no_drop_and_replay_needs_realtime() {
         assert_eq!(c[k].as_u64(), Some(0), "{k}: {c}");
     }
     assert!(c["keyframes"].as_u64().unwrap_or(0) > 40, "{c}");
-    assert_eq!(v["stages"].as_array().map(Vec::len), Some(7));
+    assert_eq!(v["stages"].as_array().map(Vec::len), Some(11));
+    assert_eq!(v["frontend"], "tracks");
     let (ok, _, err) = povins(&["replay", EUROC]);
     assert!(!ok);
     assert!(err.contains("--realtime"), "{err}");
@@ -200,4 +203,109 @@ fn realtime_replay_from_ground_truth_writes_every_pose_and_an_mcap() {
     .map(|v| v.as_f64().expect("a number"))
     .collect();
     assert_eq!(got, rt[0].1, "first MCAP pose vs the TUM file's");
+}
+
+/// Images through the pipeline's front-end stage: a short simulated hand-held sequence with
+/// rendered PNG images; `replay --realtime --deterministic` (front end chosen like `povins run`:
+/// images when the dataset has them) writes `povins run --frontend images`'s trajectory byte
+/// for byte, and `timing --json` reports the front end's stages and no drop.
+#[test]
+fn deterministic_replay_with_images_writes_the_image_runs_trajectory() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let sim = dir.path().join("sim");
+    let (ok, _, err) = povins(&[
+        "simulate",
+        "--scenario",
+        "handheld",
+        "--seed",
+        "1",
+        "--duration",
+        "6",
+        "--format",
+        "euroc",
+        "--images",
+        "--out",
+        sim.to_str().expect("utf-8 path"),
+    ]);
+    assert!(ok, "simulate failed: {err}");
+    let sim = sim.to_str().expect("utf-8 path");
+    let (rt_dir, run_dir) = (dir.path().join("rt"), dir.path().join("run"));
+    let (ok, out, err) = povins(&[
+        "replay",
+        "--realtime",
+        sim,
+        "--init",
+        "groundtruth",
+        "--deterministic",
+        "--speed",
+        "0",
+        "--no-rt",
+        "--out",
+        rt_dir.to_str().expect("utf-8 path"),
+    ]);
+    assert!(ok, "replay failed: {err}");
+    assert!(
+        out.contains("image front end"),
+        "not the image front end: {out}"
+    );
+    assert!(
+        out.contains("front end per image"),
+        "no front-end timing: {out}"
+    );
+    let (ok, _, err) = povins(&[
+        "run",
+        sim,
+        "--init",
+        "groundtruth",
+        "--frontend",
+        "images",
+        "--out",
+        run_dir.to_str().expect("utf-8 path"),
+    ]);
+    assert!(ok, "run failed: {err}");
+    let a = std::fs::read(rt_dir.join("trajectory.tum")).expect("replay's trajectory");
+    let b = std::fs::read(run_dir.join("trajectory.tum")).expect("run's trajectory");
+    assert!(a.len() > 50_000, "trajectory too short: {} bytes", a.len());
+    assert!(
+        a == b,
+        "the deterministic pipeline's trajectory differs from povins run --frontend images'"
+    );
+
+    let (ok, out, err) = povins(&[
+        "timing",
+        sim,
+        "--init",
+        "groundtruth",
+        "--frontend",
+        "images",
+        "--speed",
+        "0",
+        "--no-rt",
+        "--json",
+    ]);
+    assert!(ok, "timing failed: {err}");
+    let v: serde_json::Value = serde_json::from_str(&out).expect("JSON on stdout");
+    assert_eq!(v["frontend"], "images");
+    let c = &v["counters"];
+    assert!(c["images_in"].as_u64().unwrap_or(0) > 50, "{c}");
+    assert_eq!(c["frames_in"].as_u64(), Some(0), "{c}");
+    for k in [
+        "dropped_imu",
+        "dropped_images",
+        "image_failures",
+        "updates_too_old",
+    ] {
+        assert_eq!(c[k].as_u64(), Some(0), "{k}: {c}");
+    }
+    let stage = |name: &str| {
+        v["stages"]
+            .as_array()
+            .and_then(|a| a.iter().find(|s| s[0] == name))
+            .map(|s| s[1]["count"].as_u64().unwrap_or(0))
+    };
+    assert_eq!(stage("front end per image"), c["images_in"].as_u64());
+    assert_eq!(
+        stage("image arrival -> track frame"),
+        c["images_in"].as_u64()
+    );
 }

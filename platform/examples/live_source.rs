@@ -92,7 +92,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..PipelineConfig::default()
     };
     let report = pipeline::run(
-        &mut est,
+        &mut *est,
         LiveSource { rx, origin },
         &mut sink,
         &pcfg,

@@ -70,6 +70,7 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         disabled_landmarks,
         marginalized_rank_deficiency,
         prior_rank_deficiency,
+        prior_gauge_std: _,
         solve_ns: _,
         marginalization_ns: _,
         total_ns: _,

@@ -340,6 +340,8 @@ impl EstimatorConfig {
                 max_rotation_rad: 0.0,
                 max_interval_s: 0.0,
                 min_parallax_px: None,
+                compensate_rotation: false,
+                min_tracked_ratio: 0.0,
             },
             static_init: StaticInitConfig {
                 gravity_mps2: 0.0,

@@ -56,7 +56,8 @@ use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::frontend::{
-    KeyframeDecision, KeyframeSelector, NormalizedObs, RestDetector, RestVerdict, TrackTable,
+    mean_parallax_px, KeyframeDecision, KeyframeSelector, NormalizedObs, RestDetector, RestVerdict,
+    TrackTable,
 };
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
@@ -743,11 +744,11 @@ impl<
                 let dt_s = nav.t_ns.saturating_sub(last.state.t_ns) as f64 * 1e-9;
                 let dp = (nav.p_wb - last.state.p_wb).norm();
                 let dr = log_so3(&(last.state.q_wb.inverse() * nav.q_wb)).norm();
-                let parallax = self.mean_parallax_px();
+                let (parallax, tracked) = self.parallax_and_tracked(&nav);
                 let nearly_full = self
                     .open()
                     .is_some_and(|o| o.len() + 16 >= MAX_INTERVAL_SAMPLES);
-                match self.selector.decide(dt_s, dp, dr, parallax) {
+                match self.selector.decide(dt_s, dp, dr, parallax, tracked) {
                     KeyframeDecision::No
                         if nearly_full && dt_s >= self.cfg.keyframe.min_interval_s =>
                     {
@@ -822,26 +823,36 @@ impl<
         }
     }
 
-    /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe.
-    fn mean_parallax_px(&self) -> f64 {
-        let pos = match self.window.len().checked_sub(1) {
-            Some(p) => p,
-            None => return 0.0,
+    /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe (with
+    /// `keyframe.compensate_rotation`, after rotating the keyframe's rays by the rotation the
+    /// INS predicts between them), and the share of the keyframe's features still tracked.
+    fn parallax_and_tracked(&self, nav: &NavState) -> (f64, f64) {
+        let (Some(pos), Some(last)) = (self.window.len().checked_sub(1), self.window.last()) else {
+            return (0.0, 1.0);
         };
-        let f = 0.5 * (self.cfg.camera.fx + self.cfg.camera.fy);
-        let (mut sum, mut n) = (0.0, 0u32);
-        for o in self.frame_obs.iter() {
-            if let Some(Some(k)) = self.lms.get(o.id).and_then(|lm| lm.obs.get(pos)) {
-                let (dx, dy) = (o.x_n[0] - k.x_n[0], o.x_n[1] - k.x_n[1]);
-                sum += libm::sqrt(dx * dx + dy * dy) * f;
-                n += 1;
-            }
-        }
-        if n == 0 {
-            0.0
+        // Rotation taking the keyframe camera's rays into the current camera's.
+        let r_ck = self.cfg.keyframe.compensate_rotation.then(|| {
+            let ck = self.ext.camera_pose(&last.state.p_wb, &last.state.q_wb);
+            let cc = self.ext.camera_pose(&nav.p_wb, &nav.q_wb);
+            cc.q_wc.inverse() * ck.q_wc
+        });
+        let pairs = self.frame_obs.iter().filter_map(|o| {
+            let k = self.lms.get(o.id)?.obs.get(pos)?.as_ref()?;
+            Some((k.x_n, [o.x_n[0], o.x_n[1]]))
+        });
+        let (parallax, n) = mean_parallax_px(pairs, r_ck.as_ref(), self.focal_px());
+        let seen = self
+            .lms
+            .landmarks()
+            .iter()
+            .filter(|lm| matches!(lm.obs.get(pos), Some(Some(_))))
+            .count();
+        let tracked = if seen == 0 {
+            1.0
         } else {
-            sum / f64::from(n)
-        }
+            n as f64 / seen as f64
+        };
+        (parallax, tracked)
     }
 
     fn add_keyframe(
@@ -874,6 +885,9 @@ impl<
             if let Some((m, p)) = self.last_marg {
                 report.marginalized_rank_deficiency = m;
                 report.prior_rank_deficiency = p;
+                if let Some((pos, yaw)) = self.prior.gauge_std() {
+                    report.prior_gauge_std = (pos[0].max(pos[1]).max(pos[2]), yaw);
+                }
             }
         }
 

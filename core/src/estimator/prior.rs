@@ -152,6 +152,87 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         Ok(())
     }
 
+    /// What the prior knows about the window's gauge, the four directions no measurement of a
+    /// visual-inertial window can see: a translation of every keyframe, and a rotation of every
+    /// keyframe about gravity (world `z`), which moves `p` by `z x p`, `v` by `z x v` and the
+    /// attitude by `R^T z` in its right-perturbation error. Returns the standard deviations
+    /// `([x, y, z] m, yaw rad)` of the prior's Gaussian restricted to those directions, each
+    /// with the other three free, evaluated at the prior's linearization points; `None`
+    /// without a prior. [`f64::INFINITY`] where the prior holds no information.
+    ///
+    /// It starts from the first state's prior ([`crate::estimator::FirstStatePrior`]: `p_m`,
+    /// `theta_rad` for the yaw). No measurement adds gauge information, and marginalizing a
+    /// keyframe can only dilute it (the window's absolute pose drifts away from the first
+    /// one), so in a consistent window these deviations never shrink. A shrinking one is the
+    /// spurious information that linearizing the prior's factors and the window's factors at
+    /// different points creates (what first-estimate Jacobians prevent). A diagnostic: `O(p^2)`
+    /// per call; nothing in the solve depends on it.
+    pub fn gauge_std(&self) -> Option<([f64; 3], f64)> {
+        if self.dim == 0 {
+            return None;
+        }
+        let p = self.dim;
+        // The gauge directions as four columns over the prior's error state.
+        let mut n = [[0.0f64; 4]; D];
+        let mut at = 0;
+        for (b, lin) in self.blocks.iter() {
+            if let LinPoint::Kf(x0) = lin {
+                let z = Vec3::z();
+                let parts = [
+                    z.cross(&x0.p_wb),
+                    x0.q_wb.inverse_transform_vector(&z),
+                    z.cross(&x0.v_wb),
+                ];
+                for (k, part) in parts.iter().enumerate() {
+                    for i in 0..3 {
+                        if let Some(row) = n.get_mut(at + 3 * k + i) {
+                            row[3] = part[i];
+                            if k == 0 {
+                                row[i] = 1.0;
+                            }
+                        }
+                    }
+                }
+            }
+            at += b.dim();
+        }
+        // H0 N over the rows the directions touch, then M = N^T H0 N.
+        let touched = |r: &[f64; 4]| r.iter().any(|v| *v != 0.0);
+        let mut m = nalgebra::Matrix4::<f64>::zeros();
+        for (ni, hrow) in n.iter().zip(self.h0.iter()).take(p) {
+            if !touched(ni) {
+                continue;
+            }
+            let mut hn = [0.0f64; 4];
+            for (nj, h) in n.iter().zip(hrow.iter()).take(p) {
+                if touched(nj) {
+                    for (o, v) in hn.iter_mut().zip(nj.iter()) {
+                        *o += h * v;
+                    }
+                }
+            }
+            for a in 0..4 {
+                for c in 0..4 {
+                    m[(a, c)] += ni[a] * hn[c];
+                }
+            }
+        }
+        let std = |v: f64| {
+            if v > 0.0 {
+                libm::sqrt(v)
+            } else {
+                f64::INFINITY
+            }
+        };
+        match m.try_inverse() {
+            Some(cov) if cov.iter().all(|v| v.is_finite()) => Some((
+                [std(cov[(0, 0)]), std(cov[(1, 1)]), std(cov[(2, 2)])],
+                std(cov[(3, 3)]),
+            )),
+            _ => Some(([f64::INFINITY; 3], f64::INFINITY)),
+        }
+    }
+
     /// Renames every block after the oldest keyframe left the window (positions shift by one).
     /// Fails if the prior still refers to position 0.
     pub fn shift_positions(&mut self) -> Result<(), Error> {
@@ -331,5 +412,147 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         }
         ne.cost += cost;
         Ok(cost)
+    }
+}
+
+#[cfg(test)]
+mod gauge_tests {
+    use super::*;
+    use crate::math::{exp_so3, Quat};
+
+    const P: usize = 30;
+    type Prior = MargPrior<32, 4>;
+
+    /// `x [+] dx` for a keyframe error state `[p, theta (right), v, bg, ba]`.
+    fn plus(x: &NavState, dx: &[f64]) -> NavState {
+        let v = |i: usize| Vec3::new(dx[i], dx[i + 1], dx[i + 2]);
+        let dq = Quat::from_matrix(&exp_so3(&v(3)));
+        NavState {
+            p_wb: x.p_wb + v(0),
+            q_wb: x.q_wb * dq,
+            v_wb: x.v_wb + v(6),
+            ..*x
+        }
+    }
+
+    /// Residuals of two keyframes that a global translation and yaw leave unchanged: kf 2's
+    /// position, attitude and velocity seen from kf 1, and kf 1's velocity in its body frame.
+    fn relative(a: &NavState, b: &NavState) -> [f64; 12] {
+        let rt = a.q_wb.inverse();
+        let parts = [
+            rt * (b.p_wb - a.p_wb),
+            log_so3(&(rt * b.q_wb)),
+            rt * b.v_wb,
+            rt * a.v_wb,
+        ];
+        core::array::from_fn(|i| parts[i / 3][i % 3])
+    }
+
+    /// A prior over kf 1 and kf 2 at `x1`, `x2`: the invariant residuals (Jacobian by central
+    /// differences, so it knows nothing of the gauge directions `gauge_std` assumes), plus
+    /// `extra` on the diagonal of the state.
+    fn prior(x1: &NavState, x2: &NavState, extra: &[(usize, f64)]) -> Prior {
+        let mut jac = [[0.0; P]; 12];
+        let h = 1e-6;
+        for c in 0..P {
+            let mut d = [0.0; P];
+            d[c] = h;
+            let f = |s: f64| {
+                let dd: [f64; P] = core::array::from_fn(|i| s * d[i]);
+                relative(&plus(x1, &dd[..15]), &plus(x2, &dd[15..]))
+            };
+            let (fp, fm) = (f(1.0), f(-1.0));
+            for r in 0..12 {
+                jac[r][c] = (fp[r] - fm[r]) / (2.0 * h);
+            }
+        }
+        let mut ne = NormalEquations::<32>::new();
+        ne.reset(P).expect("30 of 32 columns");
+        let flat: [f64; 12 * P] = core::array::from_fn(|i| jac[i / P][i % P] * 10.0);
+        let cols: [usize; P] = core::array::from_fn(|i| i);
+        ne.add_residual(&[0.0; 12], &flat, &cols, 12, P)
+            .expect("finite");
+        for &(i, info) in extra {
+            ne.add_to_diagonal(i, info).expect("in range");
+        }
+        let mut pr = Prior::new();
+        pr.blocks
+            .push((Block::Kf(1), LinPoint::Kf(*x1)))
+            .expect("room");
+        pr.blocks
+            .push((Block::Kf(2), LinPoint::Kf(*x2)))
+            .expect("room");
+        pr.set_dim(P, &ne).expect("consistent dimensions");
+        pr
+    }
+
+    fn states() -> (NavState, NavState) {
+        let x1 = NavState {
+            p_wb: Vec3::new(3.0, -2.0, 1.0),
+            q_wb: Quat::from_euler_angles(0.1, -0.2, 0.7),
+            v_wb: Vec3::new(1.2, 0.4, -0.1),
+            ..NavState::ZERO
+        };
+        let x2 = NavState {
+            p_wb: Vec3::new(3.4, -1.7, 1.1),
+            q_wb: Quat::from_euler_angles(0.15, -0.1, 0.9),
+            v_wb: Vec3::new(1.0, 0.6, 0.0),
+            ..NavState::ZERO
+        };
+        (x1, x2)
+    }
+
+    /// Absolute priors on kf 1's position (sigma 1e-3 m) and attitude (0.02 rad), the first
+    /// state's prior: as the only information on the gauge, they are what `gauge_std` gives.
+    fn first_prior() -> [(usize, f64); 6] {
+        let (sp, st) = (1e-3f64, 0.02f64);
+        core::array::from_fn(|i| {
+            (
+                i,
+                if i < 3 {
+                    1.0 / (sp * sp)
+                } else {
+                    1.0 / (st * st)
+                },
+            )
+        })
+    }
+
+    #[test]
+    fn invariant_factors_add_no_gauge_information() {
+        let (x1, x2) = states();
+        let (pos, yaw) = prior(&x1, &x2, &first_prior())
+            .gauge_std()
+            .expect("a prior");
+        // The yaw also moves kf 1's position (by z x p), but with the translation free that
+        // part is taken up: the yaw keeps the attitude prior's 0.02 rad.
+        assert!((yaw - 0.02).abs() < 2e-6, "yaw std {yaw}");
+        for s in pos {
+            assert!(
+                s.is_finite() && s >= 1e-3 * (1.0 - 1e-6),
+                "position std {s}"
+            );
+        }
+        // Without any absolute prior, the gauge is free.
+        let (pos, yaw) = prior(&x1, &x2, &[]).gauge_std().expect("a prior");
+        assert!(yaw > 1e3 && pos.iter().all(|s| *s > 1e3), "{pos:?} {yaw}");
+    }
+
+    #[test]
+    fn an_absolute_yaw_measurement_shows_as_gauge_information() {
+        let (x1, x2) = states();
+        let base = prior(&x1, &x2, &first_prior())
+            .gauge_std()
+            .expect("a prior")
+            .1;
+        // Information on kf 2's attitude about its body axes, as a fixed linearization point
+        // gives the window when the states moved: it includes the yaw.
+        let mut extra = first_prior().to_vec();
+        extra.extend((18..21).map(|i| (i, 1.0 / (1e-3f64 * 1e-3))));
+        let yaw = prior(&x1, &x2, &extra).gauge_std().expect("a prior").1;
+        assert!(
+            yaw < 0.1 * base && yaw > 5e-4,
+            "yaw std {yaw} (without: {base})"
+        );
     }
 }

@@ -43,6 +43,11 @@ pub struct KeyframeReport {
     /// say nothing about (velocities and biases of keyframes linked to the oldest one only
     /// through landmarks) plus any direction lost to the floor.
     pub prior_rank_deficiency: u32,
+    /// Standard deviations the marginalization prior gives the window's global position
+    /// (largest axis), m, and yaw, rad ([`crate::estimator::prior::MargPrior::gauge_std`]): in a
+    /// consistent window they never shrink from one keyframe to the next; a drop is
+    /// information it cannot have. 0 when no prior was formed in this step.
+    pub prior_gauge_std: (f64, f64),
     /// Time of the optimization (both passes, culling included), ns.
     pub solve_ns: u64,
     /// Time of the marginalization, ns.

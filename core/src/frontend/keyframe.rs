@@ -7,6 +7,11 @@
 //!   (0.285 s) and `dp > min_translation_m` (0.2 m) — or, with `min_parallax_px` set (IC-GVINS),
 //!   when the mean feature parallax exceeds it instead of the translation test;
 //! - otherwise a keyframe at the latest after `max_interval_s` (0.475 s).
+//!
+//! Two options (off by default) give VINS-Mono's rule instead: `compensate_rotation` measures the
+//! parallax after removing the predicted rotation (so a turn alone makes none), and
+//! `min_tracked_ratio` makes a keyframe when fewer than that share of the newest keyframe's
+//! features are still tracked (what the rotation rule stands in for: tracks leaving the view).
 
 /// Keyframe thresholds.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -33,6 +38,12 @@ pub struct KeyframeConfig {
         serde(default, skip_serializing_if = "Option::is_none")
     )]
     pub min_parallax_px: Option<f64>,
+    /// Measure the parallax of `min_parallax_px` after removing the INS-predicted rotation
+    /// since the newest keyframe (VINS-Mono).
+    pub compensate_rotation: bool,
+    /// A keyframe (after `min_interval_s`) when fewer than this share of the newest keyframe's
+    /// features are tracked in the frame; 0 = off.
+    pub min_tracked_ratio: f64,
 }
 
 impl KeyframeConfig {
@@ -44,6 +55,8 @@ impl KeyframeConfig {
         max_rotation_rad: 10.0 * core::f64::consts::PI / 180.0,
         max_interval_s: 0.475,
         min_parallax_px: None,
+        compensate_rotation: false,
+        min_tracked_ratio: 0.0,
     };
 }
 
@@ -66,6 +79,8 @@ pub enum KeyframeDecision {
     Rotation,
     /// Translation (or parallax) exceeded the threshold.
     Translation,
+    /// Too few of the newest keyframe's features are still tracked.
+    Tracks,
     /// Maximum interval reached.
     Timeout,
 }
@@ -75,6 +90,32 @@ impl KeyframeDecision {
     pub fn is_keyframe(self) -> bool {
         self != KeyframeDecision::No
     }
+}
+
+/// Mean pixel distance between the normalized image points of `pairs` (`(keyframe, current)`)
+/// at focal length `focal_px`, and how many pairs entered it. With `r_ck` (the rotation taking
+/// keyframe-camera rays into the current camera's) the keyframe point is rotated first, so a
+/// pure rotation gives no parallax; a point whose rotated ray is not in front is skipped.
+pub fn mean_parallax_px(
+    pairs: impl Iterator<Item = ([f64; 2], [f64; 2])>,
+    r_ck: Option<&crate::math::Quat>,
+    focal_px: f64,
+) -> (f64, usize) {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (k, c) in pairs {
+        let mut x = k;
+        if let Some(r) = r_ck {
+            let ray = r * crate::math::Vec3::new(k[0], k[1], 1.0);
+            if ray.z <= 1e-6 {
+                continue;
+            }
+            x = [ray.x / ray.z, ray.y / ray.z];
+        }
+        let (dx, dy) = (c[0] - x[0], c[1] - x[1]);
+        sum += libm::sqrt(dx * dx + dy * dy) * focal_px;
+        n += 1;
+    }
+    (if n == 0 { 0.0 } else { sum / n as f64 }, n)
 }
 
 /// Stateless rule set over [`KeyframeConfig`].
@@ -95,20 +136,26 @@ impl KeyframeSelector {
             c.max_rotation_rad,
             c.max_interval_s,
             c.min_parallax_px.unwrap_or(0.0),
+            c.min_tracked_ratio,
         ];
-        if vals.iter().any(|v| !v.is_finite() || *v < 0.0) || c.max_interval_s < c.min_interval_s {
+        if vals.iter().any(|v| !v.is_finite() || *v < 0.0)
+            || c.max_interval_s < c.min_interval_s
+            || c.min_tracked_ratio > 1.0
+        {
             return Err(crate::Error::InvalidConfig);
         }
         Ok(KeyframeSelector { config })
     }
 
-    /// Decides for a frame `dt_s` after the last keyframe with the given predicted motion.
+    /// Decides for a frame `dt_s` after the last keyframe with the given predicted motion,
+    /// mean parallax and share of the last keyframe's features tracked.
     pub fn decide(
         &self,
         dt_s: f64,
         translation_m: f64,
         rotation_rad: f64,
         mean_parallax_px: f64,
+        tracked_ratio: f64,
     ) -> KeyframeDecision {
         let c = &self.config;
         if dt_s < c.min_interval_s {
@@ -116,6 +163,9 @@ impl KeyframeSelector {
         }
         if rotation_rad > c.max_rotation_rad {
             return KeyframeDecision::Rotation;
+        }
+        if tracked_ratio < c.min_tracked_ratio {
+            return KeyframeDecision::Tracks;
         }
         if dt_s >= c.min_translation_interval_s {
             let moved = match c.min_parallax_px {
@@ -136,24 +186,62 @@ impl KeyframeSelector {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::{Quat, Vec3};
+
+    #[test]
+    fn compensated_parallax_of_a_pure_rotation_is_zero() {
+        let r_ck = Quat::from_euler_angles(0.05, -0.1, 0.2);
+        let points = [
+            Vec3::new(0.1, -0.2, 4.0),
+            Vec3::new(-1.0, 0.5, 6.0),
+            Vec3::new(0.3, 0.3, 2.0),
+        ];
+        let proj = |p: Vec3| [p.x / p.z, p.y / p.z];
+        // The camera only turned: each point's ray is rotated, none moved.
+        let pairs = || points.iter().map(|p| (proj(*p), proj(r_ck * p)));
+        let (raw, n) = mean_parallax_px(pairs(), None, 400.0);
+        assert!(raw > 20.0 && n == 3, "raw parallax {raw} px");
+        let (comp, n) = mean_parallax_px(pairs(), Some(&r_ck), 400.0);
+        assert!(comp < 1e-9 && n == 3, "compensated {comp} px");
+        // A translation on top shows: 0.2 m sideways at 2-6 m depth.
+        let moved = || {
+            points
+                .iter()
+                .map(|p| (proj(*p), proj(r_ck * p + Vec3::new(0.2, 0.0, 0.0))))
+        };
+        let (comp, _) = mean_parallax_px(moved(), Some(&r_ck), 400.0);
+        assert!(
+            comp > 10.0,
+            "compensated parallax of a translation {comp} px"
+        );
+    }
 
     #[test]
     fn le_vins_rules() {
         let s = KeyframeSelector::new(KeyframeConfig::default()).unwrap();
         let deg = core::f64::consts::PI / 180.0;
-        assert_eq!(s.decide(0.05, 5.0, 90.0 * deg, 0.0), KeyframeDecision::No);
         assert_eq!(
-            s.decide(0.1, 0.0, 11.0 * deg, 0.0),
+            s.decide(0.05, 5.0, 90.0 * deg, 0.0, 1.0),
+            KeyframeDecision::No
+        );
+        assert_eq!(
+            s.decide(0.1, 0.0, 11.0 * deg, 0.0, 1.0),
             KeyframeDecision::Rotation
         );
-        assert_eq!(s.decide(0.2, 0.5, 1.0 * deg, 0.0), KeyframeDecision::No);
         assert_eq!(
-            s.decide(0.3, 0.5, 1.0 * deg, 0.0),
+            s.decide(0.2, 0.5, 1.0 * deg, 0.0, 1.0),
+            KeyframeDecision::No
+        );
+        assert_eq!(
+            s.decide(0.3, 0.5, 1.0 * deg, 0.0, 1.0),
             KeyframeDecision::Translation
         );
-        assert_eq!(s.decide(0.3, 0.1, 1.0 * deg, 0.0), KeyframeDecision::No);
         assert_eq!(
-            s.decide(0.48, 0.1, 1.0 * deg, 0.0),
+            s.decide(0.3, 0.1, 1.0 * deg, 0.0, 1.0),
+            KeyframeDecision::No
+        );
+        assert_eq!(
+            s.decide(0.48, 0.1, 1.0 * deg, 0.0, 1.0),
             KeyframeDecision::Timeout
         );
         let p = KeyframeSelector::new(KeyframeConfig {
@@ -161,8 +249,24 @@ mod tests {
             ..Default::default()
         })
         .unwrap();
-        assert_eq!(p.decide(0.3, 5.0, 0.0, 10.0), KeyframeDecision::No);
-        assert_eq!(p.decide(0.3, 0.0, 0.0, 25.0), KeyframeDecision::Translation);
+        assert_eq!(p.decide(0.3, 5.0, 0.0, 10.0, 1.0), KeyframeDecision::No);
+        assert_eq!(
+            p.decide(0.3, 0.0, 0.0, 25.0, 1.0),
+            KeyframeDecision::Translation
+        );
+        let v = KeyframeSelector::new(KeyframeConfig {
+            min_tracked_ratio: 0.5,
+            ..Default::default()
+        })
+        .unwrap();
+        assert_eq!(v.decide(0.05, 0.0, 0.0, 0.0, 0.1), KeyframeDecision::No);
+        assert_eq!(v.decide(0.1, 0.0, 0.0, 0.0, 0.49), KeyframeDecision::Tracks);
+        assert_eq!(v.decide(0.1, 0.0, 0.0, 0.0, 0.5), KeyframeDecision::No);
+        assert!(KeyframeSelector::new(KeyframeConfig {
+            min_tracked_ratio: 1.5,
+            ..Default::default()
+        })
+        .is_err());
         assert!(KeyframeSelector::new(KeyframeConfig {
             max_interval_s: f64::NAN,
             ..Default::default()

@@ -12,6 +12,6 @@ pub mod rest;
 pub mod tracks;
 
 pub use image::{EurocTracker, FeatureTracker, ImageView, TrackHints, TrackStats, TrackerConfig};
-pub use keyframe::{KeyframeConfig, KeyframeDecision, KeyframeSelector};
+pub use keyframe::{mean_parallax_px, KeyframeConfig, KeyframeDecision, KeyframeSelector};
 pub use rest::{RestConfig, RestDetector, RestVerdict};
 pub use tracks::{FrameStats, NormalizedObs, TrackTable};

@@ -1,5 +1,6 @@
 //! `povins regress`: the accuracy regression suite (see [`crate::regress`]).
 
+use crate::config::RunConfigFile;
 use crate::progress::Progress;
 use crate::regress::{compare, render, run_all, sequences, Baseline};
 use anyhow::{bail, Context, Result};
@@ -27,6 +28,10 @@ pub struct Args {
     /// Store this run's figures as the new baseline (the smoother's figures are kept).
     #[arg(long)]
     pub bless: bool,
+    /// Lay this TOML file's keys over every run's configuration (an experiment: the stored
+    /// figures are those of the defaults; `--bless` refuses it).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Also write every run's figures as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -34,9 +39,17 @@ pub struct Args {
 
 /// Runs the command; an error (non-zero exit) when a figure regressed or a run diverged.
 pub fn run(args: Args) -> Result<()> {
+    if args.bless && args.config.is_some() {
+        bail!("--bless stores the defaults' figures: drop --config");
+    }
+    let overlay = args
+        .config
+        .as_deref()
+        .map(RunConfigFile::read)
+        .transpose()?;
     let seqs = sequences(&args.data, args.quick, args.seeds);
     let progress = Progress::new(seqs.len() as u64, "regress");
-    let runs = run_all(&seqs, args.jobs, &progress)?;
+    let runs = run_all(&seqs, overlay.as_ref(), args.jobs, &progress)?;
     let mut base = if args.baseline.exists() {
         Baseline::read(&args.baseline)?
     } else if args.bless {

@@ -2,7 +2,8 @@
 //! over a dataset, writing the IMU-rate poses it published to `DIR/trajectory.tum` and
 //! printing the timing table (and, with `--mcap-out FILE`, an MCAP file of the poses for
 //! Foxglove: [`McapSink`]). With `--deterministic` the trajectory is bit-identical to
-//! `povins run`'s on the same input and settings (tracks front end).
+//! `povins run`'s on the same input and settings, with either front end (`--frontend tracks`,
+//! or `images`: the pipeline's image front-end stage).
 
 use super::run::load_dataset;
 use super::timing::{run_pipeline, PipelineArgs, TimingSummary};

@@ -1,14 +1,17 @@
 //! `povins timing DATASET`: the onboard pipeline (`povins_platform::pipeline`: IMU and back-end
-//! threads, pinned, `SCHED_FIFO` when permitted) over a dataset, paced at the recorded rate by
-//! default, then the timing table: per-stage p50/p99/max, IMU-output latency, back-end lag
-//! against the keyframe period, deadline misses and drops (`--json` for a machine-readable
-//! copy). `povins replay --realtime` runs the same pipeline and prints the same table.
+//! threads, pinned, `SCHED_FIFO` when permitted; the image front-end stage on the back-end
+//! thread when the dataset has images) over a dataset, paced at the recorded rate by default,
+//! then the timing table: per-stage p50/p99/max (the front end's per-image decode and
+//! processing time and its image-stamp -> track-frame latency included), IMU-output latency,
+//! back-end lag against the keyframe period, deadline misses and drops (`--json` for a
+//! machine-readable copy). `povins replay --realtime` runs the same pipeline and prints the
+//! same table.
 
-use super::run::{estimator_config_from, load_dataset};
+use super::run::{estimator_config_from, frontend_options, load_dataset};
 use crate::config::{LidarArgs, ModeArg};
 use crate::progress::Progress;
-use crate::realtime::{imu_period_ns, run_dataset, RealtimeOptions};
-use crate::runner::InitMode;
+use crate::realtime::{imu_period_ns, run_dataset_with, RealtimeOptions};
+use crate::runner::{Frontend, InitMode};
 use anyhow::Result;
 use povins_platform::pipeline::{
     CallbackSink, Pacing, PipelineCounters, PipelineReport, PoseOut, RtStatus, Sink, StageSummary,
@@ -20,8 +23,14 @@ use std::path::PathBuf;
 /// What both `povins timing` and `povins replay --realtime` take.
 #[derive(clap::Args, Debug, Clone)]
 pub struct PipelineArgs {
-    /// EuRoC ASL folder (containing `mav0/`) or an `.mcap` file, with feature tracks.
+    /// EuRoC ASL folder (containing `mav0/`) or an `.mcap` file, with camera images or feature
+    /// tracks.
     pub dataset: PathBuf,
+    /// What feeds the estimator, as for `povins run`: the camera images through the pipeline's
+    /// front-end stage, or the dataset's feature tracks (default: images when the dataset has
+    /// them, else tracks).
+    #[arg(long, value_enum)]
+    pub frontend: Option<Frontend>,
     /// Pacing factor on the recorded rate (1: real time, 2: twice as fast); 0 runs as fast as
     /// possible.
     #[arg(long, default_value_t = 1.0)]
@@ -67,6 +76,8 @@ pub struct TimingSummary {
     pub speed: f64,
     /// Lockstep mode.
     pub deterministic: bool,
+    /// The front end that fed the estimator.
+    pub frontend: Frontend,
     /// IMU period, ms.
     pub imu_period_ms: f64,
     /// Median keyframe period, ms.
@@ -88,6 +99,7 @@ impl TimingSummary {
             dataset: ds.name.clone(),
             speed: a.speed,
             deterministic: a.deterministic,
+            frontend: a.frontend.unwrap_or(default_frontend(ds)),
             imu_period_ms: imu_period_ns(ds) as f64 * 1e-6,
             keyframe_period_ms: report.keyframe_period_ns.map(|p| p as f64 * 1e-6),
             stages: STAGES
@@ -106,7 +118,7 @@ impl TimingSummary {
         let c = &self.counters;
         let mut v = vec![
             format!(
-                "pipeline  {} ({}, {}), {:.1} s wall",
+                "pipeline  {} ({}, {}, {} front end), {:.1} s wall",
                 self.dataset,
                 if self.speed > 0.0 {
                     format!("paced x{}", self.speed)
@@ -118,6 +130,10 @@ impl TimingSummary {
                 } else {
                     "real time"
                 },
+                match self.frontend {
+                    Frontend::Images => "image",
+                    Frontend::Tracks => "tracks",
+                },
                 self.wall_s
             ),
             format!("threads   {}", self.rt.summary()),
@@ -127,18 +143,27 @@ impl TimingSummary {
             ),
         ];
         for (name, s) in &self.stages {
+            if s.count == 0 && (name.contains("image") || name.starts_with("front end")) {
+                continue;
+            }
             v.push(format!(
                 "{name:<28} {:>8} {:>10.4} {:>10.4} {:>10.4}",
                 s.count, s.p50_ms, s.p99_ms, s.max_ms
             ));
         }
         v.push(format!(
-            "samples   {} IMU, {} frames, {} sweeps in; {} poses out, {} keyframes",
-            c.imu_in, c.frames_in, c.sweeps_in, c.poses_out, c.keyframes
+            "samples   {} IMU, {} frames, {} images, {} sweeps in; {} poses out, {} keyframes",
+            c.imu_in, c.frames_in, c.images_in, c.sweeps_in, c.poses_out, c.keyframes
         ));
         v.push(format!(
-            "dropped   {} IMU, {} frames, {} sweeps (queue full); {} waits on the back end",
-            c.dropped_imu, c.dropped_frames, c.dropped_sweeps, c.backpressure_waits
+            "dropped   {} IMU, {} frames, {} images, {} sweeps (queue full); {} waits on the \
+             back end; {} images not decodable or refused by the tracker",
+            c.dropped_imu,
+            c.dropped_frames,
+            c.dropped_images,
+            c.dropped_sweeps,
+            c.backpressure_waits,
+            c.image_failures
         ));
         v.push(format!(
             "misses    {} poses later than one IMU period ({:.2} ms) after arrival; {} back-end \
@@ -178,8 +203,18 @@ pub fn run_pipeline<K: Sink + Send>(
     label: &str,
 ) -> Result<PipelineReport> {
     let cfg = estimator_config_from(a.config.as_deref(), a.mode, &a.lidar, ds)?;
+    let fe = frontend_options(a.config.as_deref(), a.frontend, ds)?;
     let progress = Progress::new(ds.imu.len() as u64, label);
-    run_dataset(ds, cfg, a.init, &options(a), sink, &progress)
+    run_dataset_with(ds, cfg, a.init, &fe, &options(a), sink, &progress)
+}
+
+/// The front end `povins run` picks without `--frontend`: images when the dataset has them.
+fn default_frontend(ds: &Dataset) -> Frontend {
+    if ds.images.is_empty() {
+        Frontend::Tracks
+    } else {
+        Frontend::Images
+    }
 }
 
 /// Runs the command.

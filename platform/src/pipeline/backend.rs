@@ -1,11 +1,12 @@
 //! The back-end thread: owns the estimator, consumes IMU samples, frames and sweeps in the
 //! order the IMU thread forwards them (the source's order, which is the replay's), and sends
 //! one [`FromBackend`] per IMU sample back: the estimator's [`InsUpdate`] and keyframe report.
+//! Images go through the front-end stage ([`super::frontend`]) here, in the same order.
 
+use super::frontend::{self, Backend};
 use super::sink::KeyframeOut;
-use super::stats::Timing;
+use super::stats::{PipelineCounters, Timing};
 use super::{Shared, ToBackend};
-use povins_core::estimator::PoVins;
 use povins_core::inertial::InsUpdate;
 use rtrb::{Consumer, Producer, PushError};
 use std::sync::atomic::Ordering;
@@ -25,14 +26,16 @@ pub(crate) struct FromBackend {
 /// How long a waiting thread sleeps before looking again (it is also woken by `unpark`).
 pub(crate) const WAIT: Duration = Duration::from_micros(200);
 
-/// The back end's loop: returns its timing and the keyframe stamps (IMU clock, ns).
-pub(crate) fn run(
-    est: &mut PoVins,
+/// The back end's loop: returns its timing, the keyframe stamps (IMU clock, ns) and its
+/// counters (the front-end stage's failures).
+pub(crate) fn run<E: Backend + ?Sized>(
+    est: &mut E,
     mut rx: Consumer<ToBackend>,
     mut tx: Producer<FromBackend>,
     shared: &Shared,
-) -> (Timing, Vec<i64>) {
+) -> (Timing, Vec<i64>, PipelineCounters) {
     let mut timing = Timing::default();
+    let mut counters = PipelineCounters::default();
     let mut keyframes = Vec::new();
     loop {
         let msg = match rx.pop() {
@@ -50,6 +53,9 @@ pub(crate) fn run(
                 // Refused frames are counted by the estimator (`counters()`).
                 let _ = est.push_frame(t_cam_ns, &obs);
                 timing.backend_input.record(elapsed_ns(t0));
+            }
+            ToBackend::Image(msg) => {
+                frontend::process(est, &msg, &mut timing, &mut counters);
             }
             ToBackend::Lidar(points) => {
                 let _ = est.push_lidar(&points);
@@ -75,7 +81,7 @@ pub(crate) fn run(
                 let dt = elapsed_ns(t0);
                 let keyframe = report.map(|report| KeyframeOut {
                     report,
-                    state: est.keyframes().last().map(|k| k.state),
+                    state: est.estimator().keyframes().last().map(|k| k.state),
                 });
                 if keyframe.is_some() {
                     timing.backend_keyframe.record(dt);
@@ -98,7 +104,7 @@ pub(crate) fn run(
             }
         }
     }
-    (timing, keyframes)
+    (timing, keyframes, counters)
 }
 
 /// Sends a reply, waiting while the queue is full (the IMU thread drains it at every event).

@@ -8,6 +8,7 @@
 //! with a source that is not real time, to stay at most `max_lead_samples` ahead of it.
 
 use super::backend::{elapsed_ns, FromBackend, WAIT};
+use super::frontend::ImageMsg;
 use super::sink::{PoseOut, Sink};
 use super::source::{SensorEvent, Source};
 use super::stats::{PipelineCounters, Timing};
@@ -44,6 +45,18 @@ impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
                     self.counters.frames_in += 1;
                     if !self.forward(ToBackend::Frame { t_cam_ns, obs }) {
                         self.counters.dropped_frames += 1;
+                    }
+                }
+                SensorEvent::Image { t_cam_ns, data } => {
+                    self.counters.images_in += 1;
+                    let msg = ImageMsg {
+                        t_cam_ns,
+                        data,
+                        arrival,
+                        due: self.source.stamp_instant(t_cam_ns),
+                    };
+                    if !self.forward(ToBackend::Image(msg)) {
+                        self.counters.dropped_images += 1;
                     }
                 }
                 SensorEvent::Lidar(points) => {
@@ -83,13 +96,15 @@ impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
         if sent && self.cfg.deterministic {
             let mut done = false;
             while !done {
-                let mut got: Option<NavState> = None;
+                let mut got: Option<Option<NavState>> = None;
                 let (ns, seen) = self.drain_until(s.t_ns, &mut got);
                 fast_ns += ns;
                 if seen {
                     done = true;
-                    if got.is_some() {
-                        latest = got;
+                    // An update decides the state, also when there is none (a reset: the
+                    // estimator publishes nothing at this sample, nor does the fast path).
+                    if let Some(g) = got {
+                        latest = g;
                     }
                 } else {
                     self.counters.backpressure_waits += 1;
@@ -140,13 +155,14 @@ impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
     }
 
     /// Applies replies up to and including the one for sample `t_ns`; `got` is the state after
-    /// the last update applied. Returns the fast-path time, ns, and whether that reply came.
-    fn drain_until(&mut self, t_ns: i64, got: &mut Option<NavState>) -> (u64, bool) {
+    /// the last update applied (`Some(None)` when it left no state: a reset). Returns the
+    /// fast-path time, ns, and whether that reply came.
+    fn drain_until(&mut self, t_ns: i64, got: &mut Option<Option<NavState>>) -> (u64, bool) {
         let mut ns = 0;
         while let Ok(r) = self.rx.pop() {
             if let Some(u) = &r.ins {
                 let t0 = Instant::now();
-                *got = self.fast.apply(u);
+                *got = Some(self.fast.apply(u));
                 ns += elapsed_ns(t0);
             }
             if let Some(k) = &r.keyframe {

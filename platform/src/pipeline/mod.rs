@@ -1,8 +1,9 @@
-//! The onboard runtime: a pipeline of two threads around the estimator, for Linux (x86-64 and
-//! aarch64).
+//! The onboard runtime: a pipeline of threads around the estimator (IMU/INS; front end and back
+//! end), for Linux (x86-64 and aarch64).
 //!
 //! ```text
-//!  Source ──> IMU thread ──(SPSC: IMU, frames, sweeps)──> back-end thread (estimator)
+//!  Source ──> IMU thread ──(SPSC: IMU, frames, images, sweeps)──> back-end thread:
+//!               │                                     [front-end stage: decode, track] -> estimator
 //!               │  FastPath <──(SPSC: InsUpdate, keyframe reports)──┘
 //!               └──> Sink (pose at IMU rate + latency, keyframe reports)
 //! ```
@@ -16,6 +17,12 @@
 //! - The **back-end thread** (module `backend`) owns the estimator and consumes the events in the
 //!   source's order, which is the replay's (`DatasetSource`), so the keyframe solves run there
 //!   and the IMU-rate output never waits for them.
+//! - The **image front end** ([`frontend`]) is a stage of the back-end thread: camera images
+//!   travel undecoded from the source ([`ImageData`]); the stage decodes each one and tracks it
+//!   into a track frame with the estimator's INS prediction ([`Backend::push_image`], the core's
+//!   `Vio`) just before the estimator would take the frame. Why it has no thread of its own
+//!   (the prediction it needs is the back end's state; two cores) is in [`frontend`]'s docs.
+//!   A back end without images is the bare estimator (`PoVins`, fed with feature tracks).
 //! - Both threads are pinned to cores and ask for `SCHED_FIFO`; memory is locked ([`rt`]).
 //!   What is not permitted is reported in [`PipelineReport::rt`] (and printed with
 //!   [`PipelineConfig::announce`]) and the pipeline goes on.
@@ -26,7 +33,7 @@
 //!   queue is full; a replay that is not paced stays at most
 //!   [`PipelineConfig::max_lead_samples`] ahead of the back end instead).
 //!
-//! The estimator (`PoVins`, about 5 MB) is never on these threads' stacks: the caller owns it
+//! The estimator (`PoVins`, about 5 MB; `Vio` with the front end about 6-7 MB) is never on these threads' stacks: the caller owns it
 //! (in a `Box` or a `static`, see the README's "Embedding the core") and lends it to
 //! [`run`]; the back-end thread only needs the core's processing stack (under 96 KiB), so
 //! both threads get [`THREAD_STACK_BYTES`].
@@ -34,6 +41,7 @@
 #![warn(missing_docs)]
 
 mod backend;
+pub mod frontend;
 mod imu;
 pub mod mcap_sink;
 pub mod rt;
@@ -41,6 +49,7 @@ pub mod sink;
 pub mod source;
 pub mod stats;
 
+pub use frontend::{Backend, ImageData};
 pub use mcap_sink::McapSink;
 pub use rt::RtStatus;
 pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};
@@ -51,7 +60,7 @@ pub use stats::{LatencyHist, PipelineCounters, StageSummary, Timing, STAGES};
 
 use crate::error::IoError;
 use povins_core::camera::FeatureObs;
-use povins_core::estimator::{Counters, PoVins};
+use povins_core::estimator::Counters;
 use povins_core::inertial::{FastPath, FastPathCounters, ImuSample};
 use povins_core::lidar::LidarPoint;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
@@ -129,6 +138,7 @@ pub(crate) enum ToBackend {
     Imu(ImuSample),
     Frame { t_cam_ns: i64, obs: Vec<FeatureObs> },
     Lidar(Vec<LidarPoint>),
+    Image(frontend::ImageMsg),
     End,
 }
 
@@ -164,18 +174,20 @@ impl Shared {
 }
 
 /// Runs `source` through the estimator `est` (configured, and initialized when the run
-/// starts from a known state) on the two pinned threads, publishing to `sink`, and returns
+/// starts from a known state; a `PoVins` for feature tracks, a `Vio` for images too) on the two
+/// pinned threads, publishing to `sink`, and returns
 /// what was measured once the source is exhausted and the back end has caught up. The calling
 /// thread only waits, calling `on_tick(imu_samples_so_far)` about every 100 ms (a progress
 /// bar). `sink.finish()` is called at the end, on the calling thread.
-pub fn run<S, K>(
-    est: &mut PoVins,
+pub fn run<E, S, K>(
+    est: &mut E,
     source: S,
     sink: &mut K,
     cfg: &PipelineConfig,
     mut on_tick: impl FnMut(u64),
 ) -> Result<PipelineReport, IoError>
 where
+    E: Backend + ?Sized,
     S: Source + Send,
     K: Sink + Send,
 {
@@ -184,10 +196,13 @@ where
         mlock: cfg.lock_memory.then(rt::lock_memory),
         threads: Vec::new(),
     };
-    let limits = (est.config().max_gyro_rps, est.config().max_accel_mps2);
+    let limits = (
+        est.estimator().config().max_gyro_rps,
+        est.estimator().config().max_accel_mps2,
+    );
     // An estimator that already holds a state (initialized from ground truth) starts the fast
     // path with it: poses from the first sample, not from the back end's first reply.
-    let seed = est.fast_path_seed();
+    let seed = est.estimator().fast_path_seed();
     let t_run = Instant::now();
     let (to_tx, to_rx) = rtrb::RingBuffer::<ToBackend>::new(cfg.queue_capacity.max(2));
     let (from_tx, from_rx) = rtrb::RingBuffer::new(cfg.queue_capacity.max(2) + 1);
@@ -207,7 +222,7 @@ where
                 let out = backend::run(est, to_rx, from_tx, shared);
                 shared.backend_finished.store(true, Ordering::Release);
                 shared.wake_imu();
-                (r, out, est.counters())
+                (r, out, est.estimator().counters())
             })?;
         let imu = std::thread::Builder::new()
             .name("povins-imu".into())
@@ -248,8 +263,11 @@ where
     if cfg.lock_memory {
         rt::unlock_memory();
     }
-    let ((imu_rt, mut timing, mut counters, fast_path), (be_rt, (be_timing, kf_t), est_counters)) =
-        joined.map_err(|e| IoError::io("<pipeline thread>", e))?;
+    let (
+        (imu_rt, mut timing, mut counters, fast_path),
+        (be_rt, (be_timing, kf_t, be_counters), est_counters),
+    ) = joined.map_err(|e| IoError::io("<pipeline thread>", e))?;
+    counters.image_failures += be_counters.image_failures;
     rt.threads = vec![imu_rt, be_rt];
     if cfg.announce {
         for line in rt.notes() {

@@ -12,7 +12,8 @@
 //! sample after it): the stream of IMU stamps is mapped to wall time from the first event on,
 //! divided by the speed factor.
 
-use crate::dataset::Dataset;
+use super::frontend::ImageData;
+use crate::dataset::{Dataset, ImageFrame};
 use povins_core::camera::FeatureObs;
 use povins_core::inertial::ImuSample;
 use povins_core::lidar::LidarPoint;
@@ -34,6 +35,14 @@ pub enum SensorEvent {
     /// A whole LiDAR sweep (points in the LiDAR frame with their own times), offered once the
     /// IMU has passed its last point.
     Lidar(Vec<LidarPoint>),
+    /// A camera image for the image front end (decoded by the front-end stage, see
+    /// `pipeline::frontend`), offered like a frame.
+    Image {
+        /// Image time (camera clock), ns.
+        t_cam_ns: i64,
+        /// The image, undecoded.
+        data: ImageData,
+    },
 }
 
 /// Where the pipeline's inputs come from: a dataset replay, or a live driver.
@@ -169,6 +178,9 @@ pub struct DatasetSource<'a, C: Clock = SystemClock> {
     ds: &'a Dataset,
     imu: usize,
     frame: usize,
+    /// Camera images instead of feature frames (the image front end).
+    images: bool,
+    image: usize,
     scans: Vec<(i64, usize)>,
     scan: usize,
     /// The pacing of the next sample has been waited for.
@@ -204,12 +216,22 @@ impl<'a, C: Clock> DatasetSource<'a, C> {
             ds,
             imu,
             frame: ds.features.partition_point(|f| f.t_ns < t0),
+            images: false,
+            image: ds.images.partition_point(|f| f.t_ns < t0),
             scan: scans.partition_point(|&(t, _)| t < t0),
             scans,
             paced: false,
             pacer: Pacer::new(pacing),
             clock,
         }
+    }
+
+    /// Emits the dataset's camera images ([`SensorEvent::Image`], for the image front end)
+    /// instead of its feature frames, in the same order: an image before the first IMU sample
+    /// at or after its stamp (as `povins run --frontend images` pushes them).
+    pub fn with_images(mut self) -> Self {
+        self.images = true;
+        self
     }
 
     /// IMU samples left to emit (the one being emitted included).
@@ -230,7 +252,15 @@ impl<C: Clock> Source for DatasetSource<'_, C> {
             self.pacer.wait_for(s.t_ns, &mut self.clock);
             self.paced = true;
         }
-        if let Some(f) = self
+        if self.images {
+            if let Some(im) = self.ds.images.get(self.image).filter(|f| f.t_ns <= s.t_ns) {
+                self.image += 1;
+                return Some(SensorEvent::Image {
+                    t_cam_ns: im.t_ns,
+                    data: image_data(im),
+                });
+            }
+        } else if let Some(f) = self
             .ds
             .features
             .get(self.frame)
@@ -260,6 +290,18 @@ impl<C: Clock> Source for DatasetSource<'_, C> {
 
     fn is_realtime(&self) -> bool {
         self.pacer.is_paced()
+    }
+}
+
+/// A dataset image as the source hands it over: its file (decoded later), else its pixels.
+fn image_data(im: &ImageFrame) -> ImageData {
+    match (&im.path, im.mono8.is_empty()) {
+        (Some(p), true) => ImageData::File(p.clone()),
+        _ => ImageData::Mono8 {
+            width: im.width as usize,
+            height: im.height as usize,
+            pixels: im.mono8.clone(),
+        },
     }
 }
 

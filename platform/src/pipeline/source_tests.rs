@@ -81,6 +81,7 @@ fn names(src: &mut impl Source) -> Vec<String> {
             SensorEvent::Imu(s) => format!("i{}", (s.t_ns - 1_000_000_000) / 5_000_000),
             SensorEvent::Frame { obs, .. } => format!("f{}", obs[0].id),
             SensorEvent::Lidar(p) => format!("l{}", p[0].t_ns / 1_000_000),
+            SensorEvent::Image { t_cam_ns, .. } => format!("c{t_cam_ns}"),
         })
         .collect()
 }

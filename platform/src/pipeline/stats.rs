@@ -8,7 +8,7 @@ use hdrhistogram::Histogram;
 const MAX_NS: u64 = 60_000_000_000;
 
 /// The measured stages (see [`Timing`]).
-pub const STAGES: [&str; 7] = [
+pub const STAGES: [&str; 11] = [
     "imu fast path",
     "back end per IMU sample",
     "back end keyframe solve",
@@ -16,6 +16,10 @@ pub const STAGES: [&str; 7] = [
     "IMU arrival -> pose out",
     "IMU stamp -> pose out",
     "back-end lag",
+    "front end decode",
+    "front end per image",
+    "image arrival -> track frame",
+    "image stamp -> track frame",
 ];
 
 /// A latency histogram in ns.
@@ -116,11 +120,22 @@ pub struct Timing {
     /// How far the back end is behind the newest IMU sample when it finishes a sample, in
     /// sensor time: `STAGES[6]`.
     pub backend_lag: LatencyHist,
+    /// The front-end stage's image decoding (PNG/JPEG to mono8): `STAGES[7]`.
+    pub frontend_decode: LatencyHist,
+    /// The front-end stage per image: decoding, INS prediction, tracking, `push_frame`
+    /// (`STAGES[8]`).
+    pub frontend_image: LatencyHist,
+    /// Image arrival (the source returned it) to its track frame in the estimator:
+    /// `STAGES[9]`.
+    pub image_arrival_to_frame: LatencyHist,
+    /// Image stamp's wall time (paced or live sources) to its track frame in the estimator:
+    /// `STAGES[10]`.
+    pub image_stamp_to_frame: LatencyHist,
 }
 
 impl Timing {
     /// The histograms in [`STAGES`] order.
-    pub fn stages(&self) -> [&LatencyHist; 7] {
+    pub fn stages(&self) -> [&LatencyHist; 11] {
         [
             &self.fast_path,
             &self.backend_imu,
@@ -129,6 +144,10 @@ impl Timing {
             &self.arrival_to_pose,
             &self.stamp_to_pose,
             &self.backend_lag,
+            &self.frontend_decode,
+            &self.frontend_image,
+            &self.image_arrival_to_frame,
+            &self.image_stamp_to_frame,
         ]
     }
 
@@ -141,6 +160,11 @@ impl Timing {
         self.arrival_to_pose.merge(&other.arrival_to_pose);
         self.stamp_to_pose.merge(&other.stamp_to_pose);
         self.backend_lag.merge(&other.backend_lag);
+        self.frontend_decode.merge(&other.frontend_decode);
+        self.frontend_image.merge(&other.frontend_image);
+        self.image_arrival_to_frame
+            .merge(&other.image_arrival_to_frame);
+        self.image_stamp_to_frame.merge(&other.image_stamp_to_frame);
     }
 }
 
@@ -153,6 +177,8 @@ pub struct PipelineCounters {
     pub frames_in: u64,
     /// LiDAR sweeps from the source.
     pub sweeps_in: u64,
+    /// Camera images from the source (image front end).
+    pub images_in: u64,
     /// Poses published.
     pub poses_out: u64,
     /// Keyframes reported.
@@ -163,6 +189,10 @@ pub struct PipelineCounters {
     pub dropped_frames: u64,
     /// LiDAR sweeps dropped (queue full).
     pub dropped_sweeps: u64,
+    /// Camera images dropped (queue full).
+    pub dropped_images: u64,
+    /// Images the front-end stage could not use (not decodable, refused by the tracker).
+    pub image_failures: u64,
     /// Times the IMU thread waited for the back end (unpaced sources and deterministic mode).
     pub backpressure_waits: u64,
     /// Poses published later than one IMU period after their sample's arrival.
