@@ -155,7 +155,7 @@ fn realtime_pipeline_from_ground_truth_publishes_from_the_first_sample() {
 #[test]
 #[ignore = "needs ../shared/data/euroc-v101-images-at-rest (large shared sequence; CI runs it with --ignored)"]
 fn deterministic_pipeline_with_images_is_the_image_replay_bit_for_bit() {
-    big_stack(|| {
+    small_stack(|| {
         let mut ds = load("euroc-v101-images-at-rest");
         assert!(ds.images.len() >= 90, "only {} images", ds.images.len());
         assert!(ds.features.is_empty(), "expected an images-only data set");
