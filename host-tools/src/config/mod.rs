@@ -8,7 +8,8 @@
 //!   ([`povins_core::solver::LmConfig`]), `[imu_noise_adapt]`, `[health]`, `[lidar]`,
 //!   `[lidar.extrinsic]`, `[lidar.association]`);
 //! - `[frontend]` is the image front end's [`TrackerConfig`] (`[frontend.detector]`,
-//!   `[frontend.lk]`, `[frontend.ransac]`) and `[aiding]` its [`VioAiding`].
+//!   `[frontend.lk]`, `[frontend.ransac]`, `[frontend.reference]`: the anchored refinement,
+//!   `enabled = true` to turn it on) and `[aiding]` its [`VioAiding`].
 //!
 //! Every key is optional: the file is laid over the configuration the dataset gives (its camera,
 //! extrinsics, IMU noise, gravity, camera delay and LiDAR), key by key, nested tables merged.

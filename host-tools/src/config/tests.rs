@@ -186,6 +186,9 @@ fn malformed_values_are_errors() {
         "depth_range_m = [5.0, 1.0]\n",
         "[frontend]\nmax_features = 300\n",
         "[frontend.lk]\nwindow = 20\n",
+        "[frontend.reference]\nwindow = 23\n",
+        "[frontend.reference]\nevery_frames = 0\n",
+        "[frontend.reference]\nenable = true\n",
         "frontend = 3\n",
         "mode = \"pose_only\"\n",
     ] {
@@ -339,4 +342,17 @@ fn switches_override_the_file() {
     assert!(!cfg.lidar.enabled);
     assert_eq!(cfg.lidar.ldm, LdmMode::Direct);
     assert!(!cfg.lidar.depth_outlier_rejection && !cfg.lidar.depth_only_opt);
+}
+
+#[test]
+fn the_anchored_refinement_is_switched_from_toml() {
+    let f = RunConfigFile::parse("[frontend.reference]\nenabled = true\nwindow = 11\n")
+        .expect("parses");
+    let (mut t, mut a) = (TrackerConfig::default(), VioAiding::default());
+    assert!(!t.reference.enabled, "off by default");
+    f.apply_frontend(&mut t, &mut a).expect("frontend");
+    let mut d = TrackerConfig::default();
+    d.reference.enabled = true;
+    d.reference.window = 11;
+    assert_eq!(t, d, "only the two keys change");
 }

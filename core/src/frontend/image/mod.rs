@@ -8,6 +8,8 @@
 //!   existing tracks (occupancy mask).
 //! - [`track_point`]: pyramidal Lucas-Kanade of one point in OpenCV's fixed-point arithmetic.
 //! - [`ransac`]: geometric outlier rejection, 2-point with the gyro rotation or 8-point.
+//! - [`reference`], [`affine`]: optional anchored refinement of each track against the patch
+//!   of its reference observation (affine LK), which removes the frame-to-frame drift.
 //! - [`FeatureTracker`]: all of it per frame, with INS / gyro seeding, a forward-backward
 //!   check, ids and ages; [`FeatureTracker::features`] are the
 //!   [`crate::camera::FeatureObs`] the estimator consumes.
@@ -17,11 +19,13 @@
 //! (eigenvalues, LK updates, RANSAC, undistortion) are plain IEEE operations in a fixed order
 //! with `libm`, no fused multiply-add.
 
+pub mod affine;
 pub mod corners;
 pub mod equalize;
 pub mod lk;
 pub mod pyramid;
 pub mod ransac;
+pub mod reference;
 pub mod tracker;
 pub mod view;
 
@@ -33,6 +37,7 @@ pub use equalize::{Equalization, Equalizer};
 pub use lk::{track_point, track_point_no_residual, LkConfig, LkFailure, LkScratch, LkTrack};
 pub use pyramid::{level_size, pyramid_bytes, Pyramid, PyramidFilter};
 pub use ransac::{RansacConfig, RansacModel, RansacOutcome, XorShift64};
+pub use reference::{ReferenceConfig, References, Refined, TEMPLATE_SIDE};
 pub use tracker::{
     EurocTracker, FeatureTracker, HdTracker, RansacRun, TrackHints, TrackStats, TrackerConfig,
 };

@@ -6,6 +6,7 @@ use super::equalize::Equalization;
 use super::lk::{track_point, track_point_no_residual, LkConfig, LkFailure, LkScratch};
 use super::pyramid::{pyramid_bytes, Pyramid, PyramidFilter};
 use super::ransac::{self, RansacConfig, RansacModel, RansacOutcome, XorShift64};
+use super::reference::{ReferenceConfig, References, Refined};
 use super::view::ImageView;
 use crate::camera::{FeatureObs, PinholeCamera, Vec2};
 use crate::math::Mat3;
@@ -49,6 +50,8 @@ pub struct TrackerConfig {
     pub pyramid_filter: PyramidFilter,
     /// Contrast equalization of the input.
     pub equalization: Equalization,
+    /// Anchored refinement against each track's reference patch.
+    pub reference: ReferenceConfig,
 }
 
 impl Default for TrackerConfig {
@@ -66,6 +69,7 @@ impl Default for TrackerConfig {
             ransac: RansacConfig::default(),
             pyramid_filter: PyramidFilter::Gaussian5,
             equalization: Equalization::Off,
+            reference: ReferenceConfig::default(),
         }
     }
 }
@@ -111,6 +115,7 @@ impl TrackerConfig {
         },
         pyramid_filter: PyramidFilter::Gaussian5,
         equalization: Equalization::Off,
+        reference: ReferenceConfig::PLACEHOLDER,
     };
 
     /// Checks every parameter's range ([`Error::InvalidConfig`] otherwise). The capacities of a
@@ -120,6 +125,7 @@ impl TrackerConfig {
         self.lk.validate()?;
         self.ransac.validate()?;
         self.equalization.validate()?;
+        self.reference.validate()?;
         let ok = self.max_features >= 1
             && self.max_level <= 8
             && self.predicted_max_level <= self.max_level
@@ -200,6 +206,12 @@ pub struct TrackStats {
     pub lost_forward_backward: u32,
     /// Lost: RANSAC outlier.
     pub lost_ransac: u32,
+    /// Lost: the anchored refinement converged far from the frame-to-frame position.
+    pub lost_reference: u32,
+    /// Tracks whose position was refined against their reference patch.
+    pub refined: u32,
+    /// Tracks whose reference patch was re-anchored (refinement not accepted).
+    pub reanchored: u32,
     /// Tracks that survived every check.
     pub tracked: u32,
     /// Of those, level 0 stopped on the iteration cap rather than converging.
@@ -221,12 +233,13 @@ pub struct TrackStats {
 }
 
 /// Tracker for up to 256 features on images up to 752x480 pixels (EuRoC; any smaller image
-/// such as 640x360 fits too), 4 pyramid levels: 1 261 920 bytes (two pyramids of 536 856 bytes:
+/// such as 640x360 fits too), 4 pyramid levels: 1 457 208 bytes (two pyramids of 536 856 bytes:
 /// [`pyramid_bytes`]`(752, 480, 4)` = 479 400 plus 32 KiB of row scratch and the 24 KiB
-/// equalizer; the detector's 122 KiB; the LK scratch's 11 KiB; 54 KiB of per-feature arrays).
+/// equalizer; the detector's 122 KiB; the LK scratch's 11 KiB; 54 KiB of per-feature arrays;
+/// 191 KiB of reference templates and scratch for the anchored refinement).
 pub type EurocTracker = FeatureTracker<256, { pyramid_bytes(752, 480, 4) }, 4>;
 
-/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 751 120 bytes.
+/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 946 408 bytes.
 pub type HdTracker = FeatureTracker<256, { pyramid_bytes(1280, 720, 4) }, 4>;
 
 /// Per-feature outcome of the forward pass.
@@ -269,6 +282,7 @@ pub struct FeatureTracker<const F: usize, const BYTES: usize, const LEVELS: usiz
     corners: [Corner; F],
     detector: GridDetector,
     lk: LkScratch,
+    refs: References<F>,
 }
 
 impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, BYTES, LEVELS> {
@@ -351,6 +365,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
             }; F],
             detector: GridDetector::new(),
             lk: LkScratch::new(),
+            refs: References::new(),
         }
     }
 
@@ -597,6 +612,47 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
             *fate = Fate::Alive;
             *new_pos = tr.pos;
         }
+        if cfg.reference.enabled {
+            self.refine_against_references(next, st);
+        }
+    }
+
+    /// Refines every surviving track against its reference patch ([`super::reference`]):
+    /// accepted refinements replace `new_pos`, disagreeing tracks are lost, the others are
+    /// re-anchored at their frame-to-frame position.
+    fn refine_against_references(&mut self, next: usize, st: &mut TrackStats) {
+        let n = self.features.len();
+        let Some(img) = self.pyr.get(next).and_then(|p| p.level(0)) else {
+            return;
+        };
+        let (wf, hf) = ((self.dims.0 as f64) - 1.0, (self.dims.1 as f64) - 1.0);
+        let inside = |p: &[f64; 2]| (0.0..=wf).contains(&p[0]) && (0.0..=hf).contains(&p[1]);
+        let every = u64::from(self.cfg.reference.every_frames.max(1));
+        let items = self.fate.iter_mut().zip(self.new_pos.iter_mut()).take(n);
+        for (i, (fate, pos)) in items.enumerate() {
+            if *fate != Fate::Alive {
+                continue;
+            }
+            let id = self.features.get(i).map_or(0, |f| f.id);
+            if !(self.frame.wrapping_add(id)).is_multiple_of(every) {
+                continue;
+            }
+            let r = self.refs.refine(i, &img, *pos, &self.cfg.reference);
+            match r {
+                Refined::Accepted(p) if inside(&p) => {
+                    *pos = p;
+                    st.refined += 1;
+                }
+                Refined::Disagrees => {
+                    *fate = Fate::Lost;
+                    st.lost_reference += 1;
+                }
+                Refined::Accepted(_) | Refined::Reanchor => {
+                    self.refs.capture(i, &img, *pos, &self.cfg.reference);
+                    st.reanchored += 1;
+                }
+            }
+        }
     }
 
     /// Undistorts the surviving tracks and runs RANSAC on those with valid previous and
@@ -738,6 +794,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
                 };
                 *a = age;
                 *x = nn;
+                self.refs.move_slot(i, k);
                 k += 1;
             }
         }
@@ -783,6 +840,10 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
             // Same capacity as `features`: these cannot fail once that push succeeded.
             let _ = self.ages.push(0);
             let _ = self.norm.push(nn);
+            if self.cfg.reference.enabled {
+                self.refs
+                    .capture(self.features.len() - 1, &img, [u, v], &self.cfg.reference);
+            }
             self.next_id += 1;
             st.detected += 1;
         }

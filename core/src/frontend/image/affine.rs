@@ -1,0 +1,455 @@
+//! Inverse-compositional affine Lucas-Kanade of one window against a stored reference template
+//! (the anchored refinement of [`super::reference`]), in fixed point.
+//!
+//! The template is the `(win + 2)^2` raw level-0 pixels around the integer pixel `c` nearest the
+//! reference point `c + delta` (no interpolation: the sub-pixel offset `delta` is carried by the
+//! warp). Its 3x3 Scharr gradients (`32 x grey / px`, `|g| <= 4080`), the steepest-descent images
+//! `SD = [gx x, gx y, gy x, gy y, gx, gy]` and the 6x6 Gauss-Newton Hessian `H = sum SD SD^T`
+//! (exact in `i64`) are fixed by the template: `H^-1` is computed once per reference
+//! ([`Template::build`]), never per frame.
+//!
+//! The warp maps a template offset `x` (px from `c`) to `A x + t` in the target; the tracked point
+//! is `A delta + t`. Each iteration samples the target at the warped offsets row by row in
+//! 16.16 fixed point (the row's start from `f64`, then a constant integer step: the positions of
+//! an affine warp along a row are linear), bilinearly with 8-bit weights to `1/8` grey, and
+//! accumulates `b = sum SD^T (I(W(x)) - T(x))` in integers (per row in `i32`, which cannot
+//! overflow: `4080 * 2040 * 10 * 21 < 2^31`; across rows in `i64`), then `dp = H^-1 b` (`f64`)
+//! and composes `W <- W o W(dp)^-1`. Rows whose samples stay inside the image read it directly,
+//! the others clamp (border pixels replicated).
+//!
+//! Integers, and `f64` in a fixed order without fused multiply-add: bit-identical on every IEEE
+//! platform.
+
+use super::view::ImageView;
+
+/// Largest refinement window side, px (sizes the per-track storage).
+pub const MAX_AFFINE_WINDOW: usize = 21;
+/// Side of a stored template (window plus the gradients' one-pixel border).
+pub const TEMPLATE_SIDE: usize = MAX_AFFINE_WINDOW + 2;
+const MAX_N: usize = MAX_AFFINE_WINDOW * MAX_AFFINE_WINDOW;
+/// Fractional bits of the sampling positions.
+const FRAC: u32 = 16;
+const ONE: f64 = (1u32 << FRAC) as f64;
+
+/// An affine warp: template offset `x` (px from the template's centre pixel) -> `a x + t`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Affine {
+    /// Linear part, row-major `[[a00, a01], [a10, a11]]`.
+    pub a: [f64; 4],
+    /// Translation: where the template's centre pixel lands in the target, px.
+    pub t: [f64; 2],
+}
+
+impl Affine {
+    /// The warp with linear part `a` that maps the point `c + delta` to `q`.
+    pub fn through(a: [f64; 4], delta: [f64; 2], q: [f64; 2]) -> Self {
+        Affine {
+            a,
+            t: [
+                q[0] - (a[0] * delta[0] + a[1] * delta[1]),
+                q[1] - (a[2] * delta[0] + a[3] * delta[1]),
+            ],
+        }
+    }
+
+    /// Where the point `c + delta` lands.
+    pub fn point(&self, delta: [f64; 2]) -> [f64; 2] {
+        [
+            self.a[0] * delta[0] + self.a[1] * delta[1] + self.t[0],
+            self.a[2] * delta[0] + self.a[3] * delta[1] + self.t[1],
+        ]
+    }
+
+    fn det(&self) -> f64 {
+        self.a[0] * self.a[3] - self.a[1] * self.a[2]
+    }
+}
+
+/// Result of [`refine_affine`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AffineFit {
+    /// The final warp.
+    pub warp: Affine,
+    /// Mean absolute photometric error over the window in the last iteration, grey levels.
+    pub residual: f64,
+    /// Whether the last step moved the window's corners less than `eps_px`.
+    pub converged: bool,
+    /// Iterations run.
+    pub iterations: u32,
+}
+
+/// One reference template: raw pixels and the inverse of its Gauss-Newton Hessian. All zero
+/// is the empty (invalid) template.
+#[derive(Clone, Copy)]
+pub struct Template {
+    /// `(win + 2)^2` raw pixels, row stride [`TEMPLATE_SIDE`].
+    pix: [u8; TEMPLATE_SIDE * TEMPLATE_SIDE],
+    /// Upper triangle of `4 H^-1` (row by row), `H` from the raw gradients.
+    hinv: [f64; 21],
+    /// Window side (0: invalid).
+    win: u8,
+}
+
+impl Template {
+    /// The empty template.
+    pub const EMPTY: Template = Template {
+        pix: [0; TEMPLATE_SIDE * TEMPLATE_SIDE],
+        hinv: [0.0; 21],
+        win: 0,
+    };
+
+    /// Makes the template invalid.
+    pub fn clear(&mut self) {
+        self.win = 0;
+    }
+
+    /// Whether the template can be refined against.
+    pub fn is_valid(&self) -> bool {
+        self.win != 0
+    }
+
+    /// Captures the `win x win` template (odd, `5..=MAX_AFFINE_WINDOW`) centred on the integer
+    /// pixel `c` of `img` (outside pixels replicate the border) and inverts its Hessian. An
+    /// invalid template (bad window, empty image, flat or one-dimensional texture) results
+    /// otherwise; `g` is gradient scratch.
+    pub fn build(&mut self, img: &ImageView, c: [i64; 2], win: usize, g: &mut Gradients) {
+        self.win = 0;
+        if win.is_multiple_of(2) || !(5..=MAX_AFFINE_WINDOW).contains(&win) {
+            return;
+        }
+        let (w, h) = (img.width() as i64, img.height() as i64);
+        if w == 0 || h == 0 || c[0].abs() > 1 << 20 || c[1].abs() > 1 << 20 {
+            return;
+        }
+        let side = win + 2;
+        let r = (win / 2 + 1) as i64;
+        let (x0, y0) = (c[0] - r, c[1] - r);
+        for (row, dst) in self
+            .pix
+            .chunks_exact_mut(TEMPLATE_SIDE)
+            .take(side)
+            .enumerate()
+        {
+            let src = img.row((y0 + row as i64).clamp(0, h - 1) as usize);
+            for (col, d) in dst.iter_mut().take(side).enumerate() {
+                let x = (x0 + col as i64).clamp(0, w - 1) as usize;
+                *d = src.get(x).copied().unwrap_or(0);
+            }
+        }
+        g.compute(&self.pix, win);
+        if let Some(hinv) = inverse_hessian(g, win) {
+            self.hinv = hinv;
+            self.win = win as u8;
+        }
+    }
+}
+
+/// Per-call scratch: the template's values (`8 x grey`) and Scharr gradients.
+#[derive(Clone)]
+pub struct Gradients {
+    t8: [i16; MAX_N],
+    gx: [i16; MAX_N],
+    gy: [i16; MAX_N],
+    e: [i32; MAX_AFFINE_WINDOW],
+}
+
+impl Default for Gradients {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Gradients {
+    /// Zeroed scratch.
+    pub const fn new() -> Self {
+        Gradients {
+            t8: [0; MAX_N],
+            gx: [0; MAX_N],
+            gy: [0; MAX_N],
+            e: [0; MAX_AFFINE_WINDOW],
+        }
+    }
+
+    /// Values and Scharr gradients of the `win x win` interior of `pix` (stride
+    /// [`TEMPLATE_SIDE`]).
+    fn compute(&mut self, pix: &[u8; TEMPLATE_SIDE * TEMPLATE_SIDE], win: usize) {
+        let p =
+            |x: usize, y: usize| i16::from(pix.get(y * TEMPLATE_SIDE + x).copied().unwrap_or(0));
+        for r in 0..win {
+            for c in 0..win {
+                let (x, y) = (c + 1, r + 1);
+                let gx = 3 * (p(x + 1, y - 1) - p(x - 1, y - 1))
+                    + 10 * (p(x + 1, y) - p(x - 1, y))
+                    + 3 * (p(x + 1, y + 1) - p(x - 1, y + 1));
+                let gy = 3 * (p(x - 1, y + 1) - p(x - 1, y - 1))
+                    + 10 * (p(x, y + 1) - p(x, y - 1))
+                    + 3 * (p(x + 1, y + 1) - p(x + 1, y - 1));
+                let k = r * win + c;
+                if let (Some(t), Some(a), Some(b)) =
+                    (self.t8.get_mut(k), self.gx.get_mut(k), self.gy.get_mut(k))
+                {
+                    *t = 8 * p(x, y);
+                    *a = gx;
+                    *b = gy;
+                }
+            }
+        }
+    }
+}
+
+/// Index of `(i, j)`, `i <= j`, in a packed upper triangle of a 6x6 matrix.
+const fn upper(i: usize, j: usize) -> usize {
+    i * 6 - i * (i + 1) / 2 + j
+}
+
+/// `4 H^-1` (packed upper triangle) of the template in `g`, `None` if `H` is not positive
+/// definite or badly conditioned.
+#[allow(clippy::needless_range_loop)] // fixed 6x6 indices, clearer than iterators
+fn inverse_hessian(g: &Gradients, win: usize) -> Option<[f64; 21]> {
+    let half = (win / 2) as i64;
+    let mut h = [0i64; 21];
+    for k in 0..win * win {
+        let (x, y) = ((k % win) as i64 - half, (k / win) as i64 - half);
+        let (gx, gy) = (i64::from(*g.gx.get(k)?), i64::from(*g.gy.get(k)?));
+        let sd = [gx * x, gx * y, gy * x, gy * y, gx, gy];
+        for i in 0..6 {
+            for j in i..6 {
+                h[upper(i, j)] += sd[i] * sd[j];
+            }
+        }
+    }
+    // Cholesky of H / 1024 (gradients in grey/px: keeps the numbers moderate), then the inverse.
+    let mut l = [[0.0f64; 6]; 6];
+    for j in 0..6 {
+        let mut d = h[upper(j, j)] as f64 / 1024.0;
+        for k in 0..j {
+            d -= l[j][k] * l[j][k];
+        }
+        // A near-singular H (a flat window or an edge) gives no reliable warp.
+        if d.is_nan() || d <= 1e-6 * (h[upper(j, j)] as f64 / 1024.0) || d <= 0.0 {
+            return None;
+        }
+        let d = libm::sqrt(d);
+        l[j][j] = d;
+        for i in j + 1..6 {
+            let mut s = h[upper(j, i)] as f64 / 1024.0;
+            for k in 0..j {
+                s -= l[i][k] * l[j][k];
+            }
+            l[i][j] = s / d;
+        }
+    }
+    // Columns of (H/1024)^-1 by forward and back substitution; the stored 4 H^-1 is that over 256
+    // (dp = H^-1 b with g in 32 grey/px and e in 8 grey: dp = 4 H_raw^-1 b_raw).
+    let mut out = [0.0f64; 21];
+    for col in 0..6 {
+        let mut y = [0.0f64; 6];
+        for i in 0..6 {
+            let mut s = if i == col { 1.0 } else { 0.0 };
+            for k in 0..i {
+                s -= l[i][k] * y[k];
+            }
+            y[i] = s / l[i][i];
+        }
+        let mut x = [0.0f64; 6];
+        for i in (0..6).rev() {
+            let mut s = y[i];
+            for k in i + 1..6 {
+                s -= l[k][i] * x[k];
+            }
+            x[i] = s / l[i][i];
+        }
+        for i in 0..=col {
+            out[upper(i, col)] = x[i] / 256.0;
+        }
+    }
+    Some(out)
+}
+
+/// `M b` for the symmetric `M` stored as [`inverse_hessian`]'s packed upper triangle.
+#[allow(clippy::needless_range_loop)]
+fn sym_mul(m: &[f64; 21], b: &[i64; 6]) -> [f64; 6] {
+    let mut out = [0.0f64; 6];
+    for i in 0..6 {
+        let mut s = 0.0;
+        for j in 0..6 {
+            let k = if i <= j { upper(i, j) } else { upper(j, i) };
+            s += m[k] * b[j] as f64;
+        }
+        out[i] = s;
+    }
+    out
+}
+
+/// 16.16 fixed point of `v`, `None` if non-finite or beyond +-16384 px.
+#[inline]
+fn fixed(v: f64) -> Option<i32> {
+    if !(-16384.0..16384.0).contains(&v) {
+        return None;
+    }
+    Some(libm::floor(v * ONE + 0.5) as i32)
+}
+
+/// Bilinear value of the four pixels with 8-bit weights `fx`, `fy`, in `1/8` grey.
+#[inline(always)]
+fn blend(p00: u8, p01: u8, p10: u8, p11: u8, fx: i32, fy: i32) -> i32 {
+    let top = i32::from(p00) * (256 - fx) + i32::from(p01) * fx;
+    let bot = i32::from(p10) * (256 - fx) + i32::from(p11) * fx;
+    (top * (256 - fy) + bot * fy + (1 << 12)) >> 13
+}
+
+/// Samples one row of the warped window (`win` positions from `(u, v)` in steps `(du, dv)`,
+/// 16.16) into `e` as `J - T` (`1/8` grey); returns `sum |e|`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn sample_row(
+    img: &ImageView,
+    (u, v): (i32, i32),
+    (du, dv): (i32, i32),
+    win: usize,
+    t8: &[i16],
+    e: &mut [i32],
+) -> i64 {
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    let last = win as i64 - 1;
+    let (ue, ve) = (
+        i64::from(u) + last * i64::from(du),
+        i64::from(v) + last * i64::from(dv),
+    );
+    let ok = |p: i64, lim: i64| p >= 0 && (p >> FRAC) < lim - 1;
+    let inside = ok(i64::from(u), w) && ok(ue, w) && ok(i64::from(v), h) && ok(ve, h);
+    let (data, stride) = (img.data(), img.stride());
+    let mut abs_sum = 0i64;
+    let (mut uu, mut vv) = (u, v);
+    for (ei, &t) in e.iter_mut().zip(t8).take(win) {
+        let (ix, iy) = (uu >> FRAC, vv >> FRAC);
+        let (fx, fy) = ((uu >> (FRAC - 8)) & 255, (vv >> (FRAC - 8)) & 255);
+        let j = if inside {
+            let o = iy as usize * stride + ix as usize;
+            match (data.get(o..o + 2), data.get(o + stride..o + stride + 2)) {
+                (Some(&[p00, p01]), Some(&[p10, p11])) => blend(p00, p01, p10, p11, fx, fy),
+                _ => 0,
+            }
+        } else {
+            let (ix, iy) = (ix as isize, iy as isize);
+            blend(
+                img.clamped(ix, iy),
+                img.clamped(ix + 1, iy),
+                img.clamped(ix, iy + 1),
+                img.clamped(ix + 1, iy + 1),
+                fx,
+                fy,
+            )
+        };
+        let d = j - i32::from(t);
+        *ei = d;
+        abs_sum += i64::from(d.abs());
+        uu = uu.wrapping_add(du);
+        vv = vv.wrapping_add(dv);
+    }
+    abs_sum
+}
+
+/// Refines `init` (the warp of `tpl`'s centre pixel into `img`), at most `max_iter` iterations,
+/// stopping when the window's corners move less than `eps_px`. `None` for an invalid template or
+/// a degenerate or non-finite warp.
+pub fn refine_affine(
+    tpl: &Template,
+    img: &ImageView,
+    init: Affine,
+    max_iter: u32,
+    eps_px: f64,
+    g: &mut Gradients,
+) -> Option<AffineFit> {
+    let win = usize::from(tpl.win);
+    if win == 0 {
+        return None;
+    }
+    g.compute(&tpl.pix, win);
+    let half = (win / 2) as i64;
+    let hf = half as f64;
+    let mut w = init;
+    let mut fit = AffineFit {
+        warp: w,
+        residual: 0.0,
+        converged: false,
+        iterations: 0,
+    };
+    for _ in 0..max_iter {
+        let mut b = [0i64; 6];
+        let mut abs_sum = 0i64;
+        let step = (fixed(w.a[0])?, fixed(w.a[2])?);
+        for r in 0..win {
+            let y = r as i64 - half;
+            let yf = y as f64;
+            let start = (
+                fixed(w.t[0] - w.a[0] * hf + w.a[1] * yf)?,
+                fixed(w.t[1] - w.a[2] * hf + w.a[3] * yf)?,
+            );
+            let row = r * win..(r + 1) * win;
+            let (t8, gx, gy) = (
+                g.t8.get(row.clone())?,
+                g.gx.get(row.clone())?,
+                g.gy.get(row)?,
+            );
+            abs_sum += sample_row(img, start, step, win, t8, &mut g.e);
+            // Row sums (i32: see the module doc), x-weighted and plain.
+            let (mut sx, mut sxx, mut sy, mut syx) = (0i32, 0i32, 0i32, 0i32);
+            for (c, ((&e, &gxv), &gyv)) in g.e.iter().zip(gx).zip(gy).enumerate() {
+                let x = c as i32 - half as i32;
+                let (a, bb) = (i32::from(gxv) * e, i32::from(gyv) * e);
+                sx += a;
+                sxx += a * x;
+                sy += bb;
+                syx += bb * x;
+            }
+            b[0] += i64::from(sxx);
+            b[1] += y * i64::from(sx);
+            b[2] += i64::from(syx);
+            b[3] += y * i64::from(sy);
+            b[4] += i64::from(sx);
+            b[5] += i64::from(sy);
+        }
+        fit.iterations += 1;
+        fit.residual = abs_sum as f64 / (8 * win * win) as f64;
+        let dp = sym_mul(&tpl.hinv, &b);
+        // W <- W o W(dp)^-1, W(dp): x -> (I + D) x + d.
+        let (d00, d01, d10, d11) = (1.0 + dp[0], dp[1], dp[2], 1.0 + dp[3]);
+        let det = d00 * d11 - d01 * d10;
+        if !(det.is_finite() && libm::fabs(det) > 1e-6) {
+            return None;
+        }
+        let inv = [d11 / det, -d01 / det, -d10 / det, d00 / det];
+        let a = w.a;
+        let na = [
+            a[0] * inv[0] + a[1] * inv[2],
+            a[0] * inv[1] + a[1] * inv[3],
+            a[2] * inv[0] + a[3] * inv[2],
+            a[2] * inv[1] + a[3] * inv[3],
+        ];
+        let nt = [
+            w.t[0] - (na[0] * dp[4] + na[1] * dp[5]),
+            w.t[1] - (na[2] * dp[4] + na[3] * dp[5]),
+        ];
+        // How far the window's corner moves: translation plus the linear change at `half`.
+        let (du, dv) = (nt[0] - w.t[0], nt[1] - w.t[1]);
+        let lin = (na[0] - a[0]) * (na[0] - a[0])
+            + (na[1] - a[1]) * (na[1] - a[1])
+            + (na[2] - a[2]) * (na[2] - a[2])
+            + (na[3] - a[3]) * (na[3] - a[3]);
+        w = Affine { a: na, t: nt };
+        if !(w.t[0].is_finite() && w.t[1].is_finite() && (0.25..=4.0).contains(&w.det())) {
+            return None;
+        }
+        if du * du + dv * dv + lin * hf * hf <= eps_px * eps_px {
+            fit.converged = true;
+            break;
+        }
+    }
+    fit.warp = w;
+    Some(fit)
+}
+
+#[cfg(test)]
+#[path = "affine_tests.rs"]
+mod tests;

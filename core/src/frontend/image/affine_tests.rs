@@ -1,0 +1,279 @@
+extern crate std;
+use super::super::testutil::{render, texture};
+use super::*;
+use std::boxed::Box;
+use std::vec::Vec;
+
+const W: usize = 160;
+const H: usize = 120;
+
+/// The texture warped by `a` about `c` and moved by `s`: `b(c + s + a x) = tex(c + x)`.
+fn warped(a: [f64; 4], c: [f64; 2], s: [f64; 2]) -> Vec<u8> {
+    let det = a[0] * a[3] - a[1] * a[2];
+    render(W, H, 0.0, 0.0, |x, y| {
+        let (dx, dy) = (x - c[0] - s[0], y - c[1] - s[1]);
+        let u = (a[3] * dx - a[1] * dy) / det;
+        let v = (-a[2] * dx + a[0] * dy) / det;
+        texture(c[0] + u, c[1] + v)
+    })
+}
+
+fn rot(th: f64, k: f64) -> [f64; 4] {
+    [
+        k * libm::cos(th),
+        -k * libm::sin(th),
+        k * libm::sin(th),
+        k * libm::cos(th),
+    ]
+}
+
+/// Template of `img` for the point `p`: its centre pixel and the offset.
+fn template(img: &[u8], p: [f64; 2], win: usize, g: &mut Gradients) -> (Box<Template>, [f64; 2]) {
+    let v = ImageView::new(img, W, H, W).unwrap();
+    let c = [libm::round(p[0]) as i64, libm::round(p[1]) as i64];
+    let mut t = Box::new(Template::EMPTY);
+    t.build(&v, c, win, g);
+    (t, [p[0] - c[0] as f64, p[1] - c[1] as f64])
+}
+
+#[test]
+fn recovers_rotation_scale_and_shift() {
+    let c = [80.3, 60.7];
+    let reference = render(W, H, 0.0, 0.0, texture);
+    let mut g = Box::new(Gradients::new());
+    let a = rot(0.14, 1.06);
+    for win in [11, 15, 21] {
+        let (tpl, delta) = template(&reference, c, win, &mut g);
+        assert!(tpl.is_valid());
+        for &sh in &[[0.0, 0.0], [3.4, -2.2], [-0.37, 0.81]] {
+            let img = warped(a, c, sh);
+            let iv = ImageView::new(&img, W, H, W).unwrap();
+            let truth = [c[0] + sh[0], c[1] + sh[1]];
+            let init = Affine::through(rot(0.0, 1.0), delta, [truth[0] + 0.6, truth[1] - 0.5]);
+            let fit = refine_affine(&tpl, &iv, init, 30, 0.01, &mut g).unwrap();
+            let q = fit.warp.point(delta);
+            let e = libm::hypot(q[0] - truth[0], q[1] - truth[1]);
+            // The 6-parameter fit of an 11x11 window is noisier (rounded grey levels).
+            let tol = if win == 11 { 0.05 } else { 0.03 };
+            assert!(
+                fit.converged && e < tol,
+                "win {win} {sh:?}: {fit:?} error {e}"
+            );
+            for (x, y) in fit.warp.a.iter().zip(&a) {
+                assert!(
+                    libm::fabs(x - y) < 0.015,
+                    "win {win}: {:?} vs {a:?}",
+                    fit.warp.a
+                );
+            }
+            assert!(fit.residual < 2.0, "{fit:?}");
+        }
+    }
+}
+
+#[test]
+fn warm_start_converges_in_few_iterations() {
+    let c = [70.0, 55.2];
+    let reference = render(W, H, 0.0, 0.0, texture);
+    let mut g = Box::new(Gradients::new());
+    let (tpl, delta) = template(&reference, c, 15, &mut g);
+    let a = rot(0.05, 0.97);
+    let img = warped(a, c, [1.3, 0.4]);
+    let iv = ImageView::new(&img, W, H, W).unwrap();
+    let truth = [c[0] + 1.3, c[1] + 0.4];
+    // Seeded at the truth with the right linear part: converged after one or two steps.
+    let fit = refine_affine(
+        &tpl,
+        &iv,
+        Affine::through(a, delta, truth),
+        10,
+        0.03,
+        &mut g,
+    )
+    .unwrap();
+    assert!(fit.converged && fit.iterations <= 2, "{fit:?}");
+}
+
+/// The same algorithm in plain `f64` (bilinear samples, exact gradients of the template pixels):
+/// the reference the fixed-point kernel must agree with.
+fn refine_f64(
+    img: &[u8],
+    tpl_img: &[u8],
+    c: [i64; 2],
+    win: usize,
+    init: Affine,
+    it: u32,
+) -> Affine {
+    let px = |im: &[u8], x: i64, y: i64| {
+        f64::from(im[(y.clamp(0, H as i64 - 1) as usize) * W + x.clamp(0, W as i64 - 1) as usize])
+    };
+    let sample = |x: f64, y: f64| {
+        let (fx, fy) = (libm::floor(x), libm::floor(y));
+        let (ax, ay) = (x - fx, y - fy);
+        let (ix, iy) = (fx as i64, fy as i64);
+        let top = px(img, ix, iy) * (1.0 - ax) + px(img, ix + 1, iy) * ax;
+        let bot = px(img, ix, iy + 1) * (1.0 - ax) + px(img, ix + 1, iy + 1) * ax;
+        top * (1.0 - ay) + bot * ay
+    };
+    let half = (win / 2) as i64;
+    let mut sds = Vec::new();
+    let mut h = [[0.0f64; 6]; 6];
+    for y in -half..=half {
+        for x in -half..=half {
+            let t = |dx: i64, dy: i64| px(tpl_img, c[0] + x + dx, c[1] + y + dy);
+            let gx = (3.0 * (t(1, -1) - t(-1, -1))
+                + 10.0 * (t(1, 0) - t(-1, 0))
+                + 3.0 * (t(1, 1) - t(-1, 1)))
+                / 32.0;
+            let gy = (3.0 * (t(-1, 1) - t(-1, -1))
+                + 10.0 * (t(0, 1) - t(0, -1))
+                + 3.0 * (t(1, 1) - t(1, -1)))
+                / 32.0;
+            let (xf, yf) = (x as f64, y as f64);
+            let sd = [gx * xf, gx * yf, gy * xf, gy * yf, gx, gy];
+            for i in 0..6 {
+                for j in 0..6 {
+                    h[i][j] += sd[i] * sd[j];
+                }
+            }
+            sds.push((xf, yf, t(0, 0), sd));
+        }
+    }
+    // Gauss-Jordan inverse (test only).
+    let mut m = h;
+    let mut inv = [[0.0f64; 6]; 6];
+    for (i, r) in inv.iter_mut().enumerate() {
+        r[i] = 1.0;
+    }
+    for col in 0..6 {
+        let p = m[col][col];
+        for j in 0..6 {
+            m[col][j] /= p;
+            inv[col][j] /= p;
+        }
+        for r in 0..6 {
+            if r != col {
+                let f = m[r][col];
+                for j in 0..6 {
+                    m[r][j] -= f * m[col][j];
+                    inv[r][j] -= f * inv[col][j];
+                }
+            }
+        }
+    }
+    let mut w = init;
+    for _ in 0..it {
+        let mut b = [0.0f64; 6];
+        for &(x, y, t, sd) in &sds {
+            let e = sample(
+                w.a[0] * x + w.a[1] * y + w.t[0],
+                w.a[2] * x + w.a[3] * y + w.t[1],
+            ) - t;
+            for i in 0..6 {
+                b[i] += sd[i] * e;
+            }
+        }
+        let mut dp = [0.0f64; 6];
+        for i in 0..6 {
+            for j in 0..6 {
+                dp[i] += inv[i][j] * b[j];
+            }
+        }
+        let (d00, d01, d10, d11) = (1.0 + dp[0], dp[1], dp[2], 1.0 + dp[3]);
+        let det = d00 * d11 - d01 * d10;
+        let iv = [d11 / det, -d01 / det, -d10 / det, d00 / det];
+        let a = w.a;
+        let na = [
+            a[0] * iv[0] + a[1] * iv[2],
+            a[0] * iv[1] + a[1] * iv[3],
+            a[2] * iv[0] + a[3] * iv[2],
+            a[2] * iv[1] + a[3] * iv[3],
+        ];
+        w = Affine {
+            a: na,
+            t: [
+                w.t[0] - (na[0] * dp[4] + na[1] * dp[5]),
+                w.t[1] - (na[2] * dp[4] + na[3] * dp[5]),
+            ],
+        };
+    }
+    w
+}
+
+#[test]
+fn fixed_point_agrees_with_f64() {
+    let reference = render(W, H, 0.0, 0.0, texture);
+    let mut g = Box::new(Gradients::new());
+    let a = rot(-0.09, 1.03);
+    // Interior and near the border (replicated pixels in the template and the target).
+    for &(p, sh) in &[
+        ([80.3, 60.7], [1.7, -0.6]),
+        ([40.6, 30.1], [-2.2, 1.1]),
+        ([6.2, 8.9], [0.4, 0.3]),
+    ] {
+        let img = warped(a, p, sh);
+        let iv = ImageView::new(&img, W, H, W).unwrap();
+        for win in [11, 15, 21] {
+            let (tpl, delta) = template(&reference, p, win, &mut g);
+            let c = [libm::round(p[0]) as i64, libm::round(p[1]) as i64];
+            let init = Affine::through(
+                rot(0.0, 1.0),
+                delta,
+                [p[0] + sh[0] + 0.4, p[1] + sh[1] - 0.3],
+            );
+            for it in [1, 3, 8] {
+                let fx = refine_affine(&tpl, &iv, init, it, 0.0, &mut g).unwrap();
+                let fr = refine_f64(&img, &reference, c, win, init, it);
+                let (qa, qb) = (fx.warp.point(delta), fr.point(delta));
+                let e = libm::hypot(qa[0] - qb[0], qa[1] - qb[1]);
+                assert!(e < 0.01, "{p:?} win {win} it {it}: {qa:?} vs {qb:?}");
+                for (x, y) in fx.warp.a.iter().zip(&fr.a) {
+                    assert!(libm::fabs(x - y) < 2e-3, "{:?} vs {:?}", fx.warp.a, fr.a);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_inputs_give_none_or_invalid() {
+    let reference = render(W, H, 0.0, 0.0, texture);
+    let rv = ImageView::new(&reference, W, H, W).unwrap();
+    let mut g = Box::new(Gradients::new());
+    let mut t = Box::new(Template::EMPTY);
+    for win in [4, 20, 23, 3] {
+        t.build(&rv, [80, 60], win, &mut g);
+        assert!(!t.is_valid(), "window {win}");
+    }
+    assert!(refine_affine(
+        &t,
+        &rv,
+        Affine::through(rot(0.0, 1.0), [0.0; 2], [80.0, 60.0]),
+        5,
+        0.01,
+        &mut g
+    )
+    .is_none());
+    let flat = std::vec![90u8; W * H];
+    let fv = ImageView::new(&flat, W, H, W).unwrap();
+    t.build(&fv, [80, 60], 15, &mut g);
+    assert!(!t.is_valid());
+    // A vertical edge: one-dimensional texture, no affine fit.
+    let edge: Vec<u8> = (0..W * H)
+        .map(|i| if i % W < 80 { 40 } else { 200 })
+        .collect();
+    let ev = ImageView::new(&edge, W, H, W).unwrap();
+    t.build(&ev, [80, 60], 15, &mut g);
+    assert!(!t.is_valid());
+    t.build(&rv, [80, 60], 15, &mut g);
+    assert!(t.is_valid());
+    let nan = Affine::through(rot(0.0, 1.0), [0.0; 2], [f64::NAN, 1.0]);
+    assert!(refine_affine(&t, &rv, nan, 10, 0.01, &mut g).is_none());
+    let far = Affine::through(rot(0.0, 1.0), [0.0; 2], [1e9, 1.0]);
+    assert!(refine_affine(&t, &rv, far, 10, 0.01, &mut g).is_none());
+    // Far outside but finite: clamped reads, never a panic.
+    let out = Affine::through(rot(0.0, 1.0), [0.0; 2], [-500.0, 900.0]);
+    let _ = refine_affine(&t, &rv, out, 10, 0.01, &mut g);
+    let edge_img = ImageView::new(&reference, W, H, W).unwrap();
+    t.build(&edge_img, [-40, 500], 15, &mut g);
+}
