@@ -1,3 +1,6 @@
+//! Tests of the affine refinement (`affine.rs` includes this file as its `#[cfg(test)]`
+//! module; the attribute below repeats that for readers of this file alone).
+#[cfg(test)]
 extern crate std;
 use super::super::testutil::{render, texture};
 use super::*;
