@@ -842,12 +842,17 @@ impl<
             Some((k.x_n, [o.x_n[0], o.x_n[1]]))
         });
         let (parallax, n) = mean_parallax_px(pairs, r_ck.as_ref(), self.focal_px());
-        let seen = self
-            .lms
-            .landmarks()
-            .iter()
-            .filter(|lm| matches!(lm.obs.get(pos), Some(Some(_))))
-            .count();
+        // The share is only needed by the tracked-share rule (off by default): no pass over the
+        // landmark store per frame otherwise.
+        let seen = if self.cfg.keyframe.min_tracked_ratio > 0.0 {
+            self.lms
+                .landmarks()
+                .iter()
+                .filter(|lm| matches!(lm.obs.get(pos), Some(Some(_))))
+                .count()
+        } else {
+            0
+        };
         let tracked = if seen == 0 {
             1.0
         } else {
