@@ -56,8 +56,8 @@ use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use crate::frontend::{
-    mean_parallax_px, KeyframeDecision, KeyframeSelector, NormalizedObs, RestDetector, RestVerdict,
-    TrackTable,
+    mean_parallax_px, CameraMotion, KeyframeDecision, KeyframeSelector, NormalizedObs,
+    RestDetector, RestVerdict, TrackTable,
 };
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
@@ -598,6 +598,7 @@ impl<
                     t_cam_ns,
                     &self.frame.obs,
                     &self.cfg.camera,
+                    CameraMotion::ZERO,
                     &mut self.frame_obs,
                 )
                 .is_ok()
@@ -714,14 +715,37 @@ impl<
         true
     }
 
+    /// The camera's motion at `sample` (camera frame), for the track velocities: the gyro minus
+    /// the bias, and the velocity of the camera's origin, both rotated by the current extrinsic;
+    /// at rest before the INS starts (or if not finite).
+    fn camera_motion(&self, sample: &ImuSample) -> CameraMotion {
+        let Some(nav) = self.ins.as_ref().map(|i| i.state()) else {
+            return CameraMotion::ZERO;
+        };
+        let w_b = sample.gyro_rps - nav.bg;
+        let q_cb = self.ext.q_bc.inverse();
+        let w_c = q_cb * w_b;
+        let v_c = q_cb * (nav.q_wb.inverse() * nav.v_wb + w_b.cross(&self.ext.p_bc));
+        if w_c.iter().chain(v_c.iter()).all(|v| v.is_finite()) {
+            CameraMotion {
+                w_c_rps: [w_c.x, w_c.y, w_c.z],
+                v_c_mps: [v_c.x, v_c.y, v_c.z],
+            }
+        } else {
+            CameraMotion::ZERO
+        }
+    }
+
     /// Processes `self.frame` (see [`Self::next_frame`]) at `sample`.
     fn process_frame(&mut self, sample: &ImuSample) -> Result<Option<KeyframeReport>, Error> {
         let t0 = now(&self.cfg);
         let t_cam_ns = self.frame.t_cam_ns;
+        let motion = self.camera_motion(sample);
         let st = match self.tracks.process(
             t_cam_ns,
             &self.frame.obs,
             &self.cfg.camera,
+            motion,
             &mut self.frame_obs,
         ) {
             Ok(st) => st,

@@ -14,4 +14,4 @@ pub mod tracks;
 pub use image::{EurocTracker, FeatureTracker, ImageView, TrackHints, TrackStats, TrackerConfig};
 pub use keyframe::{mean_parallax_px, KeyframeConfig, KeyframeDecision, KeyframeSelector};
 pub use rest::{RestConfig, RestDetector, RestVerdict};
-pub use tracks::{FrameStats, NormalizedObs, TrackTable};
+pub use tracks::{CameraMotion, FrameStats, NormalizedObs, TrackTable};
