@@ -22,6 +22,7 @@
 
 use super::normal_equations::{all_finite, NormalEquations};
 use crate::Error;
+use heapless::Vec as HVec;
 
 /// Threshold under which a pivot is dropped: `max(absolute, relative * max_i |a_ii|)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -217,7 +218,8 @@ pub(crate) fn eliminate<const D: usize>(
         }
         let (top, trailing) = a.split_at_mut(k1);
         let panel = top.get_mut(k0..).unwrap_or(&mut []);
-        update_trailing(panel, &inv, k1, n, trailing);
+        let runs = nonzero_runs(panel, k1, n);
+        update_trailing(panel, &inv, k1, trailing, &runs);
         for (k, row_k) in (k0..k1).zip(panel.iter_mut()) {
             let inv_k = inv.get(k - k0).copied().unwrap_or(0.0);
             if inv_k != 0.0 {
@@ -231,47 +233,124 @@ pub(crate) fn eliminate<const D: usize>(
     Ok(())
 }
 
+/// Most column runs [`nonzero_runs`] lists (a window of 10 keyframes has about 12); a panel
+/// with more is updated as one run over everything, i.e. without the column skip.
+const MAX_RUNS: usize = 32;
+
+/// The column runs `[c0, c1)` of `from..n` (ascending) where some row of `panel` is nonzero.
+///
+/// By symmetry they are also the trailing rows with a nonzero multiplier: every other entry
+/// `a_ij` of the trailing block would only subtract `f * 0` or `0 * a_kj` terms, which change no
+/// value (at most the sign of a zero), so [`update_trailing`] skips them. The window's system is
+/// block sparse (a keyframe's velocity and biases couple only to its neighbours until the
+/// elimination reaches them), so this skips most of the trailing block of the early panels.
+fn nonzero_runs<const D: usize>(
+    panel: &[[f64; D]],
+    from: usize,
+    n: usize,
+) -> HVec<(usize, usize), MAX_RUNS> {
+    let mut runs: HVec<(usize, usize), MAX_RUNS> = HVec::new();
+    for j in from..n.min(D) {
+        if !panel
+            .iter()
+            .any(|row| row.get(j).is_some_and(|v| *v != 0.0))
+        {
+            continue;
+        }
+        match runs.last_mut() {
+            Some((_, c1)) if *c1 == j => *c1 = j + 1,
+            _ => {
+                if runs.push((j, j + 1)).is_err() {
+                    runs.clear();
+                    let _ = runs.push((from, n.min(D)));
+                    return runs;
+                }
+            }
+        }
+    }
+    runs
+}
+
 /// Trailing update of one panel (rows `panel`, unnormalized, pivots `k0..k1` with `1/d` in
-/// `inv`): for each row `i >= k1`, `a_ij -= (a_ki / d_k) a_kj` for the panel's `k` in order.
+/// `inv`): for each row `i >= k1`, `a_ij -= (a_ki / d_k) a_kj` for the panel's `k` in order,
+/// over the rows and columns of `runs` ([`nonzero_runs`]) only.
 fn update_trailing<const D: usize>(
     panel: &[[f64; D]],
     inv: &[f64; PANEL],
     k1: usize,
-    n: usize,
     trailing: &mut [[f64; D]],
+    runs: &[(usize, usize)],
 ) {
-    for (off, row_i) in trailing.iter_mut().take(n.saturating_sub(k1)).enumerate() {
-        let i = k1 + off;
-        let mut f = [0.0; PANEL];
-        for ((fm, row_m), im) in f.iter_mut().zip(panel).zip(inv) {
-            *fm = row_m.get(i).copied().unwrap_or(0.0) * im;
+    for (ir, &(r0, r1)) in runs.iter().enumerate() {
+        let cols = runs.get(ir..).unwrap_or(&[]);
+        for i in r0..r1 {
+            let Some(row_i) = i.checked_sub(k1).and_then(|off| trailing.get_mut(off)) else {
+                continue;
+            };
+            let mut f = [0.0; PANEL];
+            for ((fm, row_m), im) in f.iter_mut().zip(panel).zip(inv) {
+                *fm = row_m.get(i).copied().unwrap_or(0.0) * im;
+            }
+            for &(c0, c1) in cols {
+                let c0 = c0.max(i);
+                if let Some(dst) = row_i.get_mut(c0..c1) {
+                    subtract_panel(dst, panel, &f, c0);
+                }
+            }
         }
-        let Some(dst) = row_i.get_mut(i..n) else {
-            continue;
-        };
-        if let ([r0, r1, r2, r3], [f0, f1, f2, f3]) = (panel, f) {
-            if f.iter().all(|v| *v != 0.0) {
-                let (u0, u1, u2, u3) = (
-                    r0.get(i..n).unwrap_or(&[]),
-                    r1.get(i..n).unwrap_or(&[]),
-                    r2.get(i..n).unwrap_or(&[]),
-                    r3.get(i..n).unwrap_or(&[]),
-                );
-                for ((((x, a0), a1), a2), a3) in dst.iter_mut().zip(u0).zip(u1).zip(u2).zip(u3) {
-                    // One subtraction per pivot, in pivot order (the unblocked rounding).
+    }
+}
+
+/// `row[c0..c0 + 6]` as an array.
+#[inline(always)]
+fn six<const D: usize>(row: &[f64; D], c0: usize) -> Option<&[f64; 6]> {
+    row.get(c0..c0 + 6)
+        .and_then(|u| <&[f64; 6]>::try_from(u).ok())
+}
+
+/// `dst[j] -= f_m * panel[m][c0 + j]` for the panel's rows `m` in order (one subtraction per
+/// pivot: the unblocked rounding); zero multipliers are skipped, as the unblocked loop skips them.
+#[inline(always)]
+fn subtract_panel<const D: usize>(
+    dst: &mut [f64],
+    panel: &[[f64; D]],
+    f: &[f64; PANEL],
+    c0: usize,
+) {
+    let c1 = c0 + dst.len();
+    if let ([r0, r1, r2, r3], &[f0, f1, f2, f3]) = (panel, f) {
+        if f.iter().all(|v| *v != 0.0) {
+            // A pose block (6 wide, the common run): fixed-size operands, fully unrolled.
+            if let (Ok(d), Some(u0), Some(u1), Some(u2), Some(u3)) = (
+                <&mut [f64; 6]>::try_from(&mut *dst),
+                six(r0, c0),
+                six(r1, c0),
+                six(r2, c0),
+                six(r3, c0),
+            ) {
+                for ((((x, a0), a1), a2), a3) in d.iter_mut().zip(u0).zip(u1).zip(u2).zip(u3) {
                     *x = (((*x - f0 * a0) - f1 * a1) - f2 * a2) - f3 * a3;
                 }
-                continue;
+                return;
             }
+            let (u0, u1, u2, u3) = (
+                r0.get(c0..c1).unwrap_or(&[]),
+                r1.get(c0..c1).unwrap_or(&[]),
+                r2.get(c0..c1).unwrap_or(&[]),
+                r3.get(c0..c1).unwrap_or(&[]),
+            );
+            for ((((x, a0), a1), a2), a3) in dst.iter_mut().zip(u0).zip(u1).zip(u2).zip(u3) {
+                *x = (((*x - f0 * a0) - f1 * a1) - f2 * a2) - f3 * a3;
+            }
+            return;
         }
-        // A short panel, or zero multipliers (skipped, as the unblocked loop skips them).
-        for (row_m, fm) in panel.iter().zip(f) {
-            if fm == 0.0 {
-                continue;
-            }
-            for (x, s) in dst.iter_mut().zip(row_m.get(i..n).unwrap_or(&[])) {
-                *x -= fm * s;
-            }
+    }
+    for (row_m, &fm) in panel.iter().zip(f) {
+        if fm == 0.0 {
+            continue;
+        }
+        for (x, s) in dst.iter_mut().zip(row_m.get(c0..c1).unwrap_or(&[])) {
+            *x -= fm * s;
         }
     }
 }
@@ -561,6 +640,156 @@ mod tests {
             }
             assert_eq!(s1.report(), s2.report(), "case {case}");
         }
+    }
+
+    /// Textbook right-looking elimination, one pivot at a time, every `a_ij -= f a_kj` done
+    /// (no zero skipped): the reference of the skipping kernels, written as the formula reads.
+    #[allow(clippy::needless_range_loop)]
+    fn eliminate_reference<const D: usize>(
+        a: &mut [[f64; D]; D],
+        d: &mut [f64; D],
+        n: usize,
+        steps: core::ops::Range<usize>,
+        floor: f64,
+    ) {
+        for k in steps {
+            let pivot = a[k][k];
+            if pivot <= floor {
+                d[k] = 0.0;
+                for j in k + 1..n {
+                    a[k][j] = 0.0;
+                }
+                continue;
+            }
+            d[k] = pivot;
+            let inv = 1.0 / pivot;
+            for i in k + 1..n {
+                let f = a[k][i] * inv;
+                for j in i..n {
+                    a[i][j] -= f * a[k][j];
+                }
+            }
+            for j in k + 1..n {
+                a[k][j] *= inv;
+            }
+        }
+    }
+
+    /// `J^T J` of a window-shaped problem: `kfs` keyframes of 15 columns (pose 6, velocity and
+    /// biases 9), then one delay column each. Factors: a prior on keyframe 0's state and every
+    /// pose, IMU factors on consecutive keyframes' states, landmarks on random pose subsets and
+    /// their delays. `dead` leaves one column without information (a dropped pivot).
+    fn window_system<const D: usize>(
+        kfs: usize,
+        rnd: &mut impl FnMut() -> f64,
+        dead: Option<usize>,
+    ) -> [[f64; D]; D] {
+        let n = 16 * kfs;
+        let mut h = [[0.0; D]; D];
+        let add = |cols: &[usize], h: &mut [[f64; D]; D], rnd: &mut dyn FnMut() -> f64| {
+            let row: [f64; D] = core::array::from_fn(|c| {
+                if cols.contains(&c) && Some(c) != dead {
+                    rnd()
+                } else {
+                    0.0
+                }
+            });
+            for i in 0..n {
+                for j in i..n {
+                    h[i][j] += row[i] * row[j];
+                }
+            }
+        };
+        let pose = |k: usize| 15 * k..15 * k + 6;
+        for _ in 0..20 {
+            let cols: HVec<usize, 256> = (0..15).chain((1..kfs).flat_map(pose)).collect();
+            add(&cols, &mut h, rnd);
+        }
+        for k in 1..kfs {
+            for _ in 0..16 {
+                let cols: HVec<usize, 256> = (15 * (k - 1)..15 * (k + 1)).collect();
+                add(&cols, &mut h, rnd);
+            }
+        }
+        for _ in 0..40 {
+            let (a, b) = (
+                (rnd().abs() * 1e3) as usize % kfs,
+                (rnd().abs() * 1e3) as usize % kfs,
+            );
+            let td = 15 * kfs;
+            let cols: HVec<usize, 256> = pose(a).chain(pose(b)).chain([td + a, td + b]).collect();
+            for _ in 0..2 {
+                add(&cols, &mut h, rnd);
+            }
+        }
+        h
+    }
+
+    #[test]
+    fn skipping_zero_blocks_matches_the_textbook_elimination() {
+        // Window-shaped systems (16 columns per keyframe) with damping, a dead column (dropped
+        // pivot), a nearly singular direction, and partial (Schur) step ranges.
+        const NN: usize = 96;
+        let mut rnd = crate::solver::test_rng(23);
+        for case in 0..8 {
+            let kfs = 6;
+            let n = 16 * kfs;
+            let dead = (case % 4 == 1).then_some(20 + case);
+            let mut a: [[f64; NN]; NN] = window_system(kfs, &mut rnd, dead);
+            if case % 4 == 2 {
+                // Nearly singular: one state with almost no information (`S H S`, still SPD);
+                // undamped its pivot falls under the floor.
+                for (i, row) in a.iter_mut().enumerate().take(n) {
+                    for (j, v) in row.iter_mut().enumerate().take(n) {
+                        if i == 40 || j == 40 {
+                            *v *= 1e-7;
+                        }
+                    }
+                }
+            }
+            if case % 2 == 0 {
+                for (i, row) in a.iter_mut().enumerate().take(n) {
+                    row[i] += 1e-3 * row[i].clamp(1e-6, 1e32);
+                }
+            }
+            let steps = if case % 4 == 3 { 0..16 } else { 0..n };
+            let floor = 1e-12 * max_abs_diag(&a, 0..n);
+            let (mut a1, mut a2) = (a, a);
+            let (mut d1, mut d2) = ([0.0; NN], [0.0; NN]);
+            let mut stats = PivotStats::new();
+            eliminate(&mut a1, &mut d1, n, steps.clone(), floor, &mut stats, PANEL).unwrap();
+            eliminate_reference(&mut a2, &mut d2, n, steps, floor);
+            for i in 0..NN {
+                // `==`: equal values (a skipped `x - 0 * y` may only differ in a zero's sign).
+                assert!(d1[i] == d2[i], "case {case} d[{i}]");
+                for j in i..NN {
+                    assert!(
+                        a1[i][j] == a2[i][j],
+                        "case {case} a[{i}][{j}]: {} vs {}",
+                        a1[i][j],
+                        a2[i][j]
+                    );
+                }
+            }
+            if dead.is_some() {
+                assert!(!stats.report().positive_definite, "case {case}");
+            }
+        }
+        // The runs: the nonzero columns of a panel, contiguous pieces merged.
+        let mut p = [[0.0; 12]; 2];
+        p[0][3] = 1.0;
+        p[1][4] = -2.0;
+        p[1][7] = 1.0;
+        p[0][11] = 3.0;
+        assert_eq!(&nonzero_runs(&p, 2, 12)[..], &[(3, 5), (7, 8), (11, 12)]);
+        assert_eq!(&nonzero_runs(&p, 4, 11)[..], &[(4, 5), (7, 8)]);
+        // More runs than MAX_RUNS: one run over everything (the update without the skip).
+        let mut q = [[0.0; 100]; 1];
+        for j in (0..100).step_by(2) {
+            q[0][j] = 1.0;
+        }
+        assert_eq!(&nonzero_runs(&q, 1, 99)[..], &[(1, 99)]);
+        assert_eq!(nonzero_runs(&q, 0, 60).len(), 30);
     }
 
     #[test]
