@@ -36,10 +36,10 @@ use crate::Error;
 ///
 /// **Off by default** (`enabled = false`): on simulated hand-held and robot sequences (seeds
 /// 1-3, BENCHMARKS.md, issue 14, bar 2) the defaults below cut the wrong tracks (hidden or a
-/// step > 1 px) by 30-36% (hand-held) and 1-11% (robot), with 6% fewer hand-held tracks of
-/// >= 10 images (robot: -1% to +5%), but the front end's CPU time grows by about 40% (the fits, and the top-up detection that
-/// replaces the rejected corners) and the end-to-end ATE is not consistently better (3 of 6
-/// sequences better, 3 worse). With it off the tracks are bit-identical to before.
+/// step > 1 px) by 30-36% (hand-held) and 1-11% (robot), with 6% fewer hand-held tracks of at
+/// least 10 images (robot: -1% to +5%), but the front end's CPU time grows by about 40% (the
+/// fits, and the top-up detection that replaces the rejected corners) and the end-to-end ATE
+/// is not consistently better (3 of 6 sequences better, 3 worse). With it off the tracks are bit-identical to before.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(
