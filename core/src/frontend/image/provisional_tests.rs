@@ -107,6 +107,10 @@ fn invalid_settings_are_refused_only_when_on() {
             max_shift_px: f32::NAN,
             ..pc()
         },
+        ProvisionalConfig {
+            relative_to_median: -1.0,
+            ..pc()
+        },
     ] {
         assert_eq!(bad.validate(), Err(Error::InvalidConfig), "{bad:?}");
     }
@@ -205,5 +209,36 @@ fn tracker_ends_edge_tracks_and_keeps_plane_tracks_and_is_unchanged_when_off() {
             "{plane_on} vs {plane_off} of {n_plane}"
         );
         assert!(plane_on * 10 >= n_plane * 8, "{plane_on} of {n_plane}");
+    });
+}
+
+#[test]
+fn relative_threshold_still_ends_edge_tracks() {
+    big_stack(|| {
+        let mut c = tcfg(true);
+        c.provisional.relative_to_median = 2.0;
+        let mut t = Small::new(c).unwrap();
+        let mut first = Vec::new();
+        for k in 0..5 {
+            let kf = k as f64;
+            let img = two_planes((1.5 * kf, 0.3 * kf), (0.4 * kf, 0.1 * kf));
+            t.track(k * 50_000_000, &view(&img), &TrackHints::NONE, &cam())
+                .unwrap();
+            if k == 0 {
+                first = t.features().to_vec();
+            }
+        }
+        let edge = |f: &FeatureObs| (f.u_px - EDGE).abs() <= 4.0;
+        let alive = |f: &FeatureObs| t.features().iter().any(|g| g.id == f.id);
+        let n_edge = first.iter().filter(|f| edge(f)).count();
+        let edge_alive = first.iter().filter(|f| edge(f) && alive(f)).count();
+        assert!(n_edge >= 3 && edge_alive == 0, "{edge_alive} of {n_edge}");
+        let plane = |f: &FeatureObs| (f.u_px - EDGE).abs() >= 12.0;
+        let n_plane = first.iter().filter(|f| plane(f)).count();
+        let plane_alive = first.iter().filter(|f| plane(f) && alive(f)).count();
+        assert!(
+            plane_alive * 10 >= n_plane * 8,
+            "{plane_alive} of {n_plane}"
+        );
     });
 }

@@ -242,13 +242,13 @@ pub struct TrackStats {
 }
 
 /// Tracker for up to 256 features on images up to 752x480 pixels (EuRoC; any smaller image
-/// such as 640x360 fits too), 4 pyramid levels: 1 457 240 bytes (two pyramids of 536 856 bytes:
+/// such as 640x360 fits too), 4 pyramid levels: 1 457 248 bytes (two pyramids of 536 856 bytes:
 /// [`pyramid_bytes`]`(752, 480, 4)` = 479 400 plus 32 KiB of row scratch and the 24 KiB
 /// equalizer; the detector's 122 KiB; the LK scratch's 11 KiB; 54 KiB of per-feature arrays;
 /// 191 KiB of reference templates and scratch for the anchored refinement).
 pub type EurocTracker = FeatureTracker<256, { pyramid_bytes(752, 480, 4) }, 4>;
 
-/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 946 440 bytes.
+/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 946 448 bytes.
 pub type HdTracker = FeatureTracker<256, { pyramid_bytes(1280, 720, 4) }, 4>;
 
 /// Per-feature outcome of the forward pass.
@@ -648,16 +648,49 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
         };
         let pc = self.cfg.provisional;
         let rc = self.template_config();
+        let abs = f64::from(pc.max_misalignment_px);
+        let relative = pc.relative_to_median > 0.0;
+        // Relative mode: the misalignments go to `new_norm[i][0]` (NaN: decided) and `flow`
+        // (for the median); both are free until `reject_outliers` writes them.
+        let mut m = 0usize;
         let items = self
             .fate
             .iter_mut()
             .zip(self.new_pos.iter())
-            .zip(self.ages.iter());
-        for (i, ((fate, pos), &age)) in items.take(n).enumerate() {
+            .zip(self.ages.iter())
+            .zip(self.new_norm.iter_mut());
+        for (i, (((fate, pos), &age), nn)) in items.take(n).enumerate() {
+            nn[0] = f64::NAN;
             if *fate != Fate::Alive || age >= pc.frames {
                 continue;
             }
-            if provisional::check(&mut self.refs, i, &img, *pos, &pc, &rc) == Verdict::Reject {
+            let meas = provisional::measure(&mut self.refs, i, &img, *pos, &pc, &rc);
+            match meas {
+                provisional::Measured::Misalignment(x) if relative => {
+                    nn[0] = x;
+                    if let Some(f) = self.flow.get_mut(m) {
+                        *f = x;
+                        m += 1;
+                    }
+                }
+                _ => {
+                    if provisional::verdict(meas, abs) == Verdict::Reject {
+                        *fate = Fate::Lost;
+                        st.lost_provisional += 1;
+                    }
+                }
+            }
+        }
+        if !relative || m == 0 {
+            return;
+        }
+        let vals = self.flow.get_mut(..m).unwrap_or(&mut []);
+        let mid = vals.len() / 2;
+        let median = *vals.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let thr = abs.max(f64::from(pc.relative_to_median) * median);
+        let items = self.fate.iter_mut().zip(self.new_norm.iter()).take(n);
+        for (fate, nn) in items {
+            if nn[0] > thr {
                 *fate = Fate::Lost;
                 st.lost_provisional += 1;
             }
