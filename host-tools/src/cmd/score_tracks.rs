@@ -66,6 +66,45 @@ pub struct TrackAnatomy {
     pub tracks: usize,
     /// `(age in frames, observations, median, p90 px)` of the anchored error.
     pub by_age: Vec<(usize, usize, f64, f64)>,
+    /// Cause of the hidden-or-jumped tracks by where the track started: `[anchor class]` with
+    /// classes [`ANCHOR_CLASSES`] (surface, depth edge, sky) and counts `[all tracks, hidden at
+    /// the first step, hidden later, jumped while visible]`.
+    pub causes: [[usize; 4]; 3],
+    /// Tracks anchored on the sky ([`ANCHOR_CLASSES`] 2) that do follow a surface point: every
+    /// later observation within the threshold of the truth transferred from the nearest
+    /// non-sky pixel of the anchor (within 2 px), which then stays visible. The others of that
+    /// class slide or are hidden from there too.
+    pub sky_following: usize,
+    /// Mean observations per scored track.
+    pub mean_length: f64,
+    /// Scored tracks with at least 5 / 10 / 30 observations.
+    pub long_tracks: [usize; 3],
+}
+
+/// Names of the anchor classes of [`TrackAnatomy::causes`]: the anchor pixel's 7x7
+/// neighbourhood is on one surface (depths within 5%), straddles a depth edge (depths differ by
+/// more, or part of it is sky), or the anchor pixel itself shows the sky.
+pub const ANCHOR_CLASSES: [&str; 3] = ["one surface", "depth edge", "sky at the anchor"];
+
+/// Anchor class (index into [`ANCHOR_CLASSES`]) from `depth(du, dv)`, the distance along the
+/// ray of the pixel `(du, dv)` from the anchor (`None`: sky).
+pub fn anchor_class(depth: impl Fn(i32, i32) -> Option<f64>) -> usize {
+    if depth(0, 0).is_none() {
+        return 2;
+    }
+    let (mut lo, mut hi, mut sky) = (f64::INFINITY, 0.0f64, false);
+    for dv in -3..=3 {
+        for du in -3..=3 {
+            match depth(du, dv) {
+                Some(d) => {
+                    lo = lo.min(d);
+                    hi = hi.max(d);
+                }
+                None => sky = true,
+            }
+        }
+    }
+    usize::from(sky || hi > 1.05 * lo)
 }
 
 /// A frame-to-frame error above this is a jump to another point, px.
@@ -75,6 +114,8 @@ pub const JUMP_PX: f64 = 1.0;
 pub fn anatomy(
     frames: &[FeatureFrame],
     transfer: impl Fn(usize, [f64; 2], usize) -> Option<[f64; 2]>,
+    classify: impl Fn(usize, [f64; 2]) -> usize,
+    surface_near: impl Fn(usize, [f64; 2]) -> Option<[f64; 2]>,
     wrong_px: f64,
 ) -> TrackAnatomy {
     let mut tracks: BTreeMap<u64, Vec<(usize, [f64; 2])>> = BTreeMap::new();
@@ -116,6 +157,30 @@ pub fn anatomy(
         }
         a.jumped += usize::from(jump);
         a.hidden_or_jumped += usize::from(jump || hidden.is_some());
+        let len = obs.len();
+        for (n, min) in a.long_tracks.iter_mut().zip([5, 10, 30]) {
+            *n += usize::from(len >= min);
+        }
+        a.mean_length += len as f64;
+        let class = classify(i0, uv0).min(2);
+        if class == 2 {
+            let follows = surface_near(i0, uv0).is_some_and(|alt| {
+                obs.iter().skip(1).all(|&(j, uv)| {
+                    transfer(i0, alt, j).is_some_and(|t| {
+                        ((uv[0] - t[0]).powi(2) + (uv[1] - t[1]).powi(2)).sqrt() <= wrong_px
+                    })
+                })
+            });
+            a.sky_following += usize::from(follows);
+        }
+        let c = &mut a.causes[class];
+        c[0] += 1;
+        match hidden {
+            Some(1) => c[1] += 1,
+            Some(_) => c[2] += 1,
+            None if jump => c[3] += 1,
+            None => {}
+        }
         if let Some(k) = hidden {
             a.hidden += 1;
             a.hidden_at_once += usize::from(k == 1);
@@ -124,6 +189,7 @@ pub fn anatomy(
             a.off_at_once += usize::from(k == 1);
         }
     }
+    a.mean_length /= a.tracks.max(1) as f64;
     for (b, v) in errs.iter_mut().enumerate() {
         if v.is_empty() {
             continue;
@@ -189,7 +255,35 @@ pub fn score_against_simulation(
         }
     }
     let score = score_tracks(&frames, |i, uv, j| truth.transfer(i, uv, j), wrong_px);
-    let detail = anatomy(&frames, |i, uv, j| truth.transfer(i, uv, j), wrong_px);
+    let classify = |i: usize, uv: [f64; 2]| {
+        anchor_class(|du, dv| {
+            let v = truth.view(i)?;
+            let (p, _) = truth.surface_point(i, [uv[0] + f64::from(du), uv[1] + f64::from(dv)])?;
+            Some((p - v.o_w).norm())
+        })
+    };
+    // The nearest pixel (in steps of 0.5 px, up to 2 px) that shows a surface.
+    let surface_near = |i: usize, uv: [f64; 2]| {
+        let mut best: Option<(f64, [f64; 2])> = None;
+        for dv in -4..=4 {
+            for du in -4..=4 {
+                let d = [0.5 * f64::from(du), 0.5 * f64::from(dv)];
+                let r2 = d[0] * d[0] + d[1] * d[1];
+                let p = [uv[0] + d[0], uv[1] + d[1]];
+                if best.is_none_or(|b| r2 < b.0) && truth.surface_point(i, p).is_some() {
+                    best = Some((r2, p));
+                }
+            }
+        }
+        best.map(|b| b.1)
+    };
+    let detail = anatomy(
+        &frames,
+        |i, uv, j| truth.transfer(i, uv, j),
+        classify,
+        surface_near,
+        wrong_px,
+    );
     Ok((score, unmatched, detail))
 }
 
@@ -251,6 +345,20 @@ pub fn run(args: Args) -> Result<()> {
             detail.hidden_or_jumped,
             100.0 * detail.hidden_or_jumped as f64 / detail.tracks.max(1) as f64,
             detail.tracks
+        );
+        println!(
+            "  mean length {:.1} observations; tracks >= 5 / 10 / 30: {} / {} / {}",
+            detail.mean_length, detail.long_tracks[0], detail.long_tracks[1], detail.long_tracks[2]
+        );
+        for (name, c) in ANCHOR_CLASSES.iter().zip(detail.causes.iter()) {
+            println!(
+                "  anchored on {name}: {} tracks; hidden at the first step {}, hidden later {}, jumped while visible {}",
+                c[0], c[1], c[2], c[3]
+            );
+        }
+        println!(
+            "  of the sky-anchored, following the nearest surface pixel (within {} px throughout): {}",
+            args.wrong_px, detail.sky_following
         );
         for (age, n, med, p90) in &detail.by_age {
             let age = if *age == usize::MAX {

@@ -9,7 +9,9 @@
 //!   `[lidar.extrinsic]`, `[lidar.association]`);
 //! - `[frontend]` is the image front end's [`TrackerConfig`] (`[frontend.detector]`,
 //!   `[frontend.lk]`, `[frontend.ransac]`, `[frontend.reference]`: the anchored refinement,
-//!   `enabled = true` to turn it on) and `[aiding]` its [`VioAiding`].
+//!   `enabled = true` to turn it on; `[frontend.provisional]`: the first-steps check of new
+//!   tracks against occlusion-edge corners, `enabled = true` to turn it on) and `[aiding]` its
+//!   [`VioAiding`].
 //!
 //! Every key is optional: the file is laid over the configuration the dataset gives (its camera,
 //! extrinsics, IMU noise, gravity, camera delay and LiDAR), key by key, nested tables merged.

@@ -345,6 +345,25 @@ fn switches_override_the_file() {
 }
 
 #[test]
+fn the_first_steps_check_is_switched_from_toml() {
+    let f =
+        RunConfigFile::parse("[frontend.provisional]\nenabled = true\nmax_misalignment_px = 0.5\n")
+            .expect("parses");
+    let (mut t, mut a) = (TrackerConfig::default(), VioAiding::default());
+    assert!(!t.provisional.enabled, "off by default");
+    f.apply_frontend(&mut t, &mut a).expect("frontend");
+    let mut d = TrackerConfig::default();
+    d.provisional.enabled = true;
+    d.provisional.max_misalignment_px = 0.5;
+    assert_eq!(t, d, "only the two keys change");
+    let bad = RunConfigFile::parse("[frontend.provisional]\nenabled = true\nwindow = 4\n")
+        .expect("parses");
+    assert!(bad
+        .apply_frontend(&mut TrackerConfig::default(), &mut VioAiding::default())
+        .is_err());
+}
+
+#[test]
 fn the_anchored_refinement_is_switched_from_toml() {
     let f = RunConfigFile::parse("[frontend.reference]\nenabled = true\nwindow = 11\n")
         .expect("parses");

@@ -108,6 +108,12 @@ impl Template {
         self.win != 0
     }
 
+    /// The raw pixels (row stride [`TEMPLATE_SIDE`], `(win + 2)^2` used) and the window side
+    /// (0: invalid).
+    pub fn pixels(&self) -> (&[u8; TEMPLATE_SIDE * TEMPLATE_SIDE], usize) {
+        (&self.pix, usize::from(self.win))
+    }
+
     /// Captures the `win x win` template (odd, `5..=MAX_AFFINE_WINDOW`) centred on the integer
     /// pixel `c` of `img` (outside pixels replicate the border) and inverts its Hessian. An
     /// invalid template (bad window, empty image, flat or one-dimensional texture) results

@@ -179,6 +179,18 @@ impl<const F: usize> References<F> {
         slot.lin = [1.0, 0.0, 0.0, 1.0];
     }
 
+    /// Slot `i`'s template (invalid when it has none).
+    pub fn template(&self, i: usize) -> Option<&Template> {
+        self.slots.get(i).map(|s| &s.tpl)
+    }
+
+    /// Sets slot `i`'s linear warp (the warm start of its next refinement).
+    pub fn set_linear(&mut self, i: usize, lin: [f64; 4]) {
+        if let Some(s) = self.slots.get_mut(i) {
+            s.lin = lin;
+        }
+    }
+
     /// Moves slot `from` to slot `to` (compaction, `to <= from`).
     pub fn move_slot(&mut self, from: usize, to: usize) {
         if from == to || from >= F || to >= F {

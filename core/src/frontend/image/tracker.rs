@@ -4,6 +4,7 @@
 use super::corners::{Corner, DetectStats, DetectorConfig, GridDetector};
 use super::equalize::Equalization;
 use super::lk::{track_point, track_point_no_residual, LkConfig, LkFailure, LkScratch};
+use super::provisional::{self, ProvisionalConfig, Verdict};
 use super::pyramid::{pyramid_bytes, Pyramid, PyramidFilter};
 use super::ransac::{self, RansacConfig, RansacModel, RansacOutcome, XorShift64};
 use super::reference::{ReferenceConfig, References, Refined};
@@ -52,6 +53,8 @@ pub struct TrackerConfig {
     pub equalization: Equalization,
     /// Anchored refinement against each track's reference patch.
     pub reference: ReferenceConfig,
+    /// First-steps check of new tracks against their detection patch (occlusion-edge corners).
+    pub provisional: ProvisionalConfig,
 }
 
 impl Default for TrackerConfig {
@@ -70,6 +73,7 @@ impl Default for TrackerConfig {
             pyramid_filter: PyramidFilter::Gaussian5,
             equalization: Equalization::Off,
             reference: ReferenceConfig::default(),
+            provisional: ProvisionalConfig::default(),
         }
     }
 }
@@ -116,6 +120,7 @@ impl TrackerConfig {
         pyramid_filter: PyramidFilter::Gaussian5,
         equalization: Equalization::Off,
         reference: ReferenceConfig::PLACEHOLDER,
+        provisional: ProvisionalConfig::PLACEHOLDER,
     };
 
     /// Checks every parameter's range ([`Error::InvalidConfig`] otherwise). The capacities of a
@@ -126,6 +131,7 @@ impl TrackerConfig {
         self.ransac.validate()?;
         self.equalization.validate()?;
         self.reference.validate()?;
+        self.provisional.validate()?;
         let ok = self.max_features >= 1
             && self.max_level <= 8
             && self.predicted_max_level <= self.max_level
@@ -208,6 +214,9 @@ pub struct TrackStats {
     pub lost_ransac: u32,
     /// Lost: the anchored refinement converged far from the frame-to-frame position.
     pub lost_reference: u32,
+    /// Lost: a new track's detection patch is not explained by one surface (first-steps
+    /// check, [`super::provisional`]).
+    pub lost_provisional: u32,
     /// Tracks whose position was refined against their reference patch.
     pub refined: u32,
     /// Tracks whose reference patch was re-anchored (refinement not accepted).
@@ -233,13 +242,13 @@ pub struct TrackStats {
 }
 
 /// Tracker for up to 256 features on images up to 752x480 pixels (EuRoC; any smaller image
-/// such as 640x360 fits too), 4 pyramid levels: 1 457 208 bytes (two pyramids of 536 856 bytes:
+/// such as 640x360 fits too), 4 pyramid levels: 1 457 248 bytes (two pyramids of 536 856 bytes:
 /// [`pyramid_bytes`]`(752, 480, 4)` = 479 400 plus 32 KiB of row scratch and the 24 KiB
 /// equalizer; the detector's 122 KiB; the LK scratch's 11 KiB; 54 KiB of per-feature arrays;
 /// 191 KiB of reference templates and scratch for the anchored refinement).
 pub type EurocTracker = FeatureTracker<256, { pyramid_bytes(752, 480, 4) }, 4>;
 
-/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 946 408 bytes.
+/// Tracker for up to 1280x720 images, 256 features, 4 levels: 2 946 448 bytes.
 pub type HdTracker = FeatureTracker<256, { pyramid_bytes(1280, 720, 4) }, 4>;
 
 /// Per-feature outcome of the forward pass.
@@ -615,6 +624,77 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
         if cfg.reference.enabled {
             self.refine_against_references(next, st);
         }
+        if cfg.provisional.enabled {
+            self.check_new_tracks(next, st);
+        }
+    }
+
+    /// The template settings of the per-track patches: the anchored refinement's when it is on
+    /// (the first-steps check then shares its templates), else the first-steps check's.
+    fn template_config(&self) -> ReferenceConfig {
+        if self.cfg.reference.enabled {
+            self.cfg.reference
+        } else {
+            self.cfg.provisional.as_reference()
+        }
+    }
+
+    /// The first-steps check ([`super::provisional`]) of the surviving tracks of ages
+    /// `0..frames` (before this step): ends those not explained by one surface.
+    fn check_new_tracks(&mut self, next: usize, st: &mut TrackStats) {
+        let n = self.features.len();
+        let Some(img) = self.pyr.get(next).and_then(|p| p.level(0)) else {
+            return;
+        };
+        let pc = self.cfg.provisional;
+        let rc = self.template_config();
+        let abs = f64::from(pc.max_misalignment_px);
+        let relative = pc.relative_to_median > 0.0;
+        // Relative mode: the misalignments go to `new_norm[i][0]` (NaN: decided) and `flow`
+        // (for the median); both are free until `reject_outliers` writes them.
+        let mut m = 0usize;
+        let items = self
+            .fate
+            .iter_mut()
+            .zip(self.new_pos.iter())
+            .zip(self.ages.iter())
+            .zip(self.new_norm.iter_mut());
+        for (i, (((fate, pos), &age), nn)) in items.take(n).enumerate() {
+            nn[0] = f64::NAN;
+            if *fate != Fate::Alive || age >= pc.frames {
+                continue;
+            }
+            let meas = provisional::measure(&mut self.refs, i, &img, *pos, &pc, &rc);
+            match meas {
+                provisional::Measured::Misalignment(x) if relative => {
+                    nn[0] = x;
+                    if let Some(f) = self.flow.get_mut(m) {
+                        *f = x;
+                        m += 1;
+                    }
+                }
+                _ => {
+                    if provisional::verdict(meas, abs) == Verdict::Reject {
+                        *fate = Fate::Lost;
+                        st.lost_provisional += 1;
+                    }
+                }
+            }
+        }
+        if !relative || m == 0 {
+            return;
+        }
+        let vals = self.flow.get_mut(..m).unwrap_or(&mut []);
+        let mid = vals.len() / 2;
+        let median = *vals.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let thr = abs.max(f64::from(pc.relative_to_median) * median);
+        let items = self.fate.iter_mut().zip(self.new_norm.iter()).take(n);
+        for (fate, nn) in items {
+            if nn[0] > thr {
+                *fate = Fate::Lost;
+                st.lost_provisional += 1;
+            }
+        }
     }
 
     /// Refines every surviving track against its reference patch ([`super::reference`]):
@@ -840,9 +920,10 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
             // Same capacity as `features`: these cannot fail once that push succeeded.
             let _ = self.ages.push(0);
             let _ = self.norm.push(nn);
-            if self.cfg.reference.enabled {
+            if self.cfg.reference.enabled || self.cfg.provisional.enabled {
+                let rc = self.template_config();
                 self.refs
-                    .capture(self.features.len() - 1, &img, [u, v], &self.cfg.reference);
+                    .capture(self.features.len() - 1, &img, [u, v], &rc);
             }
             self.next_id += 1;
             st.detected += 1;
