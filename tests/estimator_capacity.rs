@@ -64,8 +64,8 @@ fn simulated_robot_exceeds_the_landmark_capacity_and_keeps_running() {
         assert_eq!(c.resets, 0, "{c:?}");
         assert!(states.iter().all(state_is_finite));
         // A sane trajectory, not an accuracy bar: 0.175 m until the feature velocities came from
-        // the INS motion (2026-11-28), 0.226 m since, with the delay estimate ending at +4.9 ms
-        // for a true 0 on this robot (BENCHMARKS.md, issue 13: the forward-motion delay bias).
+        // the INS motion (2026-11-28), 0.214 m since, with the delay estimate ending at +3.8 ms
+        // for a true 0 on this robot (BENCHMARKS.md, issue 13: the robot's delay bias).
         assert!(ate < 0.3, "ATE {ate:.4} m");
     });
 }

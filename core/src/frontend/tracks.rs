@@ -29,8 +29,11 @@
 //!   starts at 0 (far away: no translational flow) with the weight [`INVERSE_DEPTH_PRIOR_WEIGHT`],
 //!   so a track seen only while the camera turns in place keeps a rotational flow alone.
 //!
-//! The current observation never enters its own velocity except through the flows' coefficients
-//! (`x`, `y`: a second-order effect). A track after a time jump starts again.
+//! The current observation never enters its own velocity: the flows are evaluated where the
+//! previous frame's position and velocity put the point (only a new track, without a previous
+//! frame, uses its own observation). Even the flows' coefficients matter: a slowly moving camera's
+//! features move so little that their dependence on `x` biased a robot's delay by +5 ms. A track
+//! after a time jump starts again.
 
 use crate::camera::{FeatureObs, PinholeCamera};
 use crate::Error;
@@ -288,8 +291,19 @@ impl<const F: usize> TrackTable<F> {
                 }
                 None => (0.0, INVERSE_DEPTH_PRIOR_WEIGHT),
             };
-            let rot = rotational_flow(o.x_n, motion.w_c_rps);
-            let g = translational_flow_per_inverse_depth(o.x_n, motion.v_c_mps);
+            // The flows are evaluated where the previous frame predicts the point, not at the
+            // current observation: a slow camera's features move so little that even the flows'
+            // dependence on `x` correlates the regressor with the observation's noise enough to
+            // bias the delay by milliseconds (a robot: +5 ms for a true 0). A new track has no
+            // prediction and uses its observation.
+            let at = p1.map_or(o.x_n, |p| {
+                [
+                    p.obs.x_n[0] + p.obs.vel[0] * dt_s,
+                    p.obs.x_n[1] + p.obs.vel[1] * dt_s,
+                ]
+            });
+            let rot = rotational_flow(at, motion.w_c_rps);
+            let g = translational_flow_per_inverse_depth(at, motion.v_c_mps);
             o.vel = [rot[0] + rho * g[0], rot[1] + rho * g[1]];
             // Same capacity as `out`: cannot fail, and a failure would only drop a velocity.
             let _ = self.cur.push(TrackState { obs: *o, rho, w });
@@ -577,10 +591,14 @@ mod tests {
         for k in 0..8 {
             let (x, d, v_c) = view(&PTS, w, [0.0; 3], k as f64 * 0.05);
             let out = feed(&mut t, k, &x, motion(w, v_c), &mut || 0.0);
+            // Exact on a track's first frame (evaluated at its observation); then evaluated at
+            // the point's predicted position, off by the prediction's second-order error (here
+            // about 1e-3 of flows near 1 /s).
+            let tol = if k == 0 { 1e-8 } else { 3e-3 };
             for o in out.iter() {
                 let d = d[(o.id - 1) as usize];
                 assert!(
-                    (o.vel[0] - d[0]).abs() < 1e-8 && (o.vel[1] - d[1]).abs() < 1e-8,
+                    (o.vel[0] - d[0]).abs() < tol && (o.vel[1] - d[1]).abs() < tol,
                     "frame {k} track {}: {:?} vs {:?}",
                     o.id,
                     o.vel,
@@ -635,10 +653,9 @@ mod tests {
         let vb = feed(&mut b, 10, &x, motion(w, v_c), &mut || 2.0);
         assert_eq!(va.len(), vb.len());
         for (a, b) in va.iter().zip(vb.iter()) {
-            // 2 px (5e-3 on the normalized plane) of error in the current observation moves its
-            // velocity only through the flows' coefficients: about |w| + rho |v_z| times that.
-            let d = ((a.vel[0] - b.vel[0]).powi(2) + (a.vel[1] - b.vel[1]).powi(2)).sqrt();
-            assert!(d < 5e-3, "track {}: {d:.2e}", a.id);
+            // 2 px of error in the current observation does not move its velocity at all.
+            assert_eq!(a.vel, b.vel, "track {}", a.id);
+            assert_ne!(a.x_n, b.x_n);
         }
     }
 }
