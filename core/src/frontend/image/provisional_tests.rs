@@ -1,4 +1,6 @@
-//! Tests of the first-steps check (test-only code: unwraps are fine here).
+//! Tests of the first-steps check (`provisional.rs` includes this file as its `#[cfg(test)]`
+//! module; the attribute below repeats that for readers of this file alone).
+#[cfg(test)]
 extern crate std;
 use super::super::pyramid::pyramid_bytes;
 use super::super::testutil::{big_stack, render, texture};
