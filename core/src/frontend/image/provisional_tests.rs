@@ -180,32 +180,27 @@ fn tracker_ends_edge_tracks_and_keeps_plane_tracks_and_is_unchanged_when_off() {
         let n_edge = first_on.iter().filter(|f| edge(f)).count();
         let n_plane = first_on.iter().filter(|f| plane(f)).count();
         assert!(n_edge >= 3, "{n_edge} corners on the edge");
-        let alive = |after: &[Vec<FeatureObs>], f: &FeatureObs| {
-            after.last().unwrap().iter().any(|g| g.id == f.id)
+        // How many of the first frame's corners of a kind are still tracked in the last frame.
+        let survivors = |first: &[FeatureObs],
+                         after: &[Vec<FeatureObs>],
+                         kind: &dyn Fn(&FeatureObs) -> bool| {
+            let last = after.last().unwrap();
+            first
+                .iter()
+                .filter(|f| kind(f) && last.iter().any(|g| g.id == f.id))
+                .count()
         };
         // Off: corners on the edge survive (they are tracked consistently); on: none does.
-        let edge_off = first_off
-            .iter()
-            .filter(|f| edge(f) && alive(&after_off, f))
-            .count();
-        let edge_on = first_on
-            .iter()
-            .filter(|f| edge(f) && alive(&after_on, f))
-            .count();
+        let edge_off = survivors(&first_off, &after_off, &edge);
+        let edge_on = survivors(&first_on, &after_on, &edge);
         assert!(
             edge_off >= 1,
             "off: {edge_off} of {n_edge} edge tracks survive"
         );
         assert_eq!(edge_on, 0, "on: {edge_on} of {n_edge} edge tracks survive");
         // Plane corners survive either way (a few near the border may leave).
-        let plane_on = first_on
-            .iter()
-            .filter(|f| plane(f) && alive(&after_on, f))
-            .count();
-        let plane_off = first_off
-            .iter()
-            .filter(|f| plane(f) && alive(&after_off, f))
-            .count();
+        let plane_on = survivors(&first_on, &after_on, &plane);
+        let plane_off = survivors(&first_off, &after_off, &plane);
         assert!(
             plane_on + 2 >= plane_off,
             "{plane_on} vs {plane_off} of {n_plane}"
