@@ -71,6 +71,7 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         marginalized_rank_deficiency,
         prior_rank_deficiency,
         prior_gauge_std: _,
+        window_correction_m: _,
         solve_ns: _,
         marginalization_ns: _,
         total_ns: _,

@@ -400,6 +400,8 @@ impl EstimatorConfig {
                 max_gyro_bias_rps: 0.0,
                 max_accel_bias_mps2: 0.0,
                 max_velocity_correction_mps: 0.0,
+                max_window_correction_m: 0.0,
+                max_window_correction_rel: 0.0,
                 max_residual_sigmas: 0.0,
                 bad_keyframes: 0,
                 reinit_prior: PRIOR,

@@ -34,6 +34,16 @@ pub struct HealthConfig {
     /// Largest velocity correction of the newest keyframe by its solve (against the INS
     /// prediction), m/s.
     pub max_velocity_correction_mps: f64,
+    /// Largest position change of an already estimated keyframe (every one but the newest) by
+    /// one solve ([`super::KeyframeReport::window_correction_m`]), m, plus
+    /// `max_window_correction_rel` times the path the window spans. The newest keyframe's
+    /// checks cannot see a window that slides away as a whole while its newest state stays
+    /// plausible.
+    pub max_window_correction_m: f64,
+    /// Part of the window's path (the sum of its keyframe-to-keyframe distances before the
+    /// solve) added to `max_window_correction_m`: a fast vehicle's healthy corrections are
+    /// larger in metres.
+    pub max_window_correction_rel: f64,
     /// Visual residual RMS, in units of `sigma_px`, above which a keyframe counts as bad.
     pub max_residual_sigmas: f64,
     /// Consecutive bad keyframes that make a breakdown.
@@ -49,6 +59,8 @@ impl HealthConfig {
         max_gyro_bias_rps: 0.3,
         max_accel_bias_mps2: 2.0,
         max_velocity_correction_mps: 2.0,
+        max_window_correction_m: 1.0,
+        max_window_correction_rel: 0.1,
         max_residual_sigmas: 4.0,
         bad_keyframes: 3,
         reinit_prior: FirstStatePrior {
@@ -79,6 +91,9 @@ pub enum Breakdown {
     VelocityJump,
     /// The visual residuals stayed many sigmas large.
     Residuals,
+    /// The solve moved keyframes that earlier solves had estimated by more than
+    /// `max_window_correction_m`.
+    WindowJump,
 }
 
 impl<
@@ -91,13 +106,13 @@ impl<
         const Q: usize,
     > Estimator<N, L, D, P, GW, GH, Q>
 {
-    /// Checks the newest keyframe after its solve (`predicted`: the INS state it started from,
-    /// `residual_rms_px` and `landmarks` of the solve). Returns the breakdown, if any.
+    /// Checks the window after a solve (`predicted`: the INS state the newest keyframe started
+    /// from; `report`: the solve's residuals, landmarks and window correction). Returns the
+    /// breakdown, if any.
     pub(super) fn check_health(
         &mut self,
         predicted: &NavState,
-        residual_rms_px: f64,
-        landmarks: u32,
+        report: &super::KeyframeReport,
     ) -> Option<Breakdown> {
         let h = self.cfg.health;
         if !h.enabled {
@@ -121,9 +136,28 @@ impl<
         if (st.v_wb - predicted.v_wb).norm() > h.max_velocity_correction_mps {
             return Some(Breakdown::VelocityJump);
         }
-        let bad = landmarks >= 10 && residual_rms_px > h.max_residual_sigmas * self.cfg.sigma_px;
+        let limit = h.max_window_correction_m + h.max_window_correction_rel * self.window_path_m;
+        // A NaN correction is a breakdown too.
+        let c = report.window_correction_m;
+        if c.is_nan() || c > limit {
+            return Some(Breakdown::WindowJump);
+        }
+        let bad = report.landmarks_used >= 10
+            && report.residual_rms_px > h.max_residual_sigmas * self.cfg.sigma_px;
         self.bad_keyframes = if bad { self.bad_keyframes + 1 } else { 0 };
         (self.bad_keyframes >= h.bad_keyframes).then_some(Breakdown::Residuals)
+    }
+
+    /// Largest position change of the keyframes but the newest against `before` (the window's
+    /// poses before the solve), m; also keeps the path `before` spans for the limit.
+    pub(super) fn window_correction(&mut self, before: &[crate::factors::KeyframePose; N]) -> f64 {
+        let n = self.window.len().min(N);
+        let span = before.get(..n).unwrap_or(&[]);
+        let pairs = span.iter().zip(span.iter().skip(1));
+        self.window_path_m = pairs.map(|(a, b)| (b.p_wb - a.p_wb).norm()).sum();
+        (0..n.saturating_sub(1))
+            .filter_map(|k| Some((self.window.get(k)?.state.p_wb - before.get(k)?.p_wb).norm()))
+            .fold(0.0, f64::max)
     }
 
     /// Drops the window and continues INS-only from `predicted` (the INS's own state at the

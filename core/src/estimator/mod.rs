@@ -212,6 +212,8 @@ pub struct Estimator<
     td_hold: bool,
     /// Consecutive keyframes with large residuals (health monitor).
     bad_keyframes: u32,
+    /// Path the window's keyframes spanned before the last solve, m (health monitor).
+    window_path_m: f64,
     /// Set by a re-initialization: the delay to start the new window with (and its first
     /// keyframe takes the wide re-initialization prior).
     reinit_td: Option<f64>,
@@ -367,6 +369,7 @@ impl<
             events: HVec::new(),
             td_hold: false,
             bad_keyframes: 0,
+            window_path_m: 0.0,
             reinit_td: None,
             imu_scale: imu_noise::ImuNoiseScale::new(),
             ins_synced: 0,
@@ -969,12 +972,14 @@ impl<
 
         // 3-5. Optimize and cull.
         let ts = now(&self.cfg);
+        let before = self.window.poses();
         if self.window.len() >= 2 {
             self.optimize(&mut report);
         }
         report.solve_ns = now(&self.cfg).saturating_sub(ts);
+        report.window_correction_m = self.window_correction(&before);
         if self.window.len() >= 2 {
-            let health = self.check_health(&nav, report.residual_rms_px, report.landmarks_used);
+            let health = self.check_health(&nav, &report);
             if let Some(b) = health {
                 // The window broke down: INS-only from its own prediction, a new window next.
                 report.breakdown = Some(b);

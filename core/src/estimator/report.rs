@@ -48,6 +48,10 @@ pub struct KeyframeReport {
     /// consistent window they never shrink from one keyframe to the next; a drop is
     /// information it cannot have. 0 when no prior was formed in this step.
     pub prior_gauge_std: (f64, f64),
+    /// Largest position change the solve gave a keyframe that earlier solves had already
+    /// estimated (every keyframe but the newest), m. A healthy window moves them by millimetres
+    /// to centimetres; metres mean it broke down ([`super::HealthConfig`]).
+    pub window_correction_m: f64,
     /// Time of the optimization (both passes, culling included), ns.
     pub solve_ns: u64,
     /// Time of the marginalization, ns.
