@@ -16,6 +16,7 @@ pub mod plot_estimate;
 pub mod progress;
 pub mod realtime;
 pub mod regress;
+pub mod regress_paired;
 pub mod runner;
 pub mod sim;
 pub mod track_pictures;

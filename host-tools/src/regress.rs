@@ -91,8 +91,14 @@ pub const QUICK_SEEDS: u64 = 8;
 pub const QUICK_DURATION_S: f64 = 30.0;
 
 /// The suite's sequences: `quick` is the CI form ([`QUICK_SEEDS`] seeds of 30 s per scenario);
-/// `seeds` overrides the number of seeds per scenario (seeds `1..=seeds`).
-pub fn sequences(data_dir: &Path, quick: bool, seeds: Option<u64>) -> Vec<Sequence> {
+/// `seeds` overrides the number of seeds per scenario, which start at `first_seed` (1 for the
+/// stored figures; a later one gives fresh seeds, see [`crate::regress_paired`]).
+pub fn sequences(
+    data_dir: &Path,
+    quick: bool,
+    seeds: Option<u64>,
+    first_seed: u64,
+) -> Vec<Sequence> {
     let mut v = vec![
         Sequence::Real {
             name: "euroc-v101-30s".into(),
@@ -110,7 +116,7 @@ pub fn sequences(data_dir: &Path, quick: bool, seeds: Option<u64>) -> Vec<Sequen
     } else {
         (10, 60.0)
     };
-    let seeds: Vec<u64> = (1..=seeds.unwrap_or(n)).collect();
+    let seeds: Vec<u64> = (first_seed..first_seed.saturating_add(seeds.unwrap_or(n))).collect();
     for scenario in SCENARIOS {
         for &seed in &seeds {
             v.push(Sequence::Sim {
@@ -502,7 +508,7 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../regress/baseline.json");
         let base = Baseline::read(&path).unwrap();
         for quick in [true, false] {
-            let seqs = sequences(Path::new("data"), quick, None);
+            let seqs = sequences(Path::new("data"), quick, None, 1);
             let sims = seqs.iter().filter(|s| s.scenario().is_some()).count();
             let per = if quick { QUICK_SEEDS } else { 10 };
             assert_eq!(sims as u64, per * SCENARIOS.len() as u64);
@@ -514,7 +520,7 @@ mod tests {
                 );
             }
         }
-        assert!(sequences(Path::new("data"), true, None).iter().all(
+        assert!(sequences(Path::new("data"), true, None, 1).iter().all(
             |s| !matches!(s, Sequence::Sim { duration_s, .. } if *duration_s != QUICK_DURATION_S)
         ));
     }

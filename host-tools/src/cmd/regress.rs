@@ -36,6 +36,15 @@ pub struct Args {
     /// Also write every run's figures as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// First seed of each scenario (1: the stored figures' seeds; a later one runs fresh seeds,
+    /// judged on divergence against the stored figures, and fairly with `--compare`).
+    #[arg(long, default_value_t = 1)]
+    pub first_seed: u64,
+    /// Also compare this run sequence by sequence with an earlier run's `--json` file: per
+    /// scenario the medians, the geometric mean of the per-seed ratios and the seeds it is
+    /// better on (printed; it does not change the exit status).
+    #[arg(long)]
+    pub compare: Option<PathBuf>,
 }
 
 /// Runs the command; an error (non-zero exit) when a figure regressed or a run diverged.
@@ -48,7 +57,15 @@ pub fn run(args: Args) -> Result<()> {
         .as_deref()
         .map(RunConfigFile::read)
         .transpose()?;
-    let seqs = sequences(&args.data, args.quick, args.seeds);
+    let old = args
+        .compare
+        .as_deref()
+        .map(crate::regress_paired::read_old)
+        .transpose()?;
+    if args.bless && args.first_seed != 1 {
+        bail!("--bless stores the figures of seeds from 1: drop --first-seed");
+    }
+    let seqs = sequences(&args.data, args.quick, args.seeds, args.first_seed);
     let progress = Progress::new(seqs.len() as u64, "regress");
     let runs = run_all(&seqs, overlay.as_ref(), args.jobs, &progress)?;
     let mut base = if args.baseline.exists() {
@@ -63,6 +80,11 @@ pub fn run(args: Args) -> Result<()> {
     };
     let rows = compare(&runs, &base);
     println!("{}", render(&rows));
+    if let (Some(old), Some(p)) = (&old, &args.compare) {
+        let paired = crate::regress_paired::paired(old, &runs);
+        let name = p.display().to_string();
+        println!("{}", crate::regress_paired::render_paired(&paired, &name));
+    }
     if let Some(p) = &args.json {
         std::fs::write(p, serde_json::to_string_pretty(&runs)?)
             .with_context(|| format!("cannot write {}", p.display()))?;
