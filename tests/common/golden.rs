@@ -72,6 +72,7 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         prior_rank_deficiency,
         prior_gauge_std: _,
         window_correction_m: _,
+        at_rest: _,
         solve_ns: _,
         marginalization_ns: _,
         total_ns: _,

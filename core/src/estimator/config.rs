@@ -112,6 +112,14 @@ pub struct EstimatorConfig {
     pub zupt: bool,
     /// Standard deviation of the zero-velocity factor, m/s.
     pub zupt_sigma_mps: f64,
+    /// Largest speed the INS may show at a keyframe for the images' rest to be believed, m/s.
+    /// Features far ahead of a platform moving towards them hardly move in the image (a robot
+    /// at 0.9 m/s: under 2 px in 0.3 s with exact tracks), so the images alone take slow forward
+    /// motion for rest, and they see a start late (a robot 0.5 s after it set off: 0.1 m/s,
+    /// 2 cm, under 2 px). Like any measurement, a zero velocity must agree with the state it
+    /// corrects: 0.05 m/s is five of the factor's sigmas and above a healthy window's velocity
+    /// error at rest (EuRoC's vibrating MAV keeps all its rest keyframes down to 0.03 m/s).
+    pub zupt_max_speed_mps: f64,
     /// Standard deviations of the zero-motion factor between keyframes at rest: position m,
     /// rotation rad.
     pub zupt_motion_sigma: (f64, f64),
@@ -233,6 +241,7 @@ impl EstimatorConfig {
             rest: RestConfig::DEFAULT,
             zupt: true,
             zupt_sigma_mps: 0.01,
+            zupt_max_speed_mps: 0.05,
             zupt_motion_sigma: (2e-3, 2e-3),
             preint: PreintConfig::DEFAULT,
             first_prior: FirstStatePrior {
@@ -359,6 +368,7 @@ impl EstimatorConfig {
             },
             zupt: false,
             zupt_sigma_mps: 0.0,
+            zupt_max_speed_mps: 0.0,
             zupt_motion_sigma: (0.0, 0.0),
             preint: PreintConfig {
                 max_dt_s: 0.0,
@@ -452,6 +462,7 @@ impl EstimatorConfig {
             && self.min_parallax >= 0.0
             && pos(self.max_rel_depth_std)
             && pos(self.zupt_sigma_mps)
+            && pos(self.zupt_max_speed_mps)
             && pos(self.zupt_motion_sigma.0)
             && pos(self.zupt_motion_sigma.1)
             && pos(self.rest.max_px)

@@ -931,7 +931,10 @@ impl<
             t_ns: nav.t_ns,
             ..*sample
         };
-        let at_rest = self.cfg.zupt && self.at_rest_since_last_keyframe();
+        let at_rest = self.cfg.zupt
+            && self.at_rest_since_last_keyframe()
+            && nav.v_wb.norm() <= self.cfg.zupt_max_speed_mps;
+        report.at_rest = at_rest;
         // The interval closes: swapped into the keyframe's slot (which hands back storage for
         // the next one).
         let interval = if core::mem::take(&mut self.open_active) {

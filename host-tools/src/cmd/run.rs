@@ -359,7 +359,7 @@ pub const STATS_LIDAR_COLUMNS: &str =
 
 /// The landmark-admission columns appended to `stats.csv` (see `core::estimator::Admission`).
 pub const STATS_ADMISSION_COLUMNS: &str =
-    "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted,imu_noise_scale,prior_pos_std_m,prior_yaw_std_rad,window_correction_m";
+    "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted,imu_noise_scale,prior_pos_std_m,prior_yaw_std_rad,window_correction_m,at_rest";
 
 /// Writes the run's files into `dir`.
 pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<()> {
@@ -379,7 +379,7 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
     for r in &out.reports {
         writeln!(
             f,
-            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e}",
+            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{}",
             povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
             r.backend_ns() as f64 * 1e-6,
             r.solve_ns as f64 * 1e-6,
@@ -422,6 +422,7 @@ pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<(
             r.prior_gauge_std.0,
             r.prior_gauge_std.1,
             r.window_correction_m,
+            u8::from(r.at_rest),
         )?;
     }
     f.flush()?;
