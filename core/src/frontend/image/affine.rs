@@ -177,27 +177,40 @@ impl Gradients {
     }
 
     /// Values and Scharr gradients of the `win x win` interior of `pix` (stride
-    /// [`TEMPLATE_SIDE`]).
+    /// [`TEMPLATE_SIDE`]): three template rows at a time, one output row per step (the same
+    /// integers as the per-pixel formula, see the tests).
     fn compute(&mut self, pix: &[u8; TEMPLATE_SIDE * TEMPLATE_SIDE], win: usize) {
-        let p =
-            |x: usize, y: usize| i16::from(pix.get(y * TEMPLATE_SIDE + x).copied().unwrap_or(0));
+        let side = win + 2;
         for r in 0..win {
-            for c in 0..win {
-                let (x, y) = (c + 1, r + 1);
-                let gx = 3 * (p(x + 1, y - 1) - p(x - 1, y - 1))
-                    + 10 * (p(x + 1, y) - p(x - 1, y))
-                    + 3 * (p(x + 1, y + 1) - p(x - 1, y + 1));
-                let gy = 3 * (p(x - 1, y + 1) - p(x - 1, y - 1))
-                    + 10 * (p(x, y + 1) - p(x, y - 1))
-                    + 3 * (p(x + 1, y + 1) - p(x + 1, y - 1));
-                let k = r * win + c;
-                if let (Some(t), Some(a), Some(b)) =
-                    (self.t8.get_mut(k), self.gx.get_mut(k), self.gy.get_mut(k))
-                {
-                    *t = 8 * p(x, y);
-                    *a = gx;
-                    *b = gy;
-                }
+            let o = r * TEMPLATE_SIDE;
+            let rows = (
+                pix.get(o..o + side),
+                pix.get(o + TEMPLATE_SIDE..o + TEMPLATE_SIDE + side),
+                pix.get(o + 2 * TEMPLATE_SIDE..o + 2 * TEMPLATE_SIDE + side),
+            );
+            let out = r * win..(r + 1) * win;
+            let (Some(up), Some(mid), Some(dn)) = rows else {
+                return;
+            };
+            let (Some(t8), Some(gx), Some(gy)) = (
+                self.t8.get_mut(out.clone()),
+                self.gx.get_mut(out.clone()),
+                self.gy.get_mut(out),
+            ) else {
+                return;
+            };
+            let cols = up.windows(3).zip(mid.windows(3)).zip(dn.windows(3));
+            for ((((u, m), d), t), (x, y)) in cols.zip(t8).zip(gx.iter_mut().zip(gy)) {
+                let (Some(&[u0, u1, u2]), Some(&[m0, m1, m2]), Some(&[d0, d1, d2])) =
+                    (u.get(..3), m.get(..3), d.get(..3))
+                else {
+                    continue;
+                };
+                let [u0, u1, u2, m0, m2, d0, d1, d2] =
+                    [u0, u1, u2, m0, m2, d0, d1, d2].map(i16::from);
+                *t = 8 * i16::from(m1);
+                *x = 3 * (u2 - u0) + 10 * (m2 - m0) + 3 * (d2 - d0);
+                *y = 3 * (d0 - u0) + 10 * (d1 - u1) + 3 * (d2 - u2);
             }
         }
     }
@@ -299,9 +312,10 @@ fn fixed(v: f64) -> Option<i32> {
 /// Bilinear value of the four pixels with 8-bit weights `fx`, `fy`, in `1/8` grey.
 #[inline(always)]
 fn blend(p00: u8, p01: u8, p10: u8, p11: u8, fx: i32, fy: i32) -> i32 {
-    let top = i32::from(p00) * (256 - fx) + i32::from(p01) * fx;
-    let bot = i32::from(p10) * (256 - fx) + i32::from(p11) * fx;
-    (top * (256 - fy) + bot * fy + (1 << 12)) >> 13
+    // `a (256 - f) + b f = 256 a + (b - a) f`: the same integers with one product each.
+    let top = (i32::from(p00) << 8) + (i32::from(p01) - i32::from(p00)) * fx;
+    let bot = (i32::from(p10) << 8) + (i32::from(p11) - i32::from(p10)) * fx;
+    ((top << 8) + (bot - top) * fy + (1 << 12)) >> 13
 }
 
 /// Samples one row of the warped window (`win` positions from `(u, v)` in steps `(du, dv)`,
@@ -331,9 +345,13 @@ fn sample_row(
         let (ix, iy) = (uu >> FRAC, vv >> FRAC);
         let (fx, fy) = ((uu >> (FRAC - 8)) & 255, (vv >> (FRAC - 8)) & 255);
         let j = if inside {
+            // One bounds check for the 2x2 neighbourhood (`q.len() == stride + 2`).
             let o = iy as usize * stride + ix as usize;
-            match (data.get(o..o + 2), data.get(o + stride..o + stride + 2)) {
-                (Some(&[p00, p01]), Some(&[p10, p11])) => blend(p00, p01, p10, p11, fx, fy),
+            let q = data.get(o..o + stride + 2).unwrap_or(&[]);
+            match (q.first(), q.get(1), q.get(stride), q.get(stride + 1)) {
+                (Some(&p00), Some(&p01), Some(&p10), Some(&p11)) => {
+                    blend(p00, p01, p10, p11, fx, fy)
+                }
                 _ => 0,
             }
         } else {

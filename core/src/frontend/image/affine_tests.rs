@@ -280,3 +280,63 @@ fn bad_inputs_give_none_or_invalid() {
     let edge_img = ImageView::new(&reference, W, H, W).unwrap();
     t.build(&edge_img, [-40, 500], 15, &mut g);
 }
+
+/// The row-wise gradient kernel gives the integers of the plain per-pixel Scharr formula.
+#[test]
+fn gradients_match_the_per_pixel_formula() {
+    let mut s = 0x2545_f491_4f6c_dd1du64;
+    let mut pix = [0u8; TEMPLATE_SIDE * TEMPLATE_SIDE];
+    let mut g = Box::new(Gradients::new());
+    for win in [5usize, 11, 15, 21] {
+        for v in pix.iter_mut() {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            *v = (s >> 56) as u8;
+        }
+        g.compute(&pix, win);
+        let p = |x: usize, y: usize| i16::from(pix[y * TEMPLATE_SIDE + x]);
+        for r in 0..win {
+            for c in 0..win {
+                let (x, y) = (c + 1, r + 1);
+                let gx = 3 * (p(x + 1, y - 1) - p(x - 1, y - 1))
+                    + 10 * (p(x + 1, y) - p(x - 1, y))
+                    + 3 * (p(x + 1, y + 1) - p(x - 1, y + 1));
+                let gy = 3 * (p(x - 1, y + 1) - p(x - 1, y - 1))
+                    + 10 * (p(x, y + 1) - p(x, y - 1))
+                    + 3 * (p(x + 1, y + 1) - p(x + 1, y - 1));
+                let k = r * win + c;
+                assert_eq!(
+                    (g.t8[k], g.gx[k], g.gy[k]),
+                    (8 * p(x, y), gx, gy),
+                    "{win} {r} {c}"
+                );
+            }
+        }
+    }
+}
+
+/// The one-product bilinear blend gives the integers of the plain four-weight formula.
+#[test]
+fn blend_matches_the_four_weight_formula() {
+    let plain = |p: [u8; 4], fx: i32, fy: i32| {
+        let top = i32::from(p[0]) * (256 - fx) + i32::from(p[1]) * fx;
+        let bot = i32::from(p[2]) * (256 - fx) + i32::from(p[3]) * fx;
+        (top * (256 - fy) + bot * fy + (1 << 12)) >> 13
+    };
+    let vals = [0u8, 1, 17, 128, 200, 254, 255];
+    for &a in &vals {
+        for &b in &vals {
+            for &c in &vals {
+                for &d in &vals {
+                    for fx in (0..256).step_by(5) {
+                        for fy in (0..256).step_by(7) {
+                            let p = [a, b, c, d];
+                            assert_eq!(blend(a, b, c, d, fx, fy), plain(p, fx, fy));
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
