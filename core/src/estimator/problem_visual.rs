@@ -331,13 +331,9 @@ fn fold_rank_one<const N: usize, const D: usize>(
             continue;
         };
         let xs: [f64; 6] = xa.map(|x| x * inv_c);
-        // The diagonal block: upper triangle.
+        // The diagonal block: upper triangle, a fixed-length kernel per row.
         for (i, (row, xi)) in rows.iter_mut().zip(xs).enumerate() {
-            if let (Some(dst), Some(src)) = (row.get_mut(ca + i..ca + 6), xa.get(i..)) {
-                for (h, y) in dst.iter_mut().zip(src) {
-                    *h -= xi * y;
-                }
-            }
+            tri_sub(i, row, ca, xi, &xa);
         }
         // Cross blocks pair by pair: the later block's values stay in registers over the rows.
         for &(cb, xb) in later {
@@ -389,6 +385,28 @@ fn fold_rank_one<const N: usize, const D: usize>(
                 }
             }
         }
+    }
+}
+
+/// `row[c + i..c + 6] -= x y[i..]` (row `i` of a 6x6 diagonal block's upper triangle) with a
+/// constant length per `i`: the plain loop's values, entry by entry.
+#[inline(always)]
+fn tri_sub(i: usize, row: &mut [f64], c: usize, x: f64, y: &[f64; 6]) {
+    #[inline(always)]
+    fn fixed<const I: usize>(row: &mut [f64], c: usize, x: f64, y: &[f64; 6]) {
+        if let (Some(dst), Some(src)) = (row.get_mut(c + I..c + 6), y.get(I..)) {
+            for (h, v) in dst.iter_mut().zip(src) {
+                *h -= x * v;
+            }
+        }
+    }
+    match i {
+        0 => fixed::<0>(row, c, x, y),
+        1 => fixed::<1>(row, c, x, y),
+        2 => fixed::<2>(row, c, x, y),
+        3 => fixed::<3>(row, c, x, y),
+        4 => fixed::<4>(row, c, x, y),
+        _ => fixed::<5>(row, c, x, y),
     }
 }
 
@@ -574,6 +592,22 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn tri_sub_is_the_plain_loop() {
+        let mut rnd = crate::solver::test_rng(5);
+        let y: [f64; 6] = core::array::from_fn(|_| rnd());
+        for i in 0..6 {
+            let row: [f64; 16] = core::array::from_fn(|_| rnd());
+            let x = rnd();
+            let (mut a, mut b) = (row, row);
+            for (h, v) in a[3 + i..9].iter_mut().zip(&y[i..]) {
+                *h -= x * v;
+            }
+            tri_sub(i, &mut b, 3, x, &y);
+            assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits));
         }
     }
 
