@@ -457,7 +457,7 @@ pub fn render(rows: &[Row]) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// `--config`'s overlay reaches the estimator of every run, and a bad key names the file.
@@ -484,7 +484,8 @@ mod tests {
         assert!(err.contains("sigma_pix"), "{err}");
     }
 
-    fn run(name: &str, scenario: Option<&str>, ate: f64, diverged: bool) -> RunResult {
+    /// A run result with the figures the comparisons read (also for `regress_paired`'s tests).
+    pub(crate) fn run(name: &str, scenario: Option<&str>, ate: f64, diverged: bool) -> RunResult {
         RunResult {
             name: name.into(),
             scenario: scenario.map(Into::into),

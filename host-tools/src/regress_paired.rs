@@ -133,23 +133,7 @@ pub fn render_paired(rows: &[PairedRow], old_name: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn new_run(name: &str, scenario: Option<&str>, ate_m: f64, diverged: bool) -> RunResult {
-        RunResult {
-            name: name.into(),
-            scenario: scenario.map(Into::into),
-            ate_m,
-            max_err_m: ate_m,
-            distance_m: 100.0,
-            coverage: 1.0,
-            keyframes: 100,
-            backend_ms_median: 1.0,
-            reinitializations: 0,
-            resets: 0,
-            td_end_ms: 0.0,
-            diverged,
-        }
-    }
+    use crate::regress::tests::run as new_run;
 
     #[test]
     fn pairs_by_name_and_summarizes_per_scenario() {
