@@ -92,7 +92,7 @@ pub enum Breakdown {
     /// The visual residuals stayed many sigmas large.
     Residuals,
     /// The solve moved keyframes that earlier solves had estimated by more than
-    /// `max_window_correction_m`.
+    /// `max_window_correction_m` plus `max_window_correction_rel` times the window's path.
     WindowJump,
 }
 
@@ -157,7 +157,8 @@ impl<
         self.window_path_m = pairs.map(|(a, b)| (b.p_wb - a.p_wb).norm()).sum();
         (0..n.saturating_sub(1))
             .filter_map(|k| Some((self.window.get(k)?.state.p_wb - before.get(k)?.p_wb).norm()))
-            .fold(0.0, f64::max)
+            // Not `f64::max`, which drops a NaN: a non-finite keyframe must fail the check.
+            .fold(0.0, |m, x| if x.is_nan() || x > m { x } else { m })
     }
 
     /// Drops the window and continues INS-only from `predicted` (the INS's own state at the
