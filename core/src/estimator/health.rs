@@ -107,12 +107,13 @@ impl<
     > Estimator<N, L, D, P, GW, GH, Q>
 {
     /// Checks the window after a solve (`predicted`: the INS state the newest keyframe started
-    /// from; `report`: the solve's residuals, landmarks and window correction). Returns the
-    /// breakdown, if any.
+    /// from; `report`: the solve's residuals, landmarks and window correction; `window_path_m`:
+    /// the path the window spanned before the solve). Returns the breakdown, if any.
     pub(super) fn check_health(
         &mut self,
         predicted: &NavState,
         report: &super::KeyframeReport,
+        window_path_m: f64,
     ) -> Option<Breakdown> {
         let h = self.cfg.health;
         if !h.enabled {
@@ -136,7 +137,7 @@ impl<
         if (st.v_wb - predicted.v_wb).norm() > h.max_velocity_correction_mps {
             return Some(Breakdown::VelocityJump);
         }
-        let limit = h.max_window_correction_m + h.max_window_correction_rel * self.window_path_m;
+        let limit = h.max_window_correction_m + h.max_window_correction_rel * window_path_m;
         // A NaN correction is a breakdown too.
         let c = report.window_correction_m;
         if c.is_nan() || c > limit {
@@ -149,16 +150,20 @@ impl<
     }
 
     /// Largest position change of the keyframes but the newest against `before` (the window's
-    /// poses before the solve), m; also keeps the path `before` spans for the limit.
-    pub(super) fn window_correction(&mut self, before: &[crate::factors::KeyframePose; N]) -> f64 {
+    /// poses before the solve), m, and the path `before` spans (the limit's scale), m.
+    pub(super) fn window_correction(
+        &self,
+        before: &[crate::factors::KeyframePose; N],
+    ) -> (f64, f64) {
         let n = self.window.len().min(N);
         let span = before.get(..n).unwrap_or(&[]);
         let pairs = span.iter().zip(span.iter().skip(1));
-        self.window_path_m = pairs.map(|(a, b)| (b.p_wb - a.p_wb).norm()).sum();
-        (0..n.saturating_sub(1))
+        let path_m = pairs.map(|(a, b)| (b.p_wb - a.p_wb).norm()).sum();
+        let correction = (0..n.saturating_sub(1))
             .filter_map(|k| Some((self.window.get(k)?.state.p_wb - before.get(k)?.p_wb).norm()))
             // Not `f64::max`, which drops a NaN: a non-finite keyframe must fail the check.
-            .fold(0.0, |m, x| if x.is_nan() || x > m { x } else { m })
+            .fold(0.0, |m, x| if x.is_nan() || x > m { x } else { m });
+        (correction, path_m)
     }
 
     /// Drops the window and continues INS-only from `predicted` (the INS's own state at the

@@ -212,8 +212,6 @@ pub struct Estimator<
     td_hold: bool,
     /// Consecutive keyframes with large residuals (health monitor).
     bad_keyframes: u32,
-    /// Path the window's keyframes spanned before the last solve, m (health monitor).
-    window_path_m: f64,
     /// Set by a re-initialization: the delay to start the new window with (and its first
     /// keyframe takes the wide re-initialization prior).
     reinit_td: Option<f64>,
@@ -369,7 +367,6 @@ impl<
             events: HVec::new(),
             td_hold: false,
             bad_keyframes: 0,
-            window_path_m: 0.0,
             reinit_td: None,
             imu_scale: imu_noise::ImuNoiseScale::new(),
             ins_synced: 0,
@@ -980,9 +977,10 @@ impl<
             self.optimize(&mut report);
         }
         report.solve_ns = now(&self.cfg).saturating_sub(ts);
-        report.window_correction_m = self.window_correction(&before);
+        let (correction, window_path_m) = self.window_correction(&before);
+        report.window_correction_m = correction;
         if self.window.len() >= 2 {
-            let health = self.check_health(&nav, &report);
+            let health = self.check_health(&nav, &report, window_path_m);
             if let Some(b) = health {
                 // The window broke down: INS-only from its own prediction, a new window next.
                 report.breakdown = Some(b);
