@@ -150,13 +150,17 @@ impl Template {
     }
 }
 
-/// Per-call scratch: the template's values (`8 x grey`) and Scharr gradients.
+/// Per-call scratch: the template's values (`8 x grey`) and Scharr gradients, one row of
+/// errors and the column offsets `x` of the window.
 #[derive(Clone)]
 pub struct Gradients {
     t8: [i16; MAX_N],
     gx: [i16; MAX_N],
     gy: [i16; MAX_N],
-    e: [i32; MAX_AFFINE_WINDOW],
+    /// `J - T` of one row, `1/8` grey (`|e| <= 2040`).
+    e: [i16; MAX_AFFINE_WINDOW],
+    /// `c - win / 2` for column `c` (`|x e| <= 20400`: the products `x e` fit `i16`).
+    xs: [i16; MAX_AFFINE_WINDOW],
 }
 
 impl Default for Gradients {
@@ -173,6 +177,7 @@ impl Gradients {
             gx: [0; MAX_N],
             gy: [0; MAX_N],
             e: [0; MAX_AFFINE_WINDOW],
+            xs: [0; MAX_AFFINE_WINDOW],
         }
     }
 
@@ -181,6 +186,10 @@ impl Gradients {
     /// integers as the per-pixel formula, see the tests).
     fn compute(&mut self, pix: &[u8; TEMPLATE_SIDE * TEMPLATE_SIDE], win: usize) {
         let side = win + 2;
+        let half = (win / 2) as i16;
+        for (c, x) in self.xs.iter_mut().enumerate() {
+            *x = c as i16 - half;
+        }
         for r in 0..win {
             let o = r * TEMPLATE_SIDE;
             let rows = (
@@ -318,20 +327,112 @@ fn blend(p00: u8, p01: u8, p10: u8, p11: u8, fx: i32, fy: i32) -> i32 {
     ((top << 8) + (bot - top) * fy + (1 << 12)) >> 13
 }
 
-/// Samples one row of the warped window (`win` positions from `(u, v)` in steps `(du, dv)`,
-/// 16.16) into `e` as `J - T` (`1/8` grey); returns `sum |e|`.
-#[allow(clippy::too_many_arguments)]
+/// Side of the local copy of the target one iteration samples ([`TargetBox`]), a power of two.
+const BOX: usize = 32;
+
+/// The target pixels under one iteration's samples, border replicated: `rows x cols` pixels
+/// from `(x0, y0)`, row stride [`BOX`]. The padding past `BOX * BOX` lets the 2x2 reads of a
+/// masked index go unchecked.
+pub(crate) struct TargetBox {
+    pix: [u8; BOX * BOX + BOX + 1],
+    /// Origin in the target, px.
+    x0: i64,
+    y0: i64,
+}
+
+impl TargetBox {
+    pub(crate) const fn new() -> Self {
+        TargetBox {
+            pix: [0; BOX * BOX + BOX + 1],
+            x0: 0,
+            y0: 0,
+        }
+    }
+
+    /// Loads the pixels that rows starting at `starts` (16.16) with `win` samples in steps
+    /// `step` read (their 2x2 neighbourhoods); `false` (nothing loaded) when they span more
+    /// than `BOX - 1` pixels either way.
+    fn load(
+        &mut self,
+        img: &ImageView,
+        starts: &[(i32, i32)],
+        step: (i32, i32),
+        win: usize,
+    ) -> bool {
+        let last = win as i64 - 1;
+        let (mut x0, mut x1, mut y0, mut y1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
+        for &(u, v) in starts {
+            let (u, v) = (i64::from(u), i64::from(v));
+            let (ue, ve) = (u + last * i64::from(step.0), v + last * i64::from(step.1));
+            x0 = x0.min(u.min(ue) >> FRAC);
+            x1 = x1.max(u.max(ue) >> FRAC);
+            y0 = y0.min(v.min(ve) >> FRAC);
+            y1 = y1.max(v.max(ve) >> FRAC);
+        }
+        // Pixels x0..=x1 + 1 and y0..=y1 + 1 (the neighbourhoods' right and bottom pixels).
+        let (cols, rows) = (x1 - x0 + 2, y1 - y0 + 2);
+        if !(1..=BOX as i64).contains(&cols) || !(1..=BOX as i64).contains(&rows) {
+            return false;
+        }
+        let (w, h) = (img.width() as i64, img.height() as i64);
+        let cols = cols as usize;
+        for (j, dst) in self
+            .pix
+            .chunks_exact_mut(BOX)
+            .take(rows as usize)
+            .enumerate()
+        {
+            let src = img.row((y0 + j as i64).clamp(0, h - 1) as usize);
+            let dst = dst.get_mut(..cols).unwrap_or(&mut []);
+            let inner = usize::try_from(x0).ok().and_then(|x| src.get(x..x + cols));
+            match inner {
+                Some(s) if s.len() == dst.len() => dst.copy_from_slice(s),
+                _ => {
+                    for (i, d) in dst.iter_mut().enumerate() {
+                        let x = (x0 + i as i64).clamp(0, w - 1) as usize;
+                        *d = src.get(x).copied().unwrap_or(0);
+                    }
+                }
+            }
+        }
+        self.x0 = x0;
+        self.y0 = y0;
+        true
+    }
+
+    /// Samples one row from the box (the row must be one of those [`TargetBox::load`] was
+    /// given): `e = J - T` as in [`sample_row`].
+    #[inline]
+    fn sample_row(&self, (u, v): (i32, i32), (du, dv): (i32, i32), t8: &[i16], e: &mut [i16]) {
+        // Box coordinates: whole pixels off, the fractions unchanged (in range after `load`).
+        let mut uu = (i64::from(u) - (self.x0 << FRAC)) as i32;
+        let mut vv = (i64::from(v) - (self.y0 << FRAC)) as i32;
+        for (ei, &t) in e.iter_mut().zip(t8) {
+            let (ix, iy) = ((uu >> FRAC) as usize, (vv >> FRAC) as usize);
+            let o = (iy & (BOX - 1)) * BOX + (ix & (BOX - 1));
+            let (fx, fy) = ((uu >> (FRAC - 8)) & 255, (vv >> (FRAC - 8)) & 255);
+            let p = &self.pix;
+            let j = blend(p[o], p[o + 1], p[o + BOX], p[o + BOX + 1], fx, fy);
+            *ei = (j - i32::from(t)) as i16;
+            uu = uu.wrapping_add(du);
+            vv = vv.wrapping_add(dv);
+        }
+    }
+}
+
+/// Samples one row of the warped window (`e.len()` positions from `(u, v)` in steps `(du, dv)`,
+/// 16.16) into `e` as `J - T` (`1/8` grey) straight from the image (rows a [`TargetBox`]
+/// cannot hold).
 #[inline]
 fn sample_row(
     img: &ImageView,
     (u, v): (i32, i32),
     (du, dv): (i32, i32),
-    win: usize,
     t8: &[i16],
-    e: &mut [i32],
-) -> i64 {
+    e: &mut [i16],
+) {
     let (w, h) = (img.width() as i64, img.height() as i64);
-    let last = win as i64 - 1;
+    let last = e.len() as i64 - 1;
     let (ue, ve) = (
         i64::from(u) + last * i64::from(du),
         i64::from(v) + last * i64::from(dv),
@@ -339,9 +440,8 @@ fn sample_row(
     let ok = |p: i64, lim: i64| p >= 0 && (p >> FRAC) < lim - 1;
     let inside = ok(i64::from(u), w) && ok(ue, w) && ok(i64::from(v), h) && ok(ve, h);
     let (data, stride) = (img.data(), img.stride());
-    let mut abs_sum = 0i64;
     let (mut uu, mut vv) = (u, v);
-    for (ei, &t) in e.iter_mut().zip(t8).take(win) {
+    for (ei, &t) in e.iter_mut().zip(t8) {
         let (ix, iy) = (uu >> FRAC, vv >> FRAC);
         let (fx, fy) = ((uu >> (FRAC - 8)) & 255, (vv >> (FRAC - 8)) & 255);
         let j = if inside {
@@ -365,13 +465,27 @@ fn sample_row(
                 fy,
             )
         };
-        let d = j - i32::from(t);
-        *ei = d;
-        abs_sum += i64::from(d.abs());
+        *ei = (j - i32::from(t)) as i16;
         uu = uu.wrapping_add(du);
         vv = vv.wrapping_add(dv);
     }
-    abs_sum
+}
+
+/// One row's sums `(sum gx e, sum gx x e, sum gy e, sum gy x e, sum |e|)` (`i32`: see the
+/// module doc); every product is `i16 x i16` (`x e` fits, see [`Gradients`]).
+#[inline]
+fn row_sums(e: &[i16], xs: &[i16], gx: &[i16], gy: &[i16]) -> [i32; 5] {
+    let (mut sx, mut sxx, mut sy, mut syx, mut sa) = (0i32, 0i32, 0i32, 0i32, 0i32);
+    for (((&e, &x), &gxv), &gyv) in e.iter().zip(xs).zip(gx).zip(gy) {
+        let xe = i32::from(x * e);
+        let (e, gxv, gyv) = (i32::from(e), i32::from(gxv), i32::from(gyv));
+        sx += gxv * e;
+        sxx += gxv * xe;
+        sy += gyv * e;
+        syx += gyv * xe;
+        sa += e.abs();
+    }
+    [sx, sxx, sy, syx, sa]
 }
 
 /// Refines `init` (the warp of `tpl`'s centre pixel into `img`), at most `max_iter` iterations,
@@ -390,6 +504,8 @@ pub fn refine_affine(
         return None;
     }
     g.compute(&tpl.pix, win);
+    let mut tb = TargetBox::new();
+    let tb = &mut tb;
     let half = (win / 2) as i64;
     let hf = half as f64;
     let mut w = init;
@@ -403,36 +519,39 @@ pub fn refine_affine(
         let mut b = [0i64; 6];
         let mut abs_sum = 0i64;
         let step = (fixed(w.a[0])?, fixed(w.a[2])?);
-        for r in 0..win {
-            let y = r as i64 - half;
-            let yf = y as f64;
-            let start = (
+        // Row starts from `f64` (the same rounding for every row), then integer steps.
+        let mut starts = [(0i32, 0i32); MAX_AFFINE_WINDOW];
+        for (r, st) in starts.iter_mut().take(win).enumerate() {
+            let yf = (r as i64 - half) as f64;
+            *st = (
                 fixed(w.t[0] - w.a[0] * hf + w.a[1] * yf)?,
                 fixed(w.t[1] - w.a[2] * hf + w.a[3] * yf)?,
             );
+        }
+        let starts = starts.get(..win)?;
+        let boxed = tb.load(img, starts, step, win);
+        for (r, &start) in starts.iter().enumerate() {
+            let y = r as i64 - half;
             let row = r * win..(r + 1) * win;
             let (t8, gx, gy) = (
                 g.t8.get(row.clone())?,
                 g.gx.get(row.clone())?,
                 g.gy.get(row)?,
             );
-            abs_sum += sample_row(img, start, step, win, t8, &mut g.e);
-            // Row sums (i32: see the module doc), x-weighted and plain.
-            let (mut sx, mut sxx, mut sy, mut syx) = (0i32, 0i32, 0i32, 0i32);
-            for (c, ((&e, &gxv), &gyv)) in g.e.iter().zip(gx).zip(gy).enumerate() {
-                let x = c as i32 - half as i32;
-                let (a, bb) = (i32::from(gxv) * e, i32::from(gyv) * e);
-                sx += a;
-                sxx += a * x;
-                sy += bb;
-                syx += bb * x;
+            let (e, xs) = (g.e.get_mut(..win)?, g.xs.get(..win)?);
+            if boxed {
+                tb.sample_row(start, step, t8, e);
+            } else {
+                sample_row(img, start, step, t8, e);
             }
+            let [sx, sxx, sy, syx, sa] = row_sums(e, xs, gx, gy);
             b[0] += i64::from(sxx);
             b[1] += y * i64::from(sx);
             b[2] += i64::from(syx);
             b[3] += y * i64::from(sy);
             b[4] += i64::from(sx);
             b[5] += i64::from(sy);
+            abs_sum += i64::from(sa);
         }
         fit.iterations += 1;
         fit.residual = abs_sum as f64 / (8 * win * win) as f64;
