@@ -8,7 +8,7 @@ use std::io::Write;
 use std::path::Path;
 
 /// Header of the per-frame CSV.
-pub const FRAMES_HEADER: &str = "t_s,frontend_ms,decode_ms,previous,tracked,seeded_prediction,seeded_rotation,seeded_previous,lost_small_eigen,lost_out_of_image,lost_residual,lost_nonfinite,lost_forward_backward,lost_ransac,ransac,ransac_inliers,detected,total,lk_iterations,frame_error";
+pub const FRAMES_HEADER: &str = "t_s,frontend_ms,decode_ms,previous,tracked,seeded_prediction,seeded_rotation,seeded_previous,lost_small_eigen,lost_out_of_image,lost_residual,lost_nonfinite,lost_forward_backward,lost_ransac,lost_reference,lost_provisional,refined,reanchored,reference_median_shift_px,ransac,ransac_inliers,detected,total,lk_iterations,frame_error";
 
 fn ransac_name(r: RansacRun) -> &'static str {
     match r {
@@ -29,7 +29,7 @@ pub fn write_frames_csv(path: &Path, frames: &[FrameLog]) -> Result<()> {
         let s = fr.stats();
         writeln!(
             f,
-            "{},{:.4},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{:.4},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{},{}",
             povins_platform::trajectory::ns_to_seconds_string(fr.t_ns),
             fr.frontend_ms(),
             fr.decode_ms,
@@ -44,6 +44,11 @@ pub fn write_frames_csv(path: &Path, frames: &[FrameLog]) -> Result<()> {
             s.lost_nonfinite,
             s.lost_forward_backward,
             s.lost_ransac,
+            s.lost_reference,
+            s.lost_provisional,
+            s.refined,
+            s.reanchored,
+            s.reference_median_shift_px,
             ransac_name(s.ransac_run),
             s.ransac.inliers,
             s.detected,
@@ -90,6 +95,16 @@ pub struct FrontendSummary {
     pub lost_fb_per_frame: f64,
     /// See `lost_lk_per_frame`.
     pub lost_ransac_per_frame: f64,
+    /// Lost per image: the anchored refinement disagreed with the frame-to-frame position.
+    pub lost_reference_per_frame: f64,
+    /// Lost per image: the first-steps check.
+    pub lost_provisional_per_frame: f64,
+    /// Tracks refined against their reference per image.
+    pub refined_per_frame: f64,
+    /// References re-anchored per image.
+    pub reanchored_per_frame: f64,
+    /// Median over the images of their median refinement shift, px.
+    pub reference_median_shift_px: f64,
     /// Reading and decoding an image (helper thread), mean, ms.
     pub decode_ms_mean: f64,
 }
@@ -123,6 +138,18 @@ pub fn summarize_frames(frames: &[FrameLog]) -> Option<FrontendSummary> {
         }),
         lost_fb_per_frame: mean(&|f| f64::from(f.stats().lost_forward_backward)),
         lost_ransac_per_frame: mean(&|f| f64::from(f.stats().lost_ransac)),
+        lost_reference_per_frame: mean(&|f| f64::from(f.stats().lost_reference)),
+        lost_provisional_per_frame: mean(&|f| f64::from(f.stats().lost_provisional)),
+        refined_per_frame: mean(&|f| f64::from(f.stats().refined)),
+        reanchored_per_frame: mean(&|f| f64::from(f.stats().reanchored)),
+        reference_median_shift_px: {
+            let mut v: Vec<f64> = frames
+                .iter()
+                .map(|f| f64::from(f.stats().reference_median_shift_px))
+                .collect();
+            v.sort_by(f64::total_cmp);
+            percentile(&v, 50.0)
+        },
         decode_ms_mean: mean(&|f| f.decode_ms),
     })
 }
@@ -144,8 +171,17 @@ pub fn summary_lines(s: &FrontendSummary) -> Vec<String> {
             s.seeded_rotation_per_frame
         ),
         format!(
-            "lost      {:.1} LK, {:.1} forward-backward, {:.1} RANSAC per image; decoding {:.2} ms per image (helper thread)",
-            s.lost_lk_per_frame, s.lost_fb_per_frame, s.lost_ransac_per_frame, s.decode_ms_mean
+            "lost      {:.1} LK, {:.1} forward-backward, {:.1} RANSAC, {:.1} reference, {:.1} first-steps per image; decoding {:.2} ms per image (helper thread)",
+            s.lost_lk_per_frame,
+            s.lost_fb_per_frame,
+            s.lost_ransac_per_frame,
+            s.lost_reference_per_frame,
+            s.lost_provisional_per_frame,
+            s.decode_ms_mean
+        ),
+        format!(
+            "refined   {:.1} per image against their reference, {:.1} re-anchored; median shift from frame-to-frame {:.3} px",
+            s.refined_per_frame, s.reanchored_per_frame, s.reference_median_shift_px
         ),
     ]
 }

@@ -17,6 +17,17 @@
 //! and composes `W <- W o W(dp)^-1`. Rows whose samples stay inside the image read it directly,
 //! the others clamp (border pixels replicated).
 //!
+//! **Photometric compensation** ([`Photometric`]): a brightness change between the reference and
+//! the target (auto exposure, gain, a light turned away) biases an uncompensated fit, since
+//! `b = sum SD^T e` then holds `beta sum SD` as well. With [`Photometric::Offset`] or
+//! [`Photometric::GainOffset`] the error's component in the span of `{1}` or `{1, T}` is
+//! projected out (Baker & Matthews' *project out* inverse-compositional algorithm):
+//! `H' = SD^T (I - P) SD`, `b' = SD^T (I - P) e = b - SD^T P e`, with `P` the orthogonal
+//! projector onto that span. `P e` needs only `sum e` and `sum T e` of the iteration, and
+//! `SD^T P` only the template's `sum SD`, `sum SD T`, `sum T` and `sum T^2`: exact integers, so a
+//! step costs one multiply-add per pixel more than without compensation. The residual is the
+//! root mean square of `(I - P) e`.
+//!
 //! Integers, and `f64` in a fixed order without fused multiply-add: bit-identical on every IEEE
 //! platform.
 
@@ -30,6 +41,42 @@ const MAX_N: usize = MAX_AFFINE_WINDOW * MAX_AFFINE_WINDOW;
 /// Fractional bits of the sampling positions.
 const FRAC: u32 = 16;
 const ONE: f64 = (1u32 << FRAC) as f64;
+
+/// Which brightness changes between the reference and the target the refinement absorbs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(rename_all = "snake_case")
+)]
+pub enum Photometric {
+    /// None: the target must have the reference's grey levels.
+    None,
+    /// A constant offset `J = T + beta`.
+    Offset,
+    /// Gain and offset `J = alpha T + beta` (exposure changes).
+    #[default]
+    GainOffset,
+}
+
+impl Photometric {
+    fn code(self) -> u8 {
+        match self {
+            Photometric::None => 0,
+            Photometric::Offset => 1,
+            Photometric::GainOffset => 2,
+        }
+    }
+
+    fn from_code(c: u8) -> Self {
+        match c {
+            1 => Photometric::Offset,
+            2 => Photometric::GainOffset,
+            _ => Photometric::None,
+        }
+    }
+}
 
 /// An affine warp: template offset `x` (px from the template's centre pixel) -> `a x + t`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -70,7 +117,8 @@ impl Affine {
 pub struct AffineFit {
     /// The final warp.
     pub warp: Affine,
-    /// Mean absolute photometric error over the window in the last iteration, grey levels.
+    /// Root mean square photometric error over the window in the last iteration (after the
+    /// [`Photometric`] compensation), grey levels.
     pub residual: f64,
     /// Whether the last step moved the window's corners less than `eps_px`.
     pub converged: bool,
@@ -84,10 +132,13 @@ pub struct AffineFit {
 pub struct Template {
     /// `(win + 2)^2` raw pixels, row stride [`TEMPLATE_SIDE`].
     pix: [u8; TEMPLATE_SIDE * TEMPLATE_SIDE],
-    /// Upper triangle of `4 H^-1` (row by row), `H` from the raw gradients.
+    /// Upper triangle of `4 H^-1` (row by row), `H` from the raw gradients (projected by the
+    /// photometric model, see the module doc).
     hinv: [f64; 21],
     /// Window side (0: invalid).
     win: u8,
+    /// [`Photometric`] code the Hessian was projected with.
+    photo: u8,
 }
 
 impl Template {
@@ -96,6 +147,7 @@ impl Template {
         pix: [0; TEMPLATE_SIDE * TEMPLATE_SIDE],
         hinv: [0.0; 21],
         win: 0,
+        photo: 0,
     };
 
     /// Makes the template invalid.
@@ -115,10 +167,17 @@ impl Template {
     }
 
     /// Captures the `win x win` template (odd, `5..=MAX_AFFINE_WINDOW`) centred on the integer
-    /// pixel `c` of `img` (outside pixels replicate the border) and inverts its Hessian. An
-    /// invalid template (bad window, empty image, flat or one-dimensional texture) results
-    /// otherwise; `g` is gradient scratch.
-    pub fn build(&mut self, img: &ImageView, c: [i64; 2], win: usize, g: &mut Gradients) {
+    /// pixel `c` of `img` (outside pixels replicate the border) and inverts its Hessian, projected
+    /// by the photometric model `photo`. An invalid template (bad window, empty image, flat or
+    /// one-dimensional texture) results otherwise; `g` is gradient scratch.
+    pub fn build(
+        &mut self,
+        img: &ImageView,
+        c: [i64; 2],
+        win: usize,
+        photo: Photometric,
+        g: &mut Gradients,
+    ) {
         self.win = 0;
         if win.is_multiple_of(2) || !(5..=MAX_AFFINE_WINDOW).contains(&win) {
             return;
@@ -143,9 +202,10 @@ impl Template {
             }
         }
         g.compute(&self.pix, win);
-        if let Some(hinv) = inverse_hessian(g, win) {
+        if let Some(hinv) = inverse_hessian(g, win, photo) {
             self.hinv = hinv;
             self.win = win as u8;
+            self.photo = photo.code();
         }
     }
 }
@@ -230,10 +290,83 @@ const fn upper(i: usize, j: usize) -> usize {
     i * 6 - i * (i + 1) / 2 + j
 }
 
-/// `4 H^-1` (packed upper triangle) of the template in `g`, `None` if `H` is not positive
-/// definite or badly conditioned.
+/// The template's sums that the photometric projection needs (exact integers): with
+/// `SD = [gx x, gx y, gy x, gy y, gx, gy]` (32 grey/px) and `t` the template (8 x grey), `s1 =
+/// sum SD`, `st = n sum SD t - s1 sum t` (`n` times `sum SD (t - mean t)`), `var = n sum t^2 -
+/// (sum t)^2` (`n^2` times the variance), `sum_t = sum t`, `n` the pixel count.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct PhotoSums {
+    s1: [i64; 6],
+    st: [i64; 6],
+    var: i64,
+    sum_t: i64,
+    n: i64,
+}
+
+impl PhotoSums {
+    #[allow(clippy::needless_range_loop)] // fixed 6-vectors
+    /// The sums of the template in `g` (`None` when `g` holds fewer than `win^2` values).
+    fn of(g: &Gradients, win: usize) -> Option<Self> {
+        let half = (win / 2) as i64;
+        let (mut s1, mut sdt) = ([0i64; 6], [0i64; 6]);
+        let (mut sum_t, mut sum_tt) = (0i64, 0i64);
+        for k in 0..win * win {
+            let (x, y) = ((k % win) as i64 - half, (k / win) as i64 - half);
+            let (gx, gy) = (i64::from(*g.gx.get(k)?), i64::from(*g.gy.get(k)?));
+            let t = i64::from(*g.t8.get(k)?);
+            let sd = [gx * x, gx * y, gy * x, gy * y, gx, gy];
+            for i in 0..6 {
+                s1[i] += sd[i];
+                sdt[i] += sd[i] * t;
+            }
+            sum_t += t;
+            sum_tt += t * t;
+        }
+        let n = (win * win) as i64;
+        let mut st = [0i64; 6];
+        for i in 0..6 {
+            st[i] = n * sdt[i] - s1[i] * sum_t;
+        }
+        Some(PhotoSums {
+            s1,
+            st,
+            var: n * sum_tt - sum_t * sum_t,
+            sum_t,
+            n,
+        })
+    }
+
+    /// `SD^T P e` (what the projection removes from `b`) and `|P e|^2`, from the iteration's
+    /// `sum e` and `sum t e`; `photo` selects the span of `P`.
+    fn removed(&self, photo: Photometric, se: i64, ste: i64) -> ([f64; 6], f64) {
+        let n = self.n as f64;
+        let mut out = [0.0f64; 6];
+        if photo == Photometric::None {
+            return (out, 0.0);
+        }
+        // Offset: P e = mean(e) 1.
+        let se_f = se as f64;
+        for (o, &s1) in out.iter_mut().zip(&self.s1) {
+            *o = (se as f64 * s1 as f64) / n;
+        }
+        let mut pe2 = se_f * se_f / n;
+        if photo == Photometric::GainOffset && self.var > 0 {
+            // Gain: + k (t - mean t), k = n sum (t - mean t) e / (n^2 var) = c / var.
+            let c = (self.n * ste - self.sum_t * se) as f64;
+            let var = self.var as f64;
+            for (o, &st) in out.iter_mut().zip(&self.st) {
+                *o += (c * st as f64) / (var * n);
+            }
+            pe2 += (c * c) / (var * n);
+        }
+        (out, pe2)
+    }
+}
+
+/// `4 H^-1` (packed upper triangle) of the template in `g`, `H` projected by the photometric model
+/// `photo`; `None` if `H` is not positive definite or badly conditioned.
 #[allow(clippy::needless_range_loop)] // fixed 6x6 indices, clearer than iterators
-fn inverse_hessian(g: &Gradients, win: usize) -> Option<[f64; 21]> {
+fn inverse_hessian(g: &Gradients, win: usize, photo: Photometric) -> Option<[f64; 21]> {
     let half = (win / 2) as i64;
     let mut h = [0i64; 21];
     for k in 0..win * win {
@@ -246,10 +379,26 @@ fn inverse_hessian(g: &Gradients, win: usize) -> Option<[f64; 21]> {
             }
         }
     }
-    // Cholesky of H / 1024 (gradients in grey/px: keeps the numbers moderate), then the inverse.
+    // H / 1024 (gradients in grey/px: keeps the numbers moderate), minus SD^T P SD.
+    let mut hp = h.map(|v| v as f64 / 1024.0);
+    if photo != Photometric::None {
+        let ps = PhotoSums::of(g, win)?;
+        let n = ps.n as f64;
+        let var = ps.var as f64;
+        for i in 0..6 {
+            for j in i..6 {
+                let mut d = (ps.s1[i] as f64 * ps.s1[j] as f64) / n;
+                if photo == Photometric::GainOffset && ps.var > 0 {
+                    d += (ps.st[i] as f64 * ps.st[j] as f64) / (var * n);
+                }
+                hp[upper(i, j)] -= d / 1024.0;
+            }
+        }
+    }
+    // Cholesky of the projected H / 1024, then the inverse.
     let mut l = [[0.0f64; 6]; 6];
     for j in 0..6 {
-        let mut d = h[upper(j, j)] as f64 / 1024.0;
+        let mut d = hp[upper(j, j)];
         for k in 0..j {
             d -= l[j][k] * l[j][k];
         }
@@ -260,7 +409,7 @@ fn inverse_hessian(g: &Gradients, win: usize) -> Option<[f64; 21]> {
         let d = libm::sqrt(d);
         l[j][j] = d;
         for i in j + 1..6 {
-            let mut s = h[upper(j, i)] as f64 / 1024.0;
+            let mut s = hp[upper(j, i)];
             for k in 0..j {
                 s -= l[i][k] * l[j][k];
             }
@@ -296,13 +445,13 @@ fn inverse_hessian(g: &Gradients, win: usize) -> Option<[f64; 21]> {
 
 /// `M b` for the symmetric `M` stored as [`inverse_hessian`]'s packed upper triangle.
 #[allow(clippy::needless_range_loop)]
-fn sym_mul(m: &[f64; 21], b: &[i64; 6]) -> [f64; 6] {
+fn sym_mul(m: &[f64; 21], b: &[f64; 6]) -> [f64; 6] {
     let mut out = [0.0f64; 6];
     for i in 0..6 {
         let mut s = 0.0;
         for j in 0..6 {
             let k = if i <= j { upper(i, j) } else { upper(j, i) };
-            s += m[k] * b[j] as f64;
+            s += m[k] * b[j];
         }
         out[i] = s;
     }
@@ -471,21 +620,47 @@ fn sample_row(
     }
 }
 
-/// One row's sums `(sum gx e, sum gx x e, sum gy e, sum gy x e, sum |e|)` (`i32`: see the
-/// module doc); every product is `i16 x i16` (`x e` fits, see [`Gradients`]).
+/// One row's sums `(sum gx e, sum gx x e, sum gy e, sum gy x e, sum e, sum t e, sum e^2)`
+/// (`i32`: every term is at most `4080 x 20400` or `2040 x 2040`, 21 of them, see the module
+/// doc); every product is `i16 x i16` (`x e` fits, see [`Gradients`]).
 #[inline]
-fn row_sums(e: &[i16], xs: &[i16], gx: &[i16], gy: &[i16]) -> [i32; 5] {
-    let (mut sx, mut sxx, mut sy, mut syx, mut sa) = (0i32, 0i32, 0i32, 0i32, 0i32);
-    for (((&e, &x), &gxv), &gyv) in e.iter().zip(xs).zip(gx).zip(gy) {
+fn row_sums(e: &[i16], xs: &[i16], gx: &[i16], gy: &[i16], t8: &[i16]) -> [i32; 7] {
+    let (mut sx, mut sxx, mut sy, mut syx) = (0i32, 0i32, 0i32, 0i32);
+    let (mut se, mut ste, mut see) = (0i32, 0i32, 0i32);
+    for ((((&e, &x), &gxv), &gyv), &t) in e.iter().zip(xs).zip(gx).zip(gy).zip(t8) {
         let xe = i32::from(x * e);
-        let (e, gxv, gyv) = (i32::from(e), i32::from(gxv), i32::from(gyv));
+        let (e, gxv, gyv, t) = (i32::from(e), i32::from(gxv), i32::from(gyv), i32::from(t));
         sx += gxv * e;
         sxx += gxv * xe;
         sy += gyv * e;
         syx += gyv * xe;
-        sa += e.abs();
+        se += e;
+        ste += t * e;
+        see += e * e;
     }
-    [sx, sxx, sy, syx, sa]
+    [sx, sxx, sy, syx, se, ste, see]
+}
+
+/// The step `dp = H^-1 b'` and the residual (grey levels, RMS) from an iteration's sums: `b`,
+/// `sum e`, `sum t e`, `sum e^2` (see [`PhotoSums::removed`]).
+fn photometric_step(
+    tpl: &Template,
+    ps: Option<&PhotoSums>,
+    b: &[i64; 6],
+    (se, ste, see): (i64, i64, i64),
+    n: usize,
+) -> ([f64; 6], f64) {
+    let mut bf = b.map(|v| v as f64);
+    let mut pe2 = 0.0;
+    if let Some(ps) = ps {
+        let (rm, p) = ps.removed(Photometric::from_code(tpl.photo), se, ste);
+        for (x, r) in bf.iter_mut().zip(rm) {
+            *x -= r;
+        }
+        pe2 = p;
+    }
+    let ms = (see as f64 - pe2).max(0.0) / n as f64;
+    (sym_mul(&tpl.hinv, &bf), libm::sqrt(ms) / 8.0)
 }
 
 /// Refines `init` (the warp of `tpl`'s centre pixel into `img`), at most `max_iter` iterations,
@@ -504,6 +679,10 @@ pub fn refine_affine(
         return None;
     }
     g.compute(&tpl.pix, win);
+    let ps = match Photometric::from_code(tpl.photo) {
+        Photometric::None => None,
+        _ => Some(PhotoSums::of(g, win)?),
+    };
     let mut tb = TargetBox::new();
     let tb = &mut tb;
     let half = (win / 2) as i64;
@@ -517,7 +696,7 @@ pub fn refine_affine(
     };
     for _ in 0..max_iter {
         let mut b = [0i64; 6];
-        let mut abs_sum = 0i64;
+        let (mut se, mut ste, mut see) = (0i64, 0i64, 0i64);
         let step = (fixed(w.a[0])?, fixed(w.a[2])?);
         // Row starts from `f64` (the same rounding for every row), then integer steps.
         let mut starts = [(0i32, 0i32); MAX_AFFINE_WINDOW];
@@ -544,18 +723,20 @@ pub fn refine_affine(
             } else {
                 sample_row(img, start, step, t8, e);
             }
-            let [sx, sxx, sy, syx, sa] = row_sums(e, xs, gx, gy);
+            let [sx, sxx, sy, syx, s_e, s_te, s_ee] = row_sums(e, xs, gx, gy, t8);
             b[0] += i64::from(sxx);
             b[1] += y * i64::from(sx);
             b[2] += i64::from(syx);
             b[3] += y * i64::from(sy);
             b[4] += i64::from(sx);
             b[5] += i64::from(sy);
-            abs_sum += i64::from(sa);
+            se += i64::from(s_e);
+            ste += i64::from(s_te);
+            see += i64::from(s_ee);
         }
         fit.iterations += 1;
-        fit.residual = abs_sum as f64 / (8 * win * win) as f64;
-        let dp = sym_mul(&tpl.hinv, &b);
+        let (dp, residual) = photometric_step(tpl, ps.as_ref(), &b, (se, ste, see), win * win);
+        fit.residual = residual;
         // W <- W o W(dp)^-1, W(dp): x -> (I + D) x + d.
         let (d00, d01, d10, d11) = (1.0 + dp[0], dp[1], dp[2], 1.0 + dp[3]);
         let det = d00 * d11 - d01 * d10;

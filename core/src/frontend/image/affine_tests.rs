@@ -31,11 +31,17 @@ fn rot(th: f64, k: f64) -> [f64; 4] {
 }
 
 /// Template of `img` for the point `p`: its centre pixel and the offset.
-fn template(img: &[u8], p: [f64; 2], win: usize, g: &mut Gradients) -> (Box<Template>, [f64; 2]) {
+fn template(
+    img: &[u8],
+    p: [f64; 2],
+    win: usize,
+    photo: Photometric,
+    g: &mut Gradients,
+) -> (Box<Template>, [f64; 2]) {
     let v = ImageView::new(img, W, H, W).unwrap();
     let c = [libm::round(p[0]) as i64, libm::round(p[1]) as i64];
     let mut t = Box::new(Template::EMPTY);
-    t.build(&v, c, win, g);
+    t.build(&v, c, win, photo, g);
     (t, [p[0] - c[0] as f64, p[1] - c[1] as f64])
 }
 
@@ -45,8 +51,9 @@ fn recovers_rotation_scale_and_shift() {
     let reference = render(W, H, 0.0, 0.0, texture);
     let mut g = Box::new(Gradients::new());
     let a = rot(0.14, 1.06);
-    for win in [11, 15, 21] {
-        let (tpl, delta) = template(&reference, c, win, &mut g);
+    let models = [Photometric::None, Photometric::GainOffset];
+    for (win, photo) in [11, 15, 21].into_iter().flat_map(|w| models.map(|p| (w, p))) {
+        let (tpl, delta) = template(&reference, c, win, photo, &mut g);
         assert!(tpl.is_valid());
         for &sh in &[[0.0, 0.0], [3.4, -2.2], [-0.37, 0.81]] {
             let img = warped(a, c, sh);
@@ -62,9 +69,15 @@ fn recovers_rotation_scale_and_shift() {
                 fit.converged && e < tol,
                 "win {win} {sh:?}: {fit:?} error {e}"
             );
+            // A gain absorbs part of a scale change: the 11x11 window's linear part is looser.
+            let tol_a = if win == 11 && photo == Photometric::GainOffset {
+                0.03
+            } else {
+                0.015
+            };
             for (x, y) in fit.warp.a.iter().zip(&a) {
                 assert!(
-                    libm::fabs(x - y) < 0.015,
+                    libm::fabs(x - y) < tol_a,
                     "win {win}: {:?} vs {a:?}",
                     fit.warp.a
                 );
@@ -79,7 +92,7 @@ fn warm_start_converges_in_few_iterations() {
     let c = [70.0, 55.2];
     let reference = render(W, H, 0.0, 0.0, texture);
     let mut g = Box::new(Gradients::new());
-    let (tpl, delta) = template(&reference, c, 15, &mut g);
+    let (tpl, delta) = template(&reference, c, 15, Photometric::GainOffset, &mut g);
     let a = rot(0.05, 0.97);
     let img = warped(a, c, [1.3, 0.4]);
     let iv = ImageView::new(&img, W, H, W).unwrap();
@@ -217,7 +230,7 @@ fn fixed_point_agrees_with_f64() {
         let img = warped(a, p, sh);
         let iv = ImageView::new(&img, W, H, W).unwrap();
         for win in [11, 15, 21] {
-            let (tpl, delta) = template(&reference, p, win, &mut g);
+            let (tpl, delta) = template(&reference, p, win, Photometric::None, &mut g);
             let c = [libm::round(p[0]) as i64, libm::round(p[1]) as i64];
             let init = Affine::through(
                 rot(0.0, 1.0),
@@ -245,7 +258,7 @@ fn bad_inputs_give_none_or_invalid() {
     let mut g = Box::new(Gradients::new());
     let mut t = Box::new(Template::EMPTY);
     for win in [4, 20, 23, 3] {
-        t.build(&rv, [80, 60], win, &mut g);
+        t.build(&rv, [80, 60], win, Photometric::GainOffset, &mut g);
         assert!(!t.is_valid(), "window {win}");
     }
     assert!(refine_affine(
@@ -259,16 +272,16 @@ fn bad_inputs_give_none_or_invalid() {
     .is_none());
     let flat = std::vec![90u8; W * H];
     let fv = ImageView::new(&flat, W, H, W).unwrap();
-    t.build(&fv, [80, 60], 15, &mut g);
+    t.build(&fv, [80, 60], 15, Photometric::GainOffset, &mut g);
     assert!(!t.is_valid());
     // A vertical edge: one-dimensional texture, no affine fit.
     let edge: Vec<u8> = (0..W * H)
         .map(|i| if i % W < 80 { 40 } else { 200 })
         .collect();
     let ev = ImageView::new(&edge, W, H, W).unwrap();
-    t.build(&ev, [80, 60], 15, &mut g);
+    t.build(&ev, [80, 60], 15, Photometric::GainOffset, &mut g);
     assert!(!t.is_valid());
-    t.build(&rv, [80, 60], 15, &mut g);
+    t.build(&rv, [80, 60], 15, Photometric::GainOffset, &mut g);
     assert!(t.is_valid());
     let nan = Affine::through(rot(0.0, 1.0), [0.0; 2], [f64::NAN, 1.0]);
     assert!(refine_affine(&t, &rv, nan, 10, 0.01, &mut g).is_none());
@@ -278,7 +291,7 @@ fn bad_inputs_give_none_or_invalid() {
     let out = Affine::through(rot(0.0, 1.0), [0.0; 2], [-500.0, 900.0]);
     let _ = refine_affine(&t, &rv, out, 10, 0.01, &mut g);
     let edge_img = ImageView::new(&reference, W, H, W).unwrap();
-    t.build(&edge_img, [-40, 500], 15, &mut g);
+    t.build(&edge_img, [-40, 500], 15, Photometric::GainOffset, &mut g);
 }
 
 /// The row-wise gradient kernel gives the integers of the plain per-pixel Scharr formula.
@@ -350,8 +363,7 @@ fn sample_row_plain(
     win: usize,
     t8: &[i16],
     e: &mut [i32],
-) -> i64 {
-    let mut abs_sum = 0i64;
+) {
     let (mut uu, mut vv) = (u, v);
     for (ei, &t) in e.iter_mut().zip(t8).take(win) {
         let (ix, iy) = ((uu >> FRAC) as isize, (vv >> FRAC) as isize);
@@ -364,13 +376,10 @@ fn sample_row_plain(
             fx,
             fy,
         );
-        let d = j - i32::from(t);
-        *ei = d;
-        abs_sum += i64::from(d.abs());
+        *ei = j - i32::from(t);
         uu = uu.wrapping_add(du);
         vv = vv.wrapping_add(dv);
     }
-    abs_sum
 }
 
 /// The previous `refine_affine` (per-row sums `sum gx e x` with `i32` products), the reference
@@ -388,6 +397,8 @@ fn refine_affine_plain(
         return None;
     }
     g.compute(&tpl.pix, win);
+    let ps = PhotoSums::of(g, win)?;
+    let ps = (tpl.photo != 0).then_some(&ps);
     let half = (win / 2) as i64;
     let hf = half as f64;
     let mut w = init;
@@ -400,7 +411,7 @@ fn refine_affine_plain(
     let mut e = [0i32; MAX_AFFINE_WINDOW];
     for _ in 0..max_iter {
         let mut b = [0i64; 6];
-        let mut abs_sum = 0i64;
+        let (mut se, mut ste, mut see) = (0i64, 0i64, 0i64);
         let step = (fixed(w.a[0])?, fixed(w.a[2])?);
         for r in 0..win {
             let y = r as i64 - half;
@@ -411,15 +422,18 @@ fn refine_affine_plain(
             );
             let row = r * win..(r + 1) * win;
             let (t8, gx, gy) = (&g.t8[row.clone()], &g.gx[row.clone()], &g.gy[row]);
-            abs_sum += sample_row_plain(img, start, step, win, t8, &mut e);
+            sample_row_plain(img, start, step, win, t8, &mut e);
             let (mut sx, mut sxx, mut sy, mut syx) = (0i32, 0i32, 0i32, 0i32);
-            for (c, ((&e, &gxv), &gyv)) in e.iter().zip(gx).zip(gy).enumerate() {
+            for (c, (((&e, &gxv), &gyv), &t)) in e.iter().zip(gx).zip(gy).zip(t8).enumerate() {
                 let x = c as i32 - half as i32;
                 let (a, bb) = (i32::from(gxv) * e, i32::from(gyv) * e);
                 sx += a;
                 sxx += a * x;
                 sy += bb;
                 syx += bb * x;
+                se += i64::from(e);
+                ste += i64::from(t) * i64::from(e);
+                see += i64::from(e) * i64::from(e);
             }
             b[0] += i64::from(sxx);
             b[1] += y * i64::from(sx);
@@ -429,8 +443,8 @@ fn refine_affine_plain(
             b[5] += i64::from(sy);
         }
         fit.iterations += 1;
-        fit.residual = abs_sum as f64 / (8 * win * win) as f64;
-        let dp = sym_mul(&tpl.hinv, &b);
+        let (dp, residual) = photometric_step(tpl, ps, &b, (se, ste, see), win * win);
+        fit.residual = residual;
         let (d00, d01, d10, d11) = (1.0 + dp[0], dp[1], dp[2], 1.0 + dp[3]);
         let det = d00 * d11 - d01 * d10;
         if !(det.is_finite() && libm::fabs(det) > 1e-6) {
@@ -466,7 +480,8 @@ fn refine_affine_plain(
     Some(fit)
 }
 
-/// The box-buffered, vectorizable kernel gives bit for bit the previous kernel's fits: random
+/// The box-buffered, vectorizable kernel gives bit for bit the previous kernel's fits (each
+/// photometric model): random
 /// warps (rotation, scale up to 2x, shear), in the interior, across the border and outside the
 /// image (replicated pixels), windows 5 to 21, 1 to 6 iterations.
 #[test]
@@ -488,7 +503,8 @@ fn fast_kernel_equals_the_plain_kernel() {
     for k in 0..3000 {
         let win = [5usize, 7, 11, 15, 15, 15, 17, 19, 21][k % 9];
         let c = [(rnd() * 170.0) as i64 - 5, (rnd() * 130.0) as i64 - 5];
-        tpl.build(&rv, c, win, &mut g1);
+        let photo = [Photometric::None, Photometric::Offset, Photometric::GainOffset][k % 3];
+        tpl.build(&rv, c, win, photo, &mut g1);
         if !tpl.is_valid() {
             continue;
         }
@@ -523,4 +539,175 @@ fn fast_kernel_equals_the_plain_kernel() {
         some > 600 && boxed > 1500 && direct > 100,
         "{some} {boxed} {direct}"
     );
+}
+
+/// `x = M^-1 y` for a small dense symmetric positive definite `M` (Gaussian elimination).
+#[allow(clippy::needless_range_loop)]
+fn solve6(mut m: [[f64; 6]; 6], mut y: [f64; 6]) -> [f64; 6] {
+    for c in 0..6 {
+        for r in c + 1..6 {
+            let f = m[r][c] / m[c][c];
+            for k in c..6 {
+                m[r][k] -= f * m[c][k];
+            }
+            y[r] -= f * y[c];
+        }
+    }
+    let mut x = [0.0; 6];
+    for r in (0..6).rev() {
+        let mut s = y[r];
+        for k in r + 1..6 {
+            s -= m[r][k] * x[k];
+        }
+        x[r] = s / m[r][r];
+    }
+    x
+}
+
+/// The step and residual from the integer sums equal the explicit project-out computation:
+/// steepest-descent images and error with their least-squares fit on `{1}` / `{1, T}` removed,
+/// `dp = 4 (SDp^T SDp)^-1 SDp^T e` (the kernel's units), residual `|e - P e| / sqrt(n) / 8`.
+#[test]
+fn photometric_step_equals_the_explicit_projection() {
+    let reference = render(W, H, 0.0, 0.0, texture);
+    let rv = ImageView::new(&reference, W, H, W).unwrap();
+    let mut g = Box::new(Gradients::new());
+    let mut t = Box::new(Template::EMPTY);
+    let mut s = 0x1234_5678_9abc_def1u64;
+    let mut rnd = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for (case, photo) in [Photometric::None, Photometric::Offset, Photometric::GainOffset]
+        .into_iter()
+        .cycle()
+        .take(12)
+        .enumerate()
+    {
+        let win = [7usize, 11, 15, 21][case % 4];
+        let c = [40 + (rnd() * 80.0) as i64, 30 + (rnd() * 60.0) as i64];
+        t.build(&rv, c, win, photo, &mut g);
+        assert!(t.is_valid(), "case {case}");
+        g.compute(&t.pix, win);
+        let n = win * win;
+        let half = (win / 2) as f64;
+        // Error: a gain and offset of the template plus noise, 1/8 grey.
+        let (gain, off) = (rnd() * 0.6 - 0.3, rnd() * 200.0 - 100.0);
+        let mut sd = std::vec![[0.0f64; 6]; n];
+        let (mut tv, mut ev) = (std::vec![0.0f64; n], std::vec![0.0f64; n]);
+        let mut b = [0i64; 6];
+        let (mut se, mut ste, mut see) = (0i64, 0i64, 0i64);
+        for k in 0..n {
+            let (x, y) = ((k % win) as f64 - half, (k / win) as f64 - half);
+            let (gx, gy, t8) = (g.gx[k] as f64, g.gy[k] as f64, g.t8[k] as f64);
+            sd[k] = [gx * x, gx * y, gy * x, gy * y, gx, gy];
+            let e = libm::round(gain * t8 + off + rnd() * 40.0 - 20.0);
+            tv[k] = t8;
+            ev[k] = e;
+            for i in 0..6 {
+                b[i] += (sd[k][i] * e) as i64;
+            }
+            se += e as i64;
+            ste += (t8 * e) as i64;
+            see += (e * e) as i64;
+        }
+        let ps = PhotoSums::of(&g, win).unwrap();
+        let ps_opt = (photo != Photometric::None).then_some(&ps);
+        let (dp, res) = photometric_step(&t, ps_opt, &b, (se, ste, see), n);
+        // Explicit: orthonormal basis of the appearance span, projections removed.
+        let mut basis: Vec<Vec<f64>> = Vec::new();
+        if photo != Photometric::None {
+            basis.push(std::vec![1.0 / libm::sqrt(n as f64); n]);
+        }
+        if photo == Photometric::GainOffset {
+            let m = tv.iter().sum::<f64>() / n as f64;
+            let c: Vec<f64> = tv.iter().map(|v| v - m).collect();
+            let nrm = libm::sqrt(c.iter().map(|v| v * v).sum::<f64>());
+            basis.push(c.iter().map(|v| v / nrm).collect());
+        }
+        let project = |v: &[f64]| -> Vec<f64> {
+            let mut out = v.to_vec();
+            for a in &basis {
+                let d: f64 = a.iter().zip(v).map(|(p, q)| p * q).sum();
+                for (o, p) in out.iter_mut().zip(a) {
+                    *o -= d * p;
+                }
+            }
+            out
+        };
+        let sdp: Vec<Vec<f64>> = (0..6)
+            .map(|i| project(&sd.iter().map(|r| r[i]).collect::<Vec<_>>()))
+            .collect();
+        let ep = project(&ev);
+        let mut hm = [[0.0f64; 6]; 6];
+        let mut bp = [0.0f64; 6];
+        for i in 0..6 {
+            for j in 0..6 {
+                hm[i][j] = sdp[i].iter().zip(&sdp[j]).map(|(p, q)| p * q).sum();
+            }
+            bp[i] = sdp[i].iter().zip(&ev).map(|(p, q)| p * q).sum();
+        }
+        let x = solve6(hm, bp);
+        for i in 0..6 {
+            let want = 4.0 * x[i];
+            assert!(
+                libm::fabs(dp[i] - want) <= 1e-7 * (1.0 + libm::fabs(want)),
+                "case {case} {photo:?}: dp[{i}] {} vs {want}",
+                dp[i]
+            );
+        }
+        let want_res = libm::sqrt(ep.iter().map(|v| v * v).sum::<f64>() / n as f64) / 8.0;
+        assert!(
+            libm::fabs(res - want_res) < 1e-9 * (1.0 + want_res),
+            "case {case} {photo:?}: residual {res} vs {want_res}"
+        );
+    }
+}
+
+/// A brightness change between the reference and the target: the uncompensated fit sees it as
+/// a large residual; the compensated models absorb what they model and recover the position.
+#[test]
+fn compensation_absorbs_gain_and_offset() {
+    let c = [80.3, 60.7];
+    let reference = render(W, H, 0.0, 0.0, texture);
+    let a = rot(0.08, 1.03);
+    let sh = [1.4, -0.9];
+    let truth = [c[0] + sh[0], c[1] + sh[1]];
+    let base = warped(a, c, sh);
+    let lit = |gain: f64, off: f64| -> Vec<u8> {
+        base.iter()
+            .map(|&v| libm::round(gain * v as f64 + off).clamp(0.0, 255.0) as u8)
+            .collect()
+    };
+    let fit = |photo: Photometric, img: &[u8]| {
+        let v = ImageView::new(&reference, W, H, W).unwrap();
+        let cc = [libm::round(c[0]) as i64, libm::round(c[1]) as i64];
+        let delta = [c[0] - cc[0] as f64, c[1] - cc[1] as f64];
+        let mut t = Box::new(Template::EMPTY);
+        let mut g2 = Box::new(Gradients::new());
+        t.build(&v, cc, 15, photo, &mut g2);
+        let iv = ImageView::new(img, W, H, W).unwrap();
+        let init = Affine::through(rot(0.0, 1.0), delta, [truth[0] + 0.4, truth[1] - 0.3]);
+        let f = refine_affine(&t, &iv, init, 30, 0.01, &mut g2).unwrap();
+        let q = f.warp.point(delta);
+        (libm::hypot(q[0] - truth[0], q[1] - truth[1]), f.residual)
+    };
+    let offset_only = lit(1.0, 25.0);
+    let gain = lit(0.75, 12.0);
+    let (e_none, r_none) = fit(Photometric::None, &offset_only);
+    let (e_off, r_off) = fit(Photometric::Offset, &offset_only);
+    let (e_go, r_go) = fit(Photometric::GainOffset, &gain);
+    let (e_off_gain, r_off_gain) = fit(Photometric::Offset, &gain);
+    assert!(r_none > 8.0, "uncompensated residual {r_none}");
+    assert!(e_off < 0.03 && r_off < 1.5, "offset: {e_off} px, {r_off}");
+    assert!(e_go < 0.03 && r_go < 1.5, "gain+offset: {e_go} px, {r_go}");
+    assert!(r_off_gain > 3.0 * r_go, "offset alone under a gain: {r_off_gain} vs {r_go}");
+    // Without a change, every model recovers the position.
+    for photo in [Photometric::None, Photometric::Offset, Photometric::GainOffset] {
+        let (e, r) = fit(photo, &base);
+        assert!(e < 0.03 && r < 1.5, "{photo:?}: {e} px, {r}");
+    }
+    let _ = (e_none, e_off_gain);
 }

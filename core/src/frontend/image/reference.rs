@@ -23,6 +23,7 @@
 //! the linear warp: 752 bytes; templates move with their tracks when the tracker compacts.
 
 use super::affine::{refine_affine, Affine, Gradients, Template, MAX_AFFINE_WINDOW};
+pub use super::affine::Photometric;
 use super::view::ImageView;
 use crate::Error;
 
@@ -44,9 +45,18 @@ pub struct ReferenceConfig {
     /// A refinement that converged this far (px) from the frame-to-frame position ends the
     /// track.
     pub drop_shift_px: f32,
-    /// Largest accepted mean absolute photometric error against the reference, grey levels;
-    /// above it the reference is re-anchored.
+    /// Largest accepted root-mean-square photometric error against the reference (after the
+    /// [`ReferenceConfig::photometric`] compensation), grey levels; above it the reference is
+    /// re-anchored.
     pub max_residual: f32,
+    /// Brightness changes the refinement absorbs (`"none"`, `"offset"`, `"gain_offset"`).
+    pub photometric: Photometric,
+    /// The accept and drop distances are at least this many times the frame's median distance
+    /// between the refined and the frame-to-frame positions (0: fixed thresholds). On images
+    /// where frame-to-frame tracking is noisy (motion blur, rolling shutter, low texture) the
+    /// median grows and only the tail of the disagreements ends tracks; on clean images the
+    /// median is a few hundredths of a pixel and the fixed thresholds decide.
+    pub relative_to_median: f32,
     /// Window side of the refinement, px (odd, `5..=21`).
     pub window: usize,
     /// Iteration cap of the refinement.
@@ -67,6 +77,8 @@ impl Default for ReferenceConfig {
             max_shift_px: 0.3,
             drop_shift_px: 0.3,
             max_residual: 12.0,
+            photometric: Photometric::GainOffset,
+            relative_to_median: 3.0,
             window: 15,
             max_iterations: 5,
             epsilon_px: 0.1,
@@ -82,6 +94,8 @@ impl ReferenceConfig {
         max_shift_px: 0.0,
         drop_shift_px: 0.0,
         max_residual: 0.0,
+        photometric: Photometric::None,
+        relative_to_median: 0.0,
         window: 0,
         max_iterations: 0,
         epsilon_px: 0.0,
@@ -95,6 +109,7 @@ impl ReferenceConfig {
             && self.drop_shift_px <= 100.0
             && self.max_residual > 0.0
             && self.max_residual <= 256.0
+            && (0.0..=100.0).contains(&self.relative_to_median)
             && !self.window.is_multiple_of(2)
             && (5..=MAX_AFFINE_WINDOW).contains(&self.window)
             && (1..=100).contains(&self.max_iterations)
@@ -173,8 +188,13 @@ impl<const F: usize> References<F> {
         if !(cx.is_finite() && cy.is_finite()) || cx.abs() > 1e6 || cy.abs() > 1e6 {
             return;
         }
-        slot.tpl
-            .build(img, [cx as i64, cy as i64], rc.window, &mut self.scratch);
+        slot.tpl.build(
+            img,
+            [cx as i64, cy as i64],
+            rc.window,
+            rc.photometric,
+            &mut self.scratch,
+        );
         slot.delta = [pos[0] - cx, pos[1] - cy];
         slot.lin = [1.0, 0.0, 0.0, 1.0];
     }
@@ -209,14 +229,14 @@ impl<const F: usize> References<F> {
         rc: &ReferenceConfig,
     ) -> Refined {
         match self.refine_warp(i, img, seed, rc) {
-            Some(t) => {
-                let d = decide(&t, seed, rc);
+            Some(t) if t.converged && t.residual <= rc.max_residual => {
+                let d = decide(t.pos, seed, rc, 0.0);
                 if let (Refined::Accepted(_), Some(s)) = (d, self.slots.get_mut(i)) {
                     s.lin = t.lin;
                 }
                 d
             }
-            None => Refined::Reanchor,
+            _ => Refined::Reanchor,
         }
     }
 
@@ -268,15 +288,18 @@ pub struct WarpTrack {
     pub lin: [f64; 4],
 }
 
-/// The acceptance rule of [`References::refine`].
-fn decide(t: &WarpTrack, seed: [f64; 2], rc: &ReferenceConfig) -> Refined {
-    let (dx, dy) = (t.pos[0] - seed[0], t.pos[1] - seed[1]);
+/// The acceptance rule for a converged refinement at `pos` (mean error within
+/// [`ReferenceConfig::max_residual`]) of the frame-to-frame position `seed`, given the frame's
+/// median disagreement `median_px` (0: fixed thresholds).
+pub fn decide(pos: [f64; 2], seed: [f64; 2], rc: &ReferenceConfig, median_px: f64) -> Refined {
+    let (dx, dy) = (pos[0] - seed[0], pos[1] - seed[1]);
     let d2 = dx * dx + dy * dy;
-    let max = f64::from(rc.max_shift_px);
-    let drop = f64::from(rc.drop_shift_px);
-    if t.converged && d2 <= max * max && t.residual <= rc.max_residual {
-        Refined::Accepted(t.pos)
-    } else if t.converged && d2 > drop * drop && t.residual <= rc.max_residual {
+    let rel = f64::from(rc.relative_to_median) * median_px;
+    let max = f64::from(rc.max_shift_px).max(rel);
+    let drop = f64::from(rc.drop_shift_px).max(rel);
+    if d2 <= max * max {
+        Refined::Accepted(pos)
+    } else if d2 > drop * drop {
         Refined::Disagrees
     } else {
         Refined::Reanchor

@@ -7,7 +7,7 @@ use super::lk::{track_point, track_point_no_residual, LkConfig, LkFailure, LkScr
 use super::provisional::{self, ProvisionalConfig, Verdict};
 use super::pyramid::{pyramid_bytes, Pyramid, PyramidFilter};
 use super::ransac::{self, RansacConfig, RansacModel, RansacOutcome, XorShift64};
-use super::reference::{ReferenceConfig, References, Refined};
+use super::reference::{decide, ReferenceConfig, References, Refined};
 use super::view::ImageView;
 use crate::camera::{FeatureObs, PinholeCamera, Vec2};
 use crate::math::Mat3;
@@ -221,6 +221,9 @@ pub struct TrackStats {
     pub refined: u32,
     /// Tracks whose reference patch was re-anchored (refinement not accepted).
     pub reanchored: u32,
+    /// Median distance between the refined and the frame-to-frame positions over the frame's
+    /// converged refinements, px (0 without any).
+    pub reference_median_shift_px: f32,
     /// Tracks that survived every check.
     pub tracked: u32,
     /// Of those, level 0 stopped on the iteration cap rather than converging.
@@ -684,9 +687,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
         if !relative || m == 0 {
             return;
         }
-        let vals = self.flow.get_mut(..m).unwrap_or(&mut []);
-        let mid = vals.len() / 2;
-        let median = *vals.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let median = median_of(self.flow.get_mut(..m).unwrap_or(&mut []));
         let thr = abs.max(f64::from(pc.relative_to_median) * median);
         let items = self.fate.iter_mut().zip(self.new_norm.iter()).take(n);
         for (fate, nn) in items {
@@ -699,26 +700,61 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
 
     /// Refines every surviving track against its reference patch ([`super::reference`]):
     /// accepted refinements replace `new_pos`, disagreeing tracks are lost, the others are
-    /// re-anchored at their frame-to-frame position.
+    /// re-anchored at their frame-to-frame position. The thresholds scale with the frame's
+    /// median disagreement ([`ReferenceConfig::relative_to_median`]), so they are decided after
+    /// every track is refined: the refined positions wait in `r_cur` (marked in `r_in`), their
+    /// distances in `flow` (both scratch until [`Self::reject_outliers`]).
     fn refine_against_references(&mut self, next: usize, st: &mut TrackStats) {
         let n = self.features.len();
         let Some(img) = self.pyr.get(next).and_then(|p| p.level(0)) else {
             return;
         };
-        let (wf, hf) = ((self.dims.0 as f64) - 1.0, (self.dims.1 as f64) - 1.0);
-        let inside = |p: &[f64; 2]| (0.0..=wf).contains(&p[0]) && (0.0..=hf).contains(&p[1]);
-        let every = u64::from(self.cfg.reference.every_frames.max(1));
-        let items = self.fate.iter_mut().zip(self.new_pos.iter_mut()).take(n);
-        for (i, (fate, pos)) in items.enumerate() {
-            if *fate != Fate::Alive {
+        let rc = self.cfg.reference;
+        let every = u64::from(rc.every_frames.max(1));
+        let mut m = 0usize;
+        for i in 0..n {
+            let Some(mark) = self.r_in.get_mut(i) else {
+                break;
+            };
+            *mark = false;
+            let (Some(&Fate::Alive), Some(&pos)) = (self.fate.get(i), self.new_pos.get(i)) else {
                 continue;
-            }
+            };
             let id = self.features.get(i).map_or(0, |f| f.id);
             if !(self.frame.wrapping_add(id)).is_multiple_of(every) {
                 continue;
             }
-            let r = self.refs.refine(i, &img, *pos, &self.cfg.reference);
-            match r {
+            match self.refs.refine_warp(i, &img, pos, &rc) {
+                Some(t) if t.converged && t.residual <= rc.max_residual => {
+                    // The warm start of the next refinement (re-anchoring resets it).
+                    self.refs.set_linear(i, t.lin);
+                    if let (Some(r), Some(d)) = (self.r_cur.get_mut(i), self.flow.get_mut(m)) {
+                        *r = t.pos;
+                        *d = libm::hypot(t.pos[0] - pos[0], t.pos[1] - pos[1]);
+                        *mark = true;
+                        m += 1;
+                    }
+                }
+                _ => {
+                    self.refs.capture(i, &img, pos, &rc);
+                    st.reanchored += 1;
+                }
+            }
+        }
+        let scale = median_of(self.flow.get_mut(..m).unwrap_or(&mut []));
+        st.reference_median_shift_px = scale as f32;
+        let (wf, hf) = ((self.dims.0 as f64) - 1.0, (self.dims.1 as f64) - 1.0);
+        let inside = |p: &[f64; 2]| (0.0..=wf).contains(&p[0]) && (0.0..=hf).contains(&p[1]);
+        for i in 0..n {
+            let (Some(&true), Some(&r), Some(pos), Some(fate)) = (
+                self.r_in.get(i),
+                self.r_cur.get(i),
+                self.new_pos.get_mut(i),
+                self.fate.get_mut(i),
+            ) else {
+                continue;
+            };
+            match decide(r, *pos, &rc, scale) {
                 Refined::Accepted(p) if inside(&p) => {
                     *pos = p;
                     st.refined += 1;
@@ -728,7 +764,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
                     st.lost_reference += 1;
                 }
                 Refined::Accepted(_) | Refined::Reanchor => {
-                    self.refs.capture(i, &img, *pos, &self.cfg.reference);
+                    self.refs.capture(i, &img, *pos, &rc);
                     st.reanchored += 1;
                 }
             }
@@ -790,12 +826,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> FeatureTracker<F, 
         }
         let rc = self.cfg.ransac;
         let flow = self.flow.get_mut(..m).unwrap_or(&mut []);
-        let median_flow = if flow.is_empty() {
-            0.0
-        } else {
-            let mid = flow.len() / 2;
-            *flow.select_nth_unstable_by(mid, f64::total_cmp).1
-        };
+        let median_flow = median_of(flow);
         let low_flow = median_flow < rc.eight_point_min_flow_px;
         let gyro = hints.r_cur_prev.is_some();
         let run = match rc.model {
@@ -938,6 +969,15 @@ fn count_failure(e: LkFailure, st: &mut TrackStats) {
         LkFailure::Residual => st.lost_residual += 1,
         LkFailure::NonFinite => st.lost_nonfinite += 1,
     }
+}
+
+/// The upper median of `v` (reordered), 0 for an empty slice.
+fn median_of(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 #[cfg(test)]
