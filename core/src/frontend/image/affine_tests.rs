@@ -445,33 +445,9 @@ fn refine_affine_plain(
         fit.iterations += 1;
         let (dp, residual) = photometric_step(tpl, ps, &b, (se, ste, see), win * win);
         fit.residual = residual;
-        let (d00, d01, d10, d11) = (1.0 + dp[0], dp[1], dp[2], 1.0 + dp[3]);
-        let det = d00 * d11 - d01 * d10;
-        if !(det.is_finite() && libm::fabs(det) > 1e-6) {
-            return None;
-        }
-        let inv = [d11 / det, -d01 / det, -d10 / det, d00 / det];
-        let a = w.a;
-        let na = [
-            a[0] * inv[0] + a[1] * inv[2],
-            a[0] * inv[1] + a[1] * inv[3],
-            a[2] * inv[0] + a[3] * inv[2],
-            a[2] * inv[1] + a[3] * inv[3],
-        ];
-        let nt = [
-            w.t[0] - (na[0] * dp[4] + na[1] * dp[5]),
-            w.t[1] - (na[2] * dp[4] + na[3] * dp[5]),
-        ];
-        let (du, dv) = (nt[0] - w.t[0], nt[1] - w.t[1]);
-        let lin = (na[0] - a[0]) * (na[0] - a[0])
-            + (na[1] - a[1]) * (na[1] - a[1])
-            + (na[2] - a[2]) * (na[2] - a[2])
-            + (na[3] - a[3]) * (na[3] - a[3]);
-        w = Affine { a: na, t: nt };
-        if !(w.t[0].is_finite() && w.t[1].is_finite() && (0.25..=4.0).contains(&w.det())) {
-            return None;
-        }
-        if du * du + dv * dv + lin * hf * hf <= eps_px * eps_px {
+        let (nw, moved2) = compose(&w, &dp, hf)?;
+        w = nw;
+        if moved2 <= eps_px * eps_px {
             fit.converged = true;
             break;
         }
