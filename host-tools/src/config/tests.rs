@@ -189,6 +189,8 @@ fn malformed_values_are_errors() {
         "[frontend.reference]\nwindow = 23\n",
         "[frontend.reference]\nevery_frames = 0\n",
         "[frontend.reference]\nenable = true\n",
+        "[frontend.reference]\nphotometric = \"gain\"\n",
+        "[frontend.reference]\nrelative_to_median = -1.0\n",
         "frontend = 3\n",
         "mode = \"pose_only\"\n",
     ] {
@@ -365,13 +367,16 @@ fn the_first_steps_check_is_switched_from_toml() {
 
 #[test]
 fn the_anchored_refinement_is_switched_from_toml() {
-    let f = RunConfigFile::parse("[frontend.reference]\nenabled = true\nwindow = 11\n")
-        .expect("parses");
+    let f = RunConfigFile::parse(
+        "[frontend.reference]\nenabled = true\nwindow = 11\nphotometric = \"offset\"\n",
+    )
+    .expect("parses");
     let (mut t, mut a) = (TrackerConfig::default(), VioAiding::default());
     assert!(!t.reference.enabled, "off by default");
     f.apply_frontend(&mut t, &mut a).expect("frontend");
     let mut d = TrackerConfig::default();
     d.reference.enabled = true;
     d.reference.window = 11;
-    assert_eq!(t, d, "only the two keys change");
+    d.reference.photometric = povins_core::frontend::image::Photometric::Offset;
+    assert_eq!(t, d, "only the three keys change");
 }
