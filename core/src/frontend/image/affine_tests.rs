@@ -52,7 +52,10 @@ fn recovers_rotation_scale_and_shift() {
     let mut g = Box::new(Gradients::new());
     let a = rot(0.14, 1.06);
     let models = [Photometric::None, Photometric::GainOffset];
-    for (win, photo) in [11, 15, 21].into_iter().flat_map(|w| models.map(|p| (w, p))) {
+    for (win, photo) in [11, 15, 21]
+        .into_iter()
+        .flat_map(|w| models.map(|p| (w, p)))
+    {
         let (tpl, delta) = template(&reference, c, win, photo, &mut g);
         assert!(tpl.is_valid());
         for &sh in &[[0.0, 0.0], [3.4, -2.2], [-0.37, 0.81]] {
@@ -479,7 +482,11 @@ fn fast_kernel_equals_the_plain_kernel() {
     for k in 0..3000 {
         let win = [5usize, 7, 11, 15, 15, 15, 17, 19, 21][k % 9];
         let c = [(rnd() * 170.0) as i64 - 5, (rnd() * 130.0) as i64 - 5];
-        let photo = [Photometric::None, Photometric::Offset, Photometric::GainOffset][k % 3];
+        let photo = [
+            Photometric::None,
+            Photometric::Offset,
+            Photometric::GainOffset,
+        ][k % 3];
         tpl.build(&rv, c, win, photo, &mut g1);
         if !tpl.is_valid() {
             continue;
@@ -556,11 +563,15 @@ fn photometric_step_equals_the_explicit_projection() {
         s ^= s << 17;
         (s >> 11) as f64 / (1u64 << 53) as f64
     };
-    for (case, photo) in [Photometric::None, Photometric::Offset, Photometric::GainOffset]
-        .into_iter()
-        .cycle()
-        .take(12)
-        .enumerate()
+    for (case, photo) in [
+        Photometric::None,
+        Photometric::Offset,
+        Photometric::GainOffset,
+    ]
+    .into_iter()
+    .cycle()
+    .take(12)
+    .enumerate()
     {
         let win = [7usize, 11, 15, 21][case % 4];
         let c = [40 + (rnd() * 80.0) as i64, 30 + (rnd() * 60.0) as i64];
@@ -679,9 +690,16 @@ fn compensation_absorbs_gain_and_offset() {
     assert!(r_none > 8.0, "uncompensated residual {r_none}");
     assert!(e_off < 0.03 && r_off < 1.5, "offset: {e_off} px, {r_off}");
     assert!(e_go < 0.03 && r_go < 1.5, "gain+offset: {e_go} px, {r_go}");
-    assert!(r_off_gain > 3.0 * r_go, "offset alone under a gain: {r_off_gain} vs {r_go}");
+    assert!(
+        r_off_gain > 3.0 * r_go,
+        "offset alone under a gain: {r_off_gain} vs {r_go}"
+    );
     // Without a change, every model recovers the position.
-    for photo in [Photometric::None, Photometric::Offset, Photometric::GainOffset] {
+    for photo in [
+        Photometric::None,
+        Photometric::Offset,
+        Photometric::GainOffset,
+    ] {
         let (e, r) = fit(photo, &base);
         assert!(e < 0.03 && r < 1.5, "{photo:?}: {e} px, {r}");
     }

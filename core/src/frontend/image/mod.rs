@@ -33,9 +33,9 @@ pub mod view;
 #[cfg(test)]
 pub(crate) mod testutil;
 
+pub use affine::Photometric;
 pub use corners::{Corner, DetectStats, DetectorConfig, GridDetector, OccupancyMask};
 pub use equalize::{Equalization, Equalizer};
-pub use affine::Photometric;
 pub use lk::{track_point, track_point_no_residual, LkConfig, LkFailure, LkScratch, LkTrack};
 pub use provisional::{ProvisionalConfig, Verdict};
 pub use pyramid::{level_size, pyramid_bytes, Pyramid, PyramidFilter};

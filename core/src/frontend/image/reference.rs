@@ -22,8 +22,8 @@
 //! inverse of its Hessian (computed once per reference), the point's offset in the template and
 //! the linear warp: 752 bytes; templates move with their tracks when the tracker compacts.
 
-use super::affine::{refine_affine, Affine, Gradients, Template, MAX_AFFINE_WINDOW};
 pub use super::affine::Photometric;
+use super::affine::{refine_affine, Affine, Gradients, Template, MAX_AFFINE_WINDOW};
 use super::view::ImageView;
 use crate::Error;
 
