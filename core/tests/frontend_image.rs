@@ -7,8 +7,8 @@ mod frontend_common;
 use frontend_common::*;
 use povins_core::camera::PinholeCamera;
 use povins_core::frontend::image::{
-    pyramid_bytes, track_point, DetectorConfig, EurocTracker, LkScratch, Pyramid, RansacConfig,
-    RansacModel, TrackerConfig,
+    pyramid_bytes, track_point, DetectorConfig, EurocTracker, LkConfig, LkScratch, Photometric,
+    Pyramid, RansacConfig, RansacModel, TrackerConfig,
 };
 
 type Pyr = Pyramid<{ pyramid_bytes(752, 480, 4) }, 4>;
@@ -138,9 +138,14 @@ fn dmvio_handheld_track_counts_and_lengths() {
         };
         let def = TrackerConfig::default();
         // OpenCV's peer: no forward-backward check, no RANSAC, 15 px apart, no cell cap, and
-        // GFTT's relative threshold only (a token absolute floor).
+        // GFTT's relative threshold only (a token absolute floor), and LK without photometric
+        // compensation (OpenCV's has none).
         let cv = TrackerConfig {
             fb_check: false,
+            lk: LkConfig {
+                photometric: Photometric::None,
+                ..def.lk
+            },
             ransac: RansacConfig {
                 model: RansacModel::Off,
                 ..def.ransac

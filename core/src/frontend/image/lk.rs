@@ -13,6 +13,16 @@
 //!   overflow (`2040 * 1020 * 31 * 32 < 2^31`), then steps `q -= A^-1 b` (`f64`, fixed order). It
 //!   stops when the step is below `epsilon_px` (level pixels), when it oscillates (OpenCV's
 //!   half-step rule), or after `max_iterations`.
+//! - **Photometric compensation** ([`LkConfig::photometric`]): between two frames the exposure,
+//!   gain or lighting changes (`J ~ alpha T + beta`); an uncompensated fit then moves the point to
+//!   explain the brightness change with the gradients. As in the anchored refinement
+//!   ([`super::affine`]), the error's component in the span of `{1}` (offset) or `{1, T}` (gain
+//!   and offset) is projected out (Baker & Matthews' *project out*): `A' = g^T (I - P) g`,
+//!   `b' = b - g^T P e`. `P e` needs the iteration's `sum e` and `sum T e` (two more multiply-adds
+//!   per pixel in the same `i32` pass, `T` stored less 1024); `g^T P` the template's `sum g`, `sum g T`,
+//!   `sum T`, `sum T^2` (exact `i64`). The eigenvalue test applies to the projected `A'`, so a
+//!   window whose texture is only a brightness ramp is rejected, and the residual is that of
+//!   `(I - P) e`.
 //! - The guess carries to the next finer level through the pyramid's coordinate map.
 //!
 //! Rows are padded to a multiple of 8 pixels with zero template gradients (so the padding adds
@@ -23,9 +33,10 @@
 //! Windows that reach outside the image read replicated border pixels (copied into a small
 //! patch first). As in OpenCV, a weak template or a window entirely off the image at a coarse
 //! level only skips that level; at level 0 it fails the point. The photometric residual is the
-//! mean `|J - T|` over the window in the last iteration at level 0 (less than one step from the
-//! final position), in grey levels.
+//! mean `|J - T|` (after the compensation) over the window in the last iteration at level 0 (less
+//! than one step from the final position), in grey levels.
 
+use super::affine::Photometric;
 use super::pyramid::{Pyramid, PyramidFilter};
 use super::view::ImageView;
 use crate::Error;
@@ -38,6 +49,14 @@ const MAX_PATCH_W: usize = MAX_WP + 2;
 const MAX_PATCH_H: usize = MAX_WINDOW + 2;
 const MAX_SRC_W: usize = MAX_PATCH_W + 1;
 const MAX_SRC_H: usize = MAX_PATCH_H + 1;
+/// With [`Photometric::GainOffset`], the accepted range of the fitted gain change `alpha - 1`
+/// of `J ~ alpha T + beta` at level 0 (gain 2/3 to 3/2): beyond it the point fails as
+/// [`LkFailure::Residual`].
+pub const GAIN_CHANGE_RANGE: (f64, f64) = (-1.0 / 3.0, 0.5);
+/// With [`Photometric::Offset`], the accepted range of the same fitted gain change (which the
+/// offset model does not remove): the target window must keep at least half of the template's
+/// contrast. Without it a textured template matches a flat target once the offset is removed.
+pub const CONTRAST_CHANGE_RANGE: (f64, f64) = (-0.5, 1.0);
 /// Bilinear weights sum to `2^WEIGHT_BITS`.
 const WEIGHT_BITS: u32 = 8;
 
@@ -65,8 +84,18 @@ pub struct LkConfig {
     /// Smallest accepted eigenvalue of the template's mean gradient outer product,
     /// `(grey / px)^2` (OpenCV's `minEigThreshold = 1e-4` is about 0.1 here).
     pub min_eigen: f32,
-    /// Largest accepted mean absolute photometric error over the window at level 0, grey levels.
+    /// Largest accepted mean absolute photometric error over the window at level 0 (after the
+    /// compensation), grey levels.
     pub max_residual: f32,
+    /// Which brightness changes between consecutive frames the fit absorbs (`"none"`, the
+    /// default, `"offset"`, `"gain_offset"`). `"offset"` removes the drift that exposure
+    /// changes cause (hand-held simulation with 2% exposure steps per frame: median error from
+    /// the track's start 0.861 -> 0.554 px) and on real images (DM-VIO) keeps the tracks with
+    /// fewer epipolar violations; it is not yet the default because one track in 136 survived
+    /// onto a pure-noise image in the odd-image test. `"gain_offset"` fits the exposure model
+    /// exactly, but on real blurred frames the gain absorbs the contrast loss and those tracks
+    /// fail the gain range or the forward-backward check (BENCHMARKS.md, issue 14).
+    pub photometric: Photometric,
 }
 
 impl Default for LkConfig {
@@ -79,6 +108,7 @@ impl Default for LkConfig {
             coarse_epsilon_px: 0.1,
             min_eigen: 0.1,
             max_residual: 30.0,
+            photometric: Photometric::None,
         }
     }
 }
@@ -114,7 +144,8 @@ pub enum LkFailure {
     SmallEigen,
     /// The window left the image, or the pyramid lacks a level.
     OutOfImage,
-    /// The final photometric residual was too large.
+    /// The final photometric residual was too large, or the fitted gain change left
+    /// [`GAIN_CHANGE_RANGE`].
     Residual,
     /// A position became non-finite.
     NonFinite,
@@ -141,9 +172,115 @@ struct Template {
     /// Gradients (`8 x grey / px`), zero in the padding.
     gx: [i16; MAX_WINDOW * MAX_WP],
     gy: [i16; MAX_WINDOW * MAX_WP],
+    /// For the photometric sums: 1 in the window, 0 in the padding.
+    mask: [i16; MAX_WINDOW * MAX_WP],
+    /// `t - 1024` in the window, 0 in the padding (so `sum (t - 1024) e` fits `i32`:
+    /// `2040 * 1024 * 31 * 32 < 2^31`).
+    t_off: [i16; MAX_WINDOW * MAX_WP],
+    /// `A` (projected by `proj` when there is one).
     a11: f64,
     a12: f64,
     a22: f64,
+    /// The template's sums for the photometric projection.
+    proj: Option<Projection>,
+}
+
+/// The template's part of the photometric projection `P` (see the module docs): with `n` the
+/// window's pixel count, `s = sum g`, `st = n sum g T - s sum T = n sum g Tc` (`Tc` the centred
+/// template) and `var = n sum T^2 - (sum T)^2 = n sum Tc^2`, exact integers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Projection {
+    gain: bool,
+    n: i64,
+    s: [i64; 2],
+    st: [i64; 2],
+    var: i64,
+    sum_t: i64,
+}
+
+impl Projection {
+    /// The sums of a template (`t`, `gx`, `gy` rows of `wp`, zero padding beyond `win`).
+    fn of(t: &[i16], gx: &[i16], gy: &[i16], win: usize, gain: bool) -> Self {
+        let wp = padded(win);
+        let (mut s, mut sgt) = ([0i64; 2], [0i64; 2]);
+        let (mut sum_t, mut sum_tt) = (0i64, 0i64);
+        let rows = t
+            .chunks_exact(wp)
+            .zip(gx.chunks_exact(wp))
+            .zip(gy.chunks_exact(wp))
+            .take(win);
+        for ((t, gx), gy) in rows {
+            for ((&t, &x), &y) in t.iter().zip(gx).zip(gy).take(win) {
+                let (t, x, y) = (i64::from(t), i64::from(x), i64::from(y));
+                s[0] += x;
+                s[1] += y;
+                sgt[0] += x * t;
+                sgt[1] += y * t;
+                sum_t += t;
+                sum_tt += t * t;
+            }
+        }
+        let n = (win * win) as i64;
+        Projection {
+            gain,
+            n,
+            s,
+            st: [n * sgt[0] - s[0] * sum_t, n * sgt[1] - s[1] * sum_t],
+            var: n * sum_tt - sum_t * sum_t,
+            sum_t,
+        }
+    }
+
+    /// Whether the gain direction is projected (a flat template has none).
+    fn with_gain(&self) -> bool {
+        self.gain && self.var > 0
+    }
+
+    /// `g^T P g` (`[11, 12, 22]`), what the projection removes from `A`.
+    fn removed_hessian(&self) -> [f64; 3] {
+        let n = self.n as f64;
+        let s = self.s.map(|v| v as f64);
+        let mut r = [s[0] * s[0] / n, s[0] * s[1] / n, s[1] * s[1] / n];
+        if self.with_gain() {
+            let st = self.st.map(|v| v as f64);
+            let vn = self.var as f64 * n;
+            r[0] += st[0] * st[0] / vn;
+            r[1] += st[0] * st[1] / vn;
+            r[2] += st[1] * st[1] / vn;
+        }
+        r
+    }
+
+    /// What one iteration's `sum e` and `sum T e` remove: `g^T P e`, and `[mean e, k]` with
+    /// `P e = mean(e) + k Tc` (`k = 0` without the gain). Also the fitted gain change
+    /// `sum Tc e / sum Tc^2` (`alpha - 1` of `J ~ alpha T + beta`), computed for both models.
+    fn removed_gradient(&self, se: i64, ste: i64) -> ([f64; 2], [f64; 2], f64) {
+        let n = self.n as f64;
+        let mean = se as f64 / n;
+        let mut out = [mean * self.s[0] as f64, mean * self.s[1] as f64];
+        // k = sum Tc e / sum Tc^2 = c / var with c = n sum Tc e.
+        let k_fit = if self.var > 0 {
+            (self.n * ste - self.sum_t * se) as f64 / self.var as f64
+        } else {
+            0.0
+        };
+        let mut k = 0.0;
+        if self.with_gain() {
+            k = k_fit;
+            out[0] += k * self.st[0] as f64 / n;
+            out[1] += k * self.st[1] as f64 / n;
+        }
+        (out, [mean, k], k_fit)
+    }
+
+    /// Accepted range of the fitted gain change at level 0.
+    fn gain_range(&self) -> (f64, f64) {
+        if self.gain {
+            GAIN_CHANGE_RANGE
+        } else {
+            CONTRAST_CHANGE_RANGE
+        }
+    }
 }
 
 /// Scratch of one LK track (about 12 KiB): the template, the interpolated patch, the window
@@ -170,9 +307,12 @@ impl LkScratch {
                 t: [0; MAX_WINDOW * MAX_WP],
                 gx: [0; MAX_WINDOW * MAX_WP],
                 gy: [0; MAX_WINDOW * MAX_WP],
+                mask: [0; MAX_WINDOW * MAX_WP],
+                t_off: [0; MAX_WINDOW * MAX_WP],
                 a11: 0.0,
                 a12: 0.0,
                 a22: 0.0,
+                proj: None,
             },
             interp: [0; MAX_PATCH_H * MAX_PATCH_W],
             diff: [0; MAX_WINDOW * MAX_WP],
@@ -316,6 +456,21 @@ fn dot2(d: &[i16], gx: &[i16], gy: &[i16]) -> (i32, i32) {
     (sx, sy)
 }
 
+/// `[sum d gx, sum d gy, sum d m, sum d t]` over flat rows, exact in `i32` (see the fields of
+/// `Template`).
+#[inline(always)]
+fn dot4(d: &[i16], gx: &[i16], gy: &[i16], m: &[i16], t: &[i16]) -> [i32; 4] {
+    let mut s = [0i32; 4];
+    for ((((&d, &x), &y), &m), &t) in d.iter().zip(gx).zip(gy).zip(m).zip(t) {
+        let d = i32::from(d);
+        s[0] += d * i32::from(x);
+        s[1] += d * i32::from(y);
+        s[2] += d * i32::from(m);
+        s[3] += d * i32::from(t);
+    }
+    s
+}
+
 /// `(sum gx^2, sum gx gy, sum gy^2)`.
 #[inline(always)]
 fn hessian(gx: &[i16], gy: &[i16]) -> (i32, i32, i32) {
@@ -330,12 +485,14 @@ fn hessian(gx: &[i16], gy: &[i16]) -> (i32, i32, i32) {
 
 impl Template {
     /// Builds the template of window `win` around level coordinates `(x, y)` in `img`.
+    #[allow(clippy::too_many_arguments)]
     fn build(
         &mut self,
         img: &ImageView,
         x: f64,
         y: f64,
         win: usize,
+        photo: Photometric,
         interp: &mut [i16; MAX_PATCH_H * MAX_PATCH_W],
         patch: &mut [u8; MAX_SRC_H * MAX_SRC_W],
     ) -> Result<(), LkFailure> {
@@ -397,6 +554,35 @@ impl Template {
         self.a11 = f64::from(a11);
         self.a12 = f64::from(a12);
         self.a22 = f64::from(a22);
+        self.proj = match photo {
+            Photometric::None => None,
+            Photometric::Offset | Photometric::GainOffset => Some(Projection::of(
+                &self.t,
+                &self.gx,
+                &self.gy,
+                win,
+                photo == Photometric::GainOffset,
+            )),
+        };
+        if let Some(p) = &self.proj {
+            let rows = self
+                .mask
+                .chunks_exact_mut(wp)
+                .zip(self.t_off.chunks_exact_mut(wp))
+                .zip(self.t.chunks_exact(wp))
+                .take(win);
+            for ((m, to), t) in rows {
+                for (i, ((m, to), &t)) in m.iter_mut().zip(to.iter_mut()).zip(t).enumerate() {
+                    let inside = i < win;
+                    *m = i16::from(inside);
+                    *to = if inside { t - 1024 } else { 0 };
+                }
+            }
+            let [r11, r12, r22] = p.removed_hessian();
+            self.a11 -= r11;
+            self.a12 -= r12;
+            self.a22 -= r22;
+        }
         Ok(())
     }
 
@@ -438,8 +624,18 @@ fn scharr_row(p0: &[i16], p1: &[i16], p2: &[i16], t: &mut [i16], gx: &mut [i16],
     }
 }
 
-/// `(sum diff gx, sum diff gy)` of the window at integer top-left `(ix, iy)` with `wgt`
-/// (differences left in `diff`).
+/// What one iteration sums over the window: `b = sum e g` and, for the photometric projection,
+/// `sum e` and `sum T e` (`e = J - T`, padding excluded).
+#[derive(Clone, Copy, Default)]
+struct WindowSums {
+    b: [i64; 2],
+    se: i64,
+    ste: i64,
+}
+
+/// The sums of the window at integer top-left `(ix, iy)` with `wgt` (differences left in `diff`);
+/// `se`/`ste` only with `photo`.
+#[allow(clippy::too_many_arguments)]
 fn window_sums(
     src: &[u8],
     stride: usize,
@@ -447,9 +643,11 @@ fn window_sums(
     wgt: [u16; 4],
     tmpl: &Template,
     win: usize,
+    photo: bool,
     diff: &mut [i16; MAX_WINDOW * MAX_WP],
-) -> Option<(i64, i64)> {
+) -> Option<WindowSums> {
     let wp = padded(win);
+    let mut out = WindowSums::default();
     let rows = diff
         .chunks_exact_mut(wp)
         .zip(tmpl.t.chunks_exact(wp))
@@ -460,20 +658,38 @@ fn window_sums(
         bilinear_row_n(wp, s0, s1, wgt, WEIGHT_BITS - 3, Some(t), d)?;
     }
     let n = win * wp;
-    let (bx, by) = dot2(diff.get(..n)?, tmpl.gx.get(..n)?, tmpl.gy.get(..n)?);
-    Some((i64::from(bx), i64::from(by)))
+    let (d, gx, gy) = (diff.get(..n)?, tmpl.gx.get(..n)?, tmpl.gy.get(..n)?);
+    let (bx, by) = if photo {
+        // One flat multiply-add pass for the four sums: sum e = sum mask e and
+        // sum T e = sum (T - 1024) e + 1024 sum e.
+        let (m, to) = (tmpl.mask.get(..n)?, tmpl.t_off.get(..n)?);
+        let [bx, by, se, sto] = dot4(d, gx, gy, m, to);
+        out.se = i64::from(se);
+        out.ste = i64::from(sto) + 1024 * i64::from(se);
+        (bx, by)
+    } else {
+        dot2(d, gx, gy)
+    };
+    out.b = [i64::from(bx), i64::from(by)];
+    Some(out)
 }
 
-/// Mean `|J - T|` over the window (padding excluded), grey levels.
-fn window_residual(diff: &[i16], win: usize) -> f32 {
+/// Mean `|e - mean - k Tc|` over the window (padding excluded), grey levels: the error left
+/// after the photometric projection `[mean, k]` (`[0, 0]` without one).
+fn window_residual(diff: &[i16], tmpl: &Template, win: usize, removed: [f64; 2]) -> f32 {
     let wp = padded(win);
-    let mut s = 0i32;
-    for row in diff.chunks_exact(wp).take(win) {
-        for &d in row.iter().take(win) {
-            s += i32::from(d).abs();
+    let [mean, k] = removed;
+    let t_mean = match &tmpl.proj {
+        Some(p) if p.n > 0 => p.sum_t as f64 / p.n as f64,
+        _ => 0.0,
+    };
+    let mut s = 0.0f64;
+    for (row, t) in diff.chunks_exact(wp).zip(tmpl.t.chunks_exact(wp)).take(win) {
+        for (&d, &t) in row.iter().zip(t).take(win) {
+            s += libm::fabs(f64::from(d) - mean - k * (f64::from(t) - t_mean));
         }
     }
-    (f64::from(s) / ((win * win) as f64 * 8.0)) as f32
+    (s / ((win * win) as f64 * 8.0)) as f32
 }
 
 /// What one pyramid level did.
@@ -510,7 +726,7 @@ fn refine_level(
         diff,
         patch,
     } = scratch;
-    if let Err(e) = tmpl.build(from, p[0], p[1], win, interp, patch) {
+    if let Err(e) = tmpl.build(from, p[0], p[1], win, cfg.photometric, interp, patch) {
         run.outcome = Err(e);
         return run;
     }
@@ -524,6 +740,9 @@ fn refine_level(
     let in_range = |q: &[f64; 2]| {
         q[0] >= -half && q[1] >= -half && q[0] <= wl - 1.0 + half && q[1] <= hl - 1.0 + half
     };
+    let photo = tmpl.proj.is_some();
+    let mut removed = [0.0f64; 2];
+    let mut gain_change = 0.0f64;
     let mut prev = [0.0f64; 2];
     for it in 0..cfg.max_iterations {
         if !(q[0].is_finite() && q[1].is_finite()) {
@@ -538,12 +757,19 @@ fn refine_level(
         let (fx, fy) = (libm::floor(xt), libm::floor(yt));
         let wgt = weights(xt - fx, yt - fy);
         let (src, stride, off) = source_block(to, fx as i64, fy as i64, wp + 1, win + 1, patch);
-        let Some((bx, by)) = window_sums(src, stride, off, wgt, tmpl, win, diff) else {
+        let Some(sums) = window_sums(src, stride, off, wgt, tmpl, win, photo, diff) else {
             run.outcome = Err(LkFailure::OutOfImage);
             return run;
         };
         run.iterations += 1;
-        let (bx, by) = (bx as f64, by as f64);
+        let (mut bx, mut by) = (sums.b[0] as f64, sums.b[1] as f64);
+        if let Some(pr) = &tmpl.proj {
+            let (r, pe, k_fit) = pr.removed_gradient(sums.se, sums.ste);
+            bx -= r[0];
+            by -= r[1];
+            removed = pe;
+            gain_change = k_fit;
+        }
         let d = [
             (tmpl.a22 * bx - tmpl.a12 * by) * inv_det,
             (tmpl.a11 * by - tmpl.a12 * bx) * inv_det,
@@ -568,7 +794,15 @@ fn refine_level(
             run.outcome = Err(LkFailure::OutOfImage);
             return run;
         }
-        *res = window_residual(diff, win);
+        // A gain far from 1 means the fit explained the window by the brightness model (a
+        // textured template against a flat target is `J = 0 T + beta`), not by a motion.
+        // Without a photometric model the residual check alone decides, as before.
+        let (lo, hi) = tmpl.proj.map_or((0.0, 0.0), |p| p.gain_range());
+        if photo && !(lo..=hi).contains(&gain_change) {
+            run.outcome = Err(LkFailure::Residual);
+            return run;
+        }
+        *res = window_residual(diff, tmpl, win, removed);
     }
     run
 }
@@ -670,149 +904,5 @@ fn track_point_impl<const B: usize, const L: usize>(
 }
 
 #[cfg(test)]
-mod tests {
-    extern crate std;
-    use super::super::equalize::Equalization;
-    use super::super::pyramid::pyramid_bytes;
-    use super::super::testutil::{render, texture};
-    use super::*;
-
-    const W: usize = 320;
-    const H: usize = 240;
-    type Pyr = Pyramid<{ pyramid_bytes(W, H, 4) }, 4>;
-
-    fn pyr(img: &[u8], filter: PyramidFilter) -> std::boxed::Box<Pyr> {
-        let mut p = std::boxed::Box::new(Pyr::new());
-        let v = ImageView::new(img, W, H, W).unwrap();
-        p.build(&v, 4, filter, Equalization::Off).unwrap();
-        p
-    }
-
-    /// Largest tracking error over a grid of points for a known sub-pixel shift.
-    fn max_error(dx: f64, dy: f64, filter: PyramidFilter, seeded: bool) -> (f64, u32) {
-        let a = render(W, H, 0.0, 0.0, texture);
-        let b = render(W, H, dx, dy, texture);
-        let (pa, pb) = (pyr(&a, filter), pyr(&b, filter));
-        let cfg = LkConfig::default();
-        let mut s = std::boxed::Box::new(LkScratch::new());
-        let mut worst = 0.0f64;
-        let mut iters = 0;
-        for y in (40..=200).step_by(40) {
-            for x in (40..=280).step_by(40) {
-                let p = [x as f64 + 0.37, y as f64 - 0.21];
-                let (seed, levels) = if seeded {
-                    ([p[0] + dx + 0.8, p[1] + dy - 0.6], 0)
-                } else {
-                    (p, 3)
-                };
-                let t = track_point(&pa, &pb, p, seed, levels, &cfg, &mut s).unwrap();
-                let e = libm::hypot(t.pos[0] - p[0] - dx, t.pos[1] - p[1] - dy);
-                worst = worst.max(e);
-                iters += t.iterations;
-                assert!(t.residual < 2.0, "residual {}", t.residual);
-            }
-        }
-        (worst, iters)
-    }
-
-    /// Max error 0.0145 px, mean 0.005 px over 35 points x 5 shifts x 2 filters when written;
-    /// the Gaussian pyramid needs 8-10 iterations per point (4 levels), the box 10-14.
-    #[test]
-    fn recovers_known_subpixel_shifts() {
-        for filter in [PyramidFilter::Gaussian5, PyramidFilter::Box2] {
-            for &(dx, dy) in &[
-                (0.3, -0.7),
-                (2.25, 1.5),
-                (-5.6, 3.3),
-                (12.4, -9.8),
-                (0.0, 0.0),
-            ] {
-                let (e, _) = max_error(dx, dy, filter, false);
-                assert!(
-                    e < 0.02,
-                    "{filter:?} shift ({dx}, {dy}): max error {e:.4} px"
-                );
-            }
-        }
-    }
-
-    #[test]
-    fn seeded_single_level_converges() {
-        let (e, iters) = max_error(3.7, -2.2, PyramidFilter::Gaussian5, true);
-        assert!(e < 0.02, "max error {e:.4} px");
-        // 35 points, one level: a few iterations each.
-        assert!(iters < 35 * 10, "{iters} iterations");
-    }
-
-    #[test]
-    fn border_block_replicates_edges() {
-        let img: std::vec::Vec<u8> = (0..50u8).collect(); // 10 x 5, value = 10 y + x
-        let v = ImageView::new(&img, 10, 5, 10).unwrap();
-        let mut patch = [0u8; MAX_SRC_H * MAX_SRC_W];
-        for &(ix, iy, cols, rows) in &[
-            (-3i64, -2i64, 6usize, 4usize),
-            (7, 3, 6, 4),
-            (-4, 1, 18, 2),
-            (12, 7, 3, 3),
-            (-9, -9, 4, 4),
-        ] {
-            let mut want = std::vec::Vec::new();
-            for r in 0..rows as i64 {
-                for c in 0..cols as i64 {
-                    want.push(v.clamped((ix + c) as isize, (iy + r) as isize));
-                }
-            }
-            let (src, stride, off) = source_block(&v, ix, iy, cols, rows, &mut patch);
-            assert_eq!((stride, off), (cols, 0));
-            assert_eq!(&src[..cols * rows], &want[..], "{ix} {iy} {cols} {rows}");
-        }
-    }
-
-    #[test]
-    fn weights_sum_to_256() {
-        for i in 0..=200 {
-            for j in 0..=200 {
-                let w = weights(f64::from(i) / 200.5, f64::from(j) / 200.5);
-                assert_eq!(w.iter().map(|&v| u32::from(v)).sum::<u32>(), 256, "{i} {j}");
-            }
-        }
-        assert_eq!(weights(0.0, 0.0), [256, 0, 0, 0]);
-        assert_eq!(weights(0.5, 0.5), [64, 64, 64, 64]);
-    }
-
-    #[test]
-    fn flat_template_and_bad_input_fail() {
-        let flat = std::vec![30u8; W * H];
-        let tex = render(W, H, 0.0, 0.0, texture);
-        let (pf, pt) = (
-            pyr(&flat, PyramidFilter::Gaussian5),
-            pyr(&tex, PyramidFilter::Gaussian5),
-        );
-        let cfg = LkConfig::default();
-        let mut s = std::boxed::Box::new(LkScratch::new());
-        assert_eq!(
-            track_point(&pf, &pt, [100.0, 100.0], [100.0, 100.0], 3, &cfg, &mut s),
-            Err(LkFailure::SmallEigen)
-        );
-        assert_eq!(
-            track_point(&pt, &pt, [f64::NAN, 1.0], [1.0, 1.0], 3, &cfg, &mut s),
-            Err(LkFailure::NonFinite)
-        );
-        assert_eq!(
-            track_point(&pt, &pt, [100.0, 100.0], [1e6, 1.0], 0, &cfg, &mut s),
-            Err(LkFailure::OutOfImage)
-        );
-        // Texture vs a flat target: converges nowhere useful; the residual check rejects it.
-        let r = track_point(&pt, &pf, [100.0, 100.0], [100.0, 100.0], 0, &cfg, &mut s);
-        assert!(r.is_err(), "{r:?}");
-        // A point at the image corner uses replicated borders and still tracks a zero shift.
-        let t = track_point(&pt, &pt, [1.0, 2.0], [1.0, 2.0], 3, &cfg, &mut s).unwrap();
-        assert!(libm::hypot(t.pos[0] - 1.0, t.pos[1] - 2.0) < 0.01, "{t:?}");
-        // An empty pyramid.
-        let empty = std::boxed::Box::new(Pyr::new());
-        assert_eq!(
-            track_point(&empty, &pt, [10.0, 10.0], [10.0, 10.0], 3, &cfg, &mut s),
-            Err(LkFailure::OutOfImage)
-        );
-    }
-}
+#[path = "lk_tests.rs"]
+mod tests;

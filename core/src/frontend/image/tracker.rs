@@ -101,6 +101,7 @@ impl TrackerConfig {
             coarse_epsilon_px: 0.0,
             min_eigen: 0.0,
             max_residual: 0.0,
+            photometric: super::affine::Photometric::None,
         },
         max_level: 0,
         predicted_max_level: 0,
