@@ -380,3 +380,21 @@ fn the_anchored_refinement_is_switched_from_toml() {
     d.reference.photometric = povins_core::frontend::image::Photometric::Offset;
     assert_eq!(t, d, "only the three keys change");
 }
+
+#[test]
+fn the_lk_photometric_model_is_set_from_toml() {
+    use povins_core::frontend::image::Photometric;
+    let f = RunConfigFile::parse("[frontend.lk]\nphotometric = \"gain_offset\"\n").expect("parses");
+    let (mut t, mut a) = (TrackerConfig::default(), VioAiding::default());
+    assert_eq!(t.lk.photometric, Photometric::None, "none by default");
+    f.apply_frontend(&mut t, &mut a).expect("frontend");
+    let mut d = TrackerConfig::default();
+    d.lk.photometric = Photometric::GainOffset;
+    assert_eq!(t, d, "only the one key changes");
+    let bad = RunConfigFile::parse("[frontend.lk]\nphotometric = \"gain\"\n").expect("parses");
+    let (mut t, mut a) = (TrackerConfig::default(), VioAiding::default());
+    assert!(
+        bad.apply_frontend(&mut t, &mut a).is_err(),
+        "unknown model rejected"
+    );
+}
