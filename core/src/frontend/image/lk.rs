@@ -20,7 +20,7 @@
 //!   and offset) is projected out (Baker & Matthews' *project out*): `A' = g^T (I - P) g`,
 //!   `b' = b - g^T P e`. `P e` needs the iteration's `sum e` and `sum T e` (two more multiply-adds
 //!   per pixel in the same `i32` pass, `T` stored less 1024); `g^T P` the template's `sum g`, `sum g T`,
-//!   `sum T`, `sum T^2` (exact `i64`). The eigenvalue test applies to the projected `A'`, so a
+//!   `sum T`, `sum T^2` (exact integers; [`photometric`] computes them in flat `i32` passes). The eigenvalue test applies to the projected `A'`, so a
 //!   window whose texture is only a brightness ramp is rejected, and the residual is that of
 //!   `(I - P) e`.
 //! - The guess carries to the next finer level through the pyramid's coordinate map.
@@ -41,6 +41,10 @@ use super::pyramid::{Pyramid, PyramidFilter};
 use super::view::ImageView;
 use crate::Error;
 
+mod photometric;
+use photometric::Projection;
+pub use photometric::{CONTRAST_CHANGE_RANGE, GAIN_CHANGE_RANGE, MIN_CORRELATION};
+
 /// Largest LK window side, px.
 pub const MAX_WINDOW: usize = 31;
 /// Padded row length of the largest window.
@@ -49,14 +53,6 @@ const MAX_PATCH_W: usize = MAX_WP + 2;
 const MAX_PATCH_H: usize = MAX_WINDOW + 2;
 const MAX_SRC_W: usize = MAX_PATCH_W + 1;
 const MAX_SRC_H: usize = MAX_PATCH_H + 1;
-/// With [`Photometric::GainOffset`], the accepted range of the fitted gain change `alpha - 1`
-/// of `J ~ alpha T + beta` at level 0 (gain 2/3 to 3/2): beyond it the point fails as
-/// [`LkFailure::Residual`].
-pub const GAIN_CHANGE_RANGE: (f64, f64) = (-1.0 / 3.0, 0.5);
-/// With [`Photometric::Offset`], the accepted range of the same fitted gain change (which the
-/// offset model does not remove): the target window must keep at least half of the template's
-/// contrast. Without it a textured template matches a flat target once the offset is removed.
-pub const CONTRAST_CHANGE_RANGE: (f64, f64) = (-0.5, 1.0);
 /// Bilinear weights sum to `2^WEIGHT_BITS`.
 const WEIGHT_BITS: u32 = 8;
 
@@ -91,10 +87,13 @@ pub struct LkConfig {
     /// default, `"offset"`, `"gain_offset"`). `"offset"` removes the drift that exposure
     /// changes cause (hand-held simulation with 2% exposure steps per frame: median error from
     /// the track's start 0.861 -> 0.554 px) and on real images (DM-VIO) keeps the tracks with
-    /// fewer epipolar violations; it is not yet the default because one track in 136 survived
-    /// onto a pure-noise image in the odd-image test. `"gain_offset"` fits the exposure model
-    /// exactly, but on real blurred frames the gain absorbs the contrast loss and those tracks
-    /// fail the gain range or the forward-backward check (BENCHMARKS.md, issue 14).
+    /// fewer epipolar violations; it is not yet the default: it costs a quarter more front-end
+    /// instructions, and its contrast check drops near-flat windows (dark, noise-dominated) that
+    /// the default keeps, so real sequences get slightly fewer and shorter tracks (DM-VIO: 135.9
+    /// vs 136.8 tracked per image). Noise-like targets are rejected by [`MIN_CORRELATION`].
+    /// `"gain_offset"` fits the exposure model exactly, but on real blurred frames the gain
+    /// absorbs the contrast loss and those tracks fail the gain range or the forward-backward
+    /// check (BENCHMARKS.md, issue 14).
     pub photometric: Photometric,
 }
 
@@ -144,8 +143,9 @@ pub enum LkFailure {
     SmallEigen,
     /// The window left the image, or the pyramid lacks a level.
     OutOfImage,
-    /// The final photometric residual was too large, or the fitted gain change left
-    /// [`GAIN_CHANGE_RANGE`].
+    /// The final photometric residual was too large; with a photometric model also: the fitted
+    /// gain change left [`GAIN_CHANGE_RANGE`] / [`CONTRAST_CHANGE_RANGE`], or the target's
+    /// correlation with the template fell below [`MIN_CORRELATION`].
     Residual,
     /// A position became non-finite.
     NonFinite,
@@ -172,115 +172,19 @@ struct Template {
     /// Gradients (`8 x grey / px`), zero in the padding.
     gx: [i16; MAX_WINDOW * MAX_WP],
     gy: [i16; MAX_WINDOW * MAX_WP],
-    /// For the photometric sums: 1 in the window, 0 in the padding.
-    mask: [i16; MAX_WINDOW * MAX_WP],
     /// `t - 1024` in the window, 0 in the padding (so `sum (t - 1024) e` fits `i32`:
     /// `2040 * 1024 * 31 * 32 < 2^31`).
     t_off: [i16; MAX_WINDOW * MAX_WP],
+    /// For the photometric sums, per window side in `mask_wins` (the fine and the coarse
+    /// levels' windows alternate): 1 in the window, 0 in the padding.
+    masks: [[i16; MAX_WINDOW * MAX_WP]; 2],
+    mask_wins: [usize; 2],
     /// `A` (projected by `proj` when there is one).
     a11: f64,
     a12: f64,
     a22: f64,
     /// The template's sums for the photometric projection.
     proj: Option<Projection>,
-}
-
-/// The template's part of the photometric projection `P` (see the module docs): with `n` the
-/// window's pixel count, `s = sum g`, `st = n sum g T - s sum T = n sum g Tc` (`Tc` the centred
-/// template) and `var = n sum T^2 - (sum T)^2 = n sum Tc^2`, exact integers.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Projection {
-    gain: bool,
-    n: i64,
-    s: [i64; 2],
-    st: [i64; 2],
-    var: i64,
-    sum_t: i64,
-}
-
-impl Projection {
-    /// The sums of a template (`t`, `gx`, `gy` rows of `wp`, zero padding beyond `win`).
-    fn of(t: &[i16], gx: &[i16], gy: &[i16], win: usize, gain: bool) -> Self {
-        let wp = padded(win);
-        let (mut s, mut sgt) = ([0i64; 2], [0i64; 2]);
-        let (mut sum_t, mut sum_tt) = (0i64, 0i64);
-        let rows = t
-            .chunks_exact(wp)
-            .zip(gx.chunks_exact(wp))
-            .zip(gy.chunks_exact(wp))
-            .take(win);
-        for ((t, gx), gy) in rows {
-            for ((&t, &x), &y) in t.iter().zip(gx).zip(gy).take(win) {
-                let (t, x, y) = (i64::from(t), i64::from(x), i64::from(y));
-                s[0] += x;
-                s[1] += y;
-                sgt[0] += x * t;
-                sgt[1] += y * t;
-                sum_t += t;
-                sum_tt += t * t;
-            }
-        }
-        let n = (win * win) as i64;
-        Projection {
-            gain,
-            n,
-            s,
-            st: [n * sgt[0] - s[0] * sum_t, n * sgt[1] - s[1] * sum_t],
-            var: n * sum_tt - sum_t * sum_t,
-            sum_t,
-        }
-    }
-
-    /// Whether the gain direction is projected (a flat template has none).
-    fn with_gain(&self) -> bool {
-        self.gain && self.var > 0
-    }
-
-    /// `g^T P g` (`[11, 12, 22]`), what the projection removes from `A`.
-    fn removed_hessian(&self) -> [f64; 3] {
-        let n = self.n as f64;
-        let s = self.s.map(|v| v as f64);
-        let mut r = [s[0] * s[0] / n, s[0] * s[1] / n, s[1] * s[1] / n];
-        if self.with_gain() {
-            let st = self.st.map(|v| v as f64);
-            let vn = self.var as f64 * n;
-            r[0] += st[0] * st[0] / vn;
-            r[1] += st[0] * st[1] / vn;
-            r[2] += st[1] * st[1] / vn;
-        }
-        r
-    }
-
-    /// What one iteration's `sum e` and `sum T e` remove: `g^T P e`, and `[mean e, k]` with
-    /// `P e = mean(e) + k Tc` (`k = 0` without the gain). Also the fitted gain change
-    /// `sum Tc e / sum Tc^2` (`alpha - 1` of `J ~ alpha T + beta`), computed for both models.
-    fn removed_gradient(&self, se: i64, ste: i64) -> ([f64; 2], [f64; 2], f64) {
-        let n = self.n as f64;
-        let mean = se as f64 / n;
-        let mut out = [mean * self.s[0] as f64, mean * self.s[1] as f64];
-        // k = sum Tc e / sum Tc^2 = c / var with c = n sum Tc e.
-        let k_fit = if self.var > 0 {
-            (self.n * ste - self.sum_t * se) as f64 / self.var as f64
-        } else {
-            0.0
-        };
-        let mut k = 0.0;
-        if self.with_gain() {
-            k = k_fit;
-            out[0] += k * self.st[0] as f64 / n;
-            out[1] += k * self.st[1] as f64 / n;
-        }
-        (out, [mean, k], k_fit)
-    }
-
-    /// Accepted range of the fitted gain change at level 0.
-    fn gain_range(&self) -> (f64, f64) {
-        if self.gain {
-            GAIN_CHANGE_RANGE
-        } else {
-            CONTRAST_CHANGE_RANGE
-        }
-    }
 }
 
 /// Scratch of one LK track (about 12 KiB): the template, the interpolated patch, the window
@@ -307,8 +211,9 @@ impl LkScratch {
                 t: [0; MAX_WINDOW * MAX_WP],
                 gx: [0; MAX_WINDOW * MAX_WP],
                 gy: [0; MAX_WINDOW * MAX_WP],
-                mask: [0; MAX_WINDOW * MAX_WP],
                 t_off: [0; MAX_WINDOW * MAX_WP],
+                masks: [[0; MAX_WINDOW * MAX_WP]; 2],
+                mask_wins: [0; 2],
                 a11: 0.0,
                 a12: 0.0,
                 a22: 0.0,
@@ -554,30 +459,8 @@ impl Template {
         self.a11 = f64::from(a11);
         self.a12 = f64::from(a12);
         self.a22 = f64::from(a22);
-        self.proj = match photo {
-            Photometric::None => None,
-            Photometric::Offset | Photometric::GainOffset => Some(Projection::of(
-                &self.t,
-                &self.gx,
-                &self.gy,
-                win,
-                photo == Photometric::GainOffset,
-            )),
-        };
+        self.proj = self.projection(win, photo);
         if let Some(p) = &self.proj {
-            let rows = self
-                .mask
-                .chunks_exact_mut(wp)
-                .zip(self.t_off.chunks_exact_mut(wp))
-                .zip(self.t.chunks_exact(wp))
-                .take(win);
-            for ((m, to), t) in rows {
-                for (i, ((m, to), &t)) in m.iter_mut().zip(to.iter_mut()).zip(t).enumerate() {
-                    let inside = i < win;
-                    *m = i16::from(inside);
-                    *to = if inside { t - 1024 } else { 0 };
-                }
-            }
             let [r11, r12, r22] = p.removed_hessian();
             self.a11 -= r11;
             self.a12 -= r12;
@@ -662,7 +545,7 @@ fn window_sums(
     let (bx, by) = if photo {
         // One flat multiply-add pass for the four sums: sum e = sum mask e and
         // sum T e = sum (T - 1024) e + 1024 sum e.
-        let (m, to) = (tmpl.mask.get(..n)?, tmpl.t_off.get(..n)?);
+        let (m, to) = (tmpl.mask(win)?.get(..n)?, tmpl.t_off.get(..n)?);
         let [bx, by, se, sto] = dot4(d, gx, gy, m, to);
         out.se = i64::from(se);
         out.ste = i64::from(sto) + 1024 * i64::from(se);
@@ -679,10 +562,7 @@ fn window_sums(
 fn window_residual(diff: &[i16], tmpl: &Template, win: usize, removed: [f64; 2]) -> f32 {
     let wp = padded(win);
     let [mean, k] = removed;
-    let t_mean = match &tmpl.proj {
-        Some(p) if p.n > 0 => p.sum_t as f64 / p.n as f64,
-        _ => 0.0,
-    };
+    let t_mean = tmpl.proj.map_or(0.0, |p| p.mean_t());
     let mut s = 0.0f64;
     for (row, t) in diff.chunks_exact(wp).zip(tmpl.t.chunks_exact(wp)).take(win) {
         for (&d, &t) in row.iter().zip(t).take(win) {
@@ -797,10 +677,17 @@ fn refine_level(
         // A gain far from 1 means the fit explained the window by the brightness model (a
         // textured template against a flat target is `J = 0 T + beta`), not by a motion.
         // Without a photometric model the residual check alone decides, as before.
-        let (lo, hi) = tmpl.proj.map_or((0.0, 0.0), |p| p.gain_range());
-        if photo && !(lo..=hi).contains(&gain_change) {
-            run.outcome = Err(LkFailure::Residual);
-            return run;
+        // With the brightness removed, the residual alone no longer separates a match from
+        // unrelated texture (interpolated noise leaves a mean |e - mean| near 30 grey levels):
+        // the target must also correlate with the template.
+        if let Some(p) = &tmpl.proj {
+            let (lo, hi) = p.gain_range();
+            if !(lo..=hi).contains(&gain_change)
+                || tmpl.correlation(diff, win, p) < photometric::MIN_CORRELATION
+            {
+                run.outcome = Err(LkFailure::Residual);
+                return run;
+            }
         }
         *res = window_residual(diff, tmpl, win, removed);
     }

@@ -332,3 +332,134 @@ fn compensation_recovers_shifts_under_gain_and_offset() {
         "{offset_none} vs {offset_only}"
     );
 }
+
+/// Tracks a grid of points of the textured frame into uniform noise of `amplitude` grey levels
+/// around mid-grey: `(tracked with the window inside the image, tracked at the border,
+/// photometric failures)`.
+fn onto_noise(photo: Photometric, contrast: f64, amplitude: u32) -> (u32, u32, u32) {
+    let a = render(W, H, 0.0, 0.0, |x, y| {
+        128.0 + contrast * (texture(x, y) - 128.0)
+    });
+    let mut s = 0x2545_f491_4f6c_dd1du64;
+    let b: std::vec::Vec<u8> = (0..W * H)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (128 - amplitude as i64 / 2 + ((s >> 32) % u64::from(amplitude + 1)) as i64) as u8
+        })
+        .collect();
+    let (pa, pb) = (
+        pyr(&a, PyramidFilter::Gaussian5),
+        pyr(&b, PyramidFilter::Gaussian5),
+    );
+    let mut scratch = std::boxed::Box::new(LkScratch::new());
+    let cfg = LkConfig {
+        photometric: photo,
+        ..LkConfig::default()
+    };
+    let (mut inside, mut border, mut residual) = (0, 0, 0);
+    let half = (cfg.window / 2) as f64;
+    for y in (20..=220).step_by(10) {
+        for x in (20..=300).step_by(10) {
+            let p = [x as f64 + 0.37, y as f64 - 0.21];
+            match track_point(&pa, &pb, p, p, 3, &cfg, &mut scratch) {
+                Ok(t) => {
+                    let [u, v] = t.pos;
+                    if u >= half
+                        && v >= half
+                        && u <= (W - 1) as f64 - half
+                        && v <= (H - 1) as f64 - half
+                    {
+                        inside += 1;
+                    } else {
+                        border += 1;
+                    }
+                }
+                Err(LkFailure::Residual) => residual += 1,
+                Err(_) => {}
+            }
+        }
+    }
+    (inside, border, residual)
+}
+
+/// A textured frame followed by noise (a corrupted image): with the brightness removed, the
+/// mean residual of noise is below `max_residual`, and against a weak template the fitted gain
+/// is too noisy to fail the contrast range, so without the correlation test points are
+/// "tracked" onto it (17 of 588 with a quarter of the texture's contrast when written; 1 with
+/// a threshold of 0.3). No point whose window stays inside the image may be, and the failures
+/// are photometric ([`LkFailure::Residual`]).
+#[test]
+fn noise_target_is_never_a_match_with_photometric_models() {
+    for photo in [Photometric::Offset, Photometric::GainOffset] {
+        for (contrast, amplitude) in [
+            (1.0, 255),
+            (0.25, 255),
+            (0.15, 255),
+            (0.15, 128),
+            (0.1, 255),
+        ] {
+            let (inside, _border, residual) = onto_noise(photo, contrast, amplitude);
+            assert_eq!(
+                inside, 0,
+                "{photo:?}, contrast {contrast}, amplitude {amplitude}"
+            );
+            assert!(residual > 300, "{photo:?}: {residual} photometric failures");
+        }
+    }
+}
+
+/// The correlation from the integer sums equals the one computed in `f64`, and is scale- and
+/// offset-invariant: `J = 2 T + 100` correlates 1, `J = 300 - T` correlates -1.
+#[test]
+fn correlation_matches_the_float_formula() {
+    let a = render(W, H, 0.0, 0.0, texture);
+    let va = ImageView::new(&a, W, H, W).unwrap();
+    let mut s = std::boxed::Box::new(LkScratch::new());
+    let LkScratch {
+        tmpl,
+        interp,
+        diff,
+        patch,
+    } = &mut *s;
+    let win = 21;
+    let wp = padded(win);
+    tmpl.build(&va, 100.3, 80.7, win, Photometric::Offset, interp, patch)
+        .unwrap();
+    let pr = tmpl.proj.unwrap();
+    for (case, f) in [
+        (1.0, (|t: i16| 2 * t - t / 2) as fn(i16) -> i16),
+        (-1.0, |t: i16| 2040 - t),
+        (f64::NAN, |t: i16| ((t as i32 * 7919) % 2041) as i16),
+    ] {
+        let (mut jt, mut jj, mut tt) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut mt, mut mj) = (0.0f64, 0.0f64);
+        for r in 0..win {
+            for c in 0..win {
+                let t = tmpl.t[r * wp + c];
+                let j = f(t);
+                diff[r * wp + c] = j - t;
+                mt += f64::from(t);
+                mj += f64::from(j);
+            }
+        }
+        let n = (win * win) as f64;
+        (mt, mj) = (mt / n, mj / n);
+        for r in 0..win {
+            for c in 0..win {
+                let t = f64::from(tmpl.t[r * wp + c]);
+                let j = t + f64::from(diff[r * wp + c]);
+                jt += (j - mj) * (t - mt);
+                jj += (j - mj) * (j - mj);
+                tt += (t - mt) * (t - mt);
+            }
+        }
+        let want = jt / (jj * tt).sqrt();
+        let got = tmpl.correlation(diff, win, &pr);
+        assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+        if !case.is_nan() {
+            assert!((got - case).abs() < 1e-3, "{got} vs {case}");
+        }
+    }
+}
