@@ -18,11 +18,13 @@
 //!   explain the brightness change with the gradients. As in the anchored refinement
 //!   ([`super::affine`]), the error's component in the span of `{1}` (offset) or `{1, T}` (gain
 //!   and offset) is projected out (Baker & Matthews' *project out*): `A' = g^T (I - P) g`,
-//!   `b' = b - g^T P e`. `P e` needs the iteration's `sum e` and `sum T e` (two more multiply-adds
-//!   per pixel in the same `i32` pass, `T` stored less 1024); `g^T P` the template's `sum g`, `sum g T`,
-//!   `sum T`, `sum T^2` (exact integers; [`photometric`] computes them in flat `i32` passes). The eigenvalue test applies to the projected `A'`, so a
-//!   window whose texture is only a brightness ramp is rejected, and the residual is that of
-//!   `(I - P) e`.
+//!   `b' = b - g^T P e`. `P e` needs the iteration's `sum e` and `sum T e` (two more
+//!   multiply-adds per pixel in the same `i32` pass, `T` stored less 1024); `g^T P` the
+//!   template's `sum g`, `sum g T`, `sum T`, `sum T^2` (exact integers, from one flat `i32` pass in
+//!   the `photometric` submodule). The eigenvalue test applies to the projected `A'`, so a window
+//!   whose texture is only a brightness ramp is rejected, and the residual is that of `(I - P) e`.
+//!   As the residual without the brightness no longer separates a match from unrelated texture,
+//!   the target must also correlate with the template ([`MIN_CORRELATION`]).
 //! - The guess carries to the next finer level through the pyramid's coordinate map.
 //!
 //! Rows are padded to a multiple of 8 pixels with zero template gradients (so the padding adds
@@ -87,10 +89,11 @@ pub struct LkConfig {
     /// default, `"offset"`, `"gain_offset"`). `"offset"` removes the drift that exposure
     /// changes cause (hand-held simulation with 2% exposure steps per frame: median error from
     /// the track's start 0.861 -> 0.554 px) and on real images (DM-VIO) keeps the tracks with
-    /// fewer epipolar violations; it is not yet the default: it costs a quarter more front-end
-    /// instructions, and its contrast check drops near-flat windows (dark, noise-dominated) that
-    /// the default keeps, so real sequences get slightly fewer and shorter tracks (DM-VIO: 135.9
-    /// vs 136.8 tracked per image). Noise-like targets are rejected by [`MIN_CORRELATION`].
+    /// fewer epipolar violations. It is not the default: where the brightness does not change it
+    /// only removes a constraint (simulated EuRoC-like flights: ATE +22-57%, while hand-held and
+    /// robot sequences gain 6-42%), it costs a quarter more front-end instructions, and its
+    /// contrast check drops near-flat, noise-dominated windows that the default keeps (DM-VIO:
+    /// 135.9 vs 136.8 tracked per image). Noise-like targets fail [`MIN_CORRELATION`].
     /// `"gain_offset"` fits the exposure model exactly, but on real blurred frames the gain
     /// absorbs the contrast loss and those tracks fail the gain range or the forward-backward
     /// check (BENCHMARKS.md, issue 14).
