@@ -72,7 +72,7 @@ impl<
     ///
     /// Errors: [`Error::NotInitialized`] before initialization; [`Error::OutOfRange`] when
     /// `t_cam_ns + td` lies before the buffered INS states (they cover the last
-    /// [`super::INS_WINDOW`] IMU samples) or more than [`MAX_EXTRAPOLATION_NS`] after the newest.
+    /// [`super::INS_WINDOW`] IMU samples) or more than `MAX_EXTRAPOLATION_NS` (50 ms) after the newest.
     pub fn predict_features(
         &self,
         t_cam_ns: i64,

@@ -2,10 +2,11 @@
 //!
 //! The landmark slots are few (`L`) and the tracks many: a keyframe typically holds 100-250
 //! features, and the window sees 300-500 distinct tracks in two or more of its keyframes. Which
-//! tracks hold a slot is decided anew at every keyframe ([`super::LandmarkManager::select`]); the
-//! store keeps each keyframe's observations (sorted by track id) so that a track promoted late
-//! still brings every observation it has in the window, and an evicted landmark loses nothing
-//! that a later promotion could not restore.
+//! tracks hold a slot is decided anew at every keyframe
+//! ([`super::LandmarkManager::candidates`], [`super::LandmarkManager::promote`]); the store
+//! keeps each keyframe's observations (sorted by track id) so that a track promoted late still
+//! brings every observation it has in the window, and an evicted landmark loses nothing that a
+//! later promotion could not restore.
 //!
 //! Positions are window positions (`0` = oldest), as in the landmark manager; the store is a ring
 //! that drops position 0 when the oldest keyframe leaves the window.

@@ -8,7 +8,7 @@
 //!   existing tracks (occupancy mask).
 //! - [`track_point`]: pyramidal Lucas-Kanade of one point in OpenCV's fixed-point arithmetic.
 //! - [`ransac`]: geometric outlier rejection, 2-point with the gyro rotation or 8-point.
-//! - [`reference`], [`affine`]: optional anchored refinement of each track against the patch
+//! - [`reference`](mod@reference), [`affine`]: optional anchored refinement of each track against the patch
 //!   of its reference observation (affine LK), which removes the frame-to-frame drift.
 //! - [`FeatureTracker`]: all of it per frame, with INS / gyro seeding, a forward-backward
 //!   check, ids and ages; [`FeatureTracker::features`] are the
