@@ -172,6 +172,25 @@ fn solve4(mut m: [[f64; 4]; 4], mut v: [f64; 4]) -> [f64; 4] {
     x
 }
 
+/// Scratch holding the template of side `win` at `(x, y)` of `img`.
+fn with_template(
+    img: &ImageView,
+    x: f64,
+    y: f64,
+    win: usize,
+    photo: Photometric,
+) -> std::boxed::Box<LkScratch> {
+    let mut s = std::boxed::Box::new(LkScratch::new());
+    let LkScratch {
+        tmpl,
+        interp,
+        patch,
+        ..
+    } = &mut *s;
+    tmpl.build(img, x, y, win, photo, interp, patch).unwrap();
+    s
+}
+
 /// The projected step equals the translation part of the joint least-squares fit of
 /// `e ~ g d + alpha T + beta` (Frisch-Waugh-Lovell), built here explicitly in `f64` from the
 /// template's values, gradients and the window's differences; the compensated residual equals
@@ -193,14 +212,10 @@ fn projected_step_equals_the_joint_least_squares_fit() {
             (15, 201.6, 150.2, 202.0, 149.9),
             (9, 60.0, 170.5, 60.5, 170.5),
         ] {
-            let mut s = std::boxed::Box::new(LkScratch::new());
+            let mut s = with_template(&va, px, py, win, photo);
             let LkScratch {
-                tmpl,
-                interp,
-                diff,
-                patch,
+                tmpl, diff, patch, ..
             } = &mut *s;
-            tmpl.build(&va, px, py, win, photo, interp, patch).unwrap();
             let half = (win / 2) as f64;
             let (xt, yt) = (qx - half, qy - half);
             let (fx, fy) = (libm::floor(xt), libm::floor(yt));
@@ -411,22 +426,15 @@ fn noise_target_is_never_a_match_with_photometric_models() {
 }
 
 /// The correlation from the integer sums equals the one computed in `f64`, and is scale- and
-/// offset-invariant: `J = 2 T + 100` correlates 1, `J = 300 - T` correlates -1.
+/// offset-invariant: `J = 1.5 T` correlates 1, `J = 2040 - T` (x 8 grey) correlates -1.
 #[test]
 fn correlation_matches_the_float_formula() {
     let a = render(W, H, 0.0, 0.0, texture);
     let va = ImageView::new(&a, W, H, W).unwrap();
-    let mut s = std::boxed::Box::new(LkScratch::new());
-    let LkScratch {
-        tmpl,
-        interp,
-        diff,
-        patch,
-    } = &mut *s;
     let win = 21;
     let wp = padded(win);
-    tmpl.build(&va, 100.3, 80.7, win, Photometric::Offset, interp, patch)
-        .unwrap();
+    let mut s = with_template(&va, 100.3, 80.7, win, Photometric::Offset);
+    let LkScratch { tmpl, diff, .. } = &mut *s;
     let pr = tmpl.proj.unwrap();
     for (case, f) in [
         (1.0, (|t: i16| 2 * t - t / 2) as fn(i16) -> i16),
