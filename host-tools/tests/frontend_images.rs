@@ -238,7 +238,9 @@ fn odd_images_are_counted_never_fatal_and_the_replay_is_deterministic() {
                 run.logs
                     .iter()
                     .find(|f| f.t_ns == t_ns)
-                    .map_or(0, |f| f.stats().tracked)
+                    .unwrap_or_else(|| panic!("image {k} was not tracked"))
+                    .stats()
+                    .tracked
             };
             for k in [32, 36, 40] {
                 assert_eq!(tracked(&p, k), 0, "{photometric:?}, image {k}");

@@ -190,7 +190,7 @@ struct Template {
     proj: Option<Projection>,
 }
 
-/// Scratch of one LK track (about 12 KiB): the template, the interpolated patch, the window
+/// Scratch of one LK track (about 17 KiB): the template, the interpolated patch, the window
 /// differences and the border patch.
 #[derive(Clone)]
 pub struct LkScratch {
