@@ -435,10 +435,11 @@ impl<const S: usize> GyroIntegrator<S> {
 mod tests {
     extern crate std;
     use super::*;
-    use crate::camera::{CameraExtrinsic, Distortion, PinholeCamera};
+    use crate::camera::CameraExtrinsic;
     use crate::estimator::EstimatorConfig;
-    use crate::frontend::image::testutil::{big_stack, noise, texture};
-    use crate::frontend::image::DetectorConfig;
+    use crate::frontend::image::testutil::{
+        big_stack, noise, render_rotated, small_tracker_config as trk_cfg, test_camera as cam,
+    };
     use crate::inertial::ImuNoise;
     use crate::math::Quat;
     use std::vec::Vec;
@@ -446,18 +447,6 @@ mod tests {
     const W: usize = 320;
     const H: usize = 240;
     type SmallVio = Vio<10, 200, 166, 64, { pyramid_bytes(W, H, 4) }, 4>;
-
-    fn cam() -> PinholeCamera {
-        PinholeCamera {
-            width: W as u32,
-            height: H as u32,
-            fx: 300.0,
-            fy: 300.0,
-            cx: 159.5,
-            cy: 119.5,
-            distortion: Distortion::None,
-        }
-    }
 
     /// Camera axes: x right, y down, z forward; the body is the camera turned so that its z
     /// is up: `R_bc` maps camera y (down) to body -z.
@@ -479,36 +468,11 @@ mod tests {
         c
     }
 
-    fn trk_cfg() -> TrackerConfig {
-        TrackerConfig {
-            max_features: 40,
-            detector: DetectorConfig {
-                grid_cols: 4,
-                grid_rows: 3,
-                max_per_cell: 5,
-                min_distance_px: 15.0,
-                ..DetectorConfig::default()
-            },
-            ..TrackerConfig::default()
-        }
-    }
-
     /// The camera after yawing (about body z = camera -y) by `yaw` rad, looking at a textured
     /// plane at infinity.
     fn render_yawed(yaw: f64) -> Vec<u8> {
-        let c = cam();
         // Body yaw about z -> camera rotation about -y.
-        let r_w_c = exp_so3(&Vec3::new(0.0, -yaw, 0.0));
-        let mut img = Vec::with_capacity(W * H);
-        for v in 0..H {
-            for u in 0..W {
-                let ray = Vec3::new((u as f64 - c.cx) / c.fx, (v as f64 - c.cy) / c.fy, 1.0);
-                let d = r_w_c * ray;
-                let val = texture(300.0 * d.x / d.z, 300.0 * d.y / d.z);
-                img.push(libm::round(val).clamp(0.0, 255.0) as u8);
-            }
-        }
-        img
+        render_rotated(&exp_so3(&Vec3::new(0.0, -yaw, 0.0)))
     }
 
     #[test]

@@ -3,11 +3,11 @@
 #[cfg(test)]
 extern crate std;
 use super::super::pyramid::pyramid_bytes;
-use super::super::testutil::{big_stack, render, texture};
+use super::super::testutil::{big_stack, render, test_camera as cam, texture};
 use super::super::tracker::{FeatureTracker, TrackHints, TrackerConfig};
 use super::super::DetectorConfig;
 use super::*;
-use crate::camera::{Distortion, FeatureObs, PinholeCamera};
+use crate::camera::FeatureObs;
 use std::vec::Vec;
 
 const W: usize = 320;
@@ -115,18 +115,6 @@ fn invalid_settings_are_refused_only_when_on() {
         },
     ] {
         assert_eq!(bad.validate(), Err(Error::InvalidConfig), "{bad:?}");
-    }
-}
-
-fn cam() -> PinholeCamera {
-    PinholeCamera {
-        width: W as u32,
-        height: H as u32,
-        fx: 300.0,
-        fy: 300.0,
-        cx: 159.5,
-        cy: 119.5,
-        distortion: Distortion::None,
     }
 }
 

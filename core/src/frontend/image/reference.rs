@@ -312,9 +312,7 @@ mod tests {
     use super::super::pyramid::pyramid_bytes;
     use super::super::testutil::{big_stack, render, texture};
     use super::super::tracker::{FeatureTracker, TrackHints, TrackerConfig};
-    use super::super::DetectorConfig;
     use super::*;
-    use crate::camera::{Distortion, PinholeCamera};
     use std::vec::Vec;
 
     const W: usize = 320;
@@ -419,14 +417,6 @@ mod tests {
     fn drift(enabled: bool, frames: u32) -> (f64, f64, usize) {
         big_stack(move || {
             let cfg = TrackerConfig {
-                max_features: 40,
-                detector: DetectorConfig {
-                    grid_cols: 4,
-                    grid_rows: 3,
-                    max_per_cell: 5,
-                    min_distance_px: 15.0,
-                    ..DetectorConfig::default()
-                },
                 reference: ReferenceConfig {
                     enabled,
                     window: 21,
@@ -434,17 +424,9 @@ mod tests {
                     drop_shift_px: 2.0,
                     ..ReferenceConfig::default()
                 },
-                ..TrackerConfig::default()
+                ..super::super::testutil::small_tracker_config()
             };
-            let cam = PinholeCamera {
-                width: W as u32,
-                height: H as u32,
-                fx: 300.0,
-                fy: 300.0,
-                cx: 159.5,
-                cy: 119.5,
-                distortion: Distortion::None,
-            };
+            let cam = super::super::testutil::test_camera();
             let (sx, sy) = (0.31, -0.17);
             let mut t = Small::new(cfg).unwrap();
             let mut first = Vec::new();

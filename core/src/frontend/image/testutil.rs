@@ -64,3 +64,53 @@ pub fn big_stack<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T
         .join()
         .unwrap()
 }
+
+/// Width of the unit tests' camera and images, px.
+pub const TEST_W: usize = 320;
+/// Height of the unit tests' camera and images, px.
+pub const TEST_H: usize = 240;
+
+/// The unit tests' pinhole camera: `TEST_W x TEST_H`, focal 300 px, centred, no distortion.
+pub fn test_camera() -> crate::camera::PinholeCamera {
+    crate::camera::PinholeCamera {
+        width: TEST_W as u32,
+        height: TEST_H as u32,
+        fx: 300.0,
+        fy: 300.0,
+        cx: 159.5,
+        cy: 119.5,
+        distortion: crate::camera::Distortion::None,
+    }
+}
+
+/// The [`texture`] on the plane `z = 1` of the world (300 px per unit) seen through
+/// [`test_camera`] rotated by `r_world_cam`.
+pub fn render_rotated(r_world_cam: &crate::math::Mat3) -> Vec<u8> {
+    let c = test_camera();
+    let mut img = Vec::with_capacity(TEST_W * TEST_H);
+    for v in 0..TEST_H {
+        for u in 0..TEST_W {
+            let ray =
+                crate::math::Vec3::new((u as f64 - c.cx) / c.fx, (v as f64 - c.cy) / c.fy, 1.0);
+            let d = r_world_cam * ray;
+            let val = texture(300.0 * d.x / d.z, 300.0 * d.y / d.z);
+            img.push(libm::round(val).clamp(0.0, 255.0) as u8);
+        }
+    }
+    img
+}
+
+/// The unit tests' small tracker: 40 features on a 4 x 3 grid, at most 5 per cell, 15 px apart.
+pub fn small_tracker_config() -> super::TrackerConfig {
+    super::TrackerConfig {
+        max_features: 40,
+        detector: super::DetectorConfig {
+            grid_cols: 4,
+            grid_rows: 3,
+            max_per_cell: 5,
+            min_distance_px: 15.0,
+            ..super::DetectorConfig::default()
+        },
+        ..super::TrackerConfig::default()
+    }
+}

@@ -1,8 +1,10 @@
 //! Tests of `tracker.rs` (included as its `#[cfg(test)]` module).
 extern crate std;
-use super::super::testutil::{big_stack, noise, render, texture};
+use super::super::testutil::{
+    big_stack, noise, render, render_rotated, small_tracker_config as cfg, test_camera as cam,
+    texture,
+};
 use super::*;
-use crate::camera::Distortion;
 use crate::math::{exp_so3, Vec3};
 use std::vec::Vec;
 
@@ -10,50 +12,8 @@ const W: usize = 320;
 const H: usize = 240;
 type Small = FeatureTracker<64, { pyramid_bytes(W, H, 4) }, 4>;
 
-fn cam() -> PinholeCamera {
-    PinholeCamera {
-        width: W as u32,
-        height: H as u32,
-        fx: 300.0,
-        fy: 300.0,
-        cx: 159.5,
-        cy: 119.5,
-        distortion: Distortion::None,
-    }
-}
-
-fn cfg() -> TrackerConfig {
-    TrackerConfig {
-        max_features: 40,
-        detector: DetectorConfig {
-            grid_cols: 4,
-            grid_rows: 3,
-            max_per_cell: 5,
-            min_distance_px: 15.0,
-            ..DetectorConfig::default()
-        },
-        ..TrackerConfig::default()
-    }
-}
-
 fn view(img: &[u8]) -> ImageView<'_> {
     ImageView::new(img, W, H, W).unwrap()
-}
-
-/// A camera rotating by `rot` (camera frame) in front of a textured plane at infinity:
-/// pixel -> ray -> rotated ray -> texture at 300 x (x / z, y / z).
-fn render_rotated(r_world_cam: &Mat3) -> Vec<u8> {
-    let c = cam();
-    let mut img = Vec::with_capacity(W * H);
-    for v in 0..H {
-        for u in 0..W {
-            let ray = Vec3::new((u as f64 - c.cx) / c.fx, (v as f64 - c.cy) / c.fy, 1.0);
-            let d = r_world_cam * ray;
-            let val = texture(300.0 * d.x / d.z, 300.0 * d.y / d.z);
-            img.push(libm::round(val).clamp(0.0, 255.0) as u8);
-        }
-    }
-    img
 }
 
 #[test]
