@@ -150,9 +150,9 @@ pub struct EstimatorConfig {
     /// The second LM pass runs when the chi-square cull removed at least this fraction of the
     /// observations (and at least one): an outlier burst. Removing a few Huber-weighted outliers
     /// barely moves the optimum, and the next keyframe's solve starts from there anyway (0.02
-    /// before 2026-11-29, a second pass at 63% of the corridor's keyframes: never running it
-    /// changed the ATE by a geometric mean ratio of 0.98 over 102 regression sequences, and the
-    /// corridor's back end by 0.88x).
+    /// before 2026-11-29, a second pass at 63% of the corridor's keyframes; 0.1 gave an ATE
+    /// geometric mean ratio of 0.965 over 102 regression sequences and the corridor's back-end
+    /// median 1.99 -> 1.74 ms).
     pub second_pass_min_culled_frac: f64,
     /// Drop a landmark whose mean reprojection error exceeds this after the solve, px.
     pub cull_mean_px: f64,
@@ -215,11 +215,12 @@ impl EstimatorConfig {
     ) -> Self {
         // A relative cost decrease of 1e-3 (a few units of the whitened cost: a step within
         // about one standard deviation of the estimate) ends the solve. 1e-2 was tried
-        // (2026-11-29): 28% less back-end time on the corridor and no worse over 102 regression
-        // sequences, but a single Gauss-Newton step per keyframe leaves the prior linearized
-        // at less converged states: on a 60 s vehicle run the prior's yaw standard deviation
-        // shrank at 59 marginalizations instead of 25 (spurious gauge information) and the
-        // ATE went from 1.6 to 12 m. The damping starts almost at Gauss-Newton: Marquardt damping
+        // (2026-11-29; with the second pass's 0.1: corridor back end 1.74 -> 1.30 ms, ATE
+        // geometric mean 1.00 over 102 regression sequences against 0.1 alone), but about one
+        // Gauss-Newton step per keyframe leaves the prior linearized at less converged states:
+        // on a 60 s vehicle run the prior's yaw standard deviation shrank at 59 marginalizations
+        // instead of 21 (spurious gauge information) and the ATE went from 1.5 to 12 m. The
+        // damping starts almost at Gauss-Newton: Marquardt damping
         // scales with diag(H), which a precise IMU makes huge, and then freezes the weakly
         // observable directions (velocity/scale along a nearly straight path) that the
         // optimization exists to correct (measured on the simulator: 2-6x lower ATE).
