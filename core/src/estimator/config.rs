@@ -216,7 +216,7 @@ impl EstimatorConfig {
         // A relative cost decrease of 1e-3 (a few units of the whitened cost: a step within
         // about one standard deviation of the estimate) ends the solve. 1e-2 was tried
         // (2026-11-29; with the second pass's 0.1: corridor back end 1.74 -> 1.30 ms, ATE
-        // geometric mean 1.00 over 102 regression sequences against 0.1 alone), but about one
+        // geometric mean 1.013 over 102 regression sequences against 0.1 alone), but about one
         // Gauss-Newton step per keyframe leaves the prior linearized at less converged states:
         // on a 60 s vehicle run the prior's yaw standard deviation shrank at 59 marginalizations
         // instead of 21 (spurious gauge information) and the ATE went from 1.5 to 12 m. The
