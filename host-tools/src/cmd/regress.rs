@@ -14,7 +14,8 @@ pub struct Args {
     #[arg(long)]
     pub quick: bool,
     /// Seeds per scenario (default 10, or 8 with `--quick`); the stored figures cover seeds
-    /// 1-10, further seeds are judged on divergence only.
+    /// 1-20 of 60 s and 1-8 of 30 s, a scenario with a seed beyond them is judged on divergence
+    /// only.
     #[arg(long)]
     pub seeds: Option<u64>,
     /// Folder of the shared datasets.
