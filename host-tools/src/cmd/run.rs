@@ -143,6 +143,9 @@ pub struct Summary {
     pub estimator_ms_per_camera_frame: f64,
     /// Median landmarks in the final solve of a keyframe.
     pub landmarks_used_median: f64,
+    /// What the window offers and uses, over the keyframes whose window holds at least two
+    /// keyframes (see [`WindowUse`]).
+    pub window_use: WindowUse,
     /// Camera-IMU delay of the last keyframe, ms.
     pub td_end_ms: f64,
     /// Factor on the IMU white-noise densities at the last keyframe (`estimator::imu_noise`).
@@ -228,6 +231,68 @@ impl From<&AssocQuality> for AssocSummary {
     }
 }
 
+/// How much of what the window offers reaches the solver: tracks with valid observations in at
+/// least two of the window's keyframes ("multi-keyframe"), and how many of them and of their
+/// observations the final solve of each keyframe used (a landmark's observations are its
+/// residuals plus its anchor observation). Over the keyframes whose window holds at least two
+/// keyframes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct WindowUse {
+    /// Keyframes counted.
+    pub keyframes: usize,
+    /// Multi-keyframe tracks the window offers, median per keyframe.
+    pub offered_tracks_median: f64,
+    /// Their observations, median per keyframe.
+    pub offered_observations_median: f64,
+    /// Landmarks in the final solve, median per keyframe.
+    pub used_landmarks_median: f64,
+    /// Observations in the final solve (residuals plus anchors), median per keyframe.
+    pub used_observations_median: f64,
+    /// Observations used over observations offered, summed over the keyframes (`None` when
+    /// nothing was offered).
+    pub observation_share: Option<f64>,
+}
+
+impl WindowUse {
+    /// The figures of a run's keyframe reports.
+    pub fn of(reports: &[KeyframeReport]) -> Self {
+        let counted: Vec<&KeyframeReport> = reports.iter().filter(|r| r.window_len >= 2).collect();
+        let median_of = |f: &dyn Fn(&KeyframeReport) -> u32| {
+            let mut v: Vec<f64> = counted.iter().map(|r| f64::from(f(r))).collect();
+            v.sort_by(f64::total_cmp);
+            percentile(&v, 50.0)
+        };
+        let used = |r: &KeyframeReport| r.observations_used + r.landmarks_used;
+        let offered: u64 = counted
+            .iter()
+            .map(|r| u64::from(r.multi_view_observations))
+            .sum();
+        let used_sum: u64 = counted.iter().map(|r| u64::from(used(r))).sum();
+        WindowUse {
+            keyframes: counted.len(),
+            offered_tracks_median: median_of(&|r| r.multi_view_tracks),
+            offered_observations_median: median_of(&|r| r.multi_view_observations),
+            used_landmarks_median: median_of(&|r| r.landmarks_used),
+            used_observations_median: median_of(&used),
+            observation_share: (offered > 0).then(|| used_sum as f64 / offered as f64),
+        }
+    }
+
+    /// The `window` line of `povins run`'s summary (`None` before the window held two keyframes).
+    pub fn line(&self) -> Option<String> {
+        let share = self.observation_share?;
+        Some(format!(
+            "window    used {:.0} of {:.0} multi-keyframe tracks and {:.0} of {:.0} of their \
+             observations (medians per keyframe); {:.1}% of all offered observations",
+            self.used_landmarks_median,
+            self.offered_tracks_median,
+            self.used_observations_median,
+            self.offered_observations_median,
+            100.0 * share
+        ))
+    }
+}
+
 /// Mean per keyframe of a report count.
 fn per_kf(reports: &[KeyframeReport], f: impl Fn(&KeyframeReport) -> u32) -> f64 {
     if reports.is_empty() {
@@ -275,6 +340,7 @@ pub fn summarize(ds: &Dataset, mode: &str, init: InitMode, out: &RunOutput) -> R
         backend_ms_per_camera_frame: total_ms / frames,
         estimator_ms_per_camera_frame: out.estimator_wall_s * 1e3 / frames,
         landmarks_used_median: percentile(&used, 50.0),
+        window_use: WindowUse::of(&out.reports),
         td_end_ms: out.reports.last().map_or(0.0, |r| r.td_s * 1e3),
         imu_noise_scale_end: out.reports.last().map_or(1.0, |r| r.imu_noise_scale),
         predictions: pred.len(),
@@ -470,6 +536,9 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
         s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
     );
+    if let Some(line) = s.window_use.line() {
+        println!("{line}");
+    }
     println!(
         "imu       white-noise densities x{:.2} (measured by the window), delay td {:.2} ms at the end",
         s.imu_noise_scale_end, s.td_end_ms
@@ -581,4 +650,47 @@ pub fn run(args: Args) -> Result<()> {
     std::fs::write(&path, effective).with_context(|| format!("cannot write {}", path.display()))?;
     print_summary(&summary, &args.out);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::WindowUse;
+    use povins_core::estimator::KeyframeReport;
+
+    fn report(window_len: u32, offered: (u32, u32), used: (u32, u32)) -> KeyframeReport {
+        KeyframeReport {
+            window_len,
+            multi_view_tracks: offered.0,
+            multi_view_observations: offered.1,
+            landmarks_used: used.0,
+            observations_used: used.1,
+            ..KeyframeReport::default()
+        }
+    }
+
+    #[test]
+    fn window_use_counts_anchors_and_skips_single_keyframe_windows() {
+        let reports = [
+            // A one-keyframe window offers nothing and must not dilute the figures.
+            report(1, (0, 0), (0, 0)),
+            report(2, (10, 30), (5, 10)),
+            report(3, (20, 60), (10, 35)),
+            report(4, (30, 90), (20, 60)),
+        ];
+        let w = WindowUse::of(&reports);
+        assert_eq!(w.keyframes, 3);
+        assert_eq!(w.offered_tracks_median, 20.0);
+        assert_eq!(w.offered_observations_median, 60.0);
+        assert_eq!(w.used_landmarks_median, 10.0);
+        // Residuals plus one anchor observation per landmark: 15, 45, 80.
+        assert_eq!(w.used_observations_median, 45.0);
+        assert_eq!(w.observation_share, Some(140.0 / 180.0));
+        let line = w.line().unwrap_or_default();
+        assert!(
+            line.contains("used 10 of 20 multi-keyframe tracks"),
+            "{line}"
+        );
+        assert!(line.contains("77.8%"), "{line}");
+        assert_eq!(WindowUse::of(&reports[..1]).line(), None);
+    }
 }
