@@ -173,7 +173,7 @@ fn occupancy_mask() {
 }
 
 mod sqrt_tests {
-    use super::super::sqrt_newton;
+    use super::super::score::sqrt_newton;
 
     #[test]
     fn newton_sqrt_matches_the_correctly_rounded_one() {
