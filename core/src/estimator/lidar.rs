@@ -14,7 +14,7 @@ use crate::camera::Vec2;
 use crate::inertial::NavState;
 use crate::landmarks::LidarDepth;
 
-use super::problem_lidar::TauLandmark;
+use super::tau_landmark::TauLandmark;
 
 impl<
         const N: usize,

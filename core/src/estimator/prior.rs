@@ -267,31 +267,7 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         }
         let mut dx = [0.0; D];
         let mut cols = [0usize; D];
-        let mut at = 0;
-        for (b, lin) in self.blocks.iter() {
-            let w = b.dim();
-            let c0 = layout.col(*b).ok_or(Error::DimensionMismatch)?;
-            let out = dx.get_mut(at..at + w).ok_or(Error::DimensionMismatch)?;
-            match (current(*b), lin) {
-                (Some(LinPoint::Kf(x)), LinPoint::Kf(x0)) => kf_minus(&x, x0, out),
-                (Some(LinPoint::Ext(x)), LinPoint::Ext(x0)) => ext_minus(&x, x0, out),
-                (Some(LinPoint::Td(x)), LinPoint::Td(x0)) => {
-                    if let Some(o) = out.first_mut() {
-                        *o = x - x0;
-                    }
-                }
-                _ => return Err(Error::DimensionMismatch),
-            }
-            for (i, c) in cols
-                .get_mut(at..at + w)
-                .ok_or(Error::DimensionMismatch)?
-                .iter_mut()
-                .enumerate()
-            {
-                *c = c0 + i;
-            }
-            at += w;
-        }
+        self.delta(layout, current, &mut dx, &mut cols)?;
         let p = self.dim;
         let (dx, cols) = (
             dx.get(..p).ok_or(Error::DimensionMismatch)?,
@@ -324,6 +300,58 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         for (be, qi) in b_eff.iter_mut().zip(q.iter()).take(p) {
             *be = -qi;
         }
+        self.map_rotations(dx, &mut b_eff);
+        if !b_eff.iter().take(p).all(|v| v.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        self.add_mapped(cols, &b_eff, ne)?;
+        ne.cost += cost;
+        Ok(cost)
+    }
+
+    /// `dx = x [-] x0` block by block with the current state given by `current`, and the column
+    /// of each prior entry in `layout` (see [`Self::add_to`]), into the first `dim` entries of
+    /// `dx` and `cols`.
+    fn delta(
+        &self,
+        layout: &Layout<N>,
+        current: impl Fn(Block) -> Option<LinPoint>,
+        dx: &mut [f64; D],
+        cols: &mut [usize; D],
+    ) -> Result<(), Error> {
+        let mut at = 0;
+        for (b, lin) in self.blocks.iter() {
+            let w = b.dim();
+            let c0 = layout.col(*b).ok_or(Error::DimensionMismatch)?;
+            let out = dx.get_mut(at..at + w).ok_or(Error::DimensionMismatch)?;
+            match (current(*b), lin) {
+                (Some(LinPoint::Kf(x)), LinPoint::Kf(x0)) => kf_minus(&x, x0, out),
+                (Some(LinPoint::Ext(x)), LinPoint::Ext(x0)) => ext_minus(&x, x0, out),
+                (Some(LinPoint::Td(x)), LinPoint::Td(x0)) => {
+                    if let Some(o) = out.first_mut() {
+                        *o = x - x0;
+                    }
+                }
+                _ => return Err(Error::DimensionMismatch),
+            }
+            for (i, c) in cols
+                .get_mut(at..at + w)
+                .ok_or(Error::DimensionMismatch)?
+                .iter_mut()
+                .enumerate()
+            {
+                *c = c0 + i;
+            }
+            at += w;
+        }
+        Ok(())
+    }
+
+    /// The mapped system of [`Self::add_to`]: `h_eff` (holding `H0`) and `b_eff` (holding `-q`)
+    /// multiplied by `M = I` except `Jr^-1` of the rotation part of `dx` on the rotation blocks,
+    /// into `M^T H0 M` and `-M^T q`.
+    fn map_rotations(&mut self, dx: &[f64], b_eff: &mut [f64; D]) {
+        let p = self.dim;
         let mut at = 0;
         for (blk, _) in self.blocks.iter() {
             let c = at + 3;
@@ -366,9 +394,16 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
                 }
             }
         }
-        if !b_eff.iter().take(p).all(|v| v.is_finite()) {
-            return Err(Error::NonFinite);
-        }
+    }
+
+    /// Adds the mapped system (`h_eff`, `b_eff`, prior entry `i` at column `cols[i]`) to `ne`.
+    fn add_mapped(
+        &self,
+        cols: &[usize],
+        b_eff: &[f64; D],
+        ne: &mut NormalEquations<D>,
+    ) -> Result<(), Error> {
+        let p = self.dim;
         // The prior's columns are runs of consecutive state columns (whole blocks, in layout
         // order), so each row is added run by run as contiguous slices.
         let mut runs: HVec<(usize, usize), MAX_PRIOR_BLOCKS> = HVec::new();
@@ -410,8 +445,7 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
                 }
             }
         }
-        ne.cost += cost;
-        Ok(cost)
+        Ok(())
     }
 }
 

@@ -23,7 +23,8 @@
 //! compares what the linear model predicts.
 
 use super::problem::{FactorSet, Problem};
-use super::problem_lidar::{add_inverse_depth_obs, Ray, TauLandmark};
+use super::problem_lidar::add_inverse_depth_obs;
+use super::tau_landmark::{Ray, TauLandmark};
 use super::window::{Block, Layout};
 use crate::camera::CameraExtrinsic;
 use crate::factors::inverse_depth_visual::WindowRotations;

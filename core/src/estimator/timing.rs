@@ -21,10 +21,12 @@
 //!
 //! [`update`]: Estimator::update
 
-use super::{Estimator, ImuOutput, Status};
+use super::{Estimator, ImuOutput, PendingFrame, Status, MAX_FEATURES};
+use crate::camera::FeatureObs;
 use crate::inertial::{ImuSample, InsUpdate};
 use crate::lidar::{LidarPoint, Queued};
 use crate::Error;
+use heapless::Vec as HVec;
 
 /// IMU samples the estimator queues (2.56 s at 200 Hz): a horizon must stay well below it.
 pub const IMU_QUEUE: usize = 512;
@@ -76,6 +78,50 @@ impl<
             self.counters.imu_dropped_queue_full += 1;
             return Err(Error::CapacityExceeded);
         }
+        Ok(())
+    }
+
+    /// Queues a camera frame of tracked features (raw pixels) at camera time `t_cam_ns`. It is
+    /// processed by [`Self::update`] at the first IMU sample at or past `t_cam + td`
+    /// ([`PENDING_FRAMES`](super::PENDING_FRAMES) are held; one more drops the oldest, counted).
+    /// Refused, counted: [`Error::TimeNotIncreasing`], [`Error::OutOfRange`] (more than
+    /// `max_frame_lead_s` ahead of the newest IMU sample pushed). [`Error::NotInitialized`]
+    /// (nothing counted) while [`Status::Unconfigured`].
+    pub fn push_frame(&mut self, t_cam_ns: i64, obs: &[FeatureObs]) -> Result<(), Error> {
+        if self.status == Status::Unconfigured {
+            return Err(Error::NotInitialized);
+        }
+        self.counters.frames += 1;
+        // A frame far ahead of the IMU would block every real frame until the IMU caught up
+        // (and overflow the open interval): refuse it.
+        let lead_limit_ns = (self.cfg.max_frame_lead_s * 1e9) as i64;
+        let newest = self.imu_in.back().or(self.last_imu.as_ref());
+        if newest.is_some_and(|s| t_cam_ns.saturating_sub(s.t_ns) > lead_limit_ns) {
+            self.counters.frames_rejected_time += 1;
+            return Err(Error::OutOfRange);
+        }
+        if let Some(p) = self.pending.back() {
+            if t_cam_ns <= p.t_cam_ns {
+                self.counters.frames_rejected_time += 1;
+                return Err(Error::TimeNotIncreasing);
+            }
+        }
+        if self.pending.is_full() {
+            let _ = self.pending.pop_front();
+            self.counters.frames_dropped_no_imu += 1;
+        }
+        let mut pf = PendingFrame {
+            t_cam_ns,
+            obs: HVec::new(),
+        };
+        let take = obs.len().min(MAX_FEATURES);
+        for o in obs.iter().take(take) {
+            let _ = pf.obs.push(*o);
+        }
+        self.counters.features_rejected += (obs.len() - take) as u64;
+        self.counters.features_received += (obs.len() - take) as u64;
+        // Not full (made room above): cannot fail.
+        let _ = self.pending.push_back(pf);
         Ok(())
     }
 

@@ -1,0 +1,173 @@
+//! One camera frame at its IMU time: track validation and undistortion, the rest detector,
+//! and the keyframe decision from the INS-predicted motion (parallax against the newest
+//! keyframe, tracked share, interval length); a keyframe goes to [`super::keyframe`].
+
+use super::window::MAX_INTERVAL_SAMPLES;
+use super::{now, Estimator, KeyframeReport};
+use crate::frontend::{mean_parallax_px, CameraMotion, KeyframeDecision, RestVerdict};
+use crate::inertial::{ImuSample, NavState};
+use crate::math::log_so3;
+use crate::Error;
+
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
+{
+    /// Moves the oldest pending frame into `self.frame` (swapped in place: a frame is too large
+    /// to pass through the stack of the processing path). False when none is pending.
+    #[inline(never)]
+    pub(super) fn next_frame(&mut self) -> bool {
+        let Some(front) = self.pending.front_mut() else {
+            return false;
+        };
+        core::mem::swap(front, &mut self.frame);
+        // The previous frame, swapped into the queue, is dropped here.
+        let _ = self.pending.pop_front();
+        true
+    }
+
+    /// The camera's motion at `sample` (camera frame), for the track velocities: the gyro minus
+    /// the bias, and the velocity of the camera's origin, both rotated by the current extrinsic;
+    /// at rest before the INS starts (or if not finite).
+    fn camera_motion(&self, sample: &ImuSample) -> CameraMotion {
+        let Some(nav) = self.ins.as_ref().map(|i| i.state()) else {
+            return CameraMotion::ZERO;
+        };
+        let w_b = sample.gyro_rps - nav.bg;
+        let q_cb = self.ext.q_bc.inverse();
+        let w_c = q_cb * w_b;
+        let v_c = q_cb * (nav.q_wb.inverse() * nav.v_wb + w_b.cross(&self.ext.p_bc));
+        if w_c.iter().chain(v_c.iter()).all(|v| v.is_finite()) {
+            CameraMotion {
+                w_c_rps: [w_c.x, w_c.y, w_c.z],
+                v_c_mps: [v_c.x, v_c.y, v_c.z],
+            }
+        } else {
+            CameraMotion::ZERO
+        }
+    }
+
+    /// Processes `self.frame` (see [`Self::next_frame`]) at `sample`.
+    pub(super) fn process_frame(
+        &mut self,
+        sample: &ImuSample,
+    ) -> Result<Option<KeyframeReport>, Error> {
+        let t0 = now(&self.cfg);
+        let t_cam_ns = self.frame.t_cam_ns;
+        let motion = self.camera_motion(sample);
+        let st = match self.tracks.process(
+            t_cam_ns,
+            &self.frame.obs,
+            &self.cfg.camera,
+            motion,
+            &mut self.frame_obs,
+        ) {
+            Ok(st) => st,
+            Err(Error::TimeNotIncreasing) => {
+                self.counters.frames_rejected_time += 1;
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        };
+        self.counters.features_received += u64::from(st.received);
+        self.counters.features_rejected += u64::from(st.received - st.accepted);
+        self.rest.push(t_cam_ns, &self.frame_obs, self.focal_px());
+        let Some(ins) = self.ins.as_ref() else {
+            return Ok(None);
+        };
+        let nav = *ins.state();
+
+        let decision = match self.window.last() {
+            None => KeyframeDecision::First,
+            Some(last) => {
+                let dt_s = nav.t_ns.saturating_sub(last.state.t_ns) as f64 * 1e-9;
+                let dp = (nav.p_wb - last.state.p_wb).norm();
+                let dr = log_so3(&(last.state.q_wb.inverse() * nav.q_wb)).norm();
+                let (parallax, tracked) = self.parallax_and_tracked(&nav);
+                let nearly_full = self
+                    .open()
+                    .is_some_and(|o| o.len() + 16 >= MAX_INTERVAL_SAMPLES);
+                match self.selector.decide(dt_s, dp, dr, parallax, tracked) {
+                    KeyframeDecision::No
+                        if nearly_full && dt_s >= self.cfg.keyframe.min_interval_s =>
+                    {
+                        KeyframeDecision::Timeout
+                    }
+                    d => d,
+                }
+            }
+        };
+        if !decision.is_keyframe() {
+            return Ok(None);
+        }
+        // A late frame (its IMU time already passed, e.g. a negative delay): the keyframe goes
+        // at its own time and the samples after it are replayed into the next interval.
+        let tail = if sample.t_ns < nav.t_ns {
+            self.rewind_to(sample)
+        } else {
+            None
+        };
+        let nav = self.ins.as_ref().map_or(nav, |i| *i.state());
+        let report = self.add_keyframe(t_cam_ns, nav, sample, decision, t0)?;
+        for s in tail.iter().flatten() {
+            self.advance(s)?;
+        }
+        Ok(Some(report))
+    }
+
+    /// Mean focal length, px.
+    pub(super) fn focal_px(&self) -> f64 {
+        0.5 * (self.cfg.camera.fx + self.cfg.camera.fy)
+    }
+
+    /// True when the images show the platform at rest since at or before the newest keyframe.
+    pub(super) fn at_rest_since_last_keyframe(&self) -> bool {
+        match (self.rest.verdict(), self.window.last()) {
+            (RestVerdict::Rest { since_ns }, Some(last)) => since_ns <= last.t_cam_ns,
+            _ => false,
+        }
+    }
+
+    /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe (with
+    /// `keyframe.compensate_rotation`, after rotating the keyframe's rays by the rotation the
+    /// INS predicts between them), and the share of the keyframe's features still tracked.
+    fn parallax_and_tracked(&self, nav: &NavState) -> (f64, f64) {
+        let (Some(pos), Some(last)) = (self.window.len().checked_sub(1), self.window.last()) else {
+            return (0.0, 1.0);
+        };
+        // Rotation taking the keyframe camera's rays into the current camera's.
+        let r_ck = self.cfg.keyframe.compensate_rotation.then(|| {
+            let ck = self.ext.camera_pose(&last.state.p_wb, &last.state.q_wb);
+            let cc = self.ext.camera_pose(&nav.p_wb, &nav.q_wb);
+            cc.q_wc.inverse() * ck.q_wc
+        });
+        let pairs = self.frame_obs.iter().filter_map(|o| {
+            let k = self.lms.get(o.id)?.obs.get(pos)?.as_ref()?;
+            Some((k.x_n, [o.x_n[0], o.x_n[1]]))
+        });
+        let (parallax, n) = mean_parallax_px(pairs, r_ck.as_ref(), self.focal_px());
+        // The share is only needed by the tracked-share rule (off by default): no pass over the
+        // landmark store per frame otherwise.
+        let seen = if self.cfg.keyframe.min_tracked_ratio > 0.0 {
+            self.lms
+                .landmarks()
+                .iter()
+                .filter(|lm| matches!(lm.obs.get(pos), Some(Some(_))))
+                .count()
+        } else {
+            0
+        };
+        let tracked = if seen == 0 {
+            1.0
+        } else {
+            n as f64 / seen as f64
+        };
+        (parallax, tracked)
+    }
+}

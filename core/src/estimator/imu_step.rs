@@ -1,0 +1,222 @@
+//! One processed IMU sample (called by [`super::timing`]'s `process_imu`): before
+//! initialization (frames feed the track velocities and the rest detector, the static
+//! initializer may start the INS), and while running (the pending frames the sample reaches are
+//! processed at their IMU time, then INS propagation and preintegration into the open keyframe
+//! interval). Also the open interval's accessors, and the rewind of the INS and the open
+//! interval to a late frame's time.
+
+use super::window::Preint;
+use super::{Estimator, ImuOutput, Status, LATE_SAMPLES};
+use crate::frontend::{CameraMotion, RestVerdict};
+use crate::inertial::ins::Ins;
+use crate::inertial::ImuSample;
+use crate::Error;
+use heapless::Vec as HVec;
+
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const P: usize,
+        const GW: usize,
+        const GH: usize,
+        const Q: usize,
+    > Estimator<N, L, D, P, GW, GH, Q>
+{
+    /// The open keyframe interval's preintegration, if one is open.
+    pub(super) fn open(&self) -> Option<&Preint> {
+        self.open_active.then_some(&self.open)
+    }
+
+    /// The open interval, mutable.
+    pub(super) fn open_mut(&mut self) -> Option<&mut Preint> {
+        if self.open_active {
+            Some(&mut self.open)
+        } else {
+            None
+        }
+    }
+
+    /// Time of the INS state (the newest propagated sample), ns.
+    fn ins_time(&self) -> i64 {
+        self.ins.as_ref().map_or(i64::MIN, |i| i.state().t_ns)
+    }
+
+    pub(super) fn current_td(&self) -> f64 {
+        self.window
+            .last()
+            .map_or(self.reinit_td.unwrap_or(self.cfg.td_s), |k| k.td_s)
+    }
+
+    /// One sample before initialization: frames feed the track velocities and the rest
+    /// detector; the static initializer may start the INS.
+    pub(super) fn imu_waiting_for_init(&mut self, s: &ImuSample) -> Result<(), Error> {
+        while self.next_frame() {
+            self.counters.frames_before_init += 1;
+            let t_cam_ns = self.frame.t_cam_ns;
+            if self
+                .tracks
+                .process(
+                    t_cam_ns,
+                    &self.frame.obs,
+                    &self.cfg.camera,
+                    CameraMotion::ZERO,
+                    &mut self.frame_obs,
+                )
+                .is_ok()
+            {
+                self.rest.push(t_cam_ns, &self.frame_obs, self.focal_px());
+            }
+        }
+        let td_ns = (self.cfg.td_s * 1e9) as i64;
+        let rest_since = match self.rest.verdict() {
+            RestVerdict::Rest { since_ns } => Some(since_ns.saturating_add(td_ns)),
+            _ => None,
+        };
+        match self.static_init.push_with_rest(s, rest_since) {
+            Ok(Some(state)) => {
+                let ins = Ins::new(self.ins_config(), state)?;
+                self.ins.set(ins);
+                if let Some(ins) = self.ins.as_mut() {
+                    let st = *ins.propagate(s)?;
+                    self.record_ins(&st);
+                }
+                self.status = Status::Running;
+                Ok(())
+            }
+            Ok(None) => Ok(()),
+            Err(Error::CapacityExceeded) => Err(Error::InvalidConfig),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// One sample while running: pending frames whose IMU time has been reached are processed
+    /// at exactly that time (or at this sample when it is already past: the observations' delay
+    /// correction accounts for the difference, see `add_keyframe`), then the INS propagates to
+    /// the sample. Returns the INS epoch the final propagation started from when it was a plain
+    /// propagation of `s` (see [`Self::fast_path_update`]).
+    pub(super) fn imu_running(
+        &mut self,
+        s: &ImuSample,
+        out: &mut ImuOutput,
+    ) -> Result<Option<u32>, Error> {
+        while let Some(t_f) = self
+            .pending
+            .front()
+            .map(|p| p.t_cam_ns.saturating_add((self.current_td() * 1e9) as i64))
+            .filter(|t_f| *t_f <= s.t_ns)
+        {
+            // The keyframe sample: the real one at t_f, or one interpolated at t_f, or (the frame
+            // is late, or right after initialization) this sample itself.
+            let sample_f = match self.last_imu {
+                _ if t_f == s.t_ns => *s,
+                Some(prev) if prev.t_ns < t_f && self.ins_time() <= t_f => {
+                    interpolate(&prev, s, t_f)
+                }
+                // Late: the sample at t_f from the open interval (the keyframe is rewound there).
+                _ => self.open_sample_at(t_f).unwrap_or(*s),
+            };
+            if self.ins_time() < sample_f.t_ns {
+                self.advance(&sample_f)?;
+            }
+            if self.next_frame() {
+                if let Some(r) = self.process_frame(&sample_f)? {
+                    out.keyframe = Some(r);
+                }
+            }
+        }
+        if self.ins.as_ref().is_none_or(|i| i.state().t_ns >= s.t_ns) {
+            return Ok(None);
+        }
+        let from = self.ins.epoch;
+        self.advance(s)?;
+        let plain = self.ins.held && self.ins.epoch == from.wrapping_add(1);
+        Ok(plain.then_some(from))
+    }
+
+    /// INS propagation and preintegration of one sample (real or interpolated).
+    pub(super) fn advance(&mut self, s: &ImuSample) -> Result<(), Error> {
+        let Some(ins) = self.ins.as_mut() else {
+            return Err(Error::NotInitialized);
+        };
+        match ins.propagate(s).copied() {
+            Ok(st) => {
+                let finite = st.p_wb.iter().chain(st.v_wb.iter()).all(|x| x.is_finite())
+                    && st.q_wb.coords.iter().all(|x| x.is_finite());
+                if !finite || st.v_wb.amax() > self.cfg.max_speed_mps {
+                    // Diverged (or fed garbage that passed the range check): start over.
+                    self.counters.divergence_resets += 1;
+                    self.reset();
+                    return Ok(());
+                }
+                self.record_ins(&st);
+            }
+            Err(Error::TimeGap) => {
+                self.reset();
+                return Ok(());
+            }
+            Err(e) => return Err(e),
+        }
+        if let Some(open) = self.open_mut() {
+            match open.push(s) {
+                Ok(()) => {}
+                // The interval cannot be bridged: start over rather than integrate a hole.
+                Err(Error::CapacityExceeded) | Err(Error::TimeGap) => self.reset(),
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
+
+    /// The IMU sample at `t_ns` interpolated from the open interval's samples (strictly after its
+    /// start), if it holds that time.
+    fn open_sample_at(&self, t_ns: i64) -> Option<ImuSample> {
+        let v = self.open()?.samples();
+        let k = v.iter().position(|x| x.t_ns >= t_ns).filter(|&k| k > 0)?;
+        let (a, b) = (v.get(k - 1)?, v.get(k)?);
+        Some(if b.t_ns == t_ns {
+            *b
+        } else {
+            interpolate(a, b, t_ns)
+        })
+    }
+
+    /// Rewinds the INS and the open interval to `sample` (between the newest keyframe and the
+    /// newest sample): the interval is truncated there and the INS re-propagated from the
+    /// keyframe. Returns the samples after `sample`, to replay once the keyframe is in; `None`
+    /// (nothing changed) when there is no keyframe yet or too many samples to replay.
+    pub(super) fn rewind_to(
+        &mut self,
+        sample: &ImuSample,
+    ) -> Option<HVec<ImuSample, LATE_SAMPLES>> {
+        let kf_state = self.window.last()?.state;
+        let ins_cfg = self.ins_config();
+        let open = self.open_mut()?;
+        let mut tail: HVec<ImuSample, LATE_SAMPLES> = HVec::new();
+        for s in open.samples().iter().filter(|s| s.t_ns > sample.t_ns) {
+            tail.push(*s).ok()?;
+        }
+        open.truncate_at(sample).ok()?;
+        let mut ins = Ins::new(ins_cfg, kf_state).ok()?;
+        for s in open.samples() {
+            ins.propagate(s).ok()?;
+        }
+        self.ins.set(ins);
+        Some(tail)
+    }
+}
+
+/// Linear interpolation of an IMU sample at `t_ns` between `a` and `b` (`a.t < t <= b.t`).
+fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
+    let span = b.t_ns.saturating_sub(a.t_ns) as f64;
+    let w = if span > 0.0 {
+        t_ns.saturating_sub(a.t_ns) as f64 / span
+    } else {
+        1.0
+    };
+    ImuSample {
+        t_ns,
+        gyro_rps: a.gyro_rps + (b.gyro_rps - a.gyro_rps) * w,
+        accel_mps2: a.accel_mps2 + (b.accel_mps2 - a.accel_mps2) * w,
+    }
+}
