@@ -155,7 +155,7 @@ impl<const N: usize> TauLandmark<N> {
         Ok(tau)
     }
 
-    /// `tau*` on precomputed rays (same minimizer as [`Self::best_tau`]).
+    /// `tau*` on precomputed rays (same minimizer as `Self::best_tau`, a test-only reference).
     pub fn best_tau_rays(&self, rays: &[Ray], tau0: f64) -> Result<f64, Error> {
         self.gauss_newton_tau(tau0, |tau, mut g, mut h| {
             for ray in rays {
