@@ -20,6 +20,23 @@ use crate::Error;
 use heapless::Vec as HVec;
 use nalgebra::Matrix2x6;
 
+/// The observations a pose-only landmark's residuals come from, in keyframe order: every
+/// valid observation among the first `count` keyframes but the anchor `s`'s, with its keyframe's
+/// pose and camera frame; with `only_j`, only that one.
+fn residual_obs<'a, const N: usize>(
+    obs: &'a [Option<KfObs>; N],
+    count: usize,
+    s: usize,
+    only_j: Option<usize>,
+    (poses, frames): (&'a [KeyframePose; N], &'a [CamFrame; N]),
+) -> impl Iterator<Item = (usize, &'a KfObs, &'a KeyframePose, &'a CamFrame)> {
+    obs.iter()
+        .enumerate()
+        .take(count)
+        .filter(move |&(j, _)| j != s && only_j.is_none_or(|o| o == j))
+        .filter_map(move |(j, oj)| Some((j, oj.as_ref()?, poses.get(j)?, frames.get(j)?)))
+}
+
 /// Pose-only landmark with only body poses estimated: the geometry of every observation first
 /// (a landmark enters the system whole or not at all: `None` when one is degenerate, nothing
 /// added), then each residual with its robust weight through a [`SharedBlock`] on anchor `e`.
@@ -41,13 +58,7 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
     ne: &mut NormalEquations<D>,
 ) -> Result<Option<(f64, u32)>, Error> {
     let mut geo: HVec<(usize, InJ<'_>), N> = HVec::new();
-    for (j, oj) in obs.iter().enumerate().take(count) {
-        let (Some(oj), Some(pj), Some(fj)) = (oj, poses.get(j), frames.get(j)) else {
-            continue;
-        };
-        if j == s || only_j.is_some_and(|o| o != j) {
-            continue;
-        }
+    for (j, oj, pj, fj) in residual_obs(obs, count, s, only_j, (poses, frames)) {
         let Some(rel) = rel_js(j) else {
             return Ok(None);
         };
@@ -126,13 +137,7 @@ fn add_pose_only_landmark_dense<const N: usize, const D: usize>(
     // Evaluate every observation first: a landmark enters the system whole or not at all.
     let mut jacs: HVec<(usize, crate::factors::pose_only_visual::PoseOnlyJacobians), N> =
         HVec::new();
-    for (j, oj) in obs.iter().enumerate().take(count) {
-        let (Some(oj), Some(pj), Some(fj)) = (oj, poses.get(j), frames.get(j)) else {
-            continue;
-        };
-        if j == s || only_j.is_some_and(|o| o != j) {
-            continue;
-        }
+    for (j, oj, pj, fj) in residual_obs(obs, count, s, only_j, (poses, frames)) {
         let obs_j = timed(oj);
         if linearize {
             match anchors.evaluate(j, &obs_j, pj, fj) {
