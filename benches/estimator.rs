@@ -10,7 +10,10 @@
 
 use criterion::{criterion_group, BatchSize, Criterion};
 use povins::core::estimator::{EstimatorConfig, PoVins, VisualMode};
+use povins::core::inertial::ImuSample;
 use povins::host_tools::runner::config_for;
+use povins::platform::driver::{handle, Handled};
+use povins::platform::source::{CameraInput, MergeOptions, MergedSource, SensorEvent, Source};
 use povins::platform::Dataset;
 use std::path::Path;
 
@@ -22,11 +25,12 @@ fn load() -> Dataset {
     povins::platform::euroc::read_dataset(&dir).expect("corridor dataset")
 }
 
-/// Replays `ds` (IMU, frames and LiDAR sweeps in time order, from the ground-truth start) with
-/// `cfg` until just before the IMU sample that produces keyframe `k` (frames due at that sample
-/// already offered); returns the estimator and that sample's index.
-fn snapshot(ds: &Dataset, cfg: EstimatorConfig, k: usize) -> (Box<PoVins>, usize) {
-    let run = |stop: Option<usize>| -> (Box<PoVins>, Vec<usize>) {
+/// Replays `ds` (IMU, frames and LiDAR sweeps in the replay's order, from the ground-truth
+/// start, through the one driver step) with `cfg` until just before the IMU sample that produces
+/// keyframe `k` (frames and sweeps due at that sample already offered); returns the estimator
+/// and that sample.
+fn snapshot(ds: &Dataset, cfg: EstimatorConfig, k: usize) -> (Box<PoVins>, ImuSample) {
+    let run = |stop: Option<i64>| -> (Box<PoVins>, Vec<ImuSample>) {
         let mut est = Box::new(PoVins::new(cfg).expect("config"));
         let g0 = ds.ground_truth[0];
         let start = ds.imu.partition_point(|s| s.t_ns < g0.t_ns);
@@ -35,25 +39,22 @@ fn snapshot(ds: &Dataset, cfg: EstimatorConfig, k: usize) -> (Box<PoVins>, usize
             ..g0
         })
         .expect("init");
-        let sweeps = povins::host_tools::runner::lidar_schedule(ds, cfg.lidar.td_l_s);
-        let mut fi = ds.features.partition_point(|f| f.t_ns < ds.imu[start].t_ns);
-        let mut li = sweeps.partition_point(|w| w.0 < ds.imu[start].t_ns);
+        let opts = MergeOptions {
+            start_ns: ds.imu[start].t_ns,
+            td_l_s: cfg.lidar.td_l_s,
+            ..MergeOptions::new(CameraInput::Frames)
+        };
+        let mut source = MergedSource::new(ds, &opts).expect("source");
         let mut kf_at = Vec::new();
-        for (i, s) in ds.imu.iter().enumerate().skip(start) {
-            while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
-                let _ = est.push_frame(f.t_ns, &f.obs);
-                fi += 1;
-            }
-            if Some(i) == stop {
-                break;
-            }
-            let _ = est.push_imu(s);
-            while let Some(w) = sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
-                let _ = est.push_lidar(&ds.lidar[w.1].points);
-                li += 1;
-            }
-            if next_output(&mut est).is_some_and(|o| o.keyframe.is_some()) {
-                kf_at.push(i);
+        while let Some(ev) = source.next().expect("in-memory streams do not fail") {
+            let sample = match &ev {
+                SensorEvent::Imu(s) if Some(s.t_ns) == stop => break,
+                SensorEvent::Imu(s) => Some(*s),
+                _ => None,
+            };
+            let handled = handle(&mut *est, &ev, &mut ());
+            if let (Some(s), Handled::Imu { keyframe: true, .. }) = (sample, handled) {
+                kf_at.push(s);
                 if kf_at.len() == k && stop.is_none() {
                     break;
                 }
@@ -62,9 +63,9 @@ fn snapshot(ds: &Dataset, cfg: EstimatorConfig, k: usize) -> (Box<PoVins>, usize
         (est, kf_at)
     };
     let (_, kf_at) = run(None);
-    let i = *kf_at.last().expect("keyframes");
-    let (est, _) = run(Some(i));
-    (est, i)
+    let s = *kf_at.last().expect("keyframes");
+    let (est, _) = run(Some(s.t_ns));
+    (est, s)
 }
 
 fn bench_keyframe(c: &mut Criterion) {
@@ -76,8 +77,7 @@ fn bench_keyframe(c: &mut Criterion) {
         let mut cfg = config_for(&ds);
         cfg.mode = mode;
         cfg.clock = None;
-        let (est, i) = snapshot(&ds, cfg, 200);
-        let sample = ds.imu[i];
+        let (est, sample) = snapshot(&ds, cfg, 200);
         on_clone(
             c,
             &format!("estimator/lm_iteration_{name}_corridor"),
@@ -105,11 +105,6 @@ fn bench_keyframe(c: &mut Criterion) {
             },
         );
     }
-}
-
-/// The output of the sample just pushed (processed at once: no delay horizon).
-fn next_output(est: &mut PoVins) -> Option<povins::core::estimator::ImuOutput> {
-    est.update().ok().flatten()
 }
 
 /// Times `step` on a fresh clone of `est` (the clone is set-up, not timed).
@@ -143,8 +138,7 @@ fn bench_keyframe_lidar(c: &mut Criterion) {
         if let Some(m) = lidar {
             cfg.lidar.ldm = m;
         }
-        let (est, i) = snapshot(&ds, cfg, 60);
-        let sample = ds.imu[i];
+        let (est, sample) = snapshot(&ds, cfg, 60);
         if lidar == Some(LdmMode::Msc) {
             // The tracker's per-image call: every window landmark with a depth, predicted.
             let mut buf = [povins::core::estimator::FeaturePrediction::EMPTY; 200];

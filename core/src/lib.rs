@@ -30,6 +30,7 @@ pub mod inertial;
 pub mod landmarks;
 pub mod lidar;
 pub mod math;
+pub mod odometry;
 pub mod solver;
 pub mod vio;
 

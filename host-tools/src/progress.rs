@@ -46,6 +46,11 @@ impl Progress {
         self.bar.inc(n);
     }
 
+    /// Sets the number of steps.
+    pub fn set_length(&self, len: u64) {
+        self.bar.set_length(len);
+    }
+
     /// Sets the absolute position.
     pub fn set_position(&self, pos: u64) {
         self.bar.set_position(pos);

@@ -1,24 +1,26 @@
-//! Replay of a [`Dataset`] through the estimator, in time order, exactly as a live system would
-//! feed it: every measurement is pushed when the replay clock (the IMU stream) reaches its stamp
-//! (a camera frame its stamp, a LiDAR sweep its last point on the IMU clock, see
-//! [`lidar_schedule`]) and the core
-//! orders the processing itself ([`povins_core::estimator::timing`]): a frame is processed at
-//! the first IMU sample past `t_cam + td`, a sweep de-skewed once the IMU has passed
-//! `max t_point + td_l`.
+//! Replay of a recording through the estimator, in time order, exactly as a live system would
+//! feed it: the recording's streams merged into the one arrival order
+//! ([`povins_platform::source::MergedSource`], images decoded ahead on a helper thread), each
+//! message handed to the one driver step ([`povins_platform::driver`]) and the odometry's outputs
+//! collected into a [`RunOutput`]. The threaded pipeline ([`crate::realtime`]) builds the same
+//! odometry, starts it the same way and reads the same source.
 
-use crate::images::{with_images, LoadedImage};
 use crate::progress::Progress;
-use anyhow::{bail, Result};
-use povins_core::camera::{CameraExtrinsic, FeatureObs};
+use anyhow::{bail, Context, Result};
+use povins_core::camera::FeatureObs;
 use povins_core::estimator::{
     Counters, DepthEvent, EstimatorConfig, FeaturePrediction, KeyframeReport,
 };
-use povins_core::frontend::image::{ImageView, TrackStats, TrackerConfig};
+use povins_core::frontend::image::{TrackStats, TrackerConfig};
 use povins_core::inertial::NavState;
 use povins_core::lidar::{LidarConfig, LidarExtrinsic};
-use povins_core::vio::{EurocVio, HdVio, ImageReport, Vio, VioAiding, VioCounters};
+use povins_core::odometry::{FrameOutput, Odometry, Output};
+use povins_core::vio::{ImageReport, VioAiding, VioCounters};
+use povins_platform::driver::{self, ImageIn, Observer};
+use povins_platform::odometry::{boxed_odometry, FrontEnd};
+use povins_platform::recording::Recording;
+use povins_platform::source::{CameraInput, MergeOptions, MergedSource, Pacing, Prefetch};
 use povins_platform::trajectory::StampedPose;
-use povins_platform::Dataset;
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 use std::time::Instant;
@@ -73,6 +75,25 @@ impl FrontendOptions {
             aiding: VioAiding::default(),
         }
     }
+
+    /// The platform's description of the front end.
+    pub fn front_end(&self) -> FrontEnd {
+        match self.frontend {
+            Frontend::Tracks => FrontEnd::Tracks,
+            Frontend::Images => FrontEnd::Images {
+                tracker: self.tracker,
+                aiding: self.aiding,
+            },
+        }
+    }
+
+    /// What a replay offers of the camera.
+    pub fn camera_input(&self) -> CameraInput {
+        match self.frontend {
+            Frontend::Tracks => CameraInput::Frames,
+            Frontend::Images => CameraInput::Images,
+        }
+    }
 }
 
 /// The front end's result for one image of a replay.
@@ -87,6 +108,15 @@ pub struct FrameLog {
 }
 
 impl FrameLog {
+    /// The log of an image the front end tracked.
+    pub fn of(t_ns: i64, report: ImageReport, im: &ImageIn<'_>) -> Self {
+        FrameLog {
+            t_ns,
+            report,
+            decode_ms: (im.prepared_ns + im.decode_ns) as f64 * 1e-6,
+        }
+    }
+
     /// The tracker's statistics.
     pub fn stats(&self) -> &TrackStats {
         &self.report.track
@@ -104,10 +134,10 @@ pub fn monotonic_ns() -> u64 {
     T0.get_or_init(Instant::now).elapsed().as_nanos() as u64
 }
 
-/// The estimator configuration implied by a dataset's calibration (before `--config`).
-pub fn config_for(ds: &Dataset) -> EstimatorConfig {
-    let c = &ds.calib;
-    let ext = CameraExtrinsic {
+/// The estimator configuration implied by a recording's calibration (before `--config`).
+pub fn config_for(rec: &dyn Recording) -> EstimatorConfig {
+    let c = rec.calibration();
+    let ext = povins_core::camera::CameraExtrinsic {
         p_bc: c.t_bc.p_ab,
         q_bc: c.t_bc.q_ab,
     };
@@ -115,7 +145,7 @@ pub fn config_for(ds: &Dataset) -> EstimatorConfig {
     cfg.gravity_mps2 = c.gravity_mps2;
     cfg.td_s = c.td_s;
     cfg.clock = Some(monotonic_ns);
-    if let (false, Some(t_bl)) = (ds.lidar.is_empty(), c.t_bl) {
+    if let (true, Some(t_bl)) = (rec.contents().lidar, c.t_bl) {
         cfg.lidar.enabled = true;
         cfg.lidar.extrinsic = LidarExtrinsic {
             q_bl: t_bl.q_ab,
@@ -124,8 +154,6 @@ pub fn config_for(ds: &Dataset) -> EstimatorConfig {
     }
     cfg
 }
-
-pub use povins_platform::pipeline::lidar_schedule;
 
 /// The LiDAR-depth events of one keyframe step.
 #[derive(Debug, Clone, PartialEq)]
@@ -151,9 +179,9 @@ pub struct RunOutput {
     pub lidar_events: Vec<KeyframeDepthEvents>,
     /// Rejection counters.
     pub counters: Counters,
-    /// Camera frames in the dataset.
+    /// Camera frames (or images) the replay read from the recording.
     pub camera_frames: usize,
-    /// LiDAR sweeps in the dataset.
+    /// LiDAR sweeps the replay read from the recording.
     pub lidar_scans: usize,
     /// The LiDAR settings of the run.
     pub lidar: LidarConfig,
@@ -175,163 +203,131 @@ pub struct RunOutput {
     pub vio_counters: VioCounters,
 }
 
-/// Replays `ds` through a new estimator with `cfg`, fed with the dataset's feature tracks.
+/// Replays `rec` through a new estimator with `cfg`, fed with the recording's feature tracks.
 /// LiDAR sweeps are offered whatever `cfg.lidar.enabled` says: a disabled estimator refuses
 /// (and counts) them.
 pub fn replay(
-    ds: &Dataset,
+    rec: &dyn Recording,
     cfg: EstimatorConfig,
     init: InitMode,
     progress: &Progress,
 ) -> Result<RunOutput> {
-    replay_with(ds, cfg, init, &FrontendOptions::tracks(), progress)
+    replay_with(rec, cfg, init, &FrontendOptions::tracks(), progress)
 }
 
-/// Replays `ds` with the front end chosen in `fe`: the dataset's tracks, or its images through
-/// the image front end ([`povins_core::vio::Vio`], images decoded lazily on a helper thread).
-/// Errors when the chosen input is missing from the dataset.
+/// Errors when the recording lacks what the front end in `fe` needs.
+pub fn check_input(rec: &dyn Recording, fe: &FrontendOptions) -> Result<()> {
+    let has = rec.contents();
+    let name = rec.name();
+    match fe.frontend {
+        // Without a camera at all, the IMU (and LiDAR) alone still run.
+        Frontend::Tracks if !has.frames && has.images => bail!(
+            "{name}: the dataset has camera images but no feature tracks (features0, \
+             /cam0/features): use --frontend images"
+        ),
+        Frontend::Images if !has.images => bail!(
+            "{name}: the dataset has no camera images (EuRoC cam0/data.csv with \
+             cam0/data/*.png, MCAP /cam0/image_raw or /cam0/image_raw/compressed){}",
+            if has.frames {
+                "; it has feature tracks: use --frontend tracks"
+            } else {
+                ""
+            }
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// The odometry of a run over `rec`: built for `fe` (the front end's capacity chosen by the
+/// camera's image size), started as `init` says (`cfg`'s first-keyframe prior tightened for a
+/// ground-truth start), with the stamp of the first IMU sample the replay takes.
+pub fn start(
+    rec: &dyn Recording,
+    mut cfg: EstimatorConfig,
+    init: InitMode,
+    fe: &FrontendOptions,
+) -> Result<(Box<dyn Odometry + Send>, i64)> {
+    check_input(rec, fe)?;
+    let (start_ns, gt_start) = start_state(rec, &mut cfg, init)?;
+    let mut odo = boxed_odometry(cfg, &fe.front_end()).with_context(|| rec.name().to_string())?;
+    if let Some(s0) = gt_start {
+        odo.initialize(s0)
+            .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;
+    }
+    Ok((odo, start_ns))
+}
+
+/// Replays `rec` with the front end chosen in `fe`: the recording's tracks, or its images
+/// through the image front end ([`povins_core::vio::Vio`], images decoded ahead on a helper
+/// thread). Errors when the chosen input is missing from the recording or it cannot be read.
 pub fn replay_with(
-    ds: &Dataset,
+    rec: &dyn Recording,
     cfg: EstimatorConfig,
     init: InitMode,
     fe: &FrontendOptions,
     progress: &Progress,
 ) -> Result<RunOutput> {
-    let (w, h) = (ds.calib.camera.width, ds.calib.camera.height);
-    match fe.frontend {
-        Frontend::Tracks => {
-            if ds.features.is_empty() && !ds.images.is_empty() {
-                bail!(
-                    "{}: the dataset has camera images but no feature tracks (features0, \
-                     /cam0/features): use --frontend images",
-                    ds.name
-                );
-            }
-            replay_vio::<EurocVio>(ds, cfg, init, fe, progress)
-        }
-        Frontend::Images => {
-            if ds.images.is_empty() {
-                bail!(
-                    "{}: the dataset has no camera images (EuRoC cam0/data.csv with \
-                     cam0/data/*.png, MCAP /cam0/image_raw or /cam0/image_raw/compressed){}",
-                    ds.name,
-                    if ds.features.is_empty() {
-                        ""
-                    } else {
-                        "; it has feature tracks: use --frontend tracks"
-                    }
-                );
-            }
-            if w <= 752 && h <= 480 {
-                replay_vio::<EurocVio>(ds, cfg, init, fe, progress)
-            } else if w <= 1280 && h <= 720 {
-                replay_vio::<HdVio>(ds, cfg, init, fe, progress)
-            } else {
-                bail!(
-                    "{}: {w}x{h} images are larger than the front end's largest capacity \
-                     (1280x720)",
-                    ds.name
-                )
-            }
-        }
-    }
+    let lidar = cfg.lidar;
+    let (mut odo, start_ns) = start(rec, cfg, init, fe)?;
+    let opts = MergeOptions {
+        start_ns,
+        td_l_s: lidar.td_l_s,
+        camera: fe.camera_input(),
+        lidar: true,
+        pacing: Pacing::AsFastAsPossible,
+    };
+    let source = MergedSource::new(rec, &opts)?;
+    let mut out = RunCollector::new(lidar, fe.frontend, rec, progress);
+    let (ran, source) = Prefetch::run(source, |p| driver::run(&mut *odo, p, &mut out));
+    let stats = ran.with_context(|| format!("reading {}", rec.name()))?;
+    progress.finish();
+    let read = source.stats();
+    let mut run = out.finish();
+    run.estimator_wall_s = stats.odometry_s;
+    run.camera_frames = read.camera_read as usize;
+    run.lidar_scans = read.sweeps_read as usize;
+    let c = odo.counters();
+    run.counters = c.estimator;
+    run.vio_counters = c.images;
+    Ok(run)
 }
 
-/// A [`Vio`] of any capacity, as the replay drives it.
-pub trait VioDriver {
-    /// Builds one.
-    fn build(cfg: EstimatorConfig, tracker: TrackerConfig) -> Result<Box<Self>>;
-    /// The estimator.
-    fn est(&self) -> &povins_core::estimator::PoVins;
-    /// The estimator, mutable.
-    fn est_mut(&mut self) -> &mut povins_core::estimator::PoVins;
-    /// [`Vio::push_imu`].
-    fn imu(&mut self, s: &povins_core::inertial::ImuSample) -> Result<(), povins_core::Error>;
-    /// [`Vio::update`].
-    fn update(&mut self) -> Result<Option<povins_core::estimator::ImuOutput>, povins_core::Error>;
-    /// [`Vio::push_image`].
-    fn image(&mut self, t_ns: i64, view: &ImageView) -> Result<ImageReport, povins_core::Error>;
-    /// [`Vio::features`].
-    fn tracks(&self) -> &[FeatureObs];
-    /// [`Vio::set_aiding`].
-    fn aiding(&mut self, a: VioAiding);
-    /// [`Vio::counters`].
-    fn vio_counters(&self) -> VioCounters;
-}
-
-impl<const F: usize, const BYTES: usize, const LEVELS: usize> VioDriver
-    for Vio<10, 200, 166, F, BYTES, LEVELS>
-{
-    fn build(cfg: EstimatorConfig, tracker: TrackerConfig) -> Result<Box<Self>> {
-        // Built in place on the heap: never on the stack, also in unoptimized builds.
-        povins_platform::boxed::boxed_vio(cfg, tracker)
-            .map_err(|e| anyhow::anyhow!("invalid estimator or front-end configuration: {e}"))
-    }
-    fn est(&self) -> &povins_core::estimator::PoVins {
-        self.estimator()
-    }
-    fn est_mut(&mut self) -> &mut povins_core::estimator::PoVins {
-        self.estimator_mut()
-    }
-    fn imu(&mut self, s: &povins_core::inertial::ImuSample) -> Result<(), povins_core::Error> {
-        self.push_imu(s)
-    }
-    fn update(&mut self) -> Result<Option<povins_core::estimator::ImuOutput>, povins_core::Error> {
-        Vio::update(self)
-    }
-    fn image(&mut self, t_ns: i64, view: &ImageView) -> Result<ImageReport, povins_core::Error> {
-        self.push_image(t_ns, view)
-    }
-    fn tracks(&self) -> &[FeatureObs] {
-        self.features()
-    }
-    fn aiding(&mut self, a: VioAiding) {
-        self.set_aiding(a);
-    }
-    fn vio_counters(&self) -> VioCounters {
-        self.counters()
-    }
-}
-
-/// Where a replay of `ds` starts with `init`: the index of the first IMU sample replayed and,
+/// Where a replay of `rec` starts with `init`: the stamp of the first IMU sample replayed and,
 /// for [`InitMode::Groundtruth`], the true state there (the first keyframe's prior in `cfg` is
-/// tightened accordingly). Errors when the dataset cannot start that way.
+/// tightened accordingly). Errors when the recording cannot start that way.
 pub fn start_state(
-    ds: &Dataset,
+    rec: &dyn Recording,
     cfg: &mut EstimatorConfig,
     init: InitMode,
-) -> Result<(usize, Option<NavState>)> {
-    if ds.imu.is_empty() {
-        bail!("{}: the dataset has no IMU samples", ds.name);
-    }
+) -> Result<(i64, Option<NavState>)> {
+    let name = rec.name();
+    let mut imu = rec.imu()?;
+    let Some(first) = imu.next().transpose()? else {
+        bail!("{name}: the dataset has no IMU samples");
+    };
     if init == InitMode::Static {
-        return Ok((0, None));
+        return Ok((first.t_ns, None));
     }
-    let Some(g0) = ds.ground_truth.first() else {
-        bail!(
-            "{}: --init groundtruth needs ground truth in the dataset",
-            ds.name
-        );
+    let gt = rec.ground_truth()?;
+    let Some(g0) = gt.first() else {
+        bail!("{name}: --init groundtruth needs ground truth in the dataset");
     };
-    let start = ds
-        .imu
-        .iter()
-        .position(|s| s.t_ns >= g0.t_ns)
-        .unwrap_or(ds.imu.len());
-    let Some(s0) = ds.imu.get(start) else {
-        bail!(
-            "{}: no IMU sample after the first ground-truth state",
-            ds.name
-        );
+    let mut s0 = Some(first);
+    while let Some(s) = s0.filter(|s| s.t_ns < g0.t_ns) {
+        let _ = s;
+        s0 = imu.next().transpose()?;
+    }
+    let Some(s0) = s0 else {
+        bail!("{name}: no IMU sample after the first ground-truth state");
     };
-    let gt0 = interpolate_state(&ds.ground_truth, s0.t_ns).unwrap_or(*g0);
+    let gt0 = interpolate_state(&gt, s0.t_ns).unwrap_or(*g0);
     // The true state is known: the first keyframe's prior says so (peers do the same).
     cfg.first_prior.theta_rad = 2e-3;
     cfg.first_prior.v_mps = 0.01;
     cfg.first_prior.bg_rps = 1e-4;
     cfg.first_prior.ba_mps2 = 0.01;
     Ok((
-        start,
+        s0.t_ns,
         Some(NavState {
             t_ns: s0.t_ns,
             ..gt0
@@ -339,175 +335,142 @@ pub fn start_state(
     ))
 }
 
-fn replay_vio<V: VioDriver>(
-    ds: &Dataset,
-    mut cfg: EstimatorConfig,
-    init: InitMode,
-    fe: &FrontendOptions,
-    progress: &Progress,
-) -> Result<RunOutput> {
-    let (start, gt_start) = start_state(ds, &mut cfg, init)?;
-    let lidar = cfg.lidar;
-    let mut vio = V::build(cfg, fe.tracker)?;
-    vio.aiding(fe.aiding);
-    if let Some(s0) = gt_start {
-        vio.est_mut()
-            .initialize(s0)
-            .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;
-    }
-    let images = fe.frontend == Frontend::Images;
-    let mut out = RunOutput {
-        imu_rate: Vec::with_capacity(ds.imu.len()),
-        keyframes: Vec::new(),
-        keyframe_states: Vec::new(),
-        reports: Vec::new(),
-        lidar_events: Vec::new(),
-        counters: Counters::default(),
-        camera_frames: if images {
-            ds.images.len()
-        } else {
-            ds.features.len()
-        },
-        lidar_scans: ds.lidar.len(),
-        lidar,
-        estimator_wall_s: 0.0,
-        prediction_err_px: Vec::new(),
-        frontend: fe.frontend,
-        frames: Vec::new(),
-        image_failures: 0,
-        image_errors: Vec::new(),
-        vio_counters: VioCounters::default(),
-    };
-    let mut predicted = vec![FeaturePrediction::EMPTY; 512];
-    // Time spent outside the estimator (prediction bookkeeping, waiting for decoded images).
-    let mut other_s = 0.0;
-    let mut kf_states: BTreeMap<i64, NavState> = BTreeMap::new();
-    let t_start_ns = ds.imu[start].t_ns;
-    let mut fi = ds.features.partition_point(|f| f.t_ns < t_start_ns);
-    let first_image = ds.images.partition_point(|f| f.t_ns < t_start_ns);
-    // Sweeps due before the first replayed IMU sample are skipped, like frames before it.
-    let scans = lidar_schedule(ds, lidar.td_l_s);
-    let mut li = scans.partition_point(|&(t, _)| t < t_start_ns);
-    let image_list = if images {
-        ds.images.get(first_image..).unwrap_or(&[])
-    } else {
-        &[]
-    };
-    let t_run = Instant::now();
-    with_images(image_list, |stream| -> Result<()> {
-        let mut stream = stream.peekable();
-        for (i, s) in ds.imu.iter().enumerate().skip(start) {
-            if images {
-                loop {
-                    let t_wait = Instant::now();
-                    let due = stream.peek().is_some_and(|im| im.t_ns <= s.t_ns);
-                    let next = if due { stream.next() } else { None };
-                    other_s += t_wait.elapsed().as_secs_f64();
-                    let Some(im) = next else { break };
-                    let t_eval = Instant::now();
-                    let n = vio
-                        .est()
-                        .predict_features(im.t_ns, &mut predicted)
-                        .unwrap_or(0);
-                    other_s += t_eval.elapsed().as_secs_f64();
-                    push_image(&mut *vio, &im, &mut out);
-                    let t_eval = Instant::now();
-                    prediction_errors(&predicted[..n.min(predicted.len())], vio.tracks(), &mut out);
-                    other_s += t_eval.elapsed().as_secs_f64();
-                }
-            } else {
-                while let Some(f) = ds.features.get(fi).filter(|f| f.t_ns <= s.t_ns) {
-                    if let Ok(n) = vio.est().predict_features(f.t_ns, &mut predicted) {
-                        let t_eval = Instant::now();
-                        prediction_errors(&predicted[..n.min(predicted.len())], &f.obs, &mut out);
-                        other_s += t_eval.elapsed().as_secs_f64();
-                    }
-                    let _ = vio.est_mut().push_frame(f.t_ns, &f.obs);
-                    fi += 1;
-                }
-            }
-            let _ = vio.imu(s);
-            // The core holds each sweep until the IMU has passed its last point: offer it when
-            // it is complete (its last point, on the IMU clock).
-            while let Some(&(_, k)) = scans.get(li).filter(|(t, _)| *t <= s.t_ns) {
-                if let Some(scan) = ds.lidar.get(k) {
-                    let _ = vio.est_mut().push_lidar(&scan.points);
-                }
-                li += 1;
-            }
-            loop {
-                let o = match vio.update() {
-                    Ok(Some(o)) => o,
-                    Ok(None) => break,
-                    Err(_) => continue,
-                };
-                if let Some(r) = o.keyframe {
-                    out.lidar_events.push(KeyframeDepthEvents {
-                        t_cam_ns: r.t_cam_ns,
-                        events: vio.est().lidar_events().to_vec(),
-                    });
-                    out.reports.push(r);
-                    for kf in vio.est().keyframes() {
-                        kf_states.insert(kf.state.t_ns, kf.state);
-                    }
-                }
-                if let Some(nav) = o.nav {
-                    out.imu_rate.push(nav);
-                }
-            }
-            if i % 1000 == 0 {
-                progress.set_position(i as u64);
-            }
-        }
-        Ok(())
-    })?;
-    out.estimator_wall_s = t_run.elapsed().as_secs_f64() - other_s;
-    progress.finish();
-    out.keyframe_states = kf_states.into_values().collect();
-    out.keyframes = out.keyframe_states.iter().map(StampedPose::from).collect();
-    out.counters = vio.est().counters();
-    out.vio_counters = vio.vio_counters();
-    Ok(out)
-}
-
 /// Most image errors kept with their message (the rest are counted).
 const MAX_IMAGE_ERRORS: usize = 20;
 
-/// Tracks one decoded image into the estimator, logging the result or the error.
-fn push_image<V: VioDriver + ?Sized>(vio: &mut V, im: &LoadedImage<'_>, out: &mut RunOutput) {
-    let mut fail = |msg: String| {
-        out.image_failures += 1;
-        if out.image_errors.len() < MAX_IMAGE_ERRORS {
-            out.image_errors.push((im.t_ns, msg));
+/// Progress of a replay over the recording's time (whole seconds), or over IMU samples when the
+/// recording's span is unknown.
+pub struct ReplayProgress<'p> {
+    progress: &'p Progress,
+    t_first_ns: Option<i64>,
+    samples: u64,
+}
+
+impl<'p> ReplayProgress<'p> {
+    /// Sets up `progress` for a replay of `rec`.
+    pub fn new(rec: &dyn Recording, progress: &'p Progress) -> Self {
+        let span = rec.contents().imu_span_ns;
+        if let Some((a, b)) = span {
+            progress.set_length(u64::try_from((b - a) / 1_000_000_000).unwrap_or(0));
+            progress.set_message("s of recording");
         }
-    };
-    let (w, h, px) = match &im.pixels {
-        Ok(p) => p,
-        Err(e) => return fail(e.clone()),
-    };
-    let view = match ImageView::new(px, *w, *h, *w) {
-        Ok(v) => v,
-        Err(e) => return fail(format!("image at {} ns ({w}x{h}): {e}", im.t_ns)),
-    };
-    match vio.image(im.t_ns, &view) {
-        Ok(report) => out.frames.push(FrameLog {
-            t_ns: im.t_ns,
-            report,
-            decode_ms: im.decode_s * 1e3,
-        }),
-        Err(e) => fail(format!("image at {} ns ({w}x{h}) refused: {e}", im.t_ns)),
+        ReplayProgress {
+            progress,
+            t_first_ns: span.map(|s| s.0),
+            samples: 0,
+        }
+    }
+
+    /// An IMU sample at `t_ns` was read.
+    pub fn imu(&mut self, t_ns: i64) {
+        self.samples += 1;
+        if self.samples.is_multiple_of(1000) {
+            self.progress.set_position(match self.t_first_ns {
+                Some(t0) => u64::try_from((t_ns - t0) / 1_000_000_000).unwrap_or(0),
+                None => self.samples,
+            });
+        }
+    }
+}
+
+/// Collects a replay's outputs into a [`RunOutput`] (the driver's observer).
+struct RunCollector<'p> {
+    out: RunOutput,
+    /// Each keyframe's last optimized state, by IMU stamp.
+    kf_states: BTreeMap<i64, NavState>,
+    progress: ReplayProgress<'p>,
+}
+
+impl<'p> RunCollector<'p> {
+    fn new(
+        lidar: LidarConfig,
+        frontend: Frontend,
+        rec: &dyn Recording,
+        progress: &'p Progress,
+    ) -> Self {
+        RunCollector {
+            out: RunOutput {
+                imu_rate: Vec::new(),
+                keyframes: Vec::new(),
+                keyframe_states: Vec::new(),
+                reports: Vec::new(),
+                lidar_events: Vec::new(),
+                counters: Counters::default(),
+                camera_frames: 0,
+                lidar_scans: 0,
+                lidar,
+                estimator_wall_s: 0.0,
+                prediction_err_px: Vec::new(),
+                frontend,
+                frames: Vec::new(),
+                image_failures: 0,
+                image_errors: Vec::new(),
+                vio_counters: VioCounters::default(),
+            },
+            kf_states: BTreeMap::new(),
+            progress: ReplayProgress::new(rec, progress),
+        }
+    }
+
+    fn finish(mut self) -> RunOutput {
+        self.out.keyframe_states = self.kf_states.into_values().collect();
+        self.out.keyframes = self
+            .out
+            .keyframe_states
+            .iter()
+            .map(StampedPose::from)
+            .collect();
+        self.out
+    }
+}
+
+impl Observer for RunCollector<'_> {
+    fn imu(&mut self, t_ns: i64) {
+        self.progress.imu(t_ns);
+    }
+
+    fn output(&mut self, o: &Output<'_>) {
+        if let Some(k) = &o.keyframe {
+            self.out.lidar_events.push(KeyframeDepthEvents {
+                t_cam_ns: k.report.t_cam_ns,
+                events: k.lidar_events.to_vec(),
+            });
+            self.out.reports.push(k.report);
+            for kf in k.window {
+                self.kf_states.insert(kf.state.t_ns, kf.state);
+            }
+        }
+        if let Some(nav) = o.nav {
+            self.out.imu_rate.push(nav);
+        }
+    }
+
+    fn frame(&mut self, f: &FrameOutput<'_>, image: Option<&ImageIn<'_>>) {
+        prediction_errors(f.predictions, f.tracks, &mut self.out.prediction_err_px);
+        if let (Some(report), Some(im)) = (f.image, image) {
+            self.out.frames.push(FrameLog::of(f.t_cam_ns, report, im));
+        }
+    }
+
+    fn image_failed(&mut self, t_cam_ns: i64, why: String) {
+        self.out.image_failures += 1;
+        if self.out.image_errors.len() < MAX_IMAGE_ERRORS {
+            self.out.image_errors.push((t_cam_ns, why));
+        }
     }
 }
 
 /// Appends the pixel distance of each prediction to the observation of the same feature.
-fn prediction_errors(predicted: &[FeaturePrediction], obs: &[FeatureObs], out: &mut RunOutput) {
+fn prediction_errors(predicted: &[FeaturePrediction], obs: &[FeatureObs], out: &mut Vec<f32>) {
+    if predicted.is_empty() {
+        return;
+    }
     let mut by_id: Vec<(u64, f64, f64)> = obs.iter().map(|o| (o.id, o.u_px, o.v_px)).collect();
     by_id.sort_by_key(|o| o.0);
     for p in predicted {
         if let Ok(k) = by_id.binary_search_by_key(&p.id, |o| o.0) {
             let (_, u, v) = by_id[k];
-            out.prediction_err_px
-                .push((p.uv_px[0] - u).hypot(p.uv_px[1] - v) as f32);
+            out.push((p.uv_px[0] - u).hypot(p.uv_px[1] - v) as f32);
         }
     }
 }

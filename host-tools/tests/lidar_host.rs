@@ -17,7 +17,7 @@ use povins_core::math::{Quat, Vec3};
 use povins_host_tools::ablation::{run_ablation, AblationConfig, Variant};
 use povins_host_tools::cmd::run::{estimator_config, Args as RunArgs, STATS_LIDAR_COLUMNS};
 use povins_host_tools::progress::Progress;
-use povins_host_tools::runner::{config_for, lidar_schedule, replay, InitMode};
+use povins_host_tools::runner::{config_for, replay, InitMode};
 use povins_host_tools::sim::{self, LidarKind, Scenario, SimConfig};
 use povins_platform::dataset::{Calibration, Dataset, Extrinsic, LidarScan};
 use std::path::Path;
@@ -184,16 +184,21 @@ fn replay_pushes_each_sweep_after_the_imu_passed_its_last_point() {
 fn replay_pushes_sweeps() {
     let ds = fake_dataset();
     // Triggers are the latest point times, not the last listed point's.
-    let due = lidar_schedule(&ds, 0.0);
+    let due = |td_l_s| -> Vec<Option<i64>> {
+        ds.lidar
+            .iter()
+            .map(|s| povins_core::lidar::sweep_due_ns(&s.points, td_l_s))
+            .collect()
+    };
     assert_eq!(
-        due,
-        vec![
-            (T0_NS + 290 * MS, 0),
-            (T0_NS + 590 * MS, 1),
-            (T0_NS + 2040 * MS, 2)
+        due(0.0),
+        [
+            Some(T0_NS + 290 * MS),
+            Some(T0_NS + 590 * MS),
+            Some(T0_NS + 2040 * MS)
         ]
     );
-    assert_eq!(lidar_schedule(&ds, -0.1)[2], (T0_NS + 1940 * MS, 2));
+    assert_eq!(due(-0.1)[2], Some(T0_NS + 1940 * MS));
 
     let cfg = config_for(&ds);
     let out = replay(&ds, cfg, InitMode::Static, &quiet()).unwrap();
@@ -256,10 +261,14 @@ fn mcap_round_trip() {
     let out = replay(&back, config_for(&back), InitMode::Groundtruth, &quiet()).unwrap();
     let t_last = back.imu.last().unwrap().t_ns;
     let t_first = back.imu.first().unwrap().t_ns;
-    let expected: Vec<usize> = lidar_schedule(&back, 0.0)
+    let expected: Vec<usize> = back
+        .lidar
         .iter()
-        .filter(|(t, _)| *t >= t_first && *t <= t_last)
-        .map(|&(_, k)| back.lidar[k].points.len())
+        .filter(|s| {
+            let t = povins_core::lidar::sweep_due_ns(&s.points, 0.0).unwrap_or(s.t_ns);
+            t >= t_first && t <= t_last
+        })
+        .map(|s| s.points.len())
         .collect();
     assert_eq!(out.counters.lidar_scans, expected.len() as u64);
     assert_eq!(

@@ -13,6 +13,7 @@ use povins_core::estimator::{EstimatorConfig, PoVins};
 use povins_core::inertial::{ImuNoise, ImuSample};
 use povins_core::math::Vec3;
 use povins_platform::pipeline::{self, CallbackSink, PipelineConfig, PoseOut, SensorEvent, Source};
+use povins_platform::IoError;
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -27,9 +28,9 @@ struct LiveSource {
 }
 
 impl Source for LiveSource {
-    fn next(&mut self) -> Option<SensorEvent> {
+    fn next(&mut self) -> Result<Option<SensorEvent>, IoError> {
         // Blocks until the driver has a sample; `None` once the driver hung up.
-        self.rx.recv().ok()
+        Ok(self.rx.recv().ok())
     }
 
     fn stamp_instant(&self, t_ns: i64) -> Option<Instant> {

@@ -16,7 +16,7 @@
 use povins_core::estimator::{Estimator, EstimatorConfig, PoVins};
 use povins_core::frontend::image::tracker::FeatureTracker;
 use povins_core::frontend::image::TrackerConfig;
-use povins_core::vio::Vio;
+use povins_core::vio::{Tracking, Vio};
 use povins_core::Error;
 use std::mem::MaybeUninit;
 
@@ -84,6 +84,21 @@ pub fn boxed_vio<
     let mut vio = unsafe { slot.assume_init() };
     vio.configure(estimator, tracker)?;
     Ok(vio)
+}
+
+/// The image front end alone ([`Tracking`]) configured with `cfg` and `tracker`, on the heap,
+/// never on a stack (as [`boxed_vio`]: the constant [`Tracking::empty`] assigned to the box,
+/// then [`Tracking::configure`]). [`Error::InvalidConfig`] for an invalid configuration.
+pub fn boxed_tracking<const F: usize, const BYTES: usize, const LEVELS: usize>(
+    cfg: EstimatorConfig,
+    tracker: TrackerConfig,
+) -> Result<Box<Tracking<F, BYTES, LEVELS>>, Error> {
+    let mut slot = Box::<Tracking<F, BYTES, LEVELS>>::new_uninit();
+    *slot = const { MaybeUninit::new(Tracking::empty()) };
+    // SAFETY: `slot` was just assigned a valid value (`Tracking::empty()`).
+    let mut t = unsafe { slot.assume_init() };
+    t.configure(cfg, tracker)?;
+    Ok(t)
 }
 
 /// A [`FeatureTracker`] configured with `cfg`, on the heap, never on a stack (as

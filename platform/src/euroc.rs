@@ -28,18 +28,18 @@
 
 mod csv;
 mod png_io;
+pub mod rows;
 mod yaml;
 
 pub use png_io::{read_mono8 as read_png_mono8, write_mono8 as write_png_mono8};
 
 use crate::dataset::{Calibration, Dataset, Extrinsic, FeatureFrame, ImageFrame, LidarScan};
 use crate::error::IoError;
+use crate::recording::{Contents, Recording, Stream};
 use crate::trajectory::{read_euroc_groundtruth, write_euroc_groundtruth};
-use csv::CsvLines;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
-use povins_core::camera::{Distortion, FeatureObs, PinholeCamera};
-use povins_core::inertial::{ImuNoise, ImuSample};
-use povins_core::lidar::LidarPoint;
+use povins_core::camera::{Distortion, PinholeCamera};
+use povins_core::inertial::{ImuNoise, ImuSample, NavState};
 use povins_core::math::Vec3;
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -77,61 +77,173 @@ fn locate(dir: &Path) -> (PathBuf, String) {
     (mav0, name)
 }
 
-/// Reads an EuRoC ASL folder (the folder containing `mav0/`, or `mav0/` itself). Images are
-/// listed with their paths and the `cam0` resolution; call [`read_images`] for the pixels.
-pub fn read_dataset(dir: &Path) -> Result<Dataset, IoError> {
-    let (mav0, name) = locate(dir);
-    let imu_dir = mav0.join("imu0");
-    if !imu_dir.join("data.csv").is_file() || !imu_dir.join("sensor.yaml").is_file() {
-        return Err(IoError::Invalid {
-            path: imu_dir,
-            msg: "imu0/data.csv and imu0/sensor.yaml are required".into(),
-        });
-    }
-    let imu_yaml = Doc::read(&imu_dir.join("sensor.yaml"))?;
-    let t_b_imu = match doc_t_bs(&imu_yaml)? {
-        Some(t) => t,
-        None => Extrinsic::identity(),
-    };
-    let imu = read_imu(&imu_dir.join("data.csv"))?;
+/// An EuRoC ASL folder as a [`Recording`]: the calibration is read when it is opened, the
+/// sensors' `data.csv` files row by row when their streams are pulled ([`rows`]).
+#[derive(Debug, Clone)]
+pub struct EurocFolder {
+    name: String,
+    calib: Calibration,
+    imu: PathBuf,
+    features: Option<PathBuf>,
+    images: Option<(PathBuf, PathBuf)>,
+    lidar: Option<PathBuf>,
+    ground_truth: Option<PathBuf>,
+    imu_span_ns: Option<(i64, i64)>,
+    image_count: Option<usize>,
+}
 
-    let cam_dir = mav0.join("cam0");
-    let cam_yaml_path = cam_dir.join("sensor.yaml");
-    let features_path = mav0.join("features0").join("data.csv");
-    let cam_csv = cam_dir.join("data.csv");
-    let cam_yaml = if cam_yaml_path.is_file() {
-        Some(Doc::read(&cam_yaml_path)?)
-    } else if features_path.is_file() || cam_csv.is_file() {
-        return Err(IoError::Invalid {
-            path: cam_yaml_path,
-            msg: "camera data present but cam0/sensor.yaml is missing".into(),
-        });
-    } else {
-        None
-    };
-
-    let (camera, t_bc, td_s, camera_rate_hz) = match &cam_yaml {
-        Some(d) => {
-            let (cam, t, td, rate) = read_camera(d)?;
-            (cam, compose_in_imu(&t_b_imu, &t), td, rate)
+impl EurocFolder {
+    /// Opens an EuRoC ASL folder (the folder containing `mav0/`, or `mav0/` itself): reads its
+    /// calibration and finds its sensors' files.
+    pub fn open(dir: &Path) -> Result<Self, IoError> {
+        let (mav0, name) = locate(dir);
+        let imu_dir = mav0.join("imu0");
+        if !imu_dir.join("data.csv").is_file() || !imu_dir.join("sensor.yaml").is_file() {
+            return Err(IoError::Invalid {
+                path: imu_dir,
+                msg: "imu0/data.csv and imu0/sensor.yaml are required".into(),
+            });
         }
-        // No camera at all: a placeholder the estimator cannot mistake for a real one.
-        None => (
-            PinholeCamera {
-                width: 0,
-                height: 0,
-                fx: 1.0,
-                fy: 1.0,
-                cx: 0.0,
-                cy: 0.0,
-                distortion: Distortion::None,
+        let imu_yaml = Doc::read(&imu_dir.join("sensor.yaml"))?;
+        let t_b_imu = match doc_t_bs(&imu_yaml)? {
+            Some(t) => t,
+            None => Extrinsic::identity(),
+        };
+        let cam_dir = mav0.join("cam0");
+        let cam_yaml_path = cam_dir.join("sensor.yaml");
+        let features_path = mav0.join("features0").join("data.csv");
+        let cam_csv = cam_dir.join("data.csv");
+        let cam_yaml = if cam_yaml_path.is_file() {
+            Some(Doc::read(&cam_yaml_path)?)
+        } else if features_path.is_file() || cam_csv.is_file() {
+            return Err(IoError::Invalid {
+                path: cam_yaml_path,
+                msg: "camera data present but cam0/sensor.yaml is missing".into(),
+            });
+        } else {
+            None
+        };
+        let (camera, t_bc, td_s, camera_rate_hz) = match &cam_yaml {
+            Some(d) => {
+                let (cam, t, td, rate) = read_camera(d)?;
+                (cam, compose_in_imu(&t_b_imu, &t), td, rate)
+            }
+            // No camera at all: a placeholder the estimator cannot mistake for a real one.
+            None => (
+                PinholeCamera {
+                    width: 0,
+                    height: 0,
+                    fx: 1.0,
+                    fy: 1.0,
+                    cx: 0.0,
+                    cy: 0.0,
+                    distortion: Distortion::None,
+                },
+                Extrinsic::identity(),
+                0.0,
+                0.0,
+            ),
+        };
+        let (imu_noise, imu_rate_hz, gravity_mps2) = read_imu_yaml(&imu_yaml)?;
+        let lidar_dir = mav0.join("lidar0");
+        let t_bl = if lidar_dir.join("sensor.yaml").is_file() {
+            let d = Doc::read(&lidar_dir.join("sensor.yaml"))?;
+            let t = doc_t_bs(&d)?.ok_or_else(|| d.error(1, "lidar0/sensor.yaml needs T_BS"))?;
+            Some(compose_in_imu(&t_b_imu, &t))
+        } else {
+            None
+        };
+        let file = |p: PathBuf| p.is_file().then_some(p);
+        let imu = imu_dir.join("data.csv");
+        let imu_span_ns = first_stamp(&imu).zip(rows::last_stamp(&imu));
+        let image_count = cam_csv
+            .is_file()
+            .then(|| rows::count_rows(&cam_csv))
+            .flatten();
+        Ok(EurocFolder {
+            name,
+            calib: Calibration {
+                camera,
+                t_bc,
+                td_s,
+                camera_rate_hz,
+                imu_noise,
+                imu_rate_hz,
+                gravity_mps2,
+                t_bl,
             },
-            Extrinsic::identity(),
-            0.0,
-            0.0,
-        ),
-    };
+            imu,
+            features: file(features_path),
+            images: file(cam_csv).map(|c| (c, cam_dir.join("data"))),
+            lidar: file(lidar_dir.join("data.csv")),
+            ground_truth: file(mav0.join("state_groundtruth_estimate0").join("data.csv")),
+            imu_span_ns,
+            image_count,
+        })
+    }
+}
 
+impl Recording for EurocFolder {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn calibration(&self) -> &Calibration {
+        &self.calib
+    }
+
+    fn contents(&self) -> Contents {
+        Contents {
+            imu: true,
+            frames: self.features.is_some(),
+            images: self.images.is_some(),
+            lidar: self.lidar.is_some(),
+            ground_truth: self.ground_truth.is_some(),
+            imu_span_ns: self.imu_span_ns,
+            image_count: self.image_count.filter(|_| self.images.is_some()),
+        }
+    }
+
+    fn imu(&self) -> Result<Stream<'_, ImuSample>, IoError> {
+        Ok(Box::new(rows::ImuRows::open(&self.imu)?))
+    }
+
+    fn frames(&self) -> Result<Stream<'_, FeatureFrame>, IoError> {
+        Ok(match &self.features {
+            Some(p) => Box::new(rows::FeatureRows::open(p)?),
+            None => Box::new(std::iter::empty()),
+        })
+    }
+
+    fn images(&self) -> Result<Stream<'_, ImageFrame>, IoError> {
+        Ok(match &self.images {
+            Some((list, dir)) => Box::new(rows::ImageRows::open(list, dir, &self.calib.camera)?),
+            None => Box::new(std::iter::empty()),
+        })
+    }
+
+    fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError> {
+        Ok(match &self.lidar {
+            Some(p) => Box::new(rows::LidarRows::open(p)?),
+            None => Box::new(std::iter::empty()),
+        })
+    }
+
+    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
+        match &self.ground_truth {
+            Some(p) => read_euroc_groundtruth(p),
+            None => Ok(Vec::new()),
+        }
+    }
+}
+
+/// The stamp of the first data row of a `data.csv`, or `None`.
+fn first_stamp(path: &Path) -> Option<i64> {
+    rows::ImuRows::open(path).ok()?.next()?.ok().map(|s| s.t_ns)
+}
+
+/// Noise model, rate and gravity of `imu0/sensor.yaml`.
+fn read_imu_yaml(imu_yaml: &Doc) -> Result<(ImuNoise, f64, f64), IoError> {
     let r = imu_yaml.root();
     let imu_noise = ImuNoise {
         gyro_noise_density: imu_yaml.f64(r, "gyroscope_noise_density")?,
@@ -150,50 +262,22 @@ pub fn read_dataset(dir: &Path) -> Result<Dataset, IoError> {
     let gravity_mps2 = imu_yaml
         .opt_f64(r, "gravity_magnitude")?
         .unwrap_or(DEFAULT_GRAVITY_MPS2);
+    Ok((imu_noise, imu_rate_hz, gravity_mps2))
+}
 
-    let lidar_dir = mav0.join("lidar0");
-    let t_bl = if lidar_dir.join("sensor.yaml").is_file() {
-        let d = Doc::read(&lidar_dir.join("sensor.yaml"))?;
-        let t = doc_t_bs(&d)?.ok_or_else(|| d.error(1, "lidar0/sensor.yaml needs T_BS"))?;
-        Some(compose_in_imu(&t_b_imu, &t))
-    } else {
-        None
-    };
-    let lidar = if lidar_dir.join("data.csv").is_file() {
-        read_lidar(&lidar_dir.join("data.csv"))?
-    } else {
-        Vec::new()
-    };
-
-    let features = if features_path.is_file() {
-        read_features(&features_path)?
-    } else {
-        Vec::new()
-    };
-    let images = if cam_csv.is_file() {
-        read_image_list(&cam_csv, &cam_dir.join("data"), &camera)?
-    } else {
-        Vec::new()
-    };
-    let gt_path = mav0.join("state_groundtruth_estimate0").join("data.csv");
-    let ground_truth = if gt_path.is_file() {
-        read_euroc_groundtruth(&gt_path)?
-    } else {
-        Vec::new()
-    };
-
+/// Reads an EuRoC ASL folder whole (the folder containing `mav0/`, or `mav0/` itself): every
+/// stream of [`EurocFolder`] collected. Images are listed with their paths and the `cam0`
+/// resolution; call [`read_images`] for the pixels.
+pub fn read_dataset(dir: &Path) -> Result<Dataset, IoError> {
+    let f = EurocFolder::open(dir)?;
+    let imu = f.imu()?.collect::<Result<_, _>>()?;
+    let features = f.frames()?.collect::<Result<_, _>>()?;
+    let images = f.images()?.collect::<Result<_, _>>()?;
+    let lidar = f.sweeps()?.collect::<Result<_, _>>()?;
+    let ground_truth = f.ground_truth()?;
     Ok(Dataset {
-        name,
-        calib: Calibration {
-            camera,
-            t_bc,
-            td_s,
-            camera_rate_hz,
-            imu_noise,
-            imu_rate_hz,
-            gravity_mps2,
-            t_bl,
-        },
+        name: f.name,
+        calib: f.calib,
         imu,
         features,
         images,
@@ -217,104 +301,6 @@ pub fn read_images(ds: &mut Dataset) -> Result<(), IoError> {
         }
     }
     Ok(())
-}
-
-fn read_imu(path: &Path) -> Result<Vec<ImuSample>, IoError> {
-    let mut c = CsvLines::open(path, 7)?;
-    let mut out: Vec<ImuSample> =
-        Vec::with_capacity((std::fs::metadata(path).map(|m| m.len()).unwrap_or(0) / 100) as usize);
-    while c.next_line()? {
-        let f = c.fields::<7>()?;
-        let t_ns = c.ns(0, f[0])?;
-        c.check_time(out.last().map(|s| s.t_ns), t_ns, false)?;
-        out.push(ImuSample {
-            t_ns,
-            gyro_rps: Vec3::new(c.f64(1, f[1])?, c.f64(2, f[2])?, c.f64(3, f[3])?),
-            accel_mps2: Vec3::new(c.f64(4, f[4])?, c.f64(5, f[5])?, c.f64(6, f[6])?),
-        });
-    }
-    Ok(out)
-}
-
-fn read_features(path: &Path) -> Result<Vec<FeatureFrame>, IoError> {
-    let mut c = CsvLines::open(path, 4)?;
-    let mut out: Vec<FeatureFrame> = Vec::new();
-    let mut ids = std::collections::HashSet::new();
-    while c.next_line()? {
-        let f = c.fields::<4>()?;
-        let t_ns = c.ns(0, f[0])?;
-        let obs = FeatureObs {
-            id: c.u64(1, f[1])?,
-            u_px: c.f64(2, f[2])?,
-            v_px: c.f64(3, f[3])?,
-        };
-        c.check_time(out.last().map(|fr| fr.t_ns), t_ns, true)?;
-        match out.last_mut() {
-            Some(fr) if fr.t_ns == t_ns => {
-                if !ids.insert(obs.id) {
-                    return Err(c.err(format!("feature id {} repeated in frame {t_ns}", obs.id)));
-                }
-                fr.obs.push(obs);
-            }
-            _ => {
-                ids.clear();
-                ids.insert(obs.id);
-                out.push(FeatureFrame {
-                    t_ns,
-                    obs: vec![obs],
-                });
-            }
-        }
-    }
-    Ok(out)
-}
-
-fn read_lidar(path: &Path) -> Result<Vec<LidarScan>, IoError> {
-    let mut c = CsvLines::open(path, 6)?;
-    let mut out: Vec<LidarScan> = Vec::new();
-    while c.next_line()? {
-        let f = c.fields::<6>()?;
-        let t_ns = c.ns(0, f[0])?;
-        let p = LidarPoint {
-            t_ns: c.ns(1, f[1])?,
-            p_l: [c.f32(2, f[2])?, c.f32(3, f[3])?, c.f32(4, f[4])?],
-            intensity: c.f32(5, f[5])?,
-        };
-        c.check_time(out.last().map(|s| s.t_ns), t_ns, true)?;
-        match out.last_mut() {
-            Some(s) if s.t_ns == t_ns => s.points.push(p),
-            _ => out.push(LidarScan {
-                t_ns,
-                points: vec![p],
-            }),
-        }
-    }
-    Ok(out)
-}
-
-fn read_image_list(
-    path: &Path,
-    data_dir: &Path,
-    cam: &PinholeCamera,
-) -> Result<Vec<ImageFrame>, IoError> {
-    let mut c = CsvLines::open(path, 2)?;
-    let mut out: Vec<ImageFrame> = Vec::new();
-    while c.next_line()? {
-        let f = c.fields::<2>()?;
-        let t_ns = c.ns(0, f[0])?;
-        c.check_time(out.last().map(|s| s.t_ns), t_ns, false)?;
-        if f[1].is_empty() || f[1].contains(['/', '\\']) {
-            return Err(c.err(format!("bad image file name {:?}", f[1])));
-        }
-        out.push(ImageFrame {
-            t_ns,
-            width: cam.width,
-            height: cam.height,
-            mono8: Vec::new(),
-            path: Some(data_dir.join(f[1])),
-        });
-    }
-    Ok(out)
 }
 
 /// `T_BS` of a sensor.yaml, if present.

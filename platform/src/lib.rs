@@ -9,12 +9,17 @@
 pub mod boxed;
 pub mod cdr;
 pub mod dataset;
+pub mod driver;
 pub mod error;
 pub mod euroc;
 pub mod image_codec;
+pub mod images;
 pub mod mcap_io;
+pub mod odometry;
 pub mod pipeline;
+pub mod recording;
 pub mod ros2;
+pub mod source;
 pub mod trajectory;
 
 pub use dataset::Dataset;

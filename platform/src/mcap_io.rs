@@ -32,11 +32,11 @@
 //! message's sequence number and the byte offset inside the message.
 
 use crate::cdr::CdrError;
-use crate::dataset::{Calibration, Dataset, Extrinsic, SimTruth};
+use crate::dataset::{Calibration, Dataset, Extrinsic};
 use crate::error::IoError;
 use crate::euroc::read_png_mono8;
+use crate::ros2;
 use crate::ros2::convert::{self, quat_from_xyzw, quat_to_xyzw};
-use crate::ros2::{self, msgs};
 use povins_core::camera::{Distortion, PinholeCamera};
 use povins_core::inertial::ImuNoise;
 use povins_core::math::Vec3;
@@ -235,6 +235,10 @@ fn calibration_from_metadata(
 
 #[cfg(test)]
 mod compressed_tests;
+mod read;
+
+use crate::recording::Recording;
+pub use read::{McapRecording, REORDER};
 
 #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 enum Kind {
@@ -456,47 +460,44 @@ fn events_start(ds: &Dataset) -> u64 {
         .map_or(0, |s| u64::try_from(s.t_ns).unwrap_or(0))
 }
 
-/// Sorts by time and rejects repeated stamps.
-fn ordered<T>(
-    path: &Path,
-    topic: &str,
-    mut v: Vec<T>,
-    t: impl Fn(&T) -> i64,
-) -> Result<Vec<T>, IoError> {
-    v.sort_by_key(&t);
-    if let Some(w) = v.windows(2).find(|w| t(&w[0]) == t(&w[1])) {
-        return Err(invalid(
-            path,
-            format!("{topic}: two messages stamped {} ns", t(&w[0])),
-        ));
-    }
-    Ok(v)
-}
-
 /// Largest uncompressed chunk accepted, bytes.
 pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
 
-/// Walks the top-level record framing (`opcode: u8, length: u64, body`) and rejects chunks that
-/// claim more than [`MAX_CHUNK_BYTES`] uncompressed: the `mcap` crate allocates the claimed size
-/// up front, so a corrupt size would abort the process instead of failing.
-fn check_chunk_sizes(path: &Path, b: &[u8]) -> Result<(), IoError> {
+/// Walks the top-level record framing (`opcode: u8, length: u64, body`) of the file, seeking
+/// from record to record, and rejects chunks that claim more than [`MAX_CHUNK_BYTES`]
+/// uncompressed: the `mcap` crate allocates the claimed size up front, so a corrupt size would
+/// abort the process instead of failing.
+fn check_chunk_sizes(path: &Path) -> Result<(), IoError> {
+    use std::io::{Read, Seek, SeekFrom};
     const CHUNK: u8 = 0x06;
     const FOOTER: u8 = 0x02;
-    let u64_at = |o: usize| -> Option<u64> {
-        b.get(o..o.checked_add(8)?)
-            .and_then(|s| s.try_into().ok())
-            .map(u64::from_le_bytes)
-    };
-    let mut pos = mcap::MAGIC.len();
-    while let (Some(&op), Some(len)) = (b.get(pos), u64_at(pos + 1)) {
+    let mut f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let len = f.metadata().map_err(|e| IoError::io(path, e))?.len();
+    let mut pos = mcap::MAGIC.len() as u64;
+    // Opcode, record length, and for a chunk its start time, end time and uncompressed size.
+    let mut head = [0u8; 9 + 24];
+    while pos + 9 <= len {
+        f.seek(SeekFrom::Start(pos))
+            .map_err(|e| IoError::io(path, e))?;
+        let want = usize::try_from((len - pos).min(head.len() as u64)).unwrap_or(9);
+        f.read_exact(&mut head[..want])
+            .map_err(|e| IoError::io(path, e))?;
+        let u64_at = |o: usize| -> Option<u64> {
+            head.get(o..o + 8)
+                .filter(|_| o + 8 <= want)
+                .and_then(|s| s.try_into().ok())
+                .map(u64::from_le_bytes)
+        };
+        let (op, Some(rec_len)) = (head[0], u64_at(1)) else {
+            break;
+        };
         if op == CHUNK {
-            // Chunk body: message_start_time u64, message_end_time u64, uncompressed_size u64.
-            if let Some(size) = u64_at(pos + 9 + 16) {
+            if let Some(size) = u64_at(9 + 16) {
                 if size > MAX_CHUNK_BYTES {
                     return Err(IoError::Corrupt {
                         file: path.into(),
                         what: "chunk".into(),
-                        offset: pos as u64,
+                        offset: pos,
                         msg: format!("uncompressed size {size} exceeds {MAX_CHUNK_BYTES} bytes"),
                     });
                 }
@@ -505,10 +506,7 @@ fn check_chunk_sizes(path: &Path, b: &[u8]) -> Result<(), IoError> {
         if op == FOOTER {
             break;
         }
-        match usize::try_from(len)
-            .ok()
-            .and_then(|l| pos.checked_add(9)?.checked_add(l))
-        {
+        match pos.checked_add(9).and_then(|p| p.checked_add(rec_len)) {
             Some(next) => pos = next,
             None => break,
         }
@@ -516,209 +514,22 @@ fn check_chunk_sizes(path: &Path, b: &[u8]) -> Result<(), IoError> {
     Ok(())
 }
 
-/// Reads a whole MCAP file into a [`Dataset`].
+/// Reads a whole MCAP file into a [`Dataset`]: every stream of [`McapRecording`] collected.
 pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
-    check_chunk_sizes(path, &bytes)?;
-    let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut channels: HashMap<u16, (String, String, String)> = HashMap::new();
-    let mut ds_imu = Vec::new();
-    let mut images = Vec::new();
-    let mut compressed_images = Vec::new();
-    let mut lidar = Vec::new();
-    let mut features = Vec::new();
-    let mut odoms: Vec<msgs::Odometry> = Vec::new();
-    let mut biases: HashMap<i64, msgs::Imu> = HashMap::new();
-    let mut calib = None;
-    let mut sim_truth = None;
-
-    // The sans-io reader with a record length limit, so a corrupt length inside a chunk fails
-    // instead of allocating it.
-    let opts = mcap::sans_io::LinearReaderOptions::default()
-        .with_record_length_limit(MAX_CHUNK_BYTES as usize);
-    let mut reader = mcap::sans_io::LinearReader::new_with_options(opts);
-    let mut rest: &[u8] = &bytes;
-    while let Some(event) = reader.next_event() {
-        let rec = match event.map_err(|e| mcap_err(path, e))? {
-            mcap::sans_io::LinearReadEvent::ReadRequest(need) => {
-                let n = need.min(rest.len());
-                reader.insert(n).copy_from_slice(&rest[..n]);
-                reader.notify_read(n);
-                rest = &rest[n..];
-                continue;
-            }
-            mcap::sans_io::LinearReadEvent::Record { data, opcode } => {
-                mcap::parse_record(opcode, data).map_err(|e| mcap_err(path, e))?
-            }
-        };
-        match rec {
-            mcap::records::Record::Schema { header, .. } => {
-                schemas.insert(header.id, header.name.clone());
-            }
-            mcap::records::Record::Channel(c) => {
-                let ty = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                channels.insert(c.id, (c.topic, ty, c.message_encoding));
-            }
-            mcap::records::Record::Message { header, data } => {
-                let Some((topic, ty, enc)) = channels.get(&header.channel_id) else {
-                    return Err(IoError::Corrupt {
-                        file: path.into(),
-                        what: format!("message {}", header.sequence),
-                        offset: 0,
-                        msg: format!("channel {} was never declared", header.channel_id),
-                    });
-                };
-                let want = match topic.as_str() {
-                    TOPIC_IMU | TOPIC_GROUND_TRUTH_BIAS => IMU_TYPE,
-                    TOPIC_IMAGE if ty == COMPRESSED_IMAGE_TYPE => COMPRESSED_IMAGE_TYPE,
-                    TOPIC_IMAGE => IMAGE_TYPE,
-                    TOPIC_IMAGE_COMPRESSED => COMPRESSED_IMAGE_TYPE,
-                    TOPIC_FEATURES => POINT_CLOUD_TYPE,
-                    TOPIC_LIDAR => POINT_CLOUD2_TYPE,
-                    TOPIC_GROUND_TRUTH => ODOMETRY_TYPE,
-                    _ => continue,
-                };
-                if ty != want || enc != "cdr" {
-                    return Err(invalid(
-                        path,
-                        format!("{topic}: schema {ty:?} encoding {enc:?}, expected {want:?} cdr"),
-                    ));
-                }
-                let what = || format!("{topic} message {}", header.sequence);
-                let corrupt = |e: CdrError| IoError::Corrupt {
-                    file: path.into(),
-                    what: what(),
-                    offset: e.offset as u64,
-                    msg: e.msg,
-                };
-                let bad = |msg: String| invalid(path, format!("{}: {msg}", what()));
-                match topic.as_str() {
-                    TOPIC_IMU => {
-                        let m = msgs::Imu::decode(&data).map_err(corrupt)?;
-                        ds_imu.push(
-                            convert::imu_from_msg(&m)
-                                .ok_or_else(|| bad("non-finite sample".into()))?,
-                        );
-                    }
-                    TOPIC_GROUND_TRUTH_BIAS => {
-                        let m = msgs::Imu::decode(&data).map_err(corrupt)?;
-                        if biases.insert(m.header.t_ns, m).is_some() {
-                            return Err(bad("repeated stamp".into()));
-                        }
-                    }
-                    TOPIC_GROUND_TRUTH => {
-                        odoms.push(msgs::Odometry::decode(&data).map_err(corrupt)?)
-                    }
-                    TOPIC_IMAGE | TOPIC_IMAGE_COMPRESSED if want == COMPRESSED_IMAGE_TYPE => {
-                        let m = msgs::CompressedImage::decode(&data).map_err(corrupt)?;
-                        let im = convert::image_from_compressed_msg(&m).map_err(|e| {
-                            IoError::Corrupt {
-                                file: path.into(),
-                                what: format!("{} (format {:?})", what(), m.format),
-                                offset: 0,
-                                msg: e,
-                            }
-                        })?;
-                        if topic == TOPIC_IMAGE {
-                            images.push(im);
-                        } else {
-                            compressed_images.push(im);
-                        }
-                    }
-                    TOPIC_IMAGE => {
-                        let m = msgs::Image::decode(&data).map_err(corrupt)?;
-                        images.push(convert::image_from_msg(m).map_err(bad)?);
-                    }
-                    TOPIC_FEATURES => {
-                        let m = msgs::PointCloud::decode(&data).map_err(corrupt)?;
-                        features.push(convert::features_from_msg(&m).map_err(bad)?);
-                    }
-                    _ => {
-                        let m = msgs::PointCloud2::decode(&data).map_err(corrupt)?;
-                        lidar.push(convert::lidar_from_msg(&m).map_err(bad)?);
-                    }
-                }
-            }
-            mcap::records::Record::Metadata(m) if m.name == CALIBRATION_METADATA => {
-                calib = Some(calibration_from_metadata(path, &m.metadata)?);
-            }
-            mcap::records::Record::Attachment { header, data, .. }
-                if header.name == SIM_TRUTH_ATTACHMENT =>
-            {
-                let j: SimTruthJson =
-                    serde_json::from_slice(&data).map_err(|e| IoError::Corrupt {
-                        file: path.into(),
-                        what: SIM_TRUTH_ATTACHMENT.into(),
-                        offset: e.column() as u64,
-                        msg: e.to_string(),
-                    })?;
-                sim_truth = Some(SimTruth {
-                    landmarks_w: j
-                        .landmarks_w
-                        .into_iter()
-                        .map(|(id, p)| (id, Vec3::from(p)))
-                        .collect(),
-                    wrong_tracks: j.wrong_tracks,
-                    edge_features: j.edge_features,
-                    lidar_edge_points: j.lidar_edge_points,
-                });
-            }
-            _ => {}
-        }
-    }
-    let (name, calib) =
-        calib.ok_or_else(|| invalid(path, format!("no {CALIBRATION_METADATA} metadata record")))?;
-    if ds_imu.is_empty() {
-        return Err(invalid(path, format!("no {TOPIC_IMU} messages")));
-    }
-    let odoms = ordered(path, TOPIC_GROUND_TRUTH, odoms, |o| o.header.t_ns)?;
-    if !biases.is_empty() && biases.len() != odoms.len() {
-        return Err(invalid(
-            path,
-            format!(
-                "{} {TOPIC_GROUND_TRUTH} messages but {} {TOPIC_GROUND_TRUTH_BIAS} messages",
-                odoms.len(),
-                biases.len()
-            ),
-        ));
-    }
-    let mut ground_truth = Vec::with_capacity(odoms.len());
-    for o in &odoms {
-        let b = biases.get(&o.header.t_ns);
-        if b.is_none() && !biases.is_empty() {
-            return Err(invalid(
-                path,
-                format!(
-                    "{TOPIC_GROUND_TRUTH_BIAS}: no message at {} ns",
-                    o.header.t_ns
-                ),
-            ));
-        }
-        ground_truth.push(convert::ground_truth_from_msgs(o, b).map_err(|e| {
-            invalid(
-                path,
-                format!("{TOPIC_GROUND_TRUTH} at {} ns: {e}", o.header.t_ns),
-            )
-        })?);
-    }
+    let r = McapRecording::open(path)?;
+    let imu = r.imu()?.collect::<Result<_, _>>()?;
+    let features = r.frames()?.collect::<Result<_, _>>()?;
+    let images = r.images()?.collect::<Result<_, _>>()?;
+    let lidar = r.sweeps()?.collect::<Result<_, _>>()?;
+    let ground_truth = r.ground_truth()?;
     Ok(Dataset {
-        name: if name.is_empty() {
-            path.file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default()
-        } else {
-            name
-        },
-        calib,
-        imu: ordered(path, TOPIC_IMU, ds_imu, |s| s.t_ns)?,
-        features: ordered(path, TOPIC_FEATURES, features, |s| s.t_ns)?,
-        images: if images.is_empty() {
-            ordered(path, TOPIC_IMAGE_COMPRESSED, compressed_images, |s| s.t_ns)?
-        } else {
-            ordered(path, TOPIC_IMAGE, images, |s| s.t_ns)?
-        },
-        lidar: ordered(path, TOPIC_LIDAR, lidar, |s| s.t_ns)?,
+        name: r.name().to_string(),
+        calib: r.calibration().clone(),
+        imu,
+        features,
+        images,
+        lidar,
         ground_truth,
-        sim_truth,
+        sim_truth: r.sim_truth().cloned(),
     })
 }

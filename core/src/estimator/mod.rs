@@ -48,6 +48,7 @@ mod imu_step;
 mod keyframe;
 mod lidar;
 mod marginalize;
+mod output;
 mod predict;
 mod prepare;
 pub mod prior;
@@ -232,6 +233,8 @@ pub struct Estimator<
     imu_scale: imu_noise::ImuNoiseScale,
     /// The INS epoch ([`Held::epoch`]) a fast path following [`ImuOutput::ins`] holds.
     ins_synced: u32,
+    /// What the estimator lends with its outputs ([`output`]).
+    out: output::OutputBuffers<N, L>,
 }
 
 /// An optional value kept beside a flag rather than in an `Option`, so that "none" is all zero
@@ -383,6 +386,7 @@ impl<
             reinit_td: None,
             imu_scale: imu_noise::ImuNoiseScale::new(),
             ins_synced: 0,
+            out: output::OutputBuffers::new(),
         }
     }
 
@@ -443,6 +447,7 @@ impl<
         self.bad_keyframes = 0;
         self.reinit_td = None;
         self.imu_scale = imu_noise::ImuNoiseScale::new();
+        self.out.clear();
         Ok(())
     }
 

@@ -49,6 +49,35 @@ impl FeaturePrediction {
     };
 }
 
+/// The parts of the estimator a prediction reads, borrowed field by field so the estimator's own
+/// output buffers can be written beside them ([`predictor!`]).
+pub(super) struct Predictor<'a, const N: usize, const L: usize> {
+    pub cfg: &'a crate::estimator::EstimatorConfig,
+    pub window: &'a super::window::Window<N>,
+    pub lms: &'a super::problem::Landmarks<N, L>,
+    pub ext: &'a crate::camera::CameraExtrinsic,
+    pub ins_window: &'a crate::inertial::InsWindow<{ super::INS_WINDOW }>,
+    pub last_imu: Option<crate::inertial::ImuSample>,
+    /// The delay the estimator currently uses, s.
+    pub td_s: f64,
+}
+
+/// A [`Predictor`] over `$e`'s fields (a macro, so that the borrow is per field).
+macro_rules! predictor {
+    ($e:expr) => {
+        $crate::estimator::predict::Predictor {
+            cfg: &$e.cfg,
+            window: &$e.window,
+            lms: &$e.lms,
+            ext: &$e.ext,
+            ins_window: &$e.ins_window,
+            last_imu: $e.last_imu,
+            td_s: $e.current_td(),
+        }
+    };
+}
+pub(super) use predictor;
+
 impl<
         const N: usize,
         const L: usize,
@@ -81,25 +110,28 @@ impl<
         if self.status != Status::Running {
             return Err(Error::NotInitialized);
         }
-        let td_ns = libm::round(self.current_td() * 1e9) as i64;
+        predictor!(self).predict(t_cam_ns, out)
+    }
+}
+
+impl<const N: usize, const L: usize> Predictor<'_, N, L> {
+    /// [`Estimator::predict_features`] once running.
+    pub(super) fn predict(
+        &self,
+        t_cam_ns: i64,
+        out: &mut [FeaturePrediction],
+    ) -> Result<usize, Error> {
+        let td_ns = libm::round(self.td_s * 1e9) as i64;
         let (p_wb, q_wb) = self.body_pose_at(t_cam_ns.saturating_add(td_ns))?;
         let cam_t = self.ext.camera_pose(&p_wb, &q_wb);
         let q_cw = cam_t.q_wc.inverse();
-        let poses = self.window.poses();
-        let cams: [CameraPose; N] =
-            core::array::from_fn(|k| self.ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb));
-        let td = |k: usize| self.window.get(k).map_or(0.0, |kf| kf.td_s);
+        let cams = self.window_cameras();
         let mut n = 0;
         for lm in self.lms.landmarks() {
             let Some(slot) = out.get_mut(n) else { break };
-            let s = lm.anchor_s as usize;
-            let (Some(x_s), Some(c_s)) = (corrected_obs(lm, s, td(s)), cams.get(s)) else {
+            let Some((p_w, lidar)) = self.landmark_w(lm, &cams) else {
                 continue;
             };
-            let Some((d, lidar)) = self.landmark_depth(lm, &x_s, c_s, &cams, &td) else {
-                continue;
-            };
-            let p_w = c_s.q_wc * (x_s * d) + c_s.p_wc;
             let p_c = q_cw * (p_w - cam_t.p_wc);
             let Some(uv) = self.cfg.camera.project(&p_c) else {
                 continue;
@@ -113,6 +145,28 @@ impl<
             n += 1;
         }
         Ok(n)
+    }
+
+    /// The camera pose of every window keyframe.
+    pub(super) fn window_cameras(&self) -> [CameraPose; N] {
+        let poses = self.window.poses();
+        core::array::from_fn(|k| self.ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb))
+    }
+
+    /// Where landmark `lm` sits in the world by its depth, and whether the depth came from
+    /// LiDAR (see the module docs), or `None` without a depth.
+    pub(super) fn landmark_w(
+        &self,
+        lm: &Landmark<N>,
+        cams: &[CameraPose; N],
+    ) -> Option<(Vec3, bool)> {
+        let td = |k: usize| self.window.get(k).map_or(0.0, |kf| kf.td_s);
+        let s = lm.anchor_s as usize;
+        let (Some(x_s), Some(c_s)) = (corrected_obs(lm, s, td(s)), cams.get(s)) else {
+            return None;
+        };
+        let (d, lidar) = self.landmark_depth(lm, &x_s, c_s, cams, &td)?;
+        Some((c_s.q_wc * (x_s * d) + c_s.p_wc, lidar))
     }
 
     /// Body pose at `t_ns`: interpolated in the INS window, or extrapolated a little past it.

@@ -142,12 +142,8 @@ impl<
             self.counters.lidar_scans_refused += 1;
             return Err(Error::InvalidConfig);
         }
-        let td_ns = crate::lidar::buffer::seconds_to_ns(self.cfg.lidar.td_l_s);
-        let trigger_ns = points
-            .iter()
-            .map(|p| p.t_ns)
-            .max()
-            .map_or(i64::MIN, |t| t.saturating_add(td_ns));
+        let trigger_ns =
+            crate::lidar::sweep_due_ns(points, self.cfg.lidar.td_l_s).unwrap_or(i64::MIN);
         // A sweep far ahead of the IMU would hold every later one back: refuse it.
         let lead_limit_ns = (self.cfg.max_frame_lead_s * 1e9) as i64;
         let newest = self.imu_in.back().or(self.last_imu.as_ref());

@@ -44,3 +44,17 @@ pub struct LidarPoint {
     /// Intensity (sensor units).
     pub intensity: f32,
 }
+
+/// When a sweep can be de-skewed whole: its last point on the IMU clock, `max t_point + td_l`
+/// (`t_imu = t_lidar + td_l_s`), ns; `None` for a sweep without points. The estimator takes a
+/// queued sweep at the first processed IMU sample at or past it ([`crate::estimator::timing`]);
+/// a recording's replay offers the sweep then, as a live driver would once the sweep is
+/// complete.
+pub fn sweep_due_ns(points: &[LidarPoint], td_l_s: f64) -> Option<i64> {
+    let td_ns = buffer::seconds_to_ns(td_l_s);
+    points
+        .iter()
+        .map(|p| p.t_ns)
+        .max()
+        .map(|t| t.saturating_add(td_ns))
+}

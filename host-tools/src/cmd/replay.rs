@@ -49,7 +49,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut both = (TumSink::new(&path, ds.imu.len()), mcap);
     let report = run_pipeline(&args.pipeline, &ds, &mut both, "replay")?;
     let (sink, mcap) = both;
-    for line in TimingSummary::new(&ds, &args.pipeline, &report).lines() {
+    for line in TimingSummary::new(&ds, &args.pipeline, &report)?.lines() {
         println!("{line}");
     }
     if !ds.ground_truth.is_empty() && !sink.poses().is_empty() {

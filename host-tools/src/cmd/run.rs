@@ -21,6 +21,7 @@ use povins_core::estimator::{EstimatorConfig, KeyframeReport};
 use povins_core::frontend::image::TrackerConfig;
 use povins_core::inertial::NavState;
 use povins_core::vio::VioAiding;
+use povins_platform::recording::Recording;
 use povins_platform::trajectory::{write_tum, StampedPose};
 use povins_platform::Dataset;
 use std::io::Write;
@@ -57,12 +58,12 @@ pub struct Args {
 pub fn frontend_options(
     config: Option<&Path>,
     frontend: Option<Frontend>,
-    ds: &Dataset,
+    ds: &dyn Recording,
 ) -> Result<FrontendOptions> {
-    let frontend = frontend.unwrap_or(if ds.images.is_empty() {
-        Frontend::Tracks
-    } else {
+    let frontend = frontend.unwrap_or(if ds.contents().images {
         Frontend::Images
+    } else {
+        Frontend::Tracks
     });
     let mut tracker = TrackerConfig::default();
     let mut aiding = VioAiding::default();

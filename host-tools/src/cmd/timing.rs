@@ -94,13 +94,13 @@ pub struct TimingSummary {
 
 impl TimingSummary {
     /// The figures of `report` on `ds`.
-    pub fn new(ds: &Dataset, a: &PipelineArgs, report: &PipelineReport) -> Self {
-        TimingSummary {
+    pub fn new(ds: &Dataset, a: &PipelineArgs, report: &PipelineReport) -> Result<Self> {
+        Ok(TimingSummary {
             dataset: ds.name.clone(),
             speed: a.speed,
             deterministic: a.deterministic,
             frontend: a.frontend.unwrap_or(default_frontend(ds)),
-            imu_period_ms: imu_period_ns(ds) as f64 * 1e-6,
+            imu_period_ms: imu_period_ns(ds)? as f64 * 1e-6,
             keyframe_period_ms: report.keyframe_period_ns.map(|p| p as f64 * 1e-6),
             stages: STAGES
                 .iter()
@@ -110,7 +110,7 @@ impl TimingSummary {
             counters: report.counters,
             rt: report.rt.clone(),
             wall_s: report.wall_s,
-        }
+        })
     }
 
     /// The table's lines.
@@ -222,7 +222,7 @@ pub fn run(args: Args) -> Result<()> {
     let ds = load_dataset(&args.pipeline.dataset)?;
     let mut sink = CallbackSink::poses(|_: &PoseOut| {});
     let report = run_pipeline(&args.pipeline, &ds, &mut sink, "timing")?;
-    let summary = TimingSummary::new(&ds, &args.pipeline, &report);
+    let summary = TimingSummary::new(&ds, &args.pipeline, &report)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

@@ -8,26 +8,29 @@
 //!   coloured by age) and `track_lengths.svg`, the histogram of track lengths;
 //! - `summary.json`; the summary is printed too.
 
-use crate::cmd::run::{frontend_options, load_dataset};
+use crate::cmd::run::frontend_options;
 use crate::frontend_stats::{summarize_frames, summary_lines, write_frames_csv, FrontendSummary};
-use crate::images::with_images;
 use crate::progress::Progress;
-use crate::runner::{percentile, FrameLog};
+use crate::runner::{
+    check_input, config_for, percentile, FrameLog, FrontendOptions, ReplayProgress,
+};
 use crate::track_pictures::{draw_frame, draw_length_histogram, DrawnTrack};
 use anyhow::{bail, Context, Result};
-use povins_core::camera::PinholeCamera;
-use povins_core::frontend::image::{
-    EurocTracker, FeatureTracker, HdTracker, ImageView, TrackHints, TrackerConfig,
-};
-use povins_core::math::{Mat3, Vec3};
-use povins_core::vio::{GyroIntegrator, ImageReport, GYRO_SAMPLES};
-use povins_platform::boxed::boxed_tracker;
+use povins_core::camera::FeatureObs;
+use povins_core::frontend::image::{ImageView, TrackerConfig};
+use povins_core::odometry::FrameOutput;
+use povins_core::vio::ImageReport;
 use povins_platform::dataset::FeatureFrame;
-use povins_platform::Dataset;
+use povins_platform::driver::{self, ImageIn, Observer};
+use povins_platform::odometry::{boxed_odometry, FrontEnd};
+use povins_platform::recording::Recording;
+use povins_platform::source::{
+    CameraInput, MergeOptions, MergedSource, Prefetch, SensorEvent, Source,
+};
+use povins_platform::IoError;
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 /// Arguments of `povins track`.
 #[derive(clap::Args, Debug)]
@@ -86,158 +89,205 @@ pub struct TrackOptions {
     pub pictures: Option<(PathBuf, usize)>,
 }
 
-/// Runs the front end alone over `ds`'s images (see the module docs).
+/// Runs the front end alone over `rec`'s images (see the module docs): the recording's images and
+/// IMU in the replay's order through the one driver, into the front end alone
+/// ([`povins_core::vio::Tracking`], its capacity chosen by the image size).
 pub fn track_dataset(
-    ds: &Dataset,
+    rec: &dyn Recording,
     opts: &TrackOptions,
     progress: &Progress,
 ) -> Result<TrackOutput> {
-    if ds.images.is_empty() {
-        bail!(
-            "{}: the dataset has no camera images (EuRoC cam0/data.csv with cam0/data/*.png, \
-             MCAP /cam0/image_raw or /cam0/image_raw/compressed)",
-            ds.name
-        );
+    check_input(rec, &FrontendOptions::images(opts.tracker))?;
+    let mut cfg = config_for(rec);
+    cfg.td_s = opts.td_s;
+    cfg.lidar.enabled = false;
+    let fe = FrontEnd::TrackingOnly {
+        tracker: opts.tracker,
+        gyro_rotation: opts.gyro,
+    };
+    let mut odo = boxed_odometry(cfg, &fe).with_context(|| rec.name().to_string())?;
+    let merge = MergeOptions {
+        lidar: false,
+        ..MergeOptions::new(CameraInput::Images)
+    };
+    let source = ImageRange {
+        inner: MergedSource::new(rec, &merge)?,
+        range: opts.range.clone(),
+        seen: 0,
+    };
+    let mut out = TrackCollector::new(rec, opts, progress);
+    let (ran, _) = Prefetch::run(source, |p| driver::run(&mut *odo, p, &mut out));
+    ran.with_context(|| format!("reading {}", rec.name()))?;
+    progress.finish();
+    out.finish()
+}
+
+/// The images `range` of a source (by their order) and everything before the last of them.
+struct ImageRange<S> {
+    inner: S,
+    range: std::ops::Range<usize>,
+    seen: usize,
+}
+
+impl<S: Source> Source for ImageRange<S> {
+    fn next(&mut self) -> Result<Option<SensorEvent>, IoError> {
+        loop {
+            let Some(ev) = self.inner.next()? else {
+                return Ok(None);
+            };
+            if matches!(ev, SensorEvent::Image { .. }) {
+                let k = self.seen;
+                self.seen += 1;
+                if k >= self.range.end {
+                    return Ok(None);
+                }
+                if k < self.range.start {
+                    continue;
+                }
+            }
+            return Ok(Some(ev));
+        }
     }
-    let cam = ds.calib.camera;
-    let (w, h) = (cam.width, cam.height);
-    if w <= 752 && h <= 480 {
-        let mut t: Box<EurocTracker> = boxed_tracker(opts.tracker)
-            .map_err(|e| anyhow::anyhow!("invalid front-end settings: {e}"))?;
-        run_tracker(&mut t, ds, opts, progress)
-    } else if w <= 1280 && h <= 720 {
-        let mut t: Box<HdTracker> = boxed_tracker(opts.tracker)
-            .map_err(|e| anyhow::anyhow!("invalid front-end settings: {e}"))?;
-        run_tracker(&mut t, ds, opts, progress)
-    } else {
-        bail!(
-            "{}: {w}x{h} images are larger than the front end's largest capacity (1280x720)",
-            ds.name
-        )
+
+    fn is_realtime(&self) -> bool {
+        self.inner.is_realtime()
     }
 }
 
-fn run_tracker<const F: usize, const B: usize, const LV: usize>(
-    tracker: &mut FeatureTracker<F, B, LV>,
-    ds: &Dataset,
-    opts: &TrackOptions,
-    progress: &Progress,
-) -> Result<TrackOutput> {
-    let cam: PinholeCamera = ds.calib.camera;
-    let r_bc: Mat3 = ds.calib.t_bc.q_ab.to_rotation_matrix().into_inner();
-    let end = opts.range.end.min(ds.images.len());
-    let start = opts.range.start.min(end);
-    let images = &ds.images[start..end];
-    let n = images.len();
-    let picture_at: Vec<usize> = match &opts.pictures {
-        Some((_, p)) if *p > 0 && n > 0 => (1..=*p).map(|i| i * n / (*p + 1)).collect(),
-        _ => Vec::new(),
-    };
-    let mut gyro: Box<GyroIntegrator<GYRO_SAMPLES>> = Box::new(GyroIntegrator::new());
-    let mut imu_k = 0usize;
-    let mut prev_t: Option<i64> = None;
-    let mut out = TrackOutput::default();
-    let mut trails: HashMap<u64, Vec<[f64; 2]>> = HashMap::new();
-    with_images(images, |stream| -> Result<()> {
-        for im in stream {
-            progress.set_position(im.index as u64);
-            // The IMU up to the image's stamp, as a live system has it.
-            while let Some(s) = ds.imu.get(imu_k).filter(|s| s.t_ns <= im.t_ns) {
-                gyro.push(s.t_ns, &s.gyro_rps);
-                imu_k += 1;
+/// Collects the front end's output per image: the tracks, the statistics, the trails and the
+/// pictures (the driver's observer).
+struct TrackCollector<'a> {
+    out: TrackOutput,
+    name: String,
+    start: usize,
+    /// Images seen so far (tracked or not).
+    index: usize,
+    picture_at: Vec<usize>,
+    picture_dir: Option<PathBuf>,
+    trails: HashMap<u64, Vec<[f64; 2]>>,
+    progress: ReplayProgress<'a>,
+    error: Option<anyhow::Error>,
+}
+
+impl<'a> TrackCollector<'a> {
+    fn new(rec: &dyn Recording, opts: &TrackOptions, progress: &'a Progress) -> Self {
+        // Images in the range (the recording's count bounds an open range).
+        let end = match rec.contents().image_count {
+            Some(count) => opts.range.end.min(count),
+            None => opts.range.end,
+        };
+        let n = end.saturating_sub(opts.range.start);
+        let picture_at: Vec<usize> = match &opts.pictures {
+            Some((_, p)) if *p > 0 && n > 0 && n < usize::MAX / 2 => {
+                (1..=*p).map(|i| i * n / (*p + 1)).collect()
             }
-            let (iw, ih, px) = match &im.pixels {
-                Ok(p) => p,
-                Err(e) => {
-                    out.errors.push((im.t_ns, e.clone()));
-                    continue;
-                }
-            };
-            let view = match ImageView::new(px, *iw, *ih, *iw) {
-                Ok(v) => v,
-                Err(e) => {
-                    out.errors.push((im.t_ns, format!("{iw}x{ih} image: {e}")));
-                    continue;
-                }
-            };
-            let t0 = Instant::now();
-            let rotation = match prev_t {
-                Some(p) if opts.gyro => {
-                    gyro.camera_rotation(p, im.t_ns, opts.td_s, &Vec3::zeros(), &r_bc)
-                }
-                _ => None,
-            };
-            let hints = TrackHints {
-                r_cur_prev: rotation,
-                predictions: &[],
-            };
-            let stats = match tracker.track(im.t_ns, &view, &hints, &cam) {
-                Ok(s) => s,
-                Err(e) => {
-                    out.errors
-                        .push((im.t_ns, format!("{iw}x{ih} image refused: {e}")));
-                    continue;
-                }
-            };
-            let frontend_ns = t0.elapsed().as_nanos() as u64;
-            prev_t = Some(im.t_ns);
-            out.logs.push(FrameLog {
-                t_ns: im.t_ns,
-                report: ImageReport {
-                    track: stats,
-                    predictions: 0,
-                    rotation_seed: rotation.is_some(),
-                    tracks: tracker.features().len() as u32,
-                    frontend_ns,
-                    frame_error: None,
-                },
-                decode_ms: im.decode_s * 1e3,
-            });
-            out.frames.push(FeatureFrame {
-                t_ns: im.t_ns,
-                obs: tracker.features().to_vec(),
-            });
-            // Trails of the live tracks (the last 15 positions).
-            let mut next: HashMap<u64, Vec<[f64; 2]>> = HashMap::with_capacity(trails.len());
-            for f in tracker.features() {
-                let mut t = trails.remove(&f.id).unwrap_or_default();
-                t.push([f.u_px, f.v_px]);
-                if t.len() > 15 {
-                    t.remove(0);
-                }
-                next.insert(f.id, t);
+            _ => Vec::new(),
+        };
+        TrackCollector {
+            out: TrackOutput::default(),
+            name: rec.name().to_string(),
+            start: opts.range.start,
+            index: 0,
+            picture_at,
+            picture_dir: opts.pictures.as_ref().map(|(d, _)| d.clone()),
+            trails: HashMap::new(),
+            progress: ReplayProgress::new(rec, progress),
+            error: None,
+        }
+    }
+
+    fn finish(self) -> Result<TrackOutput> {
+        match self.error {
+            Some(e) => Err(e),
+            None => Ok(self.out),
+        }
+    }
+
+    /// Keeps the last 15 positions of every live track.
+    fn update_trails(&mut self, tracks: &[FeatureObs]) {
+        let mut next: HashMap<u64, Vec<[f64; 2]>> = HashMap::with_capacity(self.trails.len());
+        for f in tracks {
+            let mut t = self.trails.remove(&f.id).unwrap_or_default();
+            t.push([f.u_px, f.v_px]);
+            if t.len() > 15 {
+                t.remove(0);
             }
-            trails = next;
-            if let (Some((dir, _)), true) = (&opts.pictures, picture_at.contains(&im.index)) {
-                let drawn: Vec<DrawnTrack> = tracker
-                    .features()
-                    .iter()
-                    .zip(tracker.ages())
-                    .filter_map(|(f, &age)| {
-                        Some(DrawnTrack {
-                            trail: trails.get(&f.id)?.clone(),
-                            age: age as usize,
-                        })
-                    })
-                    .collect();
-                let path = dir.join(format!("frame_{}.png", im.t_ns));
-                let caption = format!(
-                    "{} image {} ({} ns): {} tracks, {} tracked from the previous image, {} new",
-                    ds.name,
-                    start + im.index,
-                    im.t_ns,
-                    stats.total,
-                    stats.tracked,
-                    stats.detected
-                );
-                draw_frame(&path, *iw, *ih, px, &drawn, &caption)?;
-                out.pictures.push(path);
+            next.insert(f.id, t);
+        }
+        self.trails = next;
+    }
+
+    /// Draws image `index` with its tracks' trails.
+    fn picture(
+        &mut self,
+        f: &FrameOutput<'_>,
+        report: &ImageReport,
+        view: &ImageView<'_>,
+    ) -> Result<()> {
+        let Some(dir) = &self.picture_dir else {
+            return Ok(());
+        };
+        let drawn: Vec<DrawnTrack> = f
+            .tracks
+            .iter()
+            .zip(f.track_ages)
+            .filter_map(|(t, &age)| {
+                Some(DrawnTrack {
+                    trail: self.trails.get(&t.id)?.clone(),
+                    age: age as usize,
+                })
+            })
+            .collect();
+        let path = dir.join(format!("frame_{}.png", f.t_cam_ns));
+        let caption = format!(
+            "{} image {} ({} ns): {} tracks, {} tracked from the previous image, {} new",
+            self.name,
+            self.start + self.index,
+            f.t_cam_ns,
+            report.track.total,
+            report.track.tracked,
+            report.track.detected
+        );
+        draw_frame(
+            &path,
+            view.width(),
+            view.height(),
+            view.data(),
+            &drawn,
+            &caption,
+        )?;
+        self.out.pictures.push(path);
+        Ok(())
+    }
+}
+
+impl Observer for TrackCollector<'_> {
+    fn imu(&mut self, t_ns: i64) {
+        self.progress.imu(t_ns);
+    }
+
+    fn frame(&mut self, f: &FrameOutput<'_>, image: Option<&ImageIn<'_>>) {
+        let (Some(report), Some(im)) = (f.image, image) else {
+            return;
+        };
+        self.out.logs.push(FrameLog::of(f.t_cam_ns, report, im));
+        self.out.frames.push(FeatureFrame {
+            t_ns: f.t_cam_ns,
+            obs: f.tracks.to_vec(),
+        });
+        self.update_trails(f.tracks);
+        if self.picture_at.contains(&self.index) && self.error.is_none() {
+            if let Err(e) = self.picture(f, &report, im.view) {
+                self.error = Some(e);
             }
         }
-        Ok(())
-    })?;
-    progress.finish();
-    Ok(out)
+        self.index += 1;
+    }
+
+    fn image_failed(&mut self, t_cam_ns: i64, why: String) {
+        self.out.errors.push((t_cam_ns, why));
+        self.index += 1;
+    }
 }
 
 /// Writes tracks in the `features0` layout.
@@ -299,17 +349,18 @@ pub struct TrackSummary {
 
 /// Runs the command.
 pub fn run(args: Args) -> Result<()> {
-    let ds = load_dataset(&args.dataset)?;
-    let fe = frontend_options(args.config.as_deref(), None, &ds)?;
+    let rec = povins_platform::recording::open(&args.dataset)?;
+    let ds = &*rec;
+    let fe = frontend_options(args.config.as_deref(), None, ds)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let td_s = args.td_ms.map_or(ds.calib.td_s, |ms| ms * 1e-3);
+    let td_s = args.td_ms.map_or(ds.calibration().td_s, |ms| ms * 1e-3);
     if !td_s.is_finite() || td_s.abs() > 1.0 {
         bail!("--td-ms must be within +-1000 ms");
     }
     let end = args
         .frames
-        .map_or(ds.images.len(), |n| args.start.saturating_add(n));
+        .map_or(usize::MAX, |n| args.start.saturating_add(n));
     let opts = TrackOptions {
         tracker: fe.tracker,
         gyro: fe.aiding.gyro_rotation && !args.no_gyro,
@@ -317,8 +368,8 @@ pub fn run(args: Args) -> Result<()> {
         range: args.start..end,
         pictures: Some((args.out.clone(), args.pictures)),
     };
-    let progress = Progress::new(ds.images.len() as u64, "track");
-    let out = track_dataset(&ds, &opts, &progress)?;
+    let progress = Progress::new(0, "track");
+    let out = track_dataset(ds, &opts, &progress)?;
     for (t, e) in out.errors.iter().take(20) {
         eprintln!("warning: image at {t} ns: {e}");
     }
@@ -335,9 +386,9 @@ pub fn run(args: Args) -> Result<()> {
         }
     };
     let summary = TrackSummary {
-        dataset: ds.name.clone(),
-        width: ds.calib.camera.width,
-        height: ds.calib.camera.height,
+        dataset: ds.name().to_string(),
+        width: ds.calibration().camera.width,
+        height: ds.calibration().camera.height,
         gyro: opts.gyro,
         td_ms: td_s * 1e3,
         frontend: summarize_frames(&out.logs),
@@ -353,7 +404,10 @@ pub fn run(args: Args) -> Result<()> {
         &lengths,
         &format!(
             "{}: {} tracks, mean length {:.1} frames (median {:.0})",
-            ds.name, summary.tracks, summary.track_length_mean, summary.track_length_median
+            ds.name(),
+            summary.tracks,
+            summary.track_length_mean,
+            summary.track_length_median
         ),
     )?;
     std::fs::write(

@@ -1,13 +1,16 @@
-//! The back-end thread: owns the estimator, consumes IMU samples, frames and sweeps in the
-//! order the IMU thread forwards them (the source's order, which is the replay's), and sends
-//! one [`FromBackend`] per IMU sample back: the estimator's [`InsUpdate`] and keyframe report.
-//! Images go through the front-end stage ([`super::frontend`]) here, in the same order.
+//! The back-end thread: owns the odometry, takes the events in the order the IMU thread forwards
+//! them (the source's order) and hands each to the one driver step ([`crate::driver::handle`]:
+//! the same calls as a single-threaded replay, images decoded and tracked here, see the module
+//! docs of [`super`] for why), and sends one [`FromBackend`] per IMU sample back: the estimator's
+//! [`InsUpdate`] and keyframe report.
 
-use super::frontend::{self, Backend};
 use super::sink::KeyframeOut;
 use super::stats::{PipelineCounters, Timing};
 use super::{Shared, ToBackend};
+use crate::driver::{elapsed_ns, handle, Handled, Observer};
+use crate::source::SensorEvent;
 use povins_core::inertial::InsUpdate;
+use povins_core::odometry::{Odometry, Output};
 use rtrb::{Consumer, Producer, PushError};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
@@ -26,10 +29,30 @@ pub(crate) struct FromBackend {
 /// How long a waiting thread sleeps before looking again (it is also woken by `unpark`).
 pub(crate) const WAIT: Duration = Duration::from_micros(200);
 
+/// The newest INS update and keyframe of one sample's outputs (an update is a whole INS: a
+/// later one supersedes an earlier one).
+#[derive(Default)]
+struct Reply {
+    ins: Option<InsUpdate>,
+    keyframe: Option<KeyframeOut>,
+}
+
+impl Observer for Reply {
+    fn output(&mut self, o: &Output<'_>) {
+        self.ins = o.ins.or(self.ins);
+        if let Some(k) = &o.keyframe {
+            self.keyframe = Some(KeyframeOut {
+                report: k.report,
+                state: k.window.last().map(|kf| kf.state),
+            });
+        }
+    }
+}
+
 /// The back end's loop: returns its timing, the keyframe stamps (IMU clock, ns) and its
-/// counters (the front-end stage's failures).
-pub(crate) fn run<E: Backend + ?Sized>(
-    est: &mut E,
+/// counters (images that could not be used).
+pub(crate) fn run(
+    odo: &mut (dyn Odometry + Send),
     mut rx: Consumer<ToBackend>,
     mut tx: Producer<FromBackend>,
     shared: &Shared,
@@ -46,44 +69,16 @@ pub(crate) fn run<E: Backend + ?Sized>(
                 continue;
             }
         };
+        let ToBackend::Event { ev, arrival, due } = msg else {
+            break;
+        };
         let t0 = Instant::now();
-        match msg {
-            ToBackend::End => break,
-            ToBackend::Frame { t_cam_ns, obs } => {
-                // Refused frames are counted by the estimator (`counters()`).
-                let _ = est.push_frame(t_cam_ns, &obs);
-                timing.backend_input.record(elapsed_ns(t0));
-            }
-            ToBackend::Image(msg) => {
-                frontend::process(est, &msg, &mut timing, &mut counters);
-            }
-            ToBackend::Lidar(points) => {
-                let _ = est.push_lidar(&points);
-                timing.backend_input.record(elapsed_ns(t0));
-            }
-            ToBackend::Imu(s) => {
-                // Queue the sample and process what is due (with the default horizon of 0:
-                // exactly this sample). The newest update and keyframe of the burst go back
-                // (an update is a whole INS: a later one supersedes an earlier one).
-                let (mut ins, mut report) = (None, None);
-                if est.push_imu(&s).is_ok() {
-                    loop {
-                        match est.update() {
-                            Ok(Some(o)) => {
-                                ins = o.ins.or(ins);
-                                report = o.keyframe.or(report);
-                            }
-                            Ok(None) => break,
-                            Err(_) => {}
-                        }
-                    }
-                }
-                let dt = elapsed_ns(t0);
-                let keyframe = report.map(|report| KeyframeOut {
-                    report,
-                    state: est.estimator().keyframes().last().map(|k| k.state),
-                });
-                if keyframe.is_some() {
+        let mut reply = Reply::default();
+        let handled = handle(odo, &ev, &mut reply);
+        let dt = elapsed_ns(t0);
+        match (handled, &ev) {
+            (Handled::Imu { keyframe, .. }, SensorEvent::Imu(s)) => {
+                if keyframe {
                     timing.backend_keyframe.record(dt);
                     keyframes.push(s.t_ns);
                 } else {
@@ -93,15 +88,33 @@ pub(crate) fn run<E: Backend + ?Sized>(
                 timing
                     .backend_lag
                     .record(u64::try_from(newest.saturating_sub(s.t_ns)).unwrap_or(0));
-                let reply = FromBackend {
+                let out = FromBackend {
                     t_ns: s.t_ns,
-                    ins,
-                    keyframe,
+                    ins: reply.ins,
+                    keyframe: reply.keyframe,
                 };
-                send(&mut tx, reply, shared);
+                send(&mut tx, out, shared);
                 shared.backend_done.fetch_add(1, Ordering::AcqRel);
                 shared.wake_imu();
             }
+            (Handled::Image { decode_ns, ok }, _) => {
+                timing.frontend_decode.record(decode_ns);
+                timing.frontend_image.record(dt);
+                if !ok {
+                    counters.image_failures += 1;
+                    continue;
+                }
+                let now = Instant::now();
+                timing
+                    .image_arrival_to_frame
+                    .record(elapsed_between(arrival, now));
+                if let Some(due) = due {
+                    timing
+                        .image_stamp_to_frame
+                        .record(elapsed_between(due, now));
+                }
+            }
+            _ => timing.backend_input.record(dt),
         }
     }
     (timing, keyframes, counters)
@@ -124,7 +137,7 @@ fn send(tx: &mut Producer<FromBackend>, mut v: FromBackend, shared: &Shared) {
     }
 }
 
-/// Nanoseconds since `t0`.
-pub(crate) fn elapsed_ns(t0: Instant) -> u64 {
-    u64::try_from(t0.elapsed().as_nanos()).unwrap_or(u64::MAX)
+/// Nanoseconds from `a` to `b` (0 when `b` is not later).
+fn elapsed_between(a: Instant, b: Instant) -> u64 {
+    u64::try_from(b.saturating_duration_since(a).as_nanos()).unwrap_or(u64::MAX)
 }

@@ -7,12 +7,13 @@
 //! own IMU-rate output, bit for bit). Real-time mode: it never waits for the back end except,
 //! with a source that is not real time, to stay at most `max_lead_samples` ahead of it.
 
-use super::backend::{elapsed_ns, FromBackend, WAIT};
-use super::frontend::ImageMsg;
+use super::backend::{FromBackend, WAIT};
 use super::sink::{PoseOut, Sink};
-use super::source::{SensorEvent, Source};
 use super::stats::{PipelineCounters, Timing};
 use super::{PipelineConfig, Shared, ToBackend, FAST_PATH_RING};
+use crate::driver::elapsed_ns;
+use crate::error::IoError;
+use crate::source::{SensorEvent, Source};
 use povins_core::inertial::{FastPath, ImuSample, NavState};
 use rtrb::{Consumer, Producer, PushError};
 use std::sync::atomic::Ordering;
@@ -32,39 +33,26 @@ pub(crate) struct ImuWorker<'a, S, K> {
     pub counters: PipelineCounters,
     /// IMU samples forwarded to the back end.
     pub sent: u64,
+    /// The source's error that ended the stream, if any.
+    pub error: Option<IoError>,
 }
 
 impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
-    /// Runs to the end of the source, then until the back end has finished.
+    /// Runs to the end of the source (or its error), then until the back end has finished.
     pub fn run(&mut self) {
-        while let Some(ev) = self.source.next() {
+        loop {
+            let ev = match self.source.next() {
+                Ok(Some(ev)) => ev,
+                Ok(None) => break,
+                Err(e) => {
+                    self.error = Some(e);
+                    break;
+                }
+            };
             let arrival = Instant::now();
             match ev {
                 SensorEvent::Imu(s) => self.on_imu(&s, arrival),
-                SensorEvent::Frame { t_cam_ns, obs } => {
-                    self.counters.frames_in += 1;
-                    if !self.forward(ToBackend::Frame { t_cam_ns, obs }) {
-                        self.counters.dropped_frames += 1;
-                    }
-                }
-                SensorEvent::Image { t_cam_ns, data } => {
-                    self.counters.images_in += 1;
-                    let msg = ImageMsg {
-                        t_cam_ns,
-                        data,
-                        arrival,
-                        due: self.source.stamp_instant(t_cam_ns),
-                    };
-                    if !self.forward(ToBackend::Image(msg)) {
-                        self.counters.dropped_images += 1;
-                    }
-                }
-                SensorEvent::Lidar(points) => {
-                    self.counters.sweeps_in += 1;
-                    if !self.forward(ToBackend::Lidar(points)) {
-                        self.counters.dropped_sweeps += 1;
-                    }
-                }
+                ev => self.on_message(ev, arrival),
             }
         }
         self.wait_until(|w| w.forward_blocking(ToBackend::End));
@@ -78,13 +66,49 @@ impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
         self.counters.max_replay = fc.max_replay;
     }
 
+    /// A frame, image or sweep: counted and forwarded (a real-time source's is dropped and
+    /// counted when the back end's queue is full).
+    fn on_message(&mut self, ev: SensorEvent, arrival: Instant) {
+        #[derive(Clone, Copy)]
+        enum Kind {
+            Frame,
+            Image,
+            Lidar,
+        }
+        let (kind, due) = match &ev {
+            SensorEvent::Image { t_cam_ns, .. } => {
+                (Kind::Image, self.source.stamp_instant(*t_cam_ns))
+            }
+            SensorEvent::Frame { .. } => (Kind::Frame, None),
+            _ => (Kind::Lidar, None),
+        };
+        let c = &mut self.counters;
+        match kind {
+            Kind::Frame => c.frames_in += 1,
+            Kind::Image => c.images_in += 1,
+            Kind::Lidar => c.sweeps_in += 1,
+        }
+        if !self.forward(ToBackend::Event { ev, arrival, due }) {
+            let c = &mut self.counters;
+            match kind {
+                Kind::Frame => c.dropped_frames += 1,
+                Kind::Image => c.dropped_images += 1,
+                Kind::Lidar => c.dropped_sweeps += 1,
+            }
+        }
+    }
+
     /// One IMU sample: forward, propagate, (deterministic: wait and apply), publish.
     fn on_imu(&mut self, s: &ImuSample, arrival: Instant) {
         self.counters.imu_in += 1;
         self.shared.newest_imu_ns.store(s.t_ns, Ordering::Release);
         self.shared.imu_seen.fetch_add(1, Ordering::Relaxed);
         let mut fast_ns = self.drain();
-        let sent = self.forward(ToBackend::Imu(*s));
+        let sent = self.forward(ToBackend::Event {
+            ev: SensorEvent::Imu(*s),
+            arrival,
+            due: None,
+        });
         if sent {
             self.sent += 1;
         } else {

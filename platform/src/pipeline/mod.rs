@@ -3,7 +3,7 @@
 //!
 //! ```text
 //!  Source ──> IMU thread ──(SPSC: IMU, frames, images, sweeps)──> back-end thread:
-//!               │                                     [front-end stage: decode, track] -> estimator
+//!               │                                  driver::handle (decode, track) -> odometry
 //!               │  FastPath <──(SPSC: InsUpdate, keyframe reports)──┘
 //!               └──> Sink (pose at IMU rate + latency, keyframe reports)
 //! ```
@@ -14,15 +14,32 @@
 //!   estimator's [`InsUpdate`](povins_core::inertial::InsUpdate)s coming back over a second
 //!   queue (re-propagating the samples after them), and publishes every pose to the [`Sink`]
 //!   with its latency from the sample's arrival (and from its stamp, with a paced source).
-//! - The **back-end thread** (module `backend`) owns the estimator and consumes the events in the
-//!   source's order, which is the replay's (`DatasetSource`), so the keyframe solves run there
-//!   and the IMU-rate output never waits for them.
-//! - The **image front end** ([`frontend`]) is a stage of the back-end thread: camera images
-//!   travel undecoded from the source ([`ImageData`]); the stage decodes each one and tracks it
-//!   into a track frame with the estimator's INS prediction ([`Backend::push_image`], the core's
-//!   `Vio`) just before the estimator would take the frame. Why it has no thread of its own
-//!   (the prediction it needs is the back end's state; two cores) is in [`frontend`]'s docs.
-//!   A back end without images is the bare estimator (`PoVins`, fed with feature tracks).
+//! - The **back-end thread** (module `backend`) owns the [`Odometry`] and hands the events, in the
+//!   source's order, to the one driver step ([`crate::driver::handle`], the same code as the
+//!   single-threaded replay), so the keyframe solves run there and the IMU-rate output never
+//!   waits for them.
+//! - The **image front end** runs on the back-end thread too: camera images travel undecoded
+//!   from the source ([`crate::images::ImageData`]); the driver step decodes each one and tracks
+//!   it with the estimator's INS prediction (the core's `Vio`) just before the estimator would
+//!   take the frame. Why not on a thread of its own:
+//!   - The tracker's seeds come from the estimator's state at the image time: the predicted
+//!     pixel of every window landmark (which reads the window's keyframes and landmarks) and
+//!     the gyro rotation with the current bias, delay and extrinsic. That state lives on the
+//!     back-end thread and changes at every keyframe. A front-end thread would have to ask the
+//!     back end for it and wait for the answer (the back end must first have processed the IMU
+//!     up to the image), or be given a copy of the window per image (hundreds of kB): it would
+//!     wait on the back end either way, and run the tracker on a state other than the
+//!     single-threaded replay's, so the deterministic mode could not be bit-identical to
+//!     `povins run --frontend images`.
+//!   - With two cores there is no idle core for it: on core 0 it would compete with the IMU
+//!     thread (whose p99 latency is the bar), on core 1 it would time-share with the back end,
+//!     which has to wait for its output anyway. Measured (BENCHMARKS.md, issue 15): decoding
+//!     and tracking an image take a few ms, well inside the keyframe period the back end may
+//!     lag.
+//!
+//!   The images' latencies and processing times are recorded per image ([`Timing`]'s `image_*`
+//!   and `frontend_*` histograms) and refused images counted
+//!   ([`PipelineCounters::image_failures`]).
 //! - Both threads are pinned to cores and ask for `SCHED_FIFO`; memory is locked ([`rt`]).
 //!   What is not permitted is reported in [`PipelineReport::rt`] (and printed with
 //!   [`PipelineConfig::announce`]) and the pipeline goes on.
@@ -41,28 +58,22 @@
 #![warn(missing_docs)]
 
 mod backend;
-pub mod frontend;
 mod imu;
 pub mod mcap_sink;
 pub mod rt;
 pub mod sink;
-pub mod source;
 pub mod stats;
 
-pub use frontend::{Backend, ImageData};
+pub use crate::source::{Clock, Pacer, Pacing, SensorEvent, Source, SystemClock};
 pub use mcap_sink::McapSink;
 pub use rt::RtStatus;
 pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};
-pub use source::{
-    lidar_schedule, Clock, DatasetSource, Pacer, Pacing, SensorEvent, Source, SystemClock,
-};
 pub use stats::{LatencyHist, PipelineCounters, StageSummary, Timing, STAGES};
 
 use crate::error::IoError;
-use povins_core::camera::FeatureObs;
 use povins_core::estimator::Counters;
-use povins_core::inertial::{FastPath, FastPathCounters, ImuSample};
-use povins_core::lidar::LidarPoint;
+use povins_core::inertial::{FastPath, FastPathCounters};
+use povins_core::odometry::Odometry;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::OnceLock;
 use std::thread::Thread;
@@ -135,10 +146,13 @@ pub struct PipelineReport {
 /// A message to the back end, in the source's order.
 #[derive(Debug)]
 pub(crate) enum ToBackend {
-    Imu(ImuSample),
-    Frame { t_cam_ns: i64, obs: Vec<FeatureObs> },
-    Lidar(Vec<LidarPoint>),
-    Image(frontend::ImageMsg),
+    /// An event with when the source returned it and when its stamp was due (paced or live
+    /// sources).
+    Event {
+        ev: SensorEvent,
+        arrival: Instant,
+        due: Option<Instant>,
+    },
     End,
 }
 
@@ -173,21 +187,20 @@ impl Shared {
     }
 }
 
-/// Runs `source` through the estimator `est` (configured, and initialized when the run
-/// starts from a known state; a `PoVins` for feature tracks, a `Vio` for images too) on the two
-/// pinned threads, publishing to `sink`, and returns
+/// Runs `source` through the odometry `odo` (configured, and initialized when the run starts
+/// from a known state; the estimator alone for feature tracks, a `Vio` for images too) on the
+/// two pinned threads, publishing to `sink`, and returns
 /// what was measured once the source is exhausted and the back end has caught up. The calling
 /// thread only waits, calling `on_tick(imu_samples_so_far)` about every 100 ms (a progress
 /// bar). `sink.finish()` is called at the end, on the calling thread.
-pub fn run<E, S, K>(
-    est: &mut E,
+pub fn run<S, K>(
+    odo: &mut (dyn Odometry + Send),
     source: S,
     sink: &mut K,
     cfg: &PipelineConfig,
     mut on_tick: impl FnMut(u64),
 ) -> Result<PipelineReport, IoError>
 where
-    E: Backend + ?Sized,
     S: Source + Send,
     K: Sink + Send,
 {
@@ -196,13 +209,10 @@ where
         mlock: cfg.lock_memory.then(rt::lock_memory),
         threads: Vec::new(),
     };
-    let limits = (
-        est.estimator().config().max_gyro_rps,
-        est.estimator().config().max_accel_mps2,
-    );
+    let limits = (odo.config().max_gyro_rps, odo.config().max_accel_mps2);
     // An estimator that already holds a state (initialized from ground truth) starts the fast
     // path with it: poses from the first sample, not from the back end's first reply.
-    let seed = est.estimator().fast_path_seed();
+    let seed = odo.fast_path_seed();
     let t_run = Instant::now();
     let (to_tx, to_rx) = rtrb::RingBuffer::<ToBackend>::new(cfg.queue_capacity.max(2));
     let (from_tx, from_rx) = rtrb::RingBuffer::new(cfg.queue_capacity.max(2) + 1);
@@ -219,10 +229,10 @@ where
                     cfg.fifo_priority.map(|p| p.saturating_sub(10).max(1)),
                 );
                 let _ = shared.backend_thread.set(std::thread::current());
-                let out = backend::run(est, to_rx, from_tx, shared);
+                let out = backend::run(odo, to_rx, from_tx, shared);
                 shared.backend_finished.store(true, Ordering::Release);
                 shared.wake_imu();
-                (r, out, est.estimator().counters())
+                (r, out, odo.counters().estimator)
             })?;
         let imu = std::thread::Builder::new()
             .name("povins-imu".into())
@@ -245,9 +255,10 @@ where
                     timing: Timing::default(),
                     counters: PipelineCounters::default(),
                     sent: 0,
+                    error: None,
                 };
                 w.run();
-                (r, w.timing, w.counters, w.fast.counters())
+                (r, w.timing, w.counters, w.fast.counters(), w.error)
             })?;
         while !(imu.is_finished() && backend.is_finished()) {
             on_tick(shared.imu_seen.load(Ordering::Relaxed));
@@ -264,9 +275,12 @@ where
         rt::unlock_memory();
     }
     let (
-        (imu_rt, mut timing, mut counters, fast_path),
+        (imu_rt, mut timing, mut counters, fast_path, source_error),
         (be_rt, (be_timing, kf_t, be_counters), est_counters),
     ) = joined.map_err(|e| IoError::io("<pipeline thread>", e))?;
+    if let Some(e) = source_error {
+        return Err(e);
+    }
     counters.image_failures += be_counters.image_failures;
     rt.threads = vec![imu_rt, be_rt];
     if cfg.announce {

@@ -14,9 +14,14 @@
 //!    ([`Estimator::push_frame`]).
 //!
 //! IMU samples go through [`Vio::push_imu`], which queues them in the estimator and keeps the
-//! last [`GYRO_SAMPLES`] accepted gyro readings, and [`Vio::update`] processes them. Front end and back end stay usable separately:
-//! [`Vio::estimator`] / [`Vio::estimator_mut`] and [`Vio::tracker`] give the parts, and an
-//! estimator fed with [`Estimator::push_frame`] directly works as before.
+//! last [`GYRO_SAMPLES`] accepted gyro readings, and [`Vio::update`] processes them. Front end
+//! and back end stay usable separately: [`Vio::estimator`] / [`Vio::estimator_mut`] and
+//! [`Vio::tracker`] give the parts, and an estimator fed with [`Estimator::push_frame`] directly
+//! works as before. The front end with its rotation seed is [`ImageFrontEnd`]; alone, without an
+//! estimator (its seed from the configured delay and extrinsic, no bias), it is [`Tracking`],
+//! what `povins track` runs.
+//!
+//! Both are [`crate::odometry::Odometry`]s.
 //!
 //! Images are processed in the caller's order: push an image once the IMU stream has reached
 //! its stamp (as a live system does), so the INS covers it. A bad image (size differing from the
@@ -24,18 +29,26 @@
 //! counted in [`VioCounters`]; nothing panics and nothing allocates.
 //!
 //! Memory: `size_of::<Estimator<N, L, D>>() + size_of::<FeatureTracker<F, BYTES, LEVELS>>()`
-//! plus `L` predictions and hints (72 bytes each) and the gyro buffer ([`GYRO_SAMPLES`] x 32
-//! bytes): [`EurocVio`] is about 5.9 MB (the estimator's 4.6 MB, the tracker's 1.26 MB). Keep it
-//! in a `static` or a `Box`, built on a thread with a large stack.
+//! plus `L` hints (24 bytes each) and the gyro buffer ([`GYRO_SAMPLES`] x 32 bytes): the README's
+//! footprint table gives [`EurocVio`] and [`HdVio`]. Keep it in a `static` or a `Box`, built on a
+//! thread with a large stack.
+
+mod front_end;
+mod gyro;
+mod tracking;
+
+pub use front_end::{ImageFrontEnd, SeedFrame};
+pub use gyro::GyroIntegrator;
+pub use tracking::{EurocTracking, HdTracking, Tracking};
 
 use crate::camera::FeatureObs;
-use crate::estimator::{Estimator, FeaturePrediction, ImuOutput, Status};
-use crate::frontend::image::TrackerConfig;
-use crate::frontend::image::{pyramid_bytes, FeatureTracker, ImageView, TrackHints, TrackStats};
-use crate::inertial::ImuSample;
-use crate::math::{exp_so3, Mat3, Vec3};
+use crate::estimator::{Estimator, EstimatorConfig, ImuOutput, Status};
+use crate::frontend::image::{pyramid_bytes, FeatureTracker, ImageView, TrackStats, TrackerConfig};
+use crate::inertial::{ImuSample, InsUpdate, NavState};
+use crate::lidar::LidarPoint;
+use crate::math::{Mat3, Vec3};
+use crate::odometry::{FrameOutput, Odometry, OdometryCounters, Output};
 use crate::Error;
-use heapless::Deque;
 
 /// Gyro readings kept for the rotation seed (2.5 s at 200 Hz; an image interval must fit).
 pub const GYRO_SAMPLES: usize = 512;
@@ -121,14 +134,8 @@ pub struct Vio<
     const LEVELS: usize,
 > {
     est: Estimator<N, L, D>,
-    tracker: FeatureTracker<F, BYTES, LEVELS>,
-    aiding: VioAiding,
-    gyro: GyroIntegrator<GYRO_SAMPLES>,
-    bg: Vec3,
-    last_image_ns: Option<i64>,
-    preds: [FeaturePrediction; L],
+    fe: ImageFrontEnd<F, BYTES, LEVELS>,
     hints: [(u64, [f64; 2]); L],
-    counters: VioCounters,
 }
 
 impl<
@@ -142,20 +149,11 @@ impl<
 {
     /// A new estimator and tracker ([`Error::InvalidConfig`] if either configuration is
     /// invalid or does not fit the capacities).
-    pub fn new(
-        estimator: crate::estimator::EstimatorConfig,
-        tracker: TrackerConfig,
-    ) -> Result<Self, Error> {
+    pub fn new(estimator: EstimatorConfig, tracker: TrackerConfig) -> Result<Self, Error> {
         Ok(Vio {
             est: Estimator::new(estimator)?,
-            tracker: FeatureTracker::new(tracker)?,
-            aiding: VioAiding::default(),
-            gyro: GyroIntegrator::new(),
-            bg: Vec3::zeros(),
-            last_image_ns: None,
-            preds: [FeaturePrediction::EMPTY; L],
+            fe: ImageFrontEnd::new(tracker)?,
             hints: [(0, [0.0; 2]); L],
-            counters: VioCounters::default(),
         })
     }
 
@@ -165,22 +163,8 @@ impl<
     pub const fn empty() -> Self {
         Vio {
             est: Estimator::empty(),
-            tracker: FeatureTracker::empty(),
-            aiding: VioAiding {
-                predictions: true,
-                gyro_rotation: true,
-            },
-            gyro: GyroIntegrator::new(),
-            bg: Vec3::new(0.0, 0.0, 0.0),
-            last_image_ns: None,
-            preds: [FeaturePrediction::EMPTY; L],
+            fe: ImageFrontEnd::empty(),
             hints: [(0, [0.0; 2]); L],
-            counters: VioCounters {
-                images: 0,
-                images_rejected: 0,
-                frames_rejected: 0,
-                no_rotation_seed: 0,
-            },
         }
     }
 
@@ -190,27 +174,21 @@ impl<
     /// default aiding included. Builds nothing large on the stack.
     pub fn configure(
         &mut self,
-        estimator: crate::estimator::EstimatorConfig,
+        estimator: EstimatorConfig,
         tracker: TrackerConfig,
     ) -> Result<(), Error> {
         // Checked first, so that nothing changes when either is invalid (the estimator's
         // `configure` changes nothing when it fails).
-        FeatureTracker::<F, BYTES, LEVELS>::check(&tracker)?;
+        ImageFrontEnd::<F, BYTES, LEVELS>::check(&tracker)?;
         self.est.configure(estimator)?;
-        self.tracker.configure(tracker)?;
-        self.aiding = VioAiding::default();
-        self.gyro.clear();
-        self.bg = Vec3::zeros();
-        self.last_image_ns = None;
-        self.preds.fill(FeaturePrediction::EMPTY);
+        self.fe.configure(tracker)?;
         self.hints.fill((0, [0.0; 2]));
-        self.counters = VioCounters::default();
         Ok(())
     }
 
     /// Chooses which INS aids the tracker gets (both by default).
     pub fn set_aiding(&mut self, aiding: VioAiding) {
-        self.aiding = aiding;
+        self.fe.set_aiding(aiding);
     }
 
     /// The estimator (state, keyframes, counters, configuration).
@@ -225,17 +203,17 @@ impl<
 
     /// The front end (current tracks, ages, pyramid).
     pub fn tracker(&self) -> &FeatureTracker<F, BYTES, LEVELS> {
-        &self.tracker
+        self.fe.tracker()
     }
 
     /// The current tracks (what the last image gave the estimator).
     pub fn features(&self) -> &[FeatureObs] {
-        self.tracker.features()
+        self.fe.features()
     }
 
     /// What was refused so far.
     pub fn counters(&self) -> VioCounters {
-        self.counters
+        self.fe.counters()
     }
 
     /// Queues one IMU sample in the estimator ([`Estimator::push_imu`], same result) and keeps
@@ -243,21 +221,27 @@ impl<
     /// [`Self::update`] after it.
     pub fn push_imu(&mut self, s: &ImuSample) -> Result<(), Error> {
         self.est.push_imu(s)?;
-        self.gyro.push(s.t_ns, &s.gyro_rps);
+        self.fe.push_gyro(s.t_ns, &s.gyro_rps);
         Ok(())
     }
 
-    /// Processes the estimator's next due IMU sample ([`Estimator::update`], same result) and
-    /// takes the gyro bias of the rotation seed from its state.
+    /// Processes the estimator's next due IMU sample ([`Estimator::update`], same result).
     pub fn update(&mut self) -> Result<Option<ImuOutput>, Error> {
-        let out = self.est.update()?;
-        if let Some(o) = &out {
-            self.bg = match o.nav {
-                Some(nav) if nav.bg.iter().all(|x| x.is_finite()) => nav.bg,
-                _ => Vec3::zeros(),
-            };
+        self.est.update()
+    }
+
+    /// What the rotation seed uses now: the estimator's current delay, gyro bias (zero before
+    /// initialization, after a reset, or when not finite) and camera-IMU rotation.
+    fn seed_frame(&self) -> SeedFrame {
+        let bg = match self.est.nav_state() {
+            Some(nav) if nav.bg.iter().all(|x| x.is_finite()) => nav.bg,
+            _ => Vec3::zeros(),
+        };
+        SeedFrame {
+            td_s: self.est.td_s(),
+            bg,
+            r_bc: self.est.extrinsic().q_bc.to_rotation_matrix().into_inner(),
         }
-        Ok(out)
     }
 
     /// Tracks the image taken at `t_cam_ns` (camera clock) and offers its tracks to the
@@ -269,165 +253,102 @@ impl<
     /// large for `BYTES`, [`Error::InvalidConfig`]). When the estimator refuses the tracked
     /// frame the report says so in [`ImageReport::frame_error`].
     pub fn push_image(&mut self, t_cam_ns: i64, image: &ImageView) -> Result<ImageReport, Error> {
-        self.counters.images += 1;
         let clock = self.est.config().clock;
         let t0 = clock.map_or(0, |c| c());
         let camera = self.est.config().camera;
-
+        // Predicted whether or not they seed the tracker: they are part of the output.
+        let preds = self.est.predictions_at(t_cam_ns);
         let mut n_pred = 0usize;
-        if self.aiding.predictions && self.est.status() == Status::Running {
-            n_pred = self
-                .est
-                .predict_features(t_cam_ns, &mut self.preds)
-                .unwrap_or(0);
-            for (h, p) in self.hints.iter_mut().zip(self.preds.iter()).take(n_pred) {
+        if self.fe.aiding().predictions {
+            for (h, p) in self.hints.iter_mut().zip(preds.iter()) {
                 *h = (p.id, p.uv_px);
             }
-            n_pred = n_pred.min(self.hints.len());
+            n_pred = preds.len().min(self.hints.len());
         }
-        let rotation = match self.last_image_ns {
-            Some(prev) if self.aiding.gyro_rotation => self.camera_rotation(prev, t_cam_ns),
-            _ => None,
-        };
-        if self.last_image_ns.is_some() && self.aiding.gyro_rotation && rotation.is_none() {
-            self.counters.no_rotation_seed += 1;
+        let seed = self.seed_frame();
+        let hints = self.hints.get(..n_pred).unwrap_or(&[]);
+        let mut report = self
+            .fe
+            .track(t_cam_ns, image, &camera, &seed, hints, None)?;
+        report.frontend_ns = clock.map_or(0, |c| c().saturating_sub(t0));
+        report.frame_error = self.est.push_frame(t_cam_ns, self.fe.features()).err();
+        if report.frame_error.is_some() {
+            self.fe.count_frame_rejected();
         }
-        let hints = TrackHints {
-            r_cur_prev: rotation,
-            predictions: self.hints.get(..n_pred).unwrap_or(&[]),
-        };
-        let track = match self.tracker.track(t_cam_ns, image, &hints, &camera) {
-            Ok(s) => s,
-            Err(e) => {
-                self.counters.images_rejected += 1;
-                return Err(e);
-            }
-        };
-        self.last_image_ns = Some(t_cam_ns);
-        let frontend_ns = clock.map_or(0, |c| c().saturating_sub(t0));
-        let frame_error = self.est.push_frame(t_cam_ns, self.tracker.features()).err();
-        if frame_error.is_some() {
-            self.counters.frames_rejected += 1;
-        }
-        Ok(ImageReport {
-            track,
-            predictions: n_pred as u32,
-            rotation_seed: rotation.is_some(),
-            tracks: self.tracker.features().len() as u32,
-            frontend_ns,
-            frame_error,
-        })
+        Ok(report)
     }
 
     /// Rotation of the camera at image time `t0_cam_ns` into the camera at `t1_cam_ns`,
     /// `R_c1_c0`, from the buffered gyro minus the estimated bias, the estimator's current delay
     /// and camera-IMU rotation ([`GyroIntegrator::camera_rotation`]).
     pub fn camera_rotation(&self, t0_cam_ns: i64, t1_cam_ns: i64) -> Option<Mat3> {
-        let r_bc = self.est.extrinsic().q_bc.to_rotation_matrix().into_inner();
-        self.gyro
-            .camera_rotation(t0_cam_ns, t1_cam_ns, self.est.td_s(), &self.bg, &r_bc)
+        self.fe
+            .camera_rotation(t0_cam_ns, t1_cam_ns, &self.seed_frame())
     }
 }
 
-/// The last `S` gyro readings, integrated into the camera rotation between two image times
-/// (the tracker's rotation seed). Used by [`Vio`]; usable alone for a front end without the
-/// estimator.
-#[derive(Debug, Clone)]
-pub struct GyroIntegrator<const S: usize> {
-    buf: Deque<(i64, Vec3), S>,
-}
-
-impl<const S: usize> Default for GyroIntegrator<S> {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl<const S: usize> GyroIntegrator<S> {
-    /// An empty buffer.
-    pub const fn new() -> Self {
-        GyroIntegrator { buf: Deque::new() }
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const F: usize,
+        const BYTES: usize,
+        const LEVELS: usize,
+    > Odometry for Vio<N, L, D, F, BYTES, LEVELS>
+{
+    fn config(&self) -> &EstimatorConfig {
+        self.est.config()
     }
 
-    /// Drops every reading.
-    pub fn clear(&mut self) {
-        self.buf.clear();
+    fn status(&self) -> Status {
+        self.est.status()
     }
 
-    /// Readings held.
-    pub fn len(&self) -> usize {
-        self.buf.len()
+    fn initialize(&mut self, state: NavState) -> Result<(), Error> {
+        self.est.initialize(state)
     }
 
-    /// True when no reading is held.
-    pub fn is_empty(&self) -> bool {
-        self.buf.is_empty()
+    fn fast_path_seed(&self) -> Option<InsUpdate> {
+        self.est.fast_path_seed()
     }
 
-    /// Adds the gyro reading `gyro_rps` (body frame) taken at `t_ns`, dropping the oldest when
-    /// full. A non-finite reading or one not after the newest is ignored (returns false).
-    pub fn push(&mut self, t_ns: i64, gyro_rps: &Vec3) -> bool {
-        if !gyro_rps.iter().all(|x| x.is_finite()) || self.buf.back().is_some_and(|b| t_ns <= b.0) {
-            return false;
+    fn push_imu(&mut self, s: &ImuSample) -> Result<(), Error> {
+        Vio::push_imu(self, s)
+    }
+
+    fn push_frame<'a>(
+        &'a mut self,
+        t_cam_ns: i64,
+        obs: &'a [FeatureObs],
+    ) -> Result<FrameOutput<'a>, Error> {
+        Odometry::push_frame(&mut self.est, t_cam_ns, obs)
+    }
+
+    fn push_image(&mut self, t_cam_ns: i64, image: &ImageView) -> Result<FrameOutput<'_>, Error> {
+        let report = Vio::push_image(self, t_cam_ns, image)?;
+        Ok(FrameOutput {
+            t_cam_ns,
+            predictions: self.est.last_predictions(),
+            tracks: self.fe.features(),
+            track_ages: self.fe.tracker().ages(),
+            image: Some(report),
+            frame_error: report.frame_error,
+        })
+    }
+
+    fn push_lidar(&mut self, points: &[LidarPoint]) -> Result<(), Error> {
+        self.est.push_lidar(points)
+    }
+
+    fn update(&mut self) -> Result<Option<Output<'_>>, Error> {
+        self.est.update_output()
+    }
+
+    fn counters(&self) -> OdometryCounters {
+        OdometryCounters {
+            estimator: self.est.counters(),
+            images: self.fe.counters(),
         }
-        if self.buf.is_full() {
-            let _ = self.buf.pop_front();
-        }
-        // Not full (made room above): cannot fail.
-        self.buf.push_back((t_ns, *gyro_rps)).is_ok()
-    }
-
-    /// Body rotation `R_b0_b1` from `t0_ns` to `t1_ns` (IMU clock): the product of
-    /// `Exp((w_k - bg) dt)` with each reading held until the next and the newest extrapolated up
-    /// to [`GYRO_EXTRAPOLATION_NS`]. `None` when the readings do not cover `[t0, t1]`, the
-    /// interval is empty or longer than [`MAX_ROTATION_INTERVAL_NS`], or `bg` is not finite.
-    pub fn body_rotation(&self, t0_ns: i64, t1_ns: i64, bg: &Vec3) -> Option<Mat3> {
-        let span = t1_ns.checked_sub(t0_ns)?;
-        if span <= 0 || span > MAX_ROTATION_INTERVAL_NS || !bg.iter().all(|x| x.is_finite()) {
-            return None;
-        }
-        let (oldest, newest) = (self.buf.front()?.0, self.buf.back()?.0);
-        if t0_ns < oldest || t1_ns > newest.saturating_add(GYRO_EXTRAPOLATION_NS) {
-            return None;
-        }
-        let mut r = Mat3::identity();
-        let mut it = self.buf.iter().peekable();
-        while let Some(&(tk, wk)) = it.next() {
-            let t_next = it.peek().map_or(t1_ns, |n| n.0);
-            let (a, b) = (tk.max(t0_ns), t_next.min(t1_ns));
-            if b > a {
-                r *= exp_so3(&((wk - bg) * ((b - a) as f64 * 1e-9)));
-            }
-            if t_next >= t1_ns {
-                break;
-            }
-        }
-        Some(r)
-    }
-
-    /// Rotation of the camera at image time `t0_cam_ns` into the camera at `t1_cam_ns`
-    /// (`R_c1_c0 = R_bc^T R_b0_b1^T R_bc`), integrating over `[t0 + td, t1 + td]`
-    /// (`t_imu = t_cam + td_s`) with the gyro bias `bg` and the camera-to-body rotation `r_bc`.
-    /// `None` as [`Self::body_rotation`], or for a non-finite or above 1 s delay.
-    pub fn camera_rotation(
-        &self,
-        t0_cam_ns: i64,
-        t1_cam_ns: i64,
-        td_s: f64,
-        bg: &Vec3,
-        r_bc: &Mat3,
-    ) -> Option<Mat3> {
-        if !td_s.is_finite() || libm::fabs(td_s) > 1.0 {
-            return None;
-        }
-        let td_ns = libm::round(td_s * 1e9) as i64;
-        let r_b0b1 = self.body_rotation(
-            t0_cam_ns.saturating_add(td_ns),
-            t1_cam_ns.saturating_add(td_ns),
-            bg,
-        )?;
-        let r = r_bc.transpose() * r_b0b1.transpose() * r_bc;
-        r.iter().all(|x| x.is_finite()).then_some(r)
     }
 }
 
@@ -441,7 +362,7 @@ mod tests {
         big_stack, noise, render_rotated, small_tracker_config as trk_cfg, test_camera as cam,
     };
     use crate::inertial::ImuNoise;
-    use crate::math::Quat;
+    use crate::math::{exp_so3, Quat};
     use std::vec::Vec;
 
     const W: usize = 320;

@@ -1,7 +1,9 @@
-//! [`DatasetSource`]: the replay's time order and pacing on an injected clock.
+//! [`MergedSource`]: the replay's time order and pacing on an injected clock; [`Prefetch`]
+//! keeps it.
 
 use super::*;
-use crate::dataset::{Calibration, Extrinsic, FeatureFrame, LidarScan};
+use crate::dataset::{Calibration, Dataset, Extrinsic, FeatureFrame, LidarScan};
+use povins_core::camera::FeatureObs;
 use povins_core::camera::PinholeCamera;
 use povins_core::inertial::ImuNoise;
 use povins_core::math::Vec3;
@@ -76,7 +78,7 @@ fn dataset() -> Dataset {
 
 /// A short name per event: `i<sample>`, `f<feature id>`, `l<first point ms>`.
 fn names(src: &mut impl Source) -> Vec<String> {
-    std::iter::from_fn(|| src.next())
+    std::iter::from_fn(|| src.next().expect("in-memory streams do not fail"))
         .map(|e| match e {
             SensorEvent::Imu(s) => format!("i{}", (s.t_ns - 1_000_000_000) / 5_000_000),
             SensorEvent::Frame { obs, .. } => format!("f{}", obs[0].id),
@@ -89,7 +91,7 @@ fn names(src: &mut impl Source) -> Vec<String> {
 #[test]
 fn events_come_in_the_replay_order() {
     let ds = dataset();
-    let mut src = DatasetSource::new(&ds, 0, 0.0, Pacing::AsFastAsPossible);
+    let mut src = MergedSource::new(&ds, &opts(0, 0.0)).expect("source");
     assert!(!src.is_realtime());
     // Frame 1.0025 s before sample 1, 1.010 s before sample 2 (at its stamp); the sweep ending
     // at 1.001 s before sample 1 (after the frame), the one ending at 1.012 s before sample 3;
@@ -101,13 +103,28 @@ fn events_come_in_the_replay_order() {
             "i9"
         ]
     );
-    assert_eq!(src.imu_remaining(), 0);
+    let st = src.stats();
+    assert_eq!((st.imu, st.camera_read, st.sweeps_read), (10, 3, 2));
+    // The same events through the prefetching helper thread.
+    let src = MergedSource::new(&ds, &opts(0, 0.0)).expect("source");
+    let (prefetched, inner) = Prefetch::run(src, names);
+    assert_eq!(prefetched.len(), 14);
+    assert_eq!(inner.stats(), st);
+}
+
+/// Frames, no pacing, from `start_ns`, LiDAR offset `td_l_s`.
+fn opts(start_ns: i64, td_l_s: f64) -> MergeOptions {
+    MergeOptions {
+        start_ns,
+        td_l_s,
+        ..MergeOptions::new(CameraInput::Frames)
+    }
 }
 
 #[test]
 fn a_late_start_skips_what_was_due_before_it_and_td_delays_sweeps() {
     let ds = dataset();
-    let mut src = DatasetSource::new(&ds, 1_004_000_000, 0.004, Pacing::AsFastAsPossible);
+    let mut src = MergedSource::new(&ds, &opts(1_004_000_000, 0.004)).expect("source");
     // From sample 1 (1.005 s): frame 1.0025 s is before it; the sweep ending at 1.001 s + 4 ms
     // arrives with it, the one ending at 1.012 s + 4 ms with sample 4 (1.020 s).
     assert_eq!(
@@ -143,7 +160,11 @@ fn pacing_maps_stamps_to_wall_time_with_the_speed_factor() {
         now: t0,
         sleeps: Vec::new(),
     };
-    let mut src = DatasetSource::with_clock(&ds, 0, 0.0, Pacing::Recorded(2.0), clock);
+    let paced = MergeOptions {
+        pacing: Pacing::Recorded(2.0),
+        ..opts(0, 0.0)
+    };
+    let mut src = MergedSource::with_clock(&ds, &paced, clock).expect("source");
     assert!(src.is_realtime());
     let n = names(&mut src).len();
     assert_eq!(n, 14);

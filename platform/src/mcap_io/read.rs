@@ -1,0 +1,540 @@
+//! Reading an MCAP file incrementally ([`McapRecording`]): one pass when it is opened for the
+//! calibration, the simulator's truth and which topics have messages, then one pass per
+//! stream, each pulling records from the file as it goes and decoding only its own topic's
+//! messages. A stream holds its reader's buffer (a chunk at most, [`super::MAX_CHUNK_BYTES`])
+//! and at most [`REORDER`] decoded messages, whatever the file's length.
+//!
+//! Each topic is offered in header-stamp order: messages written out of order by fewer than
+//! [`REORDER`] places are put back in order; a repeated stamp, or a message further out of
+//! order, is an error naming the topic and the stamps.
+
+use super::{
+    calibration_from_metadata, check_chunk_sizes, invalid, mcap_err, SimTruthJson,
+    CALIBRATION_METADATA, COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE, MAX_CHUNK_BYTES,
+    ODOMETRY_TYPE, POINT_CLOUD2_TYPE, POINT_CLOUD_TYPE, SIM_TRUTH_ATTACHMENT, TOPIC_FEATURES,
+    TOPIC_GROUND_TRUTH, TOPIC_GROUND_TRUTH_BIAS, TOPIC_IMAGE, TOPIC_IMAGE_COMPRESSED, TOPIC_IMU,
+    TOPIC_LIDAR,
+};
+use crate::cdr::CdrError;
+use crate::dataset::{Calibration, FeatureFrame, ImageFrame, LidarScan, SimTruth};
+use crate::error::IoError;
+use crate::recording::{Contents, Recording, Stream};
+use crate::ros2::{convert, msgs};
+use mcap::records::Record;
+use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use povins_core::inertial::{ImuSample, NavState};
+use povins_core::math::Vec3;
+use std::collections::{BTreeMap, HashMap};
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+/// Messages of a topic held to put them back in stamp order.
+pub const REORDER: usize = 8;
+
+/// What a record visitor knows of the file: its path and the channel table so far.
+struct RecordCtx {
+    path: PathBuf,
+    schemas: HashMap<u16, String>,
+    /// Channel id -> (topic, schema name, message encoding).
+    channels: HashMap<u16, (String, String, String)>,
+}
+
+/// A pull reader of an MCAP file's records, with the channel table built as it goes.
+struct Records {
+    file: std::io::BufReader<std::fs::File>,
+    reader: LinearReader,
+    ctx: RecordCtx,
+}
+
+/// What a visitor did with a record.
+enum Step<T> {
+    /// The visitor took something from it.
+    Item(T),
+    /// Nothing for the visitor.
+    Skip,
+}
+
+impl Records {
+    fn open(path: &Path) -> Result<Self, IoError> {
+        check_chunk_sizes(path)?;
+        let f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+        // A record length limit, so a corrupt length inside a chunk fails instead of allocating.
+        let opts =
+            LinearReaderOptions::default().with_record_length_limit(MAX_CHUNK_BYTES as usize);
+        Ok(Records {
+            file: std::io::BufReader::with_capacity(1 << 16, f),
+            reader: LinearReader::new_with_options(opts),
+            ctx: RecordCtx {
+                path: path.to_path_buf(),
+                schemas: HashMap::new(),
+                channels: HashMap::new(),
+            },
+        })
+    }
+
+    /// Feeds records to `visit` (schemas and channels are recorded first) until it returns an
+    /// item; `None` at the end of the file.
+    fn next_with<T>(
+        &mut self,
+        mut visit: impl FnMut(&RecordCtx, &Record<'_>) -> Result<Step<T>, IoError>,
+    ) -> Result<Option<T>, IoError> {
+        let ctx = &mut self.ctx;
+        while let Some(event) = self.reader.next_event() {
+            let rec = match event.map_err(|e| mcap_err(&ctx.path, e))? {
+                LinearReadEvent::ReadRequest(need) => {
+                    let buf = self.reader.insert(need);
+                    let n =
+                        read_some(&mut self.file, buf).map_err(|e| IoError::io(&ctx.path, e))?;
+                    self.reader.notify_read(n);
+                    continue;
+                }
+                LinearReadEvent::Record { data, opcode } => {
+                    mcap::parse_record(opcode, data).map_err(|e| mcap_err(&ctx.path, e))?
+                }
+            };
+            match &rec {
+                Record::Schema { header, .. } => {
+                    ctx.schemas.insert(header.id, header.name.clone());
+                }
+                Record::Channel(c) => {
+                    let ty = ctx.schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                    ctx.channels
+                        .insert(c.id, (c.topic.clone(), ty, c.message_encoding.clone()));
+                }
+                _ => {}
+            }
+            if let Step::Item(t) = visit(ctx, &rec)? {
+                return Ok(Some(t));
+            }
+        }
+        Ok(None)
+    }
+}
+
+impl RecordCtx {
+    /// The topic of a message, checked against the schema povins expects on it; `None` for a
+    /// topic povins does not read.
+    fn topic_of(
+        &self,
+        header: &mcap::records::MessageHeader,
+    ) -> Result<Option<(&str, &'static str)>, IoError> {
+        let Some((topic, ty, enc)) = self.channels.get(&header.channel_id) else {
+            return Err(IoError::Corrupt {
+                file: self.path.clone(),
+                what: format!("message {}", header.sequence),
+                offset: 0,
+                msg: format!("channel {} was never declared", header.channel_id),
+            });
+        };
+        let want = match topic.as_str() {
+            TOPIC_IMU | TOPIC_GROUND_TRUTH_BIAS => IMU_TYPE,
+            TOPIC_IMAGE if ty == COMPRESSED_IMAGE_TYPE => COMPRESSED_IMAGE_TYPE,
+            TOPIC_IMAGE => IMAGE_TYPE,
+            TOPIC_IMAGE_COMPRESSED => COMPRESSED_IMAGE_TYPE,
+            TOPIC_FEATURES => POINT_CLOUD_TYPE,
+            TOPIC_LIDAR => POINT_CLOUD2_TYPE,
+            TOPIC_GROUND_TRUTH => ODOMETRY_TYPE,
+            _ => return Ok(None),
+        };
+        if ty != want || enc != "cdr" {
+            return Err(invalid(
+                &self.path,
+                format!("{topic}: schema {ty:?} encoding {enc:?}, expected {want:?} cdr"),
+            ));
+        }
+        Ok(Some((topic.as_str(), want)))
+    }
+}
+
+/// Reads into `buf` until it is full or the file ends; the bytes read (0 at the end).
+fn read_some(f: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match f.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}
+
+/// An MCAP file as a [`Recording`] (see the module docs).
+#[derive(Debug, Clone)]
+pub struct McapRecording {
+    path: PathBuf,
+    name: String,
+    calib: Calibration,
+    sim_truth: Option<SimTruth>,
+    /// Topics povins reads that have messages.
+    topics: Vec<&'static str>,
+    /// Messages per topic povins reads.
+    counts: HashMap<&'static str, usize>,
+    imu_span_ns: Option<(i64, i64)>,
+}
+
+/// The povins topics, as `&'static str`.
+const TOPICS: [&str; 7] = [
+    TOPIC_IMU,
+    TOPIC_IMAGE,
+    TOPIC_IMAGE_COMPRESSED,
+    TOPIC_FEATURES,
+    TOPIC_LIDAR,
+    TOPIC_GROUND_TRUTH,
+    TOPIC_GROUND_TRUTH_BIAS,
+];
+
+impl McapRecording {
+    /// Opens an MCAP file: one pass over its records for the calibration metadata, the
+    /// simulator's truth and the topics with messages (messages are not decoded).
+    pub fn open(path: &Path) -> Result<Self, IoError> {
+        let mut r = Records::open(path)?;
+        let mut calib = None;
+        let mut sim_truth = None;
+        let mut topics: Vec<&'static str> = Vec::new();
+        let mut counts: HashMap<&'static str, usize> = HashMap::new();
+        let mut imu_span: Option<(i64, i64)> = None;
+        r.next_with::<()>(|r, rec| {
+            match rec {
+                Record::Message { header, .. } => {
+                    if let Some((topic, _)) = r.topic_of(header)? {
+                        if let Some(t) = TOPICS.iter().find(|t| **t == topic) {
+                            if !topics.contains(t) {
+                                topics.push(t);
+                            }
+                            *counts.entry(t).or_default() += 1;
+                        }
+                        if topic == TOPIC_IMU {
+                            // Log times are the header stamps in povins' files: progress only.
+                            let t = i64::try_from(header.log_time).unwrap_or(i64::MAX);
+                            imu_span = Some(imu_span.map_or((t, t), |(a, b)| (a.min(t), b.max(t))));
+                        }
+                    }
+                }
+                Record::Metadata(m) if m.name == CALIBRATION_METADATA => {
+                    calib = Some(calibration_from_metadata(path, &m.metadata)?);
+                }
+                Record::Attachment { header, data, .. } if header.name == SIM_TRUTH_ATTACHMENT => {
+                    sim_truth = Some(sim_truth_from_json(path, data)?);
+                }
+                _ => {}
+            }
+            Ok(Step::Skip)
+        })?;
+        let (name, calib) = calib
+            .ok_or_else(|| invalid(path, format!("no {CALIBRATION_METADATA} metadata record")))?;
+        if !topics.contains(&TOPIC_IMU) {
+            return Err(invalid(path, format!("no {TOPIC_IMU} messages")));
+        }
+        Ok(McapRecording {
+            path: path.to_path_buf(),
+            name: if name.is_empty() {
+                path.file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            } else {
+                name
+            },
+            calib,
+            sim_truth,
+            topics,
+            counts,
+            imu_span_ns: imu_span,
+        })
+    }
+
+    /// The simulator's truth, when the file has it.
+    pub fn sim_truth(&self) -> Option<&SimTruth> {
+        self.sim_truth.as_ref()
+    }
+
+    fn has(&self, topic: &str) -> bool {
+        self.topics.contains(&topic)
+    }
+
+    /// The image topic read: `/cam0/image_raw`, or `/cam0/image_raw/compressed` when that has
+    /// none.
+    fn image_topic(&self) -> Option<&'static str> {
+        if self.has(TOPIC_IMAGE) {
+            Some(TOPIC_IMAGE)
+        } else if self.has(TOPIC_IMAGE_COMPRESSED) {
+            Some(TOPIC_IMAGE_COMPRESSED)
+        } else {
+            None
+        }
+    }
+
+    /// One topic's messages, decoded by `decode`, in stamp order.
+    fn topic_stream<T: Send + 'static>(
+        &self,
+        topic: &'static str,
+        decode: Decoder<T>,
+        stamp: fn(&T) -> i64,
+    ) -> Result<Stream<'static, T>, IoError> {
+        if !self.has(topic) {
+            return Ok(Box::new(std::iter::empty()));
+        }
+        Ok(Box::new(TopicStream {
+            records: Records::open(&self.path)?,
+            topic,
+            decode,
+            stamp,
+            held: BTreeMap::new(),
+            last: None,
+            done: false,
+        }))
+    }
+}
+
+/// One message of a topic povins reads, as a decoder sees it.
+struct Msg<'a> {
+    path: &'a Path,
+    topic: &'static str,
+    /// The schema povins expects on the topic.
+    ty: &'static str,
+    seq: u32,
+    data: &'a [u8],
+}
+
+/// Decodes one message of a topic.
+type Decoder<T> = fn(&Msg<'_>) -> Result<T, IoError>;
+
+/// One topic of an MCAP file in stamp order (module docs).
+struct TopicStream<T> {
+    records: Records,
+    topic: &'static str,
+    decode: Decoder<T>,
+    stamp: fn(&T) -> i64,
+    /// Messages held, by stamp.
+    held: BTreeMap<i64, T>,
+    last: Option<i64>,
+    done: bool,
+}
+
+impl<T> TopicStream<T> {
+    fn pull(&mut self) -> Result<Option<T>, IoError> {
+        while !self.done && self.held.len() < REORDER {
+            let (topic, decode) = (self.topic, self.decode);
+            let msg = self.records.next_with(|r, rec| {
+                let Record::Message { header, data } = rec else {
+                    return Ok(Step::Skip);
+                };
+                match r.topic_of(header)? {
+                    Some((t, ty)) if t == topic => decode(&Msg {
+                        path: &r.path,
+                        topic,
+                        ty,
+                        seq: header.sequence,
+                        data,
+                    })
+                    .map(Step::Item),
+                    _ => Ok(Step::Skip),
+                }
+            })?;
+            let Some(msg) = msg else {
+                self.done = true;
+                break;
+            };
+            let t = (self.stamp)(&msg);
+            if self.held.insert(t, msg).is_some() {
+                return Err(self.out_of_order(format!("two messages stamped {t} ns")));
+            }
+        }
+        let Some((t, msg)) = self.held.pop_first() else {
+            return Ok(None);
+        };
+        if let Some(last) = self.last.filter(|&l| t <= l) {
+            return Err(self.out_of_order(if t == last {
+                format!("two messages stamped {t} ns")
+            } else {
+                format!(
+                    "a message stamped {t} ns comes more than {REORDER} messages after one \
+                     stamped {last} ns"
+                )
+            }));
+        }
+        self.last = Some(t);
+        Ok(Some(msg))
+    }
+
+    fn out_of_order(&self, msg: String) -> IoError {
+        invalid(&self.records.ctx.path, format!("{}: {msg}", self.topic))
+    }
+}
+
+impl<T> Iterator for TopicStream<T> {
+    type Item = Result<T, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        match self.pull() {
+            Ok(Some(v)) => Some(Ok(v)),
+            Ok(None) => None,
+            Err(e) => {
+                self.done = true;
+                self.held.clear();
+                Some(Err(e))
+            }
+        }
+    }
+}
+
+impl Msg<'_> {
+    fn corrupt(&self, e: CdrError) -> IoError {
+        IoError::Corrupt {
+            file: self.path.into(),
+            what: format!("{} message {}", self.topic, self.seq),
+            offset: e.offset as u64,
+            msg: e.msg,
+        }
+    }
+
+    fn bad(&self, msg: impl std::fmt::Display) -> IoError {
+        invalid(
+            self.path,
+            format!("{} message {}: {msg}", self.topic, self.seq),
+        )
+    }
+}
+
+fn decode_imu(m: &Msg<'_>) -> Result<ImuSample, IoError> {
+    let i = msgs::Imu::decode(m.data).map_err(|e| m.corrupt(e))?;
+    convert::imu_from_msg(&i).ok_or_else(|| m.bad("non-finite sample"))
+}
+
+fn decode_bias(m: &Msg<'_>) -> Result<msgs::Imu, IoError> {
+    msgs::Imu::decode(m.data).map_err(|e| m.corrupt(e))
+}
+
+fn decode_odometry(m: &Msg<'_>) -> Result<msgs::Odometry, IoError> {
+    msgs::Odometry::decode(m.data).map_err(|e| m.corrupt(e))
+}
+
+fn decode_image(m: &Msg<'_>) -> Result<ImageFrame, IoError> {
+    if m.ty == COMPRESSED_IMAGE_TYPE {
+        let c = msgs::CompressedImage::decode(m.data).map_err(|e| m.corrupt(e))?;
+        convert::image_from_compressed_msg(&c).map_err(|e| IoError::Corrupt {
+            file: m.path.into(),
+            what: format!("{} message {} (format {:?})", m.topic, m.seq, c.format),
+            offset: 0,
+            msg: e,
+        })
+    } else {
+        let i = msgs::Image::decode(m.data).map_err(|e| m.corrupt(e))?;
+        convert::image_from_msg(i).map_err(|e| m.bad(e))
+    }
+}
+
+fn decode_features(m: &Msg<'_>) -> Result<FeatureFrame, IoError> {
+    let c = msgs::PointCloud::decode(m.data).map_err(|e| m.corrupt(e))?;
+    convert::features_from_msg(&c).map_err(|e| m.bad(e))
+}
+
+fn decode_sweep(m: &Msg<'_>) -> Result<LidarScan, IoError> {
+    let c = msgs::PointCloud2::decode(m.data).map_err(|e| m.corrupt(e))?;
+    convert::lidar_from_msg(&c).map_err(|e| m.bad(e))
+}
+
+fn sim_truth_from_json(path: &Path, data: &[u8]) -> Result<SimTruth, IoError> {
+    let j: SimTruthJson = serde_json::from_slice(data).map_err(|e| IoError::Corrupt {
+        file: path.into(),
+        what: SIM_TRUTH_ATTACHMENT.into(),
+        offset: e.column() as u64,
+        msg: e.to_string(),
+    })?;
+    Ok(SimTruth {
+        landmarks_w: j
+            .landmarks_w
+            .into_iter()
+            .map(|(id, p)| (id, Vec3::from(p)))
+            .collect(),
+        wrong_tracks: j.wrong_tracks,
+        edge_features: j.edge_features,
+        lidar_edge_points: j.lidar_edge_points,
+    })
+}
+
+impl Recording for McapRecording {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn calibration(&self) -> &Calibration {
+        &self.calib
+    }
+
+    fn contents(&self) -> Contents {
+        Contents {
+            imu: self.has(TOPIC_IMU),
+            frames: self.has(TOPIC_FEATURES),
+            images: self.image_topic().is_some(),
+            lidar: self.has(TOPIC_LIDAR),
+            ground_truth: self.has(TOPIC_GROUND_TRUTH),
+            imu_span_ns: self.imu_span_ns,
+            image_count: self
+                .image_topic()
+                .map(|t| self.counts.get(t).copied().unwrap_or(0)),
+        }
+    }
+
+    fn imu(&self) -> Result<Stream<'_, ImuSample>, IoError> {
+        self.topic_stream(TOPIC_IMU, decode_imu, |s| s.t_ns)
+    }
+
+    fn frames(&self) -> Result<Stream<'_, FeatureFrame>, IoError> {
+        self.topic_stream(TOPIC_FEATURES, decode_features, |f| f.t_ns)
+    }
+
+    fn images(&self) -> Result<Stream<'_, ImageFrame>, IoError> {
+        match self.image_topic() {
+            Some(t) => self.topic_stream(t, decode_image, |f| f.t_ns),
+            None => Ok(Box::new(std::iter::empty())),
+        }
+    }
+
+    fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError> {
+        self.topic_stream(TOPIC_LIDAR, decode_sweep, |s| s.t_ns)
+    }
+
+    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
+        let path = &self.path;
+        let odoms: Vec<msgs::Odometry> = self
+            .topic_stream(TOPIC_GROUND_TRUTH, decode_odometry, |o| o.header.t_ns)?
+            .collect::<Result<_, _>>()?;
+        let biases: Vec<msgs::Imu> = self
+            .topic_stream(TOPIC_GROUND_TRUTH_BIAS, decode_bias, |b| b.header.t_ns)?
+            .collect::<Result<_, _>>()?;
+        let biases: HashMap<i64, msgs::Imu> =
+            biases.into_iter().map(|b| (b.header.t_ns, b)).collect();
+        if !biases.is_empty() && biases.len() != odoms.len() {
+            return Err(invalid(
+                path,
+                format!(
+                    "{} {TOPIC_GROUND_TRUTH} messages but {} {TOPIC_GROUND_TRUTH_BIAS} messages",
+                    odoms.len(),
+                    biases.len()
+                ),
+            ));
+        }
+        let mut ground_truth = Vec::with_capacity(odoms.len());
+        for o in &odoms {
+            let b = biases.get(&o.header.t_ns);
+            if b.is_none() && !biases.is_empty() {
+                return Err(invalid(
+                    path,
+                    format!(
+                        "{TOPIC_GROUND_TRUTH_BIAS}: no message at {} ns",
+                        o.header.t_ns
+                    ),
+                ));
+            }
+            ground_truth.push(convert::ground_truth_from_msgs(o, b).map_err(|e| {
+                invalid(
+                    path,
+                    format!("{TOPIC_GROUND_TRUTH} at {} ns: {e}", o.header.t_ns),
+                )
+            })?);
+        }
+        Ok(ground_truth)
+    }
+}

@@ -1,0 +1,130 @@
+//! A recorded sequence read incrementally: its calibration up front, then each sensor's stream
+//! pulled message by message ([`Stream`]), so nothing holds the whole recording. The replay
+//! ([`crate::source::MergedSource`]) merges the streams into the one arrival order.
+//!
+//! Implementations: EuRoC ASL folders ([`crate::euroc::EurocFolder`]), MCAP files
+//! ([`crate::mcap_io::McapRecording`]) and sequences in memory ([`Dataset`], what the simulator
+//! produces). [`open`] chooses by path.
+//!
+//! Frames as in [`crate::dataset`]: IMU samples in the body (IMU) frame `b`, feature observations
+//! in raw distorted pixels, LiDAR points in the LiDAR frame `l`, ground truth the body in the
+//! world `w` (z up).
+
+use crate::dataset::{Calibration, Dataset, FeatureFrame, ImageFrame, LidarScan};
+use crate::error::IoError;
+use povins_core::inertial::{ImuSample, NavState};
+use std::path::Path;
+
+/// One sensor's messages in recorded order; an error ends the stream (it names the file and
+/// the record).
+pub type Stream<'a, T> = Box<dyn Iterator<Item = Result<T, IoError>> + Send + 'a>;
+
+/// Which streams a recording has.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Contents {
+    /// IMU samples.
+    pub imu: bool,
+    /// Feature tracks (an external front end's output).
+    pub frames: bool,
+    /// Camera images.
+    pub images: bool,
+    /// LiDAR sweeps.
+    pub lidar: bool,
+    /// Ground truth of the body in the world.
+    pub ground_truth: bool,
+    /// Stamps of the first and last IMU sample, ns, when known without reading the stream (for
+    /// progress over the recording's time).
+    pub imu_span_ns: Option<(i64, i64)>,
+    /// Camera images, when known without reading them.
+    pub image_count: Option<usize>,
+}
+
+/// A recorded sequence (see the module docs).
+pub trait Recording: Send + Sync {
+    /// Human-readable name (folder or file stem, or scenario).
+    fn name(&self) -> &str;
+    /// The sensors' calibration.
+    fn calibration(&self) -> &Calibration;
+    /// Which streams it has.
+    fn contents(&self) -> Contents;
+    /// The IMU samples, increasing in time.
+    fn imu(&self) -> Result<Stream<'_, ImuSample>, IoError>;
+    /// The feature frames, increasing in time (empty when it has none).
+    fn frames(&self) -> Result<Stream<'_, FeatureFrame>, IoError>;
+    /// The camera images, increasing in time, undecoded (empty when it has none).
+    fn images(&self) -> Result<Stream<'_, ImageFrame>, IoError>;
+    /// The LiDAR sweeps in recorded order (empty when it has none).
+    fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError>;
+    /// The ground truth (for evaluation and ground-truth starts; empty when it has none).
+    fn ground_truth(&self) -> Result<Vec<NavState>, IoError>;
+}
+
+/// Opens a recording by path: a folder is an EuRoC ASL folder, an `.mcap` file an MCAP file.
+pub fn open(path: &Path) -> Result<Box<dyn Recording>, IoError> {
+    if path.is_dir() {
+        Ok(Box::new(crate::euroc::EurocFolder::open(path)?))
+    } else if path.extension().is_some_and(|e| e == "mcap") {
+        Ok(Box::new(crate::mcap_io::McapRecording::open(path)?))
+    } else if !path.exists() {
+        Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "does not exist".into(),
+        })
+    } else {
+        Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "expected an EuRoC folder (containing mav0/) or an .mcap file".into(),
+        })
+    }
+}
+
+/// Cloned items of a slice as a stream.
+fn slice_stream<T: Clone + Send + Sync>(v: &[T]) -> Stream<'_, T> {
+    Box::new(v.iter().cloned().map(Ok))
+}
+
+impl Recording for Dataset {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn calibration(&self) -> &Calibration {
+        &self.calib
+    }
+
+    fn contents(&self) -> Contents {
+        Contents {
+            imu: !self.imu.is_empty(),
+            frames: !self.features.is_empty(),
+            images: !self.images.is_empty(),
+            lidar: !self.lidar.is_empty(),
+            ground_truth: !self.ground_truth.is_empty(),
+            imu_span_ns: self
+                .imu
+                .first()
+                .zip(self.imu.last())
+                .map(|(a, b)| (a.t_ns, b.t_ns)),
+            image_count: Some(self.images.len()),
+        }
+    }
+
+    fn imu(&self) -> Result<Stream<'_, ImuSample>, IoError> {
+        Ok(slice_stream(&self.imu))
+    }
+
+    fn frames(&self) -> Result<Stream<'_, FeatureFrame>, IoError> {
+        Ok(slice_stream(&self.features))
+    }
+
+    fn images(&self) -> Result<Stream<'_, ImageFrame>, IoError> {
+        Ok(slice_stream(&self.images))
+    }
+
+    fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError> {
+        Ok(slice_stream(&self.lidar))
+    }
+
+    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
+        Ok(self.ground_truth.clone())
+    }
+}
