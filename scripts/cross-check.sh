@@ -7,7 +7,8 @@
 #  2. runs core's and the platform's tests for aarch64-unknown-linux-gnu under qemu-user, and the
 #     estimator's golden replays (tests/estimator_determinism.rs: EuRoC, simulated robot with and
 #     without LiDAR; tests/estimator_static.rs), which compare every state and report with the
-#     golden files written on x86-64: bit-identical or red;
+#     golden files written on x86-64 (tests/golden/*.hash, and the decimated states *.csv byte
+#     for byte): bit-identical or red;
 #  3. the golden hashes (preintegration over the real EuRoC IMU log; the image front end over
 #     real EuRoC and DM-VIO frames, an #[ignore]d test run explicitly) are asserted against the
 #     constants in core/tests/inertial_golden.rs and core/tests/frontend_image.rs, which the x86-64

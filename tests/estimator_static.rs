@@ -10,11 +10,13 @@ mod common;
 
 use common::golden::{check_golden_of, hashes_of, RunView};
 use common::*;
-use povins::core::estimator::{EstimatorConfig, KeyframeReport, PoVins, Status, VisualMode};
+use povins::core::estimator::{
+    DepthEvent, EstimatorConfig, KeyframeReport, PoVins, Status, VisualMode,
+};
 use povins::core::inertial::{ImuSample, NavState};
 use povins::core::Error;
-use povins::host_tools::runner::KeyframeDepthEvents;
 use povins::platform::dataset::Dataset;
+use std::collections::BTreeMap;
 use std::sync::Mutex;
 
 /// The stack of the thread that configures and runs the estimator.
@@ -30,7 +32,9 @@ static EST: Mutex<PoVins> = Mutex::new(PoVins::empty());
 struct Run {
     imu_rate: Vec<NavState>,
     reports: Vec<KeyframeReport>,
-    lidar_events: Vec<KeyframeDepthEvents>,
+    lidar_events: Vec<Vec<DepthEvent>>,
+    /// Every keyframe's last state in the window, by time.
+    keyframe_states: Vec<NavState>,
 }
 
 impl Run {
@@ -38,7 +42,8 @@ impl Run {
         RunView {
             imu_rate: &self.imu_rate,
             reports: &self.reports,
-            lidar_events: &self.lidar_events,
+            lidar_events: self.lidar_events.iter().map(Vec::as_slice).collect(),
+            keyframe_states: &self.keyframe_states,
         }
     }
 }
@@ -55,20 +60,23 @@ fn run_static(ds: &Dataset, cfg: EstimatorConfig) -> Run {
             imu_rate: Vec::with_capacity(ds.imu.len()),
             reports: Vec::new(),
             lidar_events: Vec::new(),
+            keyframe_states: Vec::new(),
         };
+        let mut kf_states = BTreeMap::new();
         drive(&mut est, &ds.imu, &frames, |est, _, o| {
             if let Some(r) = o.keyframe {
-                run.lidar_events.push(KeyframeDepthEvents {
-                    t_cam_ns: r.t_cam_ns,
-                    events: est.lidar_events().to_vec(),
-                });
+                run.lidar_events.push(est.lidar_events().to_vec());
                 run.reports.push(r);
+                for kf in est.keyframes() {
+                    kf_states.insert(kf.state.t_ns, kf.state);
+                }
             }
             if let Some(nav) = o.nav {
                 run.imu_rate.push(nav);
             }
             true
         });
+        run.keyframe_states = kf_states.into_values().collect();
         run
     })
 }

@@ -1,13 +1,18 @@
-//! Golden-file hashing of a run (shared by the tests that compare with `tests/golden/`).
+//! Golden files of a run (shared by the tests that compare with `tests/golden/`): the exact
+//! hashes (`<name>.hash`, the authority) and the decimated states to read (`<name>.csv`,
+//! [`table`]), which say how far a run moved when the hashes differ.
 //!
 //! FNV-1a 64 over the bit patterns of `t, p, q, v, bg, ba` of every IMU-rate state, then every
 //! keyframe report's numbers except the `*_ns` timings (and its LiDAR events). Besides the total,
 //! a golden file keeps one hash per state and per report so a mismatch can say where the output
-//! first changed.
+//! first changed. The API sees a run only through [`RunView`]; [`RunView::of`] is the one
+//! adapter from the replay's output.
 
-use povins::core::estimator::KeyframeReport;
+pub mod table;
+
+use povins::core::estimator::{DepthEvent, KeyframeReport};
 use povins::core::inertial::NavState;
-use povins::host_tools::runner::{KeyframeDepthEvents, RunOutput};
+use povins::host_tools::runner::RunOutput;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -135,13 +140,15 @@ pub struct Hashes {
     pub reports: Vec<u64>,
 }
 
-/// What a golden file covers of a run: the IMU-rate states, the keyframe reports and each
-/// report's LiDAR-depth events (same order; missing entries count as no events).
-#[derive(Clone, Copy)]
+/// What the golden files cover of a run: the IMU-rate states, the keyframe reports with each
+/// report's LiDAR-depth events (same order; missing entries count as no events), and every
+/// keyframe's final state (for the readable states only).
+#[derive(Clone)]
 pub struct RunView<'a> {
     pub imu_rate: &'a [NavState],
     pub reports: &'a [KeyframeReport],
-    pub lidar_events: &'a [KeyframeDepthEvents],
+    pub lidar_events: Vec<&'a [DepthEvent]>,
+    pub keyframe_states: &'a [NavState],
 }
 
 impl<'a> RunView<'a> {
@@ -150,14 +157,14 @@ impl<'a> RunView<'a> {
         RunView {
             imu_rate: &out.imu_rate,
             reports: &out.reports,
-            lidar_events: &out.lidar_events,
+            lidar_events: out
+                .lidar_events
+                .iter()
+                .map(|e| e.events.as_slice())
+                .collect(),
+            keyframe_states: &out.keyframe_states,
         }
     }
-}
-
-/// [`hashes_of`] a replay's output.
-pub fn hashes(out: &RunOutput) -> Hashes {
-    hashes_of(&RunView::of(out))
 }
 
 /// The hashes of a run.
@@ -174,13 +181,12 @@ pub fn hashes_of(out: &RunView<'_>) -> Hashes {
         .iter()
         .map(|s| one(&|h| hash_state(h, s)))
         .collect();
-    let no_events = Vec::new();
     let reports = out
         .reports
         .iter()
         .enumerate()
         .map(|(i, r)| {
-            let ev = out.lidar_events.get(i).map_or(&no_events, |e| &e.events);
+            let ev: &[DepthEvent] = out.lidar_events.get(i).copied().unwrap_or_default();
             one(&|h| {
                 hash_report(h, r);
                 // Empty for runs without LiDAR, so their hashes are unchanged.
@@ -201,8 +207,18 @@ pub fn hashes_of(out: &RunView<'_>) -> Hashes {
 
 pub const BLESS: &str = "POVINS_BLESS=1 cargo test --test estimator_determinism";
 
+/// `tests/golden/<name>.hash`.
 pub fn golden_path(name: &str) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden")).join(format!("{name}.hash"))
+    golden_dir().join(format!("{name}.hash"))
+}
+
+/// `tests/golden/<name>.csv`: the decimated states ([`table`]).
+pub fn states_path(name: &str) -> PathBuf {
+    golden_dir().join(format!("{name}.csv"))
+}
+
+fn golden_dir() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden"))
 }
 
 fn render(name: &str, h: &Hashes) -> String {
@@ -246,24 +262,28 @@ fn first_difference(a: &[u64], b: &[u64]) -> Option<usize> {
     (0..a.len().max(b.len())).find(|&i| a.get(i) != b.get(i))
 }
 
-/// Compares a replay's output with `tests/golden/<name>.hash` (or writes the file under
-/// `POVINS_BLESS=1`).
-pub fn check_golden(name: &str, out: &RunOutput) {
-    check_golden_of(name, &RunView::of(out), true);
-}
-
-/// Compares a run with `tests/golden/<name>.hash`, panicking with where it first differs. With
-/// `may_bless` and `POVINS_BLESS=1` it writes the file instead (only the determinism test
-/// blesses: other tests compare with what it blessed).
+/// Compares a run with `tests/golden/<name>.hash`, panicking with where it first differs and,
+/// from `tests/golden/<name>.csv`, how far each state column moved. With `may_bless` and
+/// `POVINS_BLESS=1` it writes both files instead (only the determinism test blesses: other tests
+/// compare with what it blessed). A run matching the hashes must reproduce the states file byte
+/// for byte too (what the cross-target check relies on).
 pub fn check_golden_of(name: &str, out: &RunView<'_>, may_bless: bool) {
     let now = hashes_of(out);
+    let states = table::render(name, &table::table_of(out), BLESS);
     let path = golden_path(name);
+    let csv = states_path(name);
     if may_bless && std::env::var_os("POVINS_BLESS").is_some_and(|v| v == "1") {
         std::fs::create_dir_all(path.parent().expect("a parent folder"))
             .expect("create tests/golden");
-        std::fs::write(&path, render(name, &now))
-            .unwrap_or_else(|e| panic!("cannot write {}: {e}", path.display()));
-        println!("blessed {} (total {:016x})", path.display(), now.total);
+        for (p, text) in [(&path, render(name, &now)), (&csv, states)] {
+            std::fs::write(p, text).unwrap_or_else(|e| panic!("cannot write {}: {e}", p.display()));
+        }
+        println!(
+            "blessed {} (total {:016x}) and {}",
+            path.display(),
+            now.total,
+            csv.display()
+        );
         return;
     }
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
@@ -278,15 +298,38 @@ pub fn check_golden_of(name: &str, out: &RunView<'_>, may_bless: bool) {
             path.display()
         )
     });
+    let golden_states = std::fs::read_to_string(&csv).ok();
     if golden == now {
+        assert!(
+            golden_states.as_deref() == Some(states.as_str()),
+            "{name}: the output matches the golden hashes but {} is missing or differs from \
+             this run's states (edited by hand, or stale): re-bless with `{BLESS}`",
+            csv.display()
+        );
         println!("{name}: matches golden total {:016x}", now.total);
         return;
     }
+    panic!(
+        "{}",
+        mismatch_message(name, out, &now, &golden, golden_states.as_deref(), &states)
+    );
+}
+
+/// What a failing comparison prints: counts and totals, where the hashes first differ, and how
+/// far the states moved (from the states files, when the golden one is readable).
+pub fn mismatch_message(
+    name: &str,
+    out: &RunView<'_>,
+    now: &Hashes,
+    golden: &Hashes,
+    golden_states: Option<&str>,
+    states: &str,
+) -> String {
     let t_s = |t_ns: i64| (t_ns - out.imu_rate.first().map_or(0, |s| s.t_ns)) as f64 * 1e-9;
     let mut msg = format!(
         "{name}: output differs from the golden file {}\n  states: {} now, {} golden; \
          keyframe reports: {} now, {} golden; total {:016x} now, {:016x} golden\n",
-        path.display(),
+        golden_path(name).display(),
         now.states.len(),
         golden.states.len(),
         now.reports.len(),
@@ -318,9 +361,28 @@ pub fn check_golden_of(name: &str, out: &RunView<'_>, may_bless: bool) {
             "  all states match; first differing keyframe report: #{i}, {at}"
         );
     }
+    let csv = states_path(name);
+    match (golden_states.and_then(table::parse), table::parse(states)) {
+        (Some(g), Some(n)) => {
+            let c = table::compare(&g, &n);
+            let _ = writeln!(msg, "  how much, from {}:", csv.display());
+            if c.is_equal() {
+                let _ = writeln!(
+                    msg,
+                    "    every decimated state agrees to the printed digits: the change is \
+                     below their resolution, between the rows, or in the reports only"
+                );
+            } else {
+                msg.push_str(&c.describe());
+            }
+        }
+        _ => {
+            let _ = writeln!(msg, "  (no readable {} to say how much)", csv.display());
+        }
+    }
     let _ = write!(
         msg,
         "  if the change is intended, re-bless with `{BLESS}` and commit tests/golden/"
     );
-    panic!("{msg}");
+    msg
 }

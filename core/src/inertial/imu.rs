@@ -1,6 +1,7 @@
 //! IMU samples and the IMU noise model.
 
 use crate::math::Vec3;
+use crate::Error;
 
 /// One IMU sample in the body (IMU) frame `b`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -21,6 +22,23 @@ impl ImuSample {
             .chain(self.accel_mps2.iter())
             .all(|x| x.is_finite())
     }
+}
+
+/// Checks a sample against the previous time: finite, strictly later, and within `max_dt_s`.
+/// Returns the spacing in seconds.
+pub(crate) fn check_sample(s: &ImuSample, prev_t_ns: i64, max_dt_s: f64) -> Result<f64, Error> {
+    if !s.is_finite() {
+        return Err(Error::NonFinite);
+    }
+    if s.t_ns <= prev_t_ns {
+        return Err(Error::TimeNotIncreasing);
+    }
+    // i128 so extreme timestamps cannot overflow the subtraction.
+    let dt_s = (s.t_ns as i128 - prev_t_ns as i128) as f64 * 1e-9;
+    if dt_s > max_dt_s {
+        return Err(Error::TimeGap);
+    }
+    Ok(dt_s)
 }
 
 /// Continuous-time IMU noise model (datasheet / Kalibr `sensor.yaml` units).

@@ -15,34 +15,11 @@
 //! mean gyro (Earth rotation, < 7.3e-5 rad/s, is absorbed into it). The accelerometer bias is not
 //! separable from the tilt at rest and is set to zero; position and velocity are zero.
 
-use super::imu::ImuSample;
+use super::imu::{check_sample, ImuSample};
 use super::state::NavState;
 use crate::math::{quat_exp, Vec3};
 use crate::Error;
 use heapless::Deque;
-
-/// Validates a full state for starting the INS: every component finite and the quaternion
-/// re-normalized ([`Error::NonFinite`], or [`Error::Degenerate`] for a (near-)zero quaternion).
-pub fn state_from_full(s: &NavState) -> Result<NavState, Error> {
-    let all_finite = s
-        .p_wb
-        .iter()
-        .chain(s.v_wb.iter())
-        .chain(s.bg.iter())
-        .chain(s.ba.iter())
-        .chain(s.q_wb.coords.iter())
-        .all(|x| x.is_finite());
-    if !all_finite {
-        return Err(Error::NonFinite);
-    }
-    if s.q_wb.coords.norm() < 1e-6 {
-        return Err(Error::Degenerate);
-    }
-    Ok(NavState {
-        q_wb: super::ins::renormalize(s.q_wb),
-        ..*s
-    })
-}
 
 /// Thresholds of the static detector.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -217,7 +194,7 @@ impl<const M: usize> StaticInitializer<M> {
             return Err(Error::NonFinite);
         }
         if let Some(last) = self.window.back() {
-            match super::ins::check_sample(s, last.t_ns, self.cfg.max_dt_s) {
+            match check_sample(s, last.t_ns, self.cfg.max_dt_s) {
                 Ok(_) => {}
                 Err(Error::TimeGap) => {
                     self.window.clear();
@@ -278,7 +255,6 @@ fn level(st: &StaticStats, t_ns: i64) -> NavState {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::Quat;
 
     fn cfg() -> StaticInitConfig {
         StaticInitConfig {
@@ -367,17 +343,5 @@ mod tests {
             StaticInitializer::<1>::new(cfg()).err(),
             Some(Error::InvalidConfig)
         );
-    }
-
-    #[test]
-    fn full_state_validation() {
-        let mut s = NavState::identity(3);
-        s.q_wb = Quat::new_unchecked(nalgebra::Quaternion::new(2.0, 0.0, 0.0, 0.0));
-        let v = state_from_full(&s).unwrap();
-        assert!((v.q_wb.coords.norm() - 1.0).abs() < 1e-15);
-        s.q_wb = Quat::new_unchecked(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0));
-        assert_eq!(state_from_full(&s).err(), Some(Error::Degenerate));
-        s.bg.z = f64::INFINITY;
-        assert_eq!(state_from_full(&s).err(), Some(Error::NonFinite));
     }
 }

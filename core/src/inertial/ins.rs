@@ -14,10 +14,10 @@
 //! same one the preintegration uses, so an INS run and a preintegrated window from the same state
 //! agree to rounding. Biases in the [`NavState`] are held constant.
 
-use super::imu::ImuSample;
+use super::imu::{check_sample, ImuSample};
 use super::increment::{two_sample, Increment};
-use super::state::NavState;
-use crate::math::{quat_exp, Quat, Vec3};
+use super::state::{renormalize, state_from_full, NavState};
+use crate::math::{quat_exp, Vec3};
 use crate::Error;
 
 /// INS configuration.
@@ -56,23 +56,6 @@ impl InsConfig {
     }
 }
 
-/// Checks a sample against the previous time: finite, strictly later, and within `max_dt_s`.
-/// Returns the spacing in seconds.
-pub(crate) fn check_sample(s: &ImuSample, prev_t_ns: i64, max_dt_s: f64) -> Result<f64, Error> {
-    if !s.is_finite() {
-        return Err(Error::NonFinite);
-    }
-    if s.t_ns <= prev_t_ns {
-        return Err(Error::TimeNotIncreasing);
-    }
-    // i128 so extreme timestamps cannot overflow the subtraction.
-    let dt_s = (s.t_ns as i128 - prev_t_ns as i128) as f64 * 1e-9;
-    if dt_s > max_dt_s {
-        return Err(Error::TimeGap);
-    }
-    Ok(dt_s)
-}
-
 /// The INS: current navigation state plus the previous sample and increment the two-sample
 /// scheme needs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,12 +71,12 @@ pub struct Ins {
 }
 
 impl Ins {
-    /// Starts the INS from a full state (see [`super::init::state_from_full`] for validation).
+    /// Starts the INS from a full state (see [`state_from_full`] for validation).
     pub fn new(cfg: InsConfig, state: NavState) -> Result<Self, Error> {
         if !cfg.is_valid() {
             return Err(Error::InvalidConfig);
         }
-        let state = super::init::state_from_full(&state)?;
+        let state = state_from_full(&state)?;
         Ok(Ins {
             cfg,
             state,
@@ -132,7 +115,7 @@ impl Ins {
     /// it was taken at the new state's time; the two-sample history restarts either way, because
     /// the correction changed the biases the increments were formed with.
     pub fn set_state(&mut self, state: NavState) -> Result<(), Error> {
-        let state = super::init::state_from_full(&state)?;
+        let state = state_from_full(&state)?;
         if self.prev_sample.is_some_and(|s| s.t_ns != state.t_ns) {
             self.prev_sample = None;
             self.older_sample = None;
@@ -184,15 +167,10 @@ impl Ins {
     }
 }
 
-/// Renormalizes a quaternion that drifted from unit norm by rounding.
-pub(crate) fn renormalize(q: Quat) -> Quat {
-    Quat::new_normalize(q.into_inner())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::log_so3;
+    use crate::math::{log_so3, Quat};
     use nalgebra::Quaternion;
 
     const G: f64 = 9.81;

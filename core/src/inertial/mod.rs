@@ -13,8 +13,8 @@ pub mod window;
 
 pub use fast_path::{FastPath, FastPathCounters, InsUpdate};
 pub use imu::{ImuNoise, ImuSample};
-pub use init::{state_from_full, StaticInitConfig, StaticInitializer, StaticStats};
+pub use init::{StaticInitConfig, StaticInitializer, StaticStats};
 pub use ins::{Ins, InsConfig};
 pub use preintegration::{Mat15, PreintConfig, Preintegration, Vec15};
-pub use state::NavState;
+pub use state::{state_from_full, NavState};
 pub use window::InsWindow;

@@ -50,10 +50,9 @@
 //! leaves the preintegration unchanged: the caller must close the keyframe interval there (start
 //! a new keyframe), so re-integration is always available and exact.
 
-use super::imu::{ImuNoise, ImuSample};
+use super::imu::{check_sample, ImuNoise, ImuSample};
 use super::increment::{span_s, two_sample, two_sample_bias_jacobians, Increment};
-use super::ins::{check_sample, renormalize};
-use super::state::NavState;
+use super::state::{renormalize, NavState};
 use crate::math::{exp_so3, jr_inv_so3, jr_so3, log_so3, quat_exp, skew, Mat3, Quat, Vec3};
 use crate::Error;
 use heapless::Vec as HVec;

@@ -50,11 +50,11 @@ impl<const N: usize> InsWindow<N> {
     /// INS restarting from an optimized state): `p' = R (p - p_from) + p_to`, `q' = q q_wb`,
     /// `v' = R v` with `q = q_to q_from^-1`. Keeps the window continuous across the restart.
     pub fn apply_correction(&mut self, from: &NavState, to: &NavState) {
-        let q = super::ins::renormalize(to.q_wb * from.q_wb.inverse());
+        let q = super::state::renormalize(to.q_wb * from.q_wb.inverse());
         for s in self.states.iter_mut() {
             s.p_wb = q * (s.p_wb - from.p_wb) + to.p_wb;
             s.v_wb = q * s.v_wb;
-            s.q_wb = super::ins::renormalize(q * s.q_wb);
+            s.q_wb = super::state::renormalize(q * s.q_wb);
         }
     }
 
@@ -159,7 +159,7 @@ fn interpolate(a: &NavState, b: &NavState, t_ns: i64) -> (Vec3, Quat) {
     let s = (t_ns as i128 - a.t_ns as i128) as f64 / span;
     let p = a.p_wb * (1.0 - s) + b.p_wb * s;
     let dphi = log_so3(&(a.q_wb.inverse() * b.q_wb));
-    let q = super::ins::renormalize(a.q_wb * quat_exp(&(dphi * s)));
+    let q = super::state::renormalize(a.q_wb * quat_exp(&(dphi * s)));
     (p, q)
 }
 

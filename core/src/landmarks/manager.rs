@@ -13,6 +13,7 @@
 //! every observation it has in the window, so a slot given late loses nothing. Tracks removed as
 //! outliers are banned and never promoted again.
 
+use super::obs::{KfObs, LidarDepth};
 use super::store::{ObservationStore, TrackObs};
 use crate::frontend::NormalizedObs;
 use crate::Error;
@@ -21,28 +22,6 @@ use heapless::Vec;
 
 /// Outlier tracks remembered so they are not promoted again (the most recent ones).
 pub const BANNED_TRACKS: usize = 256;
-
-/// One observation of a landmark in a keyframe.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct KfObs {
-    /// Normalized image coordinates in that keyframe's camera.
-    pub x_n: [f64; 2],
-    /// Feature velocity on the normalized plane, 1/s.
-    pub vel: [f64; 2],
-    /// Time delay `td` (s) of the keyframe when the observation was taken (for `x - (td - td0) v`).
-    pub td0_s: f64,
-}
-
-/// Status of a landmark's LiDAR depth (filled by the LiDAR layer).
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct LidarDepth {
-    /// Depth (z in the anchor camera), m.
-    pub depth_m: f64,
-    /// Its standard deviation, m.
-    pub sigma_m: f64,
-}
 
 /// What the marginalization of the oldest keyframe (position 0) does with a landmark.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -11,7 +11,7 @@
 //! Positions are window positions (`0` = oldest), as in the landmark manager; the store is a ring
 //! that drops position 0 when the oldest keyframe leaves the window.
 
-use super::manager::{KfObs, LidarDepth};
+use super::obs::{KfObs, LidarDepth};
 use crate::frontend::NormalizedObs;
 use crate::Error;
 use heapless::Vec as HVec;

@@ -1,0 +1,26 @@
+//! The observation values the landmark manager and the observation store share: a feature's
+//! observation in one keyframe ([`KfObs`]) and a LiDAR depth associated with it
+//! ([`LidarDepth`]). Both are plain values; who keeps them is decided in [`super::manager`]
+//! (landmarks) and [`super::store`] (every track).
+
+/// One observation of a landmark in a keyframe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct KfObs {
+    /// Normalized image coordinates in that keyframe's camera.
+    pub x_n: [f64; 2],
+    /// Feature velocity on the normalized plane, 1/s.
+    pub vel: [f64; 2],
+    /// Time delay `td` (s) of the keyframe when the observation was taken (for `x - (td - td0) v`).
+    pub td0_s: f64,
+}
+
+/// Status of a landmark's LiDAR depth (filled by the LiDAR layer).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LidarDepth {
+    /// Depth (z in the anchor camera), m.
+    pub depth_m: f64,
+    /// Its standard deviation, m.
+    pub sigma_m: f64,
+}
