@@ -27,10 +27,10 @@ use crate::estimator::{
     Counters, DepthEvent, EstimatorConfig, FeaturePrediction, ImuOutput, KeyframeReport, Status,
 };
 use crate::frontend::image::ImageView;
+use crate::frontend::image::TrackStats;
 use crate::inertial::{ImuSample, InsUpdate, NavState};
 use crate::lidar::LidarPoint;
 use crate::math::Vec3;
-use crate::vio::{ImageReport, VioCounters};
 use crate::Error;
 
 /// What one processed IMU sample produced (see the module docs).
@@ -130,6 +130,38 @@ pub struct FrameOutput<'a> {
     pub image: Option<ImageReport>,
     /// The estimator refused the tracks (counted in its counters); `None`: queued.
     pub frame_error: Option<Error>,
+}
+
+/// What one image produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageReport {
+    /// The tracker's statistics of the frame.
+    pub track: TrackStats,
+    /// INS predictions handed to the tracker.
+    pub predictions: u32,
+    /// A gyro rotation seeded the frame.
+    pub rotation_seed: bool,
+    /// Tracks offered to the estimator.
+    pub tracks: u32,
+    /// Front-end time (predictions, gyro integration, tracking), ns, by the estimator
+    /// configuration's clock (0 without a clock).
+    pub frontend_ns: u64,
+    /// The estimator refused the frame (its counters have the reason); the tracker advanced.
+    pub frame_error: Option<Error>,
+}
+
+/// Counts of what an image front end ([`crate::vio::Vio`], [`crate::vio::Tracking`]) refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VioCounters {
+    /// Images offered.
+    pub images: u64,
+    /// Images the tracker refused (wrong size, time not increasing, too large).
+    pub images_rejected: u64,
+    /// Tracked frames the estimator refused.
+    pub frames_rejected: u64,
+    /// Images after the first without a gyro rotation (gyro not covering the interval).
+    pub no_rotation_seed: u64,
 }
 
 /// The counters of an [`Odometry`].

@@ -24,3 +24,25 @@ pub mod trajectory;
 
 pub use dataset::Dataset;
 pub use error::IoError;
+
+use recording::Recording;
+use std::path::Path;
+
+/// Opens a recording by path: a folder is an EuRoC ASL folder, an `.mcap` file an MCAP file.
+pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>, IoError> {
+    if path.is_dir() {
+        Ok(Box::new(crate::euroc::EurocFolder::open(path)?))
+    } else if path.extension().is_some_and(|e| e == "mcap") {
+        Ok(Box::new(crate::mcap_io::McapRecording::open(path)?))
+    } else if !path.exists() {
+        Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "does not exist".into(),
+        })
+    } else {
+        Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "expected an EuRoC folder (containing mav0/) or an .mcap file".into(),
+        })
+    }
+}

@@ -4,7 +4,7 @@
 //!
 //! Implementations: EuRoC ASL folders ([`crate::euroc::EurocFolder`]), MCAP files
 //! ([`crate::mcap_io::McapRecording`]) and sequences in memory ([`Dataset`], what the simulator
-//! produces). [`open`] chooses by path.
+//! produces). [`crate::open_recording`] chooses by path.
 //!
 //! Frames as in [`crate::dataset`]: IMU samples in the body (IMU) frame `b`, feature observations
 //! in raw distorted pixels, LiDAR points in the LiDAR frame `l`, ground truth the body in the
@@ -13,7 +13,6 @@
 use crate::dataset::{Calibration, Dataset, FeatureFrame, ImageFrame, LidarScan};
 use crate::error::IoError;
 use povins_core::inertial::{ImuSample, NavState};
-use std::path::Path;
 
 /// One sensor's messages in recorded order; an error ends the stream (it names the file and
 /// the record).
@@ -57,25 +56,6 @@ pub trait Recording: Send + Sync {
     fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError>;
     /// The ground truth (for evaluation and ground-truth starts; empty when it has none).
     fn ground_truth(&self) -> Result<Vec<NavState>, IoError>;
-}
-
-/// Opens a recording by path: a folder is an EuRoC ASL folder, an `.mcap` file an MCAP file.
-pub fn open(path: &Path) -> Result<Box<dyn Recording>, IoError> {
-    if path.is_dir() {
-        Ok(Box::new(crate::euroc::EurocFolder::open(path)?))
-    } else if path.extension().is_some_and(|e| e == "mcap") {
-        Ok(Box::new(crate::mcap_io::McapRecording::open(path)?))
-    } else if !path.exists() {
-        Err(IoError::Invalid {
-            path: path.to_path_buf(),
-            msg: "does not exist".into(),
-        })
-    } else {
-        Err(IoError::Invalid {
-            path: path.to_path_buf(),
-            msg: "expected an EuRoC folder (containing mav0/) or an .mcap file".into(),
-        })
-    }
 }
 
 /// Cloned items of a slice as a stream.

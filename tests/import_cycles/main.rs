@@ -38,12 +38,6 @@ const ALLOWED: &[&[&str]] = &[
         "povins_core::estimator::health",
         "povins_core::estimator::report",
     ],
-    // platform: the pipeline's back end and front end import each other; removed with the
-    // one-driver work of issue 29 (item 1). Delete this entry then.
-    &[
-        "povins_platform::pipeline::backend",
-        "povins_platform::pipeline::frontend",
-    ],
 ];
 
 const CRATES: &[(&str, &str)] = &[

@@ -43,11 +43,12 @@ pub use tracking::{EurocTracking, HdTracking, Tracking};
 
 use crate::camera::FeatureObs;
 use crate::estimator::{Estimator, EstimatorConfig, ImuOutput, Status};
-use crate::frontend::image::{pyramid_bytes, FeatureTracker, ImageView, TrackStats, TrackerConfig};
+use crate::frontend::image::{pyramid_bytes, FeatureTracker, ImageView, TrackerConfig};
 use crate::inertial::{ImuSample, InsUpdate, NavState};
 use crate::lidar::LidarPoint;
 use crate::math::{Mat3, Vec3};
 use crate::odometry::{FrameOutput, Odometry, OdometryCounters, Output};
+pub use crate::odometry::{ImageReport, VioCounters};
 use crate::Error;
 
 /// Gyro readings kept for the rotation seed (2.5 s at 200 Hz; an image interval must fit).
@@ -90,38 +91,6 @@ impl Default for VioAiding {
             gyro_rotation: true,
         }
     }
-}
-
-/// What one image produced.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImageReport {
-    /// The tracker's statistics of the frame.
-    pub track: TrackStats,
-    /// INS predictions handed to the tracker.
-    pub predictions: u32,
-    /// A gyro rotation seeded the frame.
-    pub rotation_seed: bool,
-    /// Tracks offered to the estimator.
-    pub tracks: u32,
-    /// Front-end time (predictions, gyro integration, tracking), ns, by the estimator
-    /// configuration's clock (0 without a clock).
-    pub frontend_ns: u64,
-    /// The estimator refused the frame (its counters have the reason); the tracker advanced.
-    pub frame_error: Option<Error>,
-}
-
-/// Counts of what [`Vio`] refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct VioCounters {
-    /// Images offered.
-    pub images: u64,
-    /// Images the tracker refused (wrong size, time not increasing, too large).
-    pub images_rejected: u64,
-    /// Tracked frames the estimator refused.
-    pub frames_rejected: u64,
-    /// Images after the first without a gyro rotation (gyro not covering the interval).
-    pub no_rotation_seed: u64,
 }
 
 /// Estimator + image front end (see the module docs).

@@ -349,7 +349,7 @@ pub struct TrackSummary {
 
 /// Runs the command.
 pub fn run(args: Args) -> Result<()> {
-    let rec = povins_platform::recording::open(&args.dataset)?;
+    let rec = povins_platform::open_recording(&args.dataset)?;
     let ds = &*rec;
     let fe = frontend_options(args.config.as_deref(), None, ds)?;
     std::fs::create_dir_all(&args.out)
