@@ -17,10 +17,10 @@
 //! Accuracy and association numbers are deterministic and do not depend on `jobs`; timings
 //! are wall-clock and do (parallel runs share the cores; `--jobs 1` gives the cleanest times).
 
-use crate::cmd::run::summarize;
 use crate::config::RunConfigFile;
 use crate::eval::lidar_assoc::{self, AssocQuality};
 use crate::progress::Progress;
+use crate::report::summarize;
 use crate::runner::{config_for, percentile, replay, sorted_ms, InitMode};
 use crate::sim::{self, Scenario, SimConfig};
 use anyhow::{anyhow, ensure, Result};

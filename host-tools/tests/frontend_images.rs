@@ -5,9 +5,9 @@
 //! deterministic, and a missing input is a clear error naming the dataset.
 
 use povins_core::frontend::image::{LkConfig, Photometric, TrackerConfig};
-use povins_host_tools::cmd::track::{track_dataset, TrackOptions};
 use povins_host_tools::progress::Progress;
 use povins_host_tools::runner::{config_for, replay_with, Frontend, FrontendOptions, InitMode};
+use povins_host_tools::track::{track_dataset, TrackOptions};
 use std::path::{Path, PathBuf};
 
 fn dmvio() -> PathBuf {
@@ -233,7 +233,7 @@ fn odd_images_are_counted_never_fatal_and_the_replay_is_deterministic() {
                 &quiet(),
             )
             .unwrap();
-            let tracked = |run: &povins_host_tools::cmd::track::TrackOutput, k: usize| {
+            let tracked = |run: &povins_host_tools::track::TrackOutput, k: usize| {
                 let t_ns = ds.images[k].t_ns;
                 run.logs
                     .iter()

@@ -15,11 +15,13 @@ use povins_core::inertial::{ImuNoise, ImuSample};
 use povins_core::lidar::{LdmMode, LidarPoint};
 use povins_core::math::{Quat, Vec3};
 use povins_host_tools::ablation::{run_ablation, AblationConfig, Variant};
-use povins_host_tools::cmd::run::{estimator_config, Args as RunArgs, STATS_LIDAR_COLUMNS};
 use povins_host_tools::progress::Progress;
+use povins_host_tools::report::STATS_LIDAR_COLUMNS;
 use povins_host_tools::runner::{config_for, replay, InitMode};
+use povins_host_tools::setup::{RunArgs, RunSetup};
 use povins_host_tools::sim::{self, LidarKind, Scenario, SimConfig};
 use povins_platform::dataset::{Calibration, Dataset, Extrinsic, LidarScan};
+use povins_platform::recording::Recording;
 use std::path::Path;
 
 const T0_NS: i64 = 1_000_000_000;
@@ -114,6 +116,14 @@ fn config_for_enables_lidar_with_the_datasets_extrinsic() {
     let mut no_tbl = fake_dataset();
     no_tbl.calib.t_bl = None;
     assert!(!config_for(&no_tbl).lidar.enabled);
+}
+
+/// The estimator configuration `povins run` builds from `args` over `rec`.
+fn estimator_config(
+    args: &RunArgs,
+    rec: &dyn Recording,
+) -> anyhow::Result<povins_core::estimator::EstimatorConfig> {
+    Ok(RunSetup::from_args(rec, args)?.estimator)
 }
 
 #[derive(Parser)]
@@ -386,7 +396,7 @@ fn run_writes_the_lidar_columns_and_summary_keys() {
 
     // `config.toml` is the run's effective configuration: given back as `--config` (without the
     // switches), it gives the same configuration, bit for bit.
-    let loaded = povins_host_tools::cmd::run::load_dataset(&mcap).unwrap();
+    let loaded = povins_platform::read_dataset(&mcap).unwrap();
     let m = mcap.to_str().unwrap();
     let effective = out.join("config.toml");
     let text = std::fs::read_to_string(&effective).unwrap();

@@ -46,3 +46,13 @@ pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>, IoError> {
         })
     }
 }
+
+/// Reads a whole recording into memory ([`Dataset`]): for the tools that need every message at
+/// once (a run streams it instead, [`open_recording`]).
+pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
+    if path.is_dir() {
+        euroc::read_dataset(path)
+    } else {
+        mcap_io::read_dataset(path)
+    }
+}

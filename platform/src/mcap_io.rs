@@ -530,6 +530,6 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
         images,
         lidar,
         ground_truth,
-        sim_truth: r.sim_truth().cloned(),
+        sim_truth: r.sim_truth(),
     })
 }

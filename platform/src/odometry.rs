@@ -5,7 +5,7 @@
 //! [`Odometry`] ([`crate::driver`], [`crate::pipeline`]).
 
 use crate::boxed::{boxed_povins, boxed_tracking, boxed_vio};
-use povins_core::estimator::EstimatorConfig;
+use povins_core::estimator::{EstimatorConfig, PoVins};
 use povins_core::frontend::image::TrackerConfig;
 use povins_core::odometry::Odometry;
 use povins_core::vio::{EurocTracking, EurocVio, HdTracking, HdVio, VioAiding};
@@ -51,18 +51,47 @@ pub enum BuildError {
     },
 }
 
+/// The front end's capacity for a camera.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Capacity {
+    /// No image front end.
+    Tracks,
+    /// Images up to 752x480.
+    Euroc,
+    /// Images up to 1280x720.
+    Hd,
+}
+
+/// The capacity `fe` needs for `cfg`'s camera (the one place that knows the sizes).
+fn capacity(cfg: &EstimatorConfig, fe: &FrontEnd) -> Result<Capacity, BuildError> {
+    let (width, height) = (cfg.camera.width, cfg.camera.height);
+    Ok(match fe {
+        FrontEnd::Tracks => Capacity::Tracks,
+        _ if width <= 752 && height <= 480 => Capacity::Euroc,
+        _ if width <= 1280 && height <= 720 => Capacity::Hd,
+        _ => return Err(BuildError::ImagesTooLarge { width, height }),
+    })
+}
+
+/// Whether [`boxed_odometry`] would accept `cfg` and `fe` (the core's checks of the type it
+/// would build), without building anything.
+pub fn check(cfg: &EstimatorConfig, fe: &FrontEnd) -> Result<(), BuildError> {
+    let r = match (capacity(cfg, fe)?, *fe) {
+        (_, FrontEnd::Tracks) => PoVins::check(cfg),
+        (Capacity::Hd, FrontEnd::Images { tracker, .. }) => HdVio::check(cfg, &tracker),
+        (_, FrontEnd::Images { tracker, .. }) => EurocVio::check(cfg, &tracker),
+        (Capacity::Hd, FrontEnd::TrackingOnly { tracker, .. }) => HdTracking::check(cfg, &tracker),
+        (_, FrontEnd::TrackingOnly { tracker, .. }) => EurocTracking::check(cfg, &tracker),
+    };
+    r.map_err(BuildError::Config)
+}
+
 /// An odometry configured with `cfg` and fed by `fe`, on the heap (see the module docs).
 pub fn boxed_odometry(
     cfg: EstimatorConfig,
     fe: &FrontEnd,
 ) -> Result<Box<dyn Odometry + Send>, BuildError> {
-    let (width, height) = (cfg.camera.width, cfg.camera.height);
-    let hd = match (width, height) {
-        _ if matches!(fe, FrontEnd::Tracks) => false,
-        (w, h) if w <= 752 && h <= 480 => false,
-        (w, h) if w <= 1280 && h <= 720 => true,
-        _ => return Err(BuildError::ImagesTooLarge { width, height }),
-    };
+    let hd = capacity(&cfg, fe)? == Capacity::Hd;
     let c = BuildError::Config;
     Ok(match *fe {
         FrontEnd::Tracks => boxed_povins(cfg).map_err(c)?,

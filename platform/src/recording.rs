@@ -10,7 +10,7 @@
 //! in raw distorted pixels, LiDAR points in the LiDAR frame `l`, ground truth the body in the
 //! world `w` (z up).
 
-use crate::dataset::{Calibration, Dataset, FeatureFrame, ImageFrame, LidarScan};
+use crate::dataset::{Calibration, Dataset, FeatureFrame, ImageFrame, LidarScan, SimTruth};
 use crate::error::IoError;
 use povins_core::inertial::{ImuSample, NavState};
 
@@ -56,6 +56,10 @@ pub trait Recording: Send + Sync {
     fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError>;
     /// The ground truth (for evaluation and ground-truth starts; empty when it has none).
     fn ground_truth(&self) -> Result<Vec<NavState>, IoError>;
+    /// What only a simulator knows (for evaluation), when the recording carries it.
+    fn sim_truth(&self) -> Option<SimTruth> {
+        None
+    }
 }
 
 /// Cloned items of a slice as a stream.
@@ -106,5 +110,9 @@ impl Recording for Dataset {
 
     fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
         Ok(self.ground_truth.clone())
+    }
+
+    fn sim_truth(&self) -> Option<SimTruth> {
+        self.sim_truth.clone()
     }
 }

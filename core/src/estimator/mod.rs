@@ -397,17 +397,8 @@ impl<
     /// `static` estimator ([`Self::empty`]) can be configured, and re-configured, from a thread
     /// with a small stack.
     pub fn configure(&mut self, cfg: EstimatorConfig) -> Result<(), Error> {
-        #[allow(clippy::let_unit_value)]
-        let () = Self::LAYOUT_OK;
-        cfg.validate()?;
-        if cfg.lidar.enabled && (P == 0 || GW == 0 || GH == 0 || Q == 0) {
-            // Built without LiDAR storage (the `lidar` feature, or zero capacities).
-            return Err(Error::InvalidConfig);
-        }
+        Self::check(&cfg)?;
         let selector = KeyframeSelector::new(cfg.keyframe)?;
-        if L > problem::LANDMARK_INDEX || L > u16::MAX as usize {
-            return Err(Error::InvalidConfig);
-        }
         // The last check: nothing has changed when it fails.
         self.static_init.reset_to_new(cfg.static_init)?;
         self.cfg = cfg;
@@ -448,6 +439,24 @@ impl<
         self.reinit_td = None;
         self.imu_scale = imu_noise::ImuNoiseScale::new();
         self.out.clear();
+        Ok(())
+    }
+
+    /// Whether this estimator's type accepts `cfg` ([`Error::InvalidConfig`] otherwise): the
+    /// configuration's own ranges ([`EstimatorConfig::validate`]) and what the capacities allow
+    /// (LiDAR enabled needs LiDAR storage). [`Self::configure`] checks the same.
+    pub fn check(cfg: &EstimatorConfig) -> Result<(), Error> {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::LAYOUT_OK;
+        cfg.validate()?;
+        if cfg.lidar.enabled && (P == 0 || GW == 0 || GH == 0 || Q == 0) {
+            // Built without LiDAR storage (the `lidar` feature, or zero capacities).
+            return Err(Error::InvalidConfig);
+        }
+        KeyframeSelector::new(cfg.keyframe)?;
+        if L > problem::LANDMARK_INDEX || L > u16::MAX as usize || !cfg.static_init.is_valid() {
+            return Err(Error::InvalidConfig);
+        }
         Ok(())
     }
 

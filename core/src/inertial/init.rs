@@ -62,7 +62,8 @@ impl StaticInitConfig {
         max_dt_s: 0.05,
     };
 
-    fn is_valid(&self) -> bool {
+    /// Whether every threshold is in its range.
+    pub fn is_valid(&self) -> bool {
         [
             self.gravity_mps2,
             self.accel_norm_tol_mps2,

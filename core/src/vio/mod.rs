@@ -160,6 +160,13 @@ impl<
         self.fe.set_aiding(aiding);
     }
 
+    /// Whether this type accepts the configurations ([`Estimator::check`],
+    /// [`FeatureTracker::check`]: the tracker's capacities); [`Self::configure`] checks the same.
+    pub fn check(estimator: &EstimatorConfig, tracker: &TrackerConfig) -> Result<(), Error> {
+        Estimator::<N, L, D>::check(estimator)?;
+        ImageFrontEnd::<F, BYTES, LEVELS>::check(tracker)
+    }
+
     /// The estimator (state, keyframes, counters, configuration).
     pub fn estimator(&self) -> &Estimator<N, L, D> {
         &self.est

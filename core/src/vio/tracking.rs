@@ -42,11 +42,17 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> Tracking<F, BYTES,
     /// extrinsic, `td_s` and clock are used). [`Error::InvalidConfig`] when either is invalid
     /// (then nothing changes).
     pub fn configure(&mut self, cfg: EstimatorConfig, tracker: TrackerConfig) -> Result<(), Error> {
-        cfg.validate()?;
-        ImageFrontEnd::<F, BYTES, LEVELS>::check(&tracker)?;
+        Self::check(&cfg, &tracker)?;
         self.fe.configure(tracker)?;
         self.cfg = cfg;
         Ok(())
+    }
+
+    /// Whether this type accepts the configurations (the estimator configuration's ranges, the
+    /// tracker's capacities); [`Self::configure`] checks the same.
+    pub fn check(cfg: &EstimatorConfig, tracker: &TrackerConfig) -> Result<(), Error> {
+        cfg.validate()?;
+        ImageFrontEnd::<F, BYTES, LEVELS>::check(tracker)
     }
 
     /// Chooses the aids: only `gyro_rotation` applies (nothing predicts features).

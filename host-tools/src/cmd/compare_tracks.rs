@@ -4,10 +4,9 @@
 //! ([`crate::eval::epipolar`]). Tracks are `features0` CSVs (`povins track` writes them; OpenCV's
 //! with `scripts/opencv_tracks.py`).
 
-use crate::cmd::run::load_dataset;
-use crate::cmd::score_tracks::read_features_csv;
-use crate::cmd::track::track_lengths;
 use crate::eval::epipolar::{check, EpipolarReport, THRESHOLDS_PX};
+use crate::eval::track_anatomy::read_features_csv;
+use crate::track::track_lengths;
 use anyhow::{bail, Result};
 use povins_platform::dataset::FeatureFrame;
 use std::collections::HashSet;
@@ -84,7 +83,7 @@ pub fn figures(file: String, frames: &[FeatureFrame], epipolar: EpipolarReport) 
 
 /// Runs the command.
 pub fn run(args: Args) -> Result<()> {
-    let ds = load_dataset(&args.dataset)?;
+    let ds = povins_platform::read_dataset(&args.dataset)?;
     if ds.imu.is_empty() {
         bail!("{}: no IMU samples for the gyro rotation", ds.name);
     }

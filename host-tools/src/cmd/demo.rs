@@ -4,11 +4,11 @@
 //! alignment) and the LiDAR association against the simulator's truth, plots, and prints
 //! accuracy and timing. `--no-lidar` runs PO-VINS-WO.
 
-use crate::cmd::run::{print_summary, summarize, write_outputs};
 use crate::config::{LidarArgs, ModeArg};
 use crate::eval::{Alignment, EvalOptions};
 use crate::plot::{plot, BackendSample};
 use crate::progress::Progress;
+use crate::report::{print_summary, summarize, write_outputs};
 use crate::runner::{config_for, replay, InitMode};
 use crate::sim::{self, Scenario, SimConfig};
 use anyhow::Result;

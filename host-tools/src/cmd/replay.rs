@@ -5,9 +5,9 @@
 //! `povins run`'s on the same input and settings, with either front end (`--frontend tracks`,
 //! or `images`: the pipeline's image front-end stage).
 
-use super::run::load_dataset;
 use super::timing::{run_pipeline, PipelineArgs, TimingSummary};
 use crate::eval::{evaluate, Alignment, EvalOptions};
+use crate::realtime::imu_samples_estimate;
 use anyhow::{bail, Context, Result};
 use povins_platform::pipeline::{McapSink, TumSink};
 use povins_platform::trajectory::StampedPose;
@@ -38,22 +38,22 @@ pub fn run(args: Args) -> Result<()> {
     if !args.realtime {
         bail!("povins replay needs --realtime (the single-threaded replay is povins run)");
     }
-    let ds = load_dataset(&args.pipeline.dataset)?;
+    let rec = args.pipeline.run.open()?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let path = args.out.join("trajectory.tum");
-    let mcap = args
-        .mcap_out
-        .as_ref()
-        .map(|f| McapSink::new(f, ds.imu.len()));
-    let mut both = (TumSink::new(&path, ds.imu.len()), mcap);
-    let report = run_pipeline(&args.pipeline, &ds, &mut both, "replay")?;
+    // Room for every pose up front: the sinks do not allocate on the IMU thread.
+    let n = imu_samples_estimate(&*rec)?;
+    let mcap = args.mcap_out.as_ref().map(|f| McapSink::new(f, n));
+    let mut both = (TumSink::new(&path, n), mcap);
+    let report = run_pipeline(&args.pipeline, &*rec, &mut both, "replay")?;
     let (sink, mcap) = both;
-    for line in TimingSummary::new(&ds, &args.pipeline, &report)?.lines() {
+    for line in TimingSummary::new(&*rec, &args.pipeline, &report)?.lines() {
         println!("{line}");
     }
-    if !ds.ground_truth.is_empty() && !sink.poses().is_empty() {
-        let gt: Vec<StampedPose> = ds.ground_truth.iter().map(StampedPose::from).collect();
+    let ground_truth = rec.ground_truth()?;
+    if !ground_truth.is_empty() && !sink.poses().is_empty() {
+        let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
         let opts = EvalOptions {
             alignment: Alignment::PosYaw,
             ..Default::default()

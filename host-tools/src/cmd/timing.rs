@@ -7,30 +7,24 @@
 //! machine-readable copy). `povins replay --realtime` runs the same pipeline and prints the
 //! same table.
 
-use super::run::{estimator_config_from, frontend_options, load_dataset};
-use crate::config::{LidarArgs, ModeArg};
 use crate::progress::Progress;
 use crate::realtime::{imu_period_ns, run_dataset_with, RealtimeOptions};
-use crate::runner::{Frontend, InitMode};
+use crate::runner::Frontend;
+use crate::setup::{default_frontend, RunArgs, RunSetup};
 use anyhow::Result;
 use povins_platform::pipeline::{
     CallbackSink, Pacing, PipelineCounters, PipelineReport, PoseOut, RtStatus, Sink, StageSummary,
     STAGES,
 };
-use povins_platform::Dataset;
-use std::path::PathBuf;
+use povins_platform::recording::Recording;
 
 /// What both `povins timing` and `povins replay --realtime` take.
 #[derive(clap::Args, Debug, Clone)]
 pub struct PipelineArgs {
-    /// EuRoC ASL folder (containing `mav0/`) or an `.mcap` file, with camera images or feature
-    /// tracks.
-    pub dataset: PathBuf,
-    /// What feeds the estimator, as for `povins run`: the camera images through the pipeline's
-    /// front-end stage, or the dataset's feature tracks (default: images when the dataset has
-    /// them, else tracks).
-    #[arg(long, value_enum)]
-    pub frontend: Option<Frontend>,
+    /// The recording and how to run it (as for `povins run`; the image front end runs on the
+    /// pipeline's back-end thread).
+    #[command(flatten)]
+    pub run: RunArgs,
     /// Pacing factor on the recorded rate (1: real time, 2: twice as fast); 0 runs as fast as
     /// possible.
     #[arg(long, default_value_t = 1.0)]
@@ -39,21 +33,9 @@ pub struct PipelineArgs {
     /// `povins run`'s trajectory.tum).
     #[arg(long)]
     pub deterministic: bool,
-    /// How to initialize.
-    #[arg(long, value_enum, default_value = "static")]
-    pub init: InitMode,
-    /// TOML file of estimator settings (as for `povins run`).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Visual measurement model (overrides the config file).
-    #[arg(long, value_enum)]
-    pub mode: Option<ModeArg>,
     /// Do not ask for SCHED_FIFO and locked memory.
     #[arg(long)]
     pub no_rt: bool,
-    /// LiDAR switches (override the config file).
-    #[command(flatten)]
-    pub lidar: LidarArgs,
 }
 
 /// Arguments of `povins timing`.
@@ -93,14 +75,14 @@ pub struct TimingSummary {
 }
 
 impl TimingSummary {
-    /// The figures of `report` on `ds`.
-    pub fn new(ds: &Dataset, a: &PipelineArgs, report: &PipelineReport) -> Result<Self> {
+    /// The figures of `report` on `rec`.
+    pub fn new(rec: &dyn Recording, a: &PipelineArgs, report: &PipelineReport) -> Result<Self> {
         Ok(TimingSummary {
-            dataset: ds.name.clone(),
+            dataset: rec.name().to_string(),
             speed: a.speed,
             deterministic: a.deterministic,
-            frontend: a.frontend.unwrap_or(default_frontend(ds)),
-            imu_period_ms: imu_period_ns(ds)? as f64 * 1e-6,
+            frontend: a.run.frontend.unwrap_or(default_frontend(rec)),
+            imu_period_ms: imu_period_ns(rec)? as f64 * 1e-6,
             keyframe_period_ms: report.keyframe_period_ns.map(|p| p as f64 * 1e-6),
             stages: STAGES
                 .iter()
@@ -195,34 +177,32 @@ pub fn options(a: &PipelineArgs) -> RealtimeOptions {
     }
 }
 
-/// Loads the dataset, configures the estimator as `povins run` does and runs the pipeline.
+/// Configures the estimator as `povins run` does and runs the pipeline over `rec`.
 pub fn run_pipeline<K: Sink + Send>(
     a: &PipelineArgs,
-    ds: &Dataset,
+    rec: &dyn Recording,
     sink: &mut K,
     label: &str,
 ) -> Result<PipelineReport> {
-    let cfg = estimator_config_from(a.config.as_deref(), a.mode, &a.lidar, ds)?;
-    let fe = frontend_options(a.config.as_deref(), a.frontend, ds)?;
-    let progress = Progress::new(ds.imu.len() as u64, label);
-    run_dataset_with(ds, cfg, a.init, &fe, &options(a), sink, &progress)
-}
-
-/// The front end `povins run` picks without `--frontend`: images when the dataset has them.
-fn default_frontend(ds: &Dataset) -> Frontend {
-    if ds.images.is_empty() {
-        Frontend::Tracks
-    } else {
-        Frontend::Images
-    }
+    let setup = RunSetup::from_args(rec, &a.run)?;
+    let progress = Progress::new(0, label);
+    run_dataset_with(
+        rec,
+        setup.estimator,
+        setup.init,
+        &setup.frontend,
+        &options(a),
+        sink,
+        &progress,
+    )
 }
 
 /// Runs the command.
 pub fn run(args: Args) -> Result<()> {
-    let ds = load_dataset(&args.pipeline.dataset)?;
+    let rec = args.pipeline.run.open()?;
     let mut sink = CallbackSink::poses(|_: &PoseOut| {});
-    let report = run_pipeline(&args.pipeline, &ds, &mut sink, "timing")?;
-    let summary = TimingSummary::new(&ds, &args.pipeline, &report)?;
+    let report = run_pipeline(&args.pipeline, &*rec, &mut sink, "timing")?;
+    let summary = TimingSummary::new(&*rec, &args.pipeline, &report)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

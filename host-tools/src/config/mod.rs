@@ -134,11 +134,12 @@ impl RunConfigFile {
             overlay_section(t, FRONTEND, &section(FRONTEND)?).map_err(|e| self.error(e))?;
         let aid: VioAiding =
             overlay_section(aiding, AIDING, &section(AIDING)?).map_err(|e| self.error(e))?;
-        if tracker.validate().is_err() || tracker.max_features > 256 || tracker.max_level > 3 {
+        // The ranges here; what the front end's capacity allows is checked against the type
+        // the run builds (`RunSetup::check`).
+        if tracker.validate().is_err() {
             return Err(self.error(anyhow!(
-                "[frontend]: invalid settings (max_features 1..=256, max_level <= 3, levels of \
-                 the seeds <= max_level, odd windows 5..=31, grid and thresholds positive): \
-                 {tracker:?}"
+                "[frontend]: invalid settings (levels of the seeds <= max_level, odd windows \
+                 5..=31, grid and thresholds positive): {tracker:?}"
             )));
         }
         *t = tracker;

@@ -184,7 +184,6 @@ fn malformed_values_are_errors() {
         "[lidar.extrinsic]\np_bl = [0.0, 0.0]\n",
         "sigma_px = -1.0\n",
         "depth_range_m = [5.0, 1.0]\n",
-        "[frontend]\nmax_features = 300\n",
         "[frontend.lk]\nwindow = 20\n",
         "[frontend.reference]\nwindow = 23\n",
         "[frontend.reference]\nevery_frames = 0\n",

@@ -22,6 +22,7 @@ pub mod lidar_assoc;
 pub mod report;
 pub mod rte;
 pub mod stats;
+pub mod track_anatomy;
 pub mod tracks;
 
 pub use align::{Alignment, Sim3};

@@ -244,11 +244,6 @@ impl McapRecording {
         })
     }
 
-    /// The simulator's truth, when the file has it.
-    pub fn sim_truth(&self) -> Option<&SimTruth> {
-        self.sim_truth.as_ref()
-    }
-
     fn has(&self, topic: &str) -> bool {
         self.topics.contains(&topic)
     }
@@ -536,5 +531,9 @@ impl Recording for McapRecording {
             })?);
         }
         Ok(ground_truth)
+    }
+
+    fn sim_truth(&self) -> Option<SimTruth> {
+        self.sim_truth.clone()
     }
 }

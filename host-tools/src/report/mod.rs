@@ -1,0 +1,255 @@
+//! What a run reports: the summary (`summary.json`, the evaluation against ground truth and the
+//! LiDAR association against the simulator's truth), the files of its output folder
+//! ([`files`]) and the lines `povins run` prints ([`text`]). `povins run`, `demo`, `ablation` and
+//! the tests all report through here.
+
+pub mod files;
+pub mod text;
+mod window_use;
+
+pub use files::{write_outputs, STATS_ADMISSION_COLUMNS, STATS_LIDAR_COLUMNS};
+pub use text::{lidar_lines, print_summary};
+pub use window_use::WindowUse;
+
+use crate::config::ldm_name;
+use crate::eval::lidar_assoc::{self, AssocQuality};
+use crate::eval::{evaluate, Alignment, EvalOptions};
+use crate::frontend_stats::{summarize_frames, FrontendSummary};
+use crate::runner::{percentile, sorted_ms, Frontend, InitMode, RunOutput};
+use anyhow::Result;
+use povins_core::estimator::KeyframeReport;
+use povins_platform::recording::Recording;
+use povins_platform::trajectory::StampedPose;
+
+/// Accuracy and timing of one run, as written to `summary.json`.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Summary {
+    /// Dataset name.
+    pub dataset: String,
+    /// Visual mode.
+    pub mode: String,
+    /// Initialization.
+    pub init: InitMode,
+    /// Keyframes processed.
+    pub keyframes: usize,
+    /// Camera frames in the dataset.
+    pub camera_frames: usize,
+    /// Back-end time per keyframe (marginalization + optimization + culling), ms.
+    pub backend_ms_median: f64,
+    /// 99th percentile, ms.
+    pub backend_ms_p99: f64,
+    /// Maximum, ms.
+    pub backend_ms_max: f64,
+    /// Mean, ms.
+    pub backend_ms_mean: f64,
+    /// Back-end time summed over the run divided by the camera frames, ms.
+    pub backend_ms_per_camera_frame: f64,
+    /// Whole estimator (INS, front-end bookkeeping, back end) per camera frame, ms.
+    pub estimator_ms_per_camera_frame: f64,
+    /// Median landmarks in the final solve of a keyframe.
+    pub landmarks_used_median: f64,
+    /// What the window offers and uses, over the keyframes whose window holds at least two
+    /// keyframes (see [`WindowUse`]).
+    pub window_use: WindowUse,
+    /// Camera-IMU delay of the last keyframe, ms.
+    pub td_end_ms: f64,
+    /// Factor on the IMU white-noise densities at the last keyframe (`estimator::imu_noise`).
+    pub imu_noise_scale_end: f64,
+    /// Feature prediction for INS-aided tracking: predicted features the next frame observes.
+    pub predictions: usize,
+    /// Their distance to the observation, median and 90th percentile, px.
+    pub prediction_px_median: Option<f64>,
+    /// See `prediction_px_median`.
+    pub prediction_px_p90: Option<f64>,
+    /// ATE of the IMU-rate trajectory, position RMSE, m (posyaw alignment).
+    pub ate_pos_rmse_m: Option<f64>,
+    /// ATE rotation RMSE, deg.
+    pub ate_rot_rmse_deg: Option<f64>,
+    /// ATE of the keyframe trajectory, position RMSE, m.
+    pub keyframe_ate_pos_rmse_m: Option<f64>,
+    /// Matched poses of the IMU-rate ATE.
+    pub matched_poses: Option<usize>,
+    /// LiDAR enhancement active: enabled and the dataset has LiDAR sweeps.
+    pub lidar: bool,
+    /// LiDAR-depth measurement model (`msc` or `direct`).
+    pub ldm: String,
+    /// Uncertainty-based rejection of LiDAR depths on.
+    pub depth_outlier_rejection: bool,
+    /// Depth-only optimization on.
+    pub depth_only_opt: bool,
+    /// LiDAR sweeps in the dataset.
+    pub lidar_scans: usize,
+    /// Mean LiDAR depths associated per keyframe.
+    pub depths_associated_per_kf: f64,
+    /// Mean LiDAR depths rejected per keyframe.
+    pub depths_rejected_per_kf: f64,
+    /// Mean landmarks with a LiDAR-depth measurement in the final solve, per keyframe.
+    pub ldm_per_kf: f64,
+    /// Depth association time per keyframe, median, ms.
+    pub association_ms_median: f64,
+    /// Uncertainty-based rejection time per keyframe, median, ms.
+    pub rejection_ms_median: f64,
+    /// Maximum, ms.
+    pub rejection_ms_max: f64,
+    /// Depth-only optimization time per keyframe, median, ms.
+    pub depth_opt_ms_median: f64,
+    /// Maximum, ms.
+    pub depth_opt_ms_max: f64,
+    /// Association quality against the simulator's truth (only with simulator truth).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub assoc: Option<AssocSummary>,
+    /// What fed the estimator.
+    pub frontend: Frontend,
+    /// The image front end's figures (images only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub image_frontend: Option<FrontendSummary>,
+    /// Images that could not be read or were refused (images only).
+    pub image_failures: usize,
+    /// Rejection counters of the core.
+    pub counters: serde_json::Value,
+}
+
+/// LiDAR association quality in `summary.json` (see [`lidar_assoc`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct AssocSummary {
+    /// Associated depths checked against the true depth.
+    pub assoc_checked: usize,
+    /// Share within `3 sigma_dr` of the true depth, all associated depths.
+    pub assoc_within_3sigma_before: Option<f64>,
+    /// Share within `3 sigma_dr`, depths not rejected later.
+    pub assoc_within_3sigma_after: Option<f64>,
+    /// Share of checked depths on the simulator's edge features.
+    pub edge_share_before: Option<f64>,
+    /// The same after rejection.
+    pub edge_share_after: Option<f64>,
+}
+
+impl From<&AssocQuality> for AssocSummary {
+    fn from(q: &AssocQuality) -> Self {
+        AssocSummary {
+            assoc_checked: q.checked,
+            assoc_within_3sigma_before: q.within_3sigma_before(),
+            assoc_within_3sigma_after: q.within_3sigma_after(),
+            edge_share_before: q.edge_share_before(),
+            edge_share_after: q.edge_share_after(),
+        }
+    }
+}
+
+/// Mean per keyframe of a report count.
+fn per_kf(reports: &[KeyframeReport], f: impl Fn(&KeyframeReport) -> u32) -> f64 {
+    if reports.is_empty() {
+        return 0.0;
+    }
+    reports.iter().map(|r| f64::from(f(r))).sum::<f64>() / reports.len() as f64
+}
+
+/// Computes the summary of a run (and its evaluation when ground truth exists).
+pub fn summarize(
+    rec: &dyn Recording,
+    mode: &str,
+    init: InitMode,
+    out: &RunOutput,
+) -> Result<Summary> {
+    let ground_truth = rec.ground_truth()?;
+    let ms = sorted_ms(&out.reports, |r| r.backend_ns());
+    let association_ms = sorted_ms(&out.reports, |r| r.association_ns);
+    let rejection_ms = sorted_ms(&out.reports, |r| r.rejection_ns);
+    let depth_opt_ms = sorted_ms(&out.reports, |r| r.depth_opt_ns);
+    let mut used: Vec<f64> = out
+        .reports
+        .iter()
+        .map(|r| f64::from(r.landmarks_used))
+        .collect();
+    used.sort_by(f64::total_cmp);
+    let mut pred: Vec<f64> = out
+        .prediction_err_px
+        .iter()
+        .map(|&e| f64::from(e))
+        .collect();
+    pred.sort_by(f64::total_cmp);
+    let pred_pct = |p: f64| (!pred.is_empty()).then(|| percentile(&pred, p));
+    // `sum` of no f64 is -0.0; start from +0.0 so an empty run prints 0.000.
+    let total_ms: f64 = 0.0 + ms.iter().sum::<f64>();
+    let frames = out.camera_frames.max(1) as f64;
+    let mut s = Summary {
+        dataset: rec.name().to_string(),
+        mode: mode.to_string(),
+        init,
+        keyframes: out.reports.len(),
+        camera_frames: out.camera_frames,
+        backend_ms_median: percentile(&ms, 50.0),
+        backend_ms_p99: percentile(&ms, 99.0),
+        backend_ms_max: ms.last().copied().unwrap_or(0.0),
+        backend_ms_mean: if ms.is_empty() {
+            0.0
+        } else {
+            total_ms / ms.len() as f64
+        },
+        backend_ms_per_camera_frame: total_ms / frames,
+        estimator_ms_per_camera_frame: out.estimator_wall_s * 1e3 / frames,
+        landmarks_used_median: percentile(&used, 50.0),
+        window_use: WindowUse::of(&out.reports),
+        td_end_ms: out.reports.last().map_or(0.0, |r| r.td_s * 1e3),
+        imu_noise_scale_end: out.reports.last().map_or(1.0, |r| r.imu_noise_scale),
+        predictions: pred.len(),
+        prediction_px_median: pred_pct(50.0),
+        prediction_px_p90: pred_pct(90.0),
+        ate_pos_rmse_m: None,
+        ate_rot_rmse_deg: None,
+        keyframe_ate_pos_rmse_m: None,
+        matched_poses: None,
+        lidar: out.lidar.enabled && out.lidar_scans > 0,
+        ldm: ldm_name(out.lidar.ldm).to_string(),
+        depth_outlier_rejection: out.lidar.depth_outlier_rejection,
+        depth_only_opt: out.lidar.depth_only_opt,
+        lidar_scans: out.lidar_scans,
+        depths_associated_per_kf: per_kf(&out.reports, |r| r.depths_associated),
+        depths_rejected_per_kf: per_kf(&out.reports, |r| r.depths_rejected),
+        ldm_per_kf: per_kf(&out.reports, |r| r.ldm_count),
+        association_ms_median: percentile(&association_ms, 50.0),
+        rejection_ms_median: percentile(&rejection_ms, 50.0),
+        rejection_ms_max: rejection_ms.last().copied().unwrap_or(0.0),
+        depth_opt_ms_median: percentile(&depth_opt_ms, 50.0),
+        depth_opt_ms_max: depth_opt_ms.last().copied().unwrap_or(0.0),
+        assoc: rec
+            .sim_truth()
+            .filter(|_| !ground_truth.is_empty())
+            .map(|truth| {
+                let c = rec.calibration();
+                let q = lidar_assoc::assess_with(
+                    &truth,
+                    &ground_truth,
+                    &c.t_bc,
+                    c.td_s,
+                    &out.lidar_events,
+                    out.lidar.sigma_dr_m,
+                );
+                AssocSummary::from(&q)
+            }),
+        frontend: out.frontend,
+        image_frontend: summarize_frames(&out.frames),
+        image_failures: out.image_failures,
+        counters: serde_json::to_value(format!("{:?} {:?}", out.counters, out.vio_counters))?,
+    };
+    if !ground_truth.is_empty() && !out.imu_rate.is_empty() {
+        let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
+        let est: Vec<StampedPose> = out.imu_rate.iter().map(StampedPose::from).collect();
+        let opts = EvalOptions {
+            alignment: Alignment::PosYaw,
+            ..Default::default()
+        };
+        match evaluate(&gt, &est, &opts) {
+            Ok(r) => {
+                s.ate_pos_rmse_m = Some(r.ate_pos_m.rmse);
+                s.ate_rot_rmse_deg = Some(r.ate_rot_deg.rmse);
+                s.matched_poses = Some(r.matched_poses);
+            }
+            Err(e) => eprintln!("warning: evaluation failed: {e:#}"),
+        }
+        if let Ok(r) = evaluate(&gt, &out.keyframes, &opts) {
+            s.keyframe_ate_pos_rmse_m = Some(r.ate_pos_m.rmse);
+        }
+    }
+    Ok(s)
+}

@@ -1,0 +1,121 @@
+//! The lines `povins run` (and `demo`) print.
+
+use super::Summary;
+use crate::frontend_stats::summary_lines;
+use crate::runner::{Frontend, InitMode};
+use std::path::Path;
+
+/// Prints the human-readable result lines.
+pub fn print_summary(s: &Summary, out_dir: &Path) {
+    println!(
+        "dataset   {} ({} mode, {:?} init, {} front end)",
+        s.dataset,
+        s.mode,
+        s.init,
+        match s.frontend {
+            Frontend::Images => "image",
+            Frontend::Tracks => "tracks",
+        }
+    );
+    println!(
+        "keyframes {} of {} camera frames",
+        s.keyframes, s.camera_frames
+    );
+    if s.keyframes == 0 && s.init == InitMode::Static {
+        eprintln!(
+            "warning: the estimator never initialized: no static period met the static-init \
+             thresholds (a vibrating platform needs looser ones, see [static_init] in \
+             configs/euroc.toml), or start from the true state with --init groundtruth"
+        );
+    }
+    match (s.ate_pos_rmse_m, s.ate_rot_rmse_deg) {
+        (Some(p), Some(r)) => println!(
+            "ATE       {p:.4} m, {r:.3} deg (posyaw-aligned, {} poses)",
+            s.matched_poses.unwrap_or(0)
+        ),
+        _ => println!("ATE       n/a (no ground truth, or no estimate to compare)"),
+    }
+    println!(
+        "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
+        s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
+    );
+    if let Some(line) = s.window_use.line() {
+        println!("{line}");
+    }
+    println!(
+        "imu       white-noise densities x{:.2} (measured by the window), delay td {:.2} ms at the end",
+        s.imu_noise_scale_end, s.td_end_ms
+    );
+    if let Some(fe) = &s.image_frontend {
+        for line in summary_lines(fe) {
+            println!("{line}");
+        }
+    }
+    if s.image_failures > 0 {
+        println!(
+            "images    {} could not be used (see the warnings)",
+            s.image_failures
+        );
+    }
+    if let (Some(m), Some(p90)) = (s.prediction_px_median, s.prediction_px_p90) {
+        println!(
+            "predict   {m:.2} px median, {p90:.2} px p90 from INS pose and landmark depths to the \
+             tracked feature ({} features)",
+            s.predictions
+        );
+    }
+    for line in lidar_lines(s) {
+        println!("{line}");
+    }
+    println!("output    {}", out_dir.display());
+}
+
+fn pct(x: Option<f64>) -> String {
+    x.map_or("n/a".to_string(), |v| format!("{:.1}%", 100.0 * v))
+}
+
+/// The LiDAR lines of [`print_summary`].
+pub fn lidar_lines(s: &Summary) -> Vec<String> {
+    if s.lidar_scans == 0 {
+        return vec!["LiDAR     none in the dataset".to_string()];
+    }
+    if !s.lidar {
+        return vec![format!(
+            "LiDAR     off ({} sweeps in the dataset ignored)",
+            s.lidar_scans
+        )];
+    }
+    let on = |b: bool| if b { "on" } else { "off" };
+    let mut v = vec![
+        format!(
+            "LiDAR     {} sweeps, {} LDM, rejection {}, depth-only opt {}",
+            s.lidar_scans,
+            s.ldm.to_uppercase(),
+            on(s.depth_outlier_rejection),
+            on(s.depth_only_opt)
+        ),
+        format!(
+            "depths    {:.1} associated, {:.1} rejected, {:.1} LDM per keyframe",
+            s.depths_associated_per_kf, s.depths_rejected_per_kf, s.ldm_per_kf
+        ),
+        format!(
+            "LiDAR ms  association {:.3}, rejection {:.3} (max {:.3}), depth-only opt {:.3} (max {:.3}) median per keyframe",
+            s.association_ms_median,
+            s.rejection_ms_median,
+            s.rejection_ms_max,
+            s.depth_opt_ms_median,
+            s.depth_opt_ms_max
+        ),
+    ];
+    if let Some(a) = &s.assoc {
+        v.push(format!(
+            "assoc     {} checked vs truth: {} within 3 sigma_dr before rejection, {} after; edge features {} -> {}",
+            a.assoc_checked,
+            pct(a.assoc_within_3sigma_before),
+            pct(a.assoc_within_3sigma_after),
+            pct(a.edge_share_before),
+            pct(a.edge_share_after)
+        ));
+    }
+    v
+}

@@ -1,0 +1,206 @@
+//! One run setup: what a run of the estimator needs, read once from the recording (its
+//! calibration: [`crate::runner::config_for`]), the TOML file (`--config`, laid over it, the
+//! estimator's and the front end's keys in one read) and the command line (the switches, laid
+//! over both). `povins run`, `replay --realtime` and `timing` take the same [`RunArgs`]; `demo`,
+//! `regress` and `ablation` start from [`RunSetup::defaults`]. The front end's capacity is
+//! checked against the camera here (the platform's one dispatch,
+//! [`povins_platform::odometry::check`]), so a setting that does not fit is an error naming the
+//! file before anything runs.
+
+use crate::config::{effective_toml, LidarArgs, ModeArg, RunConfigFile};
+use crate::progress::Progress;
+use crate::runner::{config_for, replay_with, Frontend, FrontendOptions, InitMode, RunOutput};
+use anyhow::{Context, Result};
+use povins_core::estimator::EstimatorConfig;
+use povins_platform::recording::Recording;
+use std::path::{Path, PathBuf};
+
+/// The command-line arguments every estimating command over a recording takes.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunArgs {
+    /// EuRoC ASL folder (containing `mav0/`) or an `.mcap` file.
+    pub dataset: PathBuf,
+    /// How to initialize.
+    #[arg(long, value_enum, default_value = "static")]
+    pub init: InitMode,
+    /// TOML file of estimator and front-end settings (docs/formats.md).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// What feeds the estimator: the camera images through povins' front end, or the
+    /// dataset's feature tracks (default: images when the dataset has them, else tracks).
+    #[arg(long, value_enum)]
+    pub frontend: Option<Frontend>,
+    /// Visual measurement model (overrides the config file).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// LiDAR switches (override the config file).
+    #[command(flatten)]
+    pub lidar: LidarArgs,
+}
+
+impl RunArgs {
+    /// Opens the recording named by `dataset`.
+    pub fn open(&self) -> Result<Box<dyn Recording>> {
+        Ok(povins_platform::open_recording(&self.dataset)?)
+    }
+}
+
+/// What a run needs besides its recording (see the module docs).
+#[derive(Debug, Clone, Copy)]
+pub struct RunSetup {
+    /// The estimator's configuration.
+    pub estimator: EstimatorConfig,
+    /// The front end and its settings.
+    pub frontend: FrontendOptions,
+    /// How the estimator starts.
+    pub init: InitMode,
+}
+
+/// The front end a recording gets without `--frontend`: its images when it has them.
+pub fn default_frontend(rec: &dyn Recording) -> Frontend {
+    if rec.contents().images {
+        Frontend::Images
+    } else {
+        Frontend::Tracks
+    }
+}
+
+impl RunSetup {
+    /// The defaults for `rec`: its calibration, the front end for what it has, started as
+    /// `init`.
+    pub fn defaults(rec: &dyn Recording, init: InitMode) -> Self {
+        let frontend = match default_frontend(rec) {
+            Frontend::Images => FrontendOptions::images(Default::default()),
+            Frontend::Tracks => FrontendOptions::tracks(),
+        };
+        RunSetup {
+            estimator: config_for(rec),
+            frontend,
+            init,
+        }
+    }
+
+    /// `rec`'s defaults with `a`'s file and switches (see the module docs). Errors name the
+    /// file and the key, or the setting that does not fit.
+    pub fn from_args(rec: &dyn Recording, a: &RunArgs) -> Result<Self> {
+        let mut s = Self::defaults(rec, a.init);
+        if let Some(f) = a.frontend {
+            s.frontend.frontend = f;
+        }
+        if let Some(path) = &a.config {
+            s.apply_file(path)?;
+        }
+        if let Some(m) = a.mode {
+            s.estimator.mode = m.into();
+        }
+        a.lidar.apply(&mut s.estimator.lidar);
+        s.check().with_context(|| {
+            a.config
+                .as_ref()
+                .map_or("the run's settings".to_string(), |p| {
+                    format!("the run's settings (with {})", p.display())
+                })
+        })?;
+        Ok(s)
+    }
+
+    /// Lays the TOML file at `path` over the estimator's and the front end's settings (read
+    /// once).
+    pub fn apply_file(&mut self, path: &Path) -> Result<()> {
+        let file = RunConfigFile::read(path)?;
+        file.apply(&mut self.estimator)?;
+        file.apply_frontend(&mut self.frontend.tracker, &mut self.frontend.aiding)
+    }
+
+    /// Whether the core accepts the settings for the front end's capacity.
+    pub fn check(&self) -> Result<()> {
+        Ok(povins_platform::odometry::check(
+            &self.estimator,
+            &self.frontend.front_end(),
+        )?)
+    }
+
+    /// The visual mode's name for the summaries.
+    pub fn mode_name(&self) -> String {
+        format!("{:?}", self.estimator.mode)
+    }
+
+    /// The effective configuration as TOML (every key, `--config` it to repeat the run).
+    pub fn effective_toml(&self) -> Result<String> {
+        effective_toml(
+            &self.estimator,
+            &self.frontend.tracker,
+            &self.frontend.aiding,
+        )
+    }
+
+    /// Notes for the user about `rec` and these settings (LiDAR switches without a LiDAR, a
+    /// LiDAR without an extrinsic).
+    pub fn notes(&self, rec: &dyn Recording, lidar_args: &LidarArgs) -> Vec<String> {
+        let has = rec.contents();
+        let mut v = Vec::new();
+        if !has.lidar && lidar_args.any() {
+            v.push("note: no LiDAR in dataset; the LiDAR switches change nothing".to_string());
+        }
+        if has.lidar && rec.calibration().t_bl.is_none() && !self.estimator.lidar.enabled {
+            v.push(
+                "note: the dataset has LiDAR sweeps but no LiDAR extrinsic T_bl, so LiDAR is off \
+                 (set lidar.enabled and lidar.extrinsic.p_bl / q_bl in the config to use it)"
+                    .to_string(),
+            );
+        }
+        v
+    }
+
+    /// Replays `rec` with these settings ([`replay_with`]).
+    pub fn replay(&self, rec: &dyn Recording, progress: &Progress) -> Result<RunOutput> {
+        replay_with(rec, self.estimator, self.init, &self.frontend, progress)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use povins_core::camera::{CameraExtrinsic, PinholeCamera};
+    use povins_core::frontend::image::TrackerConfig;
+    use povins_core::math::{Quat, Vec3};
+
+    fn setup(camera: PinholeCamera, tracker: TrackerConfig) -> RunSetup {
+        let ext = CameraExtrinsic {
+            p_bc: Vec3::zeros(),
+            q_bc: Quat::identity(),
+        };
+        RunSetup {
+            estimator: EstimatorConfig::new(
+                camera,
+                ext,
+                povins_core::inertial::ImuNoise::EUROC_ADIS16448,
+            ),
+            frontend: FrontendOptions::images(tracker),
+            init: InitMode::Static,
+        }
+    }
+
+    #[test]
+    fn the_front_ends_capacity_is_checked_for_the_camera() {
+        let euroc = PinholeCamera::EUROC_CAM0;
+        assert!(setup(euroc, TrackerConfig::default()).check().is_ok());
+        let too_many = TrackerConfig {
+            max_features: 300,
+            ..TrackerConfig::default()
+        };
+        let e = setup(euroc, too_many)
+            .check()
+            .expect_err("256 features at most");
+        assert!(format!("{e:#}").contains("invalid"), "{e:#}");
+        let huge = PinholeCamera {
+            width: 1920,
+            height: 1200,
+            ..euroc
+        };
+        let e = setup(huge, TrackerConfig::default())
+            .check()
+            .expect_err("larger than the largest capacity");
+        assert!(format!("{e:#}").contains("1920x1200"), "{e:#}");
+    }
+}
