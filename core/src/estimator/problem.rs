@@ -15,7 +15,8 @@ use crate::camera::{CameraExtrinsic, Vec2};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::TimedObs;
 use crate::inertial::NavState;
-use crate::landmarks::{KfObs, LandmarkManager};
+use crate::landmarks::{KfObs, Landmark, LandmarkManager};
+use crate::lidar::LdmMode;
 use crate::math::{jr_inv_so3, quat_exp, Vec3};
 use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations};
 use crate::Error;
@@ -41,6 +42,57 @@ pub struct InitialPriors {
     pub td0: (f64, f64),
     /// Extrinsic prior mean and standard deviations (translation m, rotation rad).
     pub ext: (CameraExtrinsic, f64, f64),
+}
+
+/// How a landmark's observations enter the window's problem. The one choice of a landmark's
+/// measurement model: the assembly ([`Problem::assemble`]) linearizes the landmark under it and
+/// the culling (`estimator::cull`) evaluates its residuals under it, so a landmark is never
+/// culled under a model it was not solved with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LandmarkModel {
+    /// The paper's pose-only reprojections with the depth from the anchors `(s, e)`, exact in
+    /// every residual ([`VisualDepth::TwoView`](super::VisualDepth::TwoView)).
+    TwoView,
+    /// [`LandmarkModel::TwoView`] with the direct LiDAR-depth measurement beside it (a LiDAR
+    /// landmark with [`LdmMode::Direct`]).
+    DirectLidar,
+    /// Pose-only reprojections with the inverse depth that fits all observations eliminated
+    /// ([`VisualDepth::Eliminated`](super::VisualDepth::Eliminated), `estimator::problem_visual`).
+    Eliminated,
+    /// The MSC-based LiDAR-depth measurement (a LiDAR landmark with [`LdmMode::Msc`],
+    /// `estimator::problem_lidar`).
+    MscLidar,
+    /// The inverse depth as a state, eliminated by its Schur accumulator
+    /// ([`VisualMode::InverseDepth`], `estimator::problem_inverse_depth`).
+    InverseDepth,
+}
+
+impl LandmarkModel {
+    /// The model of landmark `lm` under `cfg`: the inverse-depth mode takes every landmark as a
+    /// state; otherwise a LiDAR landmark (with the LiDAR enabled) takes the configured LiDAR-depth
+    /// measurement, and a visual one the configured pose-only depth (the direct LDM keeps the
+    /// two-view form for all, see [`EstimatorConfig::depth_eliminated`]).
+    pub fn of<const N: usize>(cfg: &EstimatorConfig, lm: &Landmark<N>) -> Self {
+        if cfg.mode == VisualMode::InverseDepth {
+            return LandmarkModel::InverseDepth;
+        }
+        let lidar = lm.lidar.is_some() && cfg.lidar.enabled;
+        match (lidar, cfg.lidar.ldm) {
+            (true, LdmMode::Msc) => LandmarkModel::MscLidar,
+            (true, LdmMode::Direct) => LandmarkModel::DirectLidar,
+            (false, _) if cfg.depth_eliminated() => LandmarkModel::Eliminated,
+            (false, _) => LandmarkModel::TwoView,
+        }
+    }
+
+    /// Whether the landmark's reprojections are the inverse-depth rays of its anchor `s` at the
+    /// landmark's inverse depth (else the two-view form on its anchors `(s, e)`).
+    pub fn uses_inverse_depth(self) -> bool {
+        matches!(
+            self,
+            LandmarkModel::Eliminated | LandmarkModel::MscLidar | LandmarkModel::InverseDepth
+        )
+    }
 }
 
 /// Which factors to visit.

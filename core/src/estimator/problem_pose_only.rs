@@ -6,14 +6,13 @@
 //! ([`add_pose_only_landmark`]), else through dense Jacobian blocks.
 
 use super::config::VisualMode;
-use super::problem::{anchor_depth_std, row_major, timed, FactorSet, Problem};
+use super::problem::{anchor_depth_std, row_major, timed, FactorSet, LandmarkModel, Problem};
 use super::window::{Block, Layout};
 use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::pose_only_visual::{InJ, PoseOnlyAnchors};
 use crate::factors::robust::Huber;
 use crate::factors::{CamFrame, KeyframePose};
 use crate::landmarks::{KfObs, MargPlan};
-use crate::lidar::LdmMode;
 use crate::math::{Mat3, Vec3};
 use crate::solver::{JacobianBlock, NormalEquations, SharedBlock};
 use crate::Error;
@@ -265,8 +264,9 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             let Some(only_j) = self.visited_obs(lm.marg) else {
                 continue;
             };
-            let lidar = lm.lidar.is_some() && self.cfg.lidar.enabled;
-            if lidar && self.cfg.lidar.ldm == LdmMode::Msc {
+            let model = LandmarkModel::of(self.cfg, lm);
+            let lidar = model == LandmarkModel::DirectLidar;
+            if model == LandmarkModel::MscLidar {
                 match self.msc_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext) {
                     Ok((c, n)) => {
                         cost += c;
@@ -284,7 +284,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
                 }
                 continue;
             }
-            if self.cfg.depth_eliminated() && only_j.is_none() {
+            if model == LandmarkModel::Eliminated && only_j.is_none() {
                 let er = (&ext, rot.as_ref());
                 match self.eliminated_landmark(li, ne, &poses, &frames, er, &huber, est_td, est_ext)
                 {
