@@ -3,8 +3,9 @@
 //! or the inverse-depth rays at the landmark's inverse depth), the chi-square cull between the LM passes, and the reprojection cull of paper V.E
 //! (whole landmarks by mean error, single observations above a threshold), with the anchors
 //! fixed up after observations are removed.
+#![deny(clippy::too_many_lines)]
 
-use super::problem::{self, LandmarkModel};
+use super::problem_factor::{anchor_depth_std, LandmarkModel};
 use super::tau_landmark::TauLandmark;
 use super::{DepthEvent, DepthEventKind, Estimator};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
@@ -97,7 +98,7 @@ impl<
         ) else {
             return out;
         };
-        let sd = problem::anchor_depth_std(&self.cfg, &anchors);
+        let sd = anchor_depth_std(&self.cfg, &anchors);
         let anchors = anchors.with_depth_std(sd);
         for (j, obs_j, (pj, fj)) in observed {
             if let Some(o) = out.get_mut(j) {

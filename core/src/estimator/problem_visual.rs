@@ -21,117 +21,148 @@
 //! `W_j` the observation's Huber weight. The measurement is a function of the poses alone: the
 //! landmark has no state, its cost is `min_tau` of the reprojection cost, so the LM's gain ratio
 //! compares what the linear model predicts.
+#![deny(clippy::too_many_lines)]
 
-use super::problem::{FactorSet, Problem};
+use super::problem::SCHUR_COLS;
+use super::problem_factor::{put_rows, LandmarkFactor, VisualSettings, WindowFactor, WindowVars};
 use super::problem_lidar::add_inverse_depth_obs;
 use super::tau_landmark::{Ray, TauLandmark};
 use super::window::{Block, Layout};
-use crate::camera::CameraExtrinsic;
 use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::robust::Huber;
-use crate::factors::{CamFrame, KeyframePose};
-use crate::solver::NormalEquations;
+use crate::factors::KeyframePose;
+use crate::landmarks::Landmark;
+use crate::solver::{LandmarkSchur, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
 use nalgebra::Vector6;
 
-impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
-    /// Landmark `li` with its inverse depth eliminated (module docs): robust cost and number of
-    /// observations; with `ne`, also accumulates the projected block and stores `tau*`.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn eliminated_landmark(
-        &mut self,
-        li: usize,
-        ne: &mut Option<&mut NormalEquations<D>>,
-        poses: &[KeyframePose; N],
-        frames: &[CamFrame; N],
-        (ext, rot): (&CameraExtrinsic, Option<&WindowRotations<N>>),
-        huber: &Huber,
-        est_td: bool,
-        est_ext: bool,
-    ) -> Result<(f64, u32), Error> {
-        let count = self.window.len();
-        let sqrt_info = self.sqrt_info();
-        let lm = self
-            .lms
-            .landmarks()
-            .get(li)
-            .ok_or(Error::DimensionMismatch)?;
-        let s = lm.anchor_s as usize;
+/// The pose-only measurement of a landmark with its inverse depth eliminated (module docs).
+pub struct EliminatedLandmark<'a, const N: usize> {
+    vs: VisualSettings<'a>,
+    lm: &'a Landmark<N>,
+    /// Without the observation at position 0 (what stays of a re-anchored landmark after the
+    /// marginalization, `FactorSet::OldestRest`).
+    without_obs_zero: bool,
+    /// `tau*` of a cost evaluation at the same state, for the linearization to take.
+    cached_tau: Option<f64>,
+    schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    tau: Option<f64>,
+    n_obs: u32,
+}
+
+impl<'a, const N: usize> EliminatedLandmark<'a, N> {
+    /// The measurement of `lm` (`without_obs_zero`: without its observation at position 0),
+    /// with `schur` as its accumulator when the extrinsic is estimated. A linearization takes
+    /// `cached_tau` as `tau*` when given (the state has not changed since the cost evaluation
+    /// that solved for it: bit-identical).
+    pub fn new(
+        vs: VisualSettings<'a>,
+        lm: &'a Landmark<N>,
+        without_obs_zero: bool,
+        cached_tau: Option<f64>,
+        schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    ) -> Self {
+        EliminatedLandmark {
+            vs,
+            lm,
+            without_obs_zero,
+            cached_tau,
+            schur,
+            tau: None,
+            n_obs: 0,
+        }
+    }
+
+    /// The landmark's reprojections in `tau` over the first `count` positions.
+    fn tau_landmark(&self, count: usize) -> Result<TauLandmark<N>, Error> {
+        let lm = self.lm;
         // What stays in the window after the marginalization: the factor without position 0.
         let mut rest = lm.obs;
-        if self.set == FactorSet::OldestRest {
+        if self.without_obs_zero {
             if let Some(o) = rest.get_mut(0) {
                 *o = None;
             }
         }
-        let m = TauLandmark::new(&rest, s, None, sqrt_info, count).ok_or(Error::NotEnoughData)?;
-        let n_obs = m.obs.len() as u32;
-        // A linearization right after a successful cost evaluation at the same state takes the
-        // `tau*` that evaluation computed (bit-identical: same rays, same start).
-        let cached = match (self.tau_fresh, ne.is_some()) {
-            (true, true) => self.saved.tau_ok.get(li).copied().unwrap_or(false),
-            _ => false,
-        };
-        let tau = match self.saved.tau.get(li) {
-            Some(&tau) if cached => tau,
+        let s = lm.anchor_s as usize;
+        TauLandmark::new(&rest, s, None, self.vs.sqrt_info, count).ok_or(Error::NotEnoughData)
+    }
+}
+
+impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'_, N> {
+    fn add(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        ne: Option<&mut NormalEquations<D>>,
+    ) -> Result<f64, Error> {
+        self.tau = None;
+        let (lm, huber) = (self.lm, &self.vs.huber);
+        let s = lm.anchor_s as usize;
+        let m = self.tau_landmark(v.count)?;
+        self.n_obs = m.obs.len() as u32;
+        let tau = match (self.cached_tau, &ne) {
+            (Some(tau), Some(_)) => tau,
             _ => {
-                let rays = m.rays(poses, frames)?;
+                let rays = m.rays(&v.poses, &v.frames)?;
                 let (tau, cost) = newton_tau(&rays, lm.inv_depth, huber)?;
                 if ne.is_none() {
-                    if let (Some(t), Some(ok)) =
-                        (self.saved.tau.get_mut(li), self.saved.tau_ok.get_mut(li))
-                    {
-                        (*t, *ok) = (tau, true);
-                    }
                     // The next solve (the linearization or the marginalization at this state,
-                    // the next trial near it) starts from here; a rejected LM trial restores the
-                    // depth with the state.
-                    if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                        lm.inv_depth = tau;
-                    }
-                    return Ok((cost, n_obs));
+                    // the next trial near it) starts from here; a rejected LM trial restores
+                    // the depth with the state.
+                    self.tau = Some(tau);
+                    return Ok(cost);
                 }
                 tau
             }
         };
-        let Some(ne) = ne.as_deref_mut() else {
+        let Some(ne) = ne else {
             return Err(Error::DimensionMismatch);
         };
+        let poses = &v.poses;
         let ps = poses.get(s).ok_or(Error::DimensionMismatch)?;
-        let l = self.layout;
-        if let (false, Some(rot)) = (est_ext, rot) {
-            let cost = accumulate_eliminated(&m, poses, rot, tau, huber, &l, ne)?;
-            if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                lm.inv_depth = tau;
-            }
-            return Ok((cost, n_obs));
+        let l = v.layout;
+        if !v.est_ext {
+            let cost = accumulate_eliminated(&m, poses, v.rotations(), tau, huber, &l, ne)?;
+            self.tau = Some(tau);
+            return Ok(cost);
         }
-        let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
+        let sc = &mut *self.schur;
         sc.clear();
         let mut cost = 0.0;
         for (j, f) in m.obs.iter() {
             let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
-            let jac = f.evaluate(ps, pj, ext, tau)?;
+            let jac = f.evaluate(ps, pj, v.ext, tau)?;
             let sq = jac.r.norm_squared();
             cost += huber.rho(sq)[0];
-            add_inverse_depth_obs(
-                sc,
-                ne,
-                &jac,
-                huber.sqrt_weight(sq),
-                s,
-                *j,
-                &l,
-                est_td,
-                est_ext,
-            )?;
+            let (est_td, est_ext) = (v.est_td, v.est_ext);
+            let w = huber.sqrt_weight(sq);
+            add_inverse_depth_obs(sc, ne, &jac, w, s, *j, &l, est_td, est_ext)?;
         }
         sc.fold_into(ne, 0.0)?;
-        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-            lm.inv_depth = tau;
+        self.tau = Some(tau);
+        Ok(cost)
+    }
+
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        let m = self.tau_landmark(v.count)?;
+        let rays = m.rays(&v.poses, &v.frames)?;
+        let (tau, _) = newton_tau(&rays, self.lm.inv_depth, &self.vs.huber)?;
+        let mut rows = 0;
+        for ray in rays.iter() {
+            let (r, _) = ray.residual_and_d_tau(tau)?;
+            rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
         }
-        Ok((cost, n_obs))
+        Ok(rows)
+    }
+}
+
+impl<const N: usize, const D: usize> LandmarkFactor<N, D> for EliminatedLandmark<'_, N> {
+    fn observations(&self) -> u32 {
+        self.n_obs
+    }
+
+    fn inverse_depth(&self) -> Option<f64> {
+        self.tau
     }
 }
 
@@ -288,9 +319,10 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::CameraExtrinsic;
     use crate::camera::Vec2;
     use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
-    use crate::factors::TimedObs;
+    use crate::factors::{CamFrame, TimedObs};
     use crate::math::{quat_exp, Vec3};
 
     /// A landmark 4 m away seen from four keyframes with pixel noise; with `outlier`, the last

@@ -6,7 +6,7 @@
 //! (`estimator::problem_visual`), the depth-only optimization (`estimator::lidar`) and the
 //! culling residuals (`estimator::cull`).
 
-use super::problem::timed;
+use super::problem_factor::timed;
 #[cfg(test)]
 use crate::camera::CameraExtrinsic;
 use crate::camera::Vec2;
