@@ -12,7 +12,7 @@ mod conformance;
 mod numdiff;
 mod vision_common;
 
-use conformance::{Case, Eval, Scene, D, N};
+use conformance::{Case, Eval, Keeps, Scene, D, N};
 use povins_core::estimator::problem::{
     DirectDepth, DirectLidarLandmark, EliminatedLandmark, ExtPrior, FirstStatePrior, ImuFactor,
     InverseDepthLandmark, MargPriorFactor, MscLandmark, TdHold, TdPrior, TdRandomWalkFactor,
@@ -233,6 +233,7 @@ impl<const EXT: bool, const TD: bool> Case for DirectLidarDepth<EXT, TD> {
 struct Eliminated<const EXT: bool, const TD: bool>;
 
 impl<const EXT: bool, const TD: bool> Case for Eliminated<EXT, TD> {
+    const LOCAL_INVERSE_DEPTH: bool = true;
     fn scene() -> Box<Scene> {
         let mut s = landmark_scene(EXT, TD);
         s.lm.lidar = None;
@@ -241,11 +242,8 @@ impl<const EXT: bool, const TD: bool> Case for Eliminated<EXT, TD> {
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
         let (v, p) = s.split();
         let vs = VisualSettings::new(p.cfg).unwrap();
-        run(
-            EliminatedLandmark::new(vs, p.lm, false, None, p.schur),
-            &v,
-            f,
-        )
+        let elim = EliminatedLandmark::new(vs, p.lm, false, None, p.schur);
+        run(Keeps(elim), &v, f)
     }
     fn nan(s: &mut Scene) {
         nan_position(s, 1);
@@ -259,13 +257,14 @@ impl<const EXT: bool, const TD: bool> Case for Eliminated<EXT, TD> {
 struct Msc<const EXT: bool, const TD: bool>;
 
 impl<const EXT: bool, const TD: bool> Case for Msc<EXT, TD> {
+    const LOCAL_INVERSE_DEPTH: bool = true;
     fn scene() -> Box<Scene> {
         landmark_scene(EXT, TD)
     }
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
         let (v, p) = s.split();
         let vs = VisualSettings::new(p.cfg).unwrap();
-        run(MscLandmark::new(vs, p.lm, p.schur), &v, f)
+        run(Keeps(MscLandmark::new(vs, p.lm, p.schur)), &v, f)
     }
     fn nan(s: &mut Scene) {
         nan_position(s, 1);
@@ -286,7 +285,11 @@ impl<const EXT: bool, const TD: bool> Case for InverseDepth<EXT, TD> {
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
         let (v, p) = s.split();
         let vs = VisualSettings::new(p.cfg).unwrap();
-        run(InverseDepthLandmark::new(vs, p.lm, p.schur).unwrap(), &v, f)
+        run(
+            Keeps(InverseDepthLandmark::new(vs, p.lm, p.schur).unwrap()),
+            &v,
+            f,
+        )
     }
     fn nan(s: &mut Scene) {
         nan_position(s, 1);

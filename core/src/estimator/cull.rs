@@ -69,8 +69,9 @@ impl<
         // observation instead of the whole factor chain.
         if LandmarkModel::of(&self.cfg, lm).uses_inverse_depth() {
             let m = TauLandmark::new(&lm.obs, s, None, sqrt_info, self.window.len());
-            let rays = m.as_ref().map(|m| m.rays(poses, frames));
-            if let (Some(m), Some(Ok(rays))) = (m, rays) {
+            let mut rays = heapless::Vec::new();
+            let ok = m.as_ref().map(|m| m.rays_into(poses, frames, &mut rays));
+            if let (Some(m), Some(Ok(()))) = (m, ok) {
                 for ((j, _), ray) in m.obs.iter().zip(rays.iter()) {
                     if let Some(o) = out.get_mut(*j) {
                         *o = ray.residual_and_d_tau(lm.inv_depth).ok().map(|(r, _)| r);

@@ -19,6 +19,7 @@ use super::prior::MargPrior;
 use super::problem_landmarks::{LandmarkPass, Pass};
 use super::window::{Block, Layout, Window};
 use crate::camera::CameraExtrinsic;
+use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::inertial::NavState;
 use crate::landmarks::LandmarkManager;
 use crate::math::{quat_exp, Vec3};
@@ -175,7 +176,12 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
     pub fn assemble(&mut self, mut ne: Option<&mut NormalEquations<D>>) -> Result<f64, Error> {
         self.counts = AssemblyCounts::default();
         let mut cost = 0.0;
-        let v = WindowVars::new(&*self.window, &*self.ext, self.layout);
+        // The eliminated depths' linearization with the extrinsic fixed: the window's rotations
+        // once per assembly, not per residual.
+        let l = self.layout;
+        let rot = (ne.is_some() && l.col(Block::Ext).is_none() && self.cfg.depth_eliminated())
+            .then(|| WindowRotations::new(&self.window.poses(), self.window.len(), &*self.ext));
+        let v = WindowVars::new(&*self.window, &*self.ext, l, rot.as_ref());
         // The landmark passes: the marginalization in the inverse-depth mode takes the
         // re-anchored landmarks' observations at 0 as pose-only residuals (the pose-only form is
         // the inverse-depth one with the depth eliminated by the anchors); the others leave

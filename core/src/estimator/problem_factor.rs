@@ -9,7 +9,8 @@
 //! caller's [`NormalEquations`]; a variable without a column is held fixed. A measurement with a
 //! nuisance parameter of its own (a landmark's inverse depth) adds the system with that
 //! parameter eliminated by its Schur complement. [`WindowFactor::residuals`] gives the whitened
-//! rows themselves (for checks: the conformance suite differentiates them numerically).
+//! rows themselves, a landmark's at its inverse depth (for checks: the conformance suite
+//! differentiates them numerically, the depth as one more variable that it eliminates).
 //!
 //! Every landmark has one [`LandmarkModel`], chosen by [`LandmarkModel::of`] alone: the assembly
 //! (`estimator::problem_landmarks`) adds the landmark's factor of that model, and the culling
@@ -32,8 +33,8 @@ use crate::Error;
 use core::cell::OnceCell;
 
 /// The window's variables as its factors read them, with what a pass over the factors computes
-/// once: the keyframes' body poses and camera frames, and on first use the keyframe pairs'
-/// relative camera poses and the window's rotations.
+/// once: the keyframes' body poses and camera frames, the window's rotations for a
+/// linearization that needs them, and on first use the keyframe pairs' relative camera poses.
 pub struct WindowVars<'a, const N: usize> {
     /// Keyframes: states, delays, preintegrations (positions `0..count`).
     pub window: &'a Window<N>,
@@ -52,26 +53,35 @@ pub struct WindowVars<'a, const N: usize> {
     /// Camera frames of the keyframes.
     pub frames: [CamFrame; N],
     rel: OnceCell<[[(Mat3, Vec3); N]; N]>,
-    rot: OnceCell<WindowRotations<N>>,
+    rot: Option<&'a WindowRotations<N>>,
 }
 
 impl<'a, const N: usize> WindowVars<'a, N> {
-    /// The variables of `window` and `ext` at the columns of `layout`.
-    pub fn new(window: &'a Window<N>, ext: &'a CameraExtrinsic, layout: Layout<N>) -> Self {
+    /// The variables of `window` and `ext` at the columns of `layout`, with the window's
+    /// rotations `rot` ([`WindowRotations::new`] of the same poses and extrinsic) where the
+    /// caller formed them ([`Self::rotations`]).
+    #[inline(always)]
+    pub fn new(
+        window: &'a Window<N>,
+        ext: &'a CameraExtrinsic,
+        layout: Layout<N>,
+        rot: Option<&'a WindowRotations<N>>,
+    ) -> Self {
         let poses = window.poses();
         // Camera frames once per keyframe rather than three times per residual.
         let frames = core::array::from_fn(|k| CamFrame::new(&poses[k], ext));
+        let count = window.len();
         WindowVars {
+            rot,
             window,
             ext,
             layout,
-            count: window.len(),
+            count,
             est_td: layout.col(Block::Td(0)).is_some(),
             est_ext: layout.col(Block::Ext).is_some(),
             poses,
             frames,
             rel: OnceCell::new(),
-            rot: OnceCell::new(),
         }
     }
 
@@ -90,11 +100,10 @@ impl<'a, const N: usize> WindowVars<'a, N> {
         rel.get(j).and_then(|row| row.get(s)).copied()
     }
 
-    /// The window's rotations for the inverse-depth factors' pose Jacobians, formed on the
-    /// first call.
-    pub fn rotations(&self) -> &WindowRotations<N> {
+    /// The window's rotations for the inverse-depth factors' pose Jacobians, if formed
+    /// ([`Self::new`]).
+    pub fn rotations(&self) -> Option<&WindowRotations<N>> {
         self.rot
-            .get_or_init(|| WindowRotations::new(&self.poses, self.count, self.ext))
     }
 
     /// First column of a block ([`Error::DimensionMismatch`] without one).
@@ -114,9 +123,11 @@ pub trait WindowFactor<const N: usize, const D: usize> {
         ne: Option<&mut NormalEquations<D>>,
     ) -> Result<f64, Error>;
 
-    /// The whitened residual rows at `v` into `out` (a measurement that eliminates a depth: at
-    /// the depth it solves for; before the robust kernel); returns their number.
-    /// [`Error::CapacityExceeded`] when `out` is too short.
+    /// The whitened residual rows at `v` into `out` (before the robust kernel; a landmark's
+    /// measurement at the landmark's inverse depth: the state of the inverse-depth mode, the
+    /// depth a measurement that eliminates it solved for at its last linearization); returns
+    /// their number. [`Error::NonFinite`] for a non-finite row, [`Error::CapacityExceeded`]
+    /// when `out` is too short.
     fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error>;
 }
 

@@ -95,6 +95,7 @@ impl<'a, const N: usize> InverseDepthLandmark<'a, N> {
 }
 
 impl<const N: usize, const D: usize> WindowFactor<N, D> for InverseDepthLandmark<'_, N> {
+    #[inline(never)]
     fn add(
         &mut self,
         v: &WindowVars<'_, N>,

@@ -103,6 +103,7 @@ pub(super) fn add_inverse_depth_obs<const N: usize, const D: usize>(
 /// Linearizes the MSC block of `m` at `tau` and adds it to `ne` through the Schur
 /// accumulator `sc` (projection of `tau`). Returns the block's robust cost.
 #[allow(clippy::too_many_arguments)]
+#[inline(never)]
 pub(super) fn accumulate_msc<const N: usize, const D: usize>(
     m: &TauLandmark<N>,
     poses: &[KeyframePose; N],
@@ -192,16 +193,17 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for MscLandmark<'_, N> {
             let sq = m.stacked_sq_rays(&rays, tau)?;
             return Ok(msc_robust(huber, sq, n_obs).0);
         };
-        let (l, sc) = (v.layout, &mut *self.schur);
+        let (l, sc) = (&v.layout, &mut *self.schur);
         let (est_td, est_ext) = (v.est_td, v.est_ext);
-        let cost = accumulate_msc(&m, &v.poses, v.ext, tau, huber, &l, est_td, est_ext, sc, ne)?;
+        let cost = accumulate_msc(&m, &v.poses, v.ext, tau, huber, l, est_td, est_ext, sc, ne)?;
         self.tau = Some(tau);
         Ok(cost)
     }
 
     fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
         let m = self.tau_landmark(v.count)?;
-        let (tau, rays) = m.solve(&v.poses, &v.frames, self.lm.inv_depth)?;
+        let rays = m.rays(&v.poses, &v.frames)?;
+        let tau = self.lm.inv_depth;
         let mut rows = 0;
         for ray in rays.iter() {
             let (r, _) = ray.residual_and_d_tau(tau)?;
@@ -271,6 +273,7 @@ impl<'a, const N: usize> DirectDepth<'a, N> {
 }
 
 impl<const N: usize, const D: usize> WindowFactor<N, D> for DirectDepth<'_, N> {
+    #[inline(never)]
     fn add(
         &mut self,
         v: &WindowVars<'_, N>,

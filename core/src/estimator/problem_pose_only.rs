@@ -43,6 +43,7 @@ fn residual_obs<'a, const N: usize>(
 /// added), then each residual with its robust weight through a [`SharedBlock`] on anchor `e`.
 /// With `only_j`, only that observation's residual (the marginalization of a re-anchored
 /// landmark). Returns the robust cost and the number of observations.
+#[inline(never)]
 fn add_pose_only_landmark<const N: usize, const D: usize>(
     anchors: &PoseOnlyAnchors<'_>,
     obs: &[Option<KfObs>; N],
@@ -115,6 +116,7 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
 /// on the poses of `s`, `e` and `j`, the extrinsic and the delays as estimated. With `only_j`,
 /// only that observation's residual. Returns the robust cost and the number of observations.
 #[allow(clippy::too_many_arguments)]
+#[inline(never)]
 fn add_pose_only_landmark_dense<const N: usize, const D: usize>(
     anchors: &PoseOnlyAnchors<'_>,
     obs: &[Option<KfObs>; N],

@@ -75,17 +75,13 @@ impl<'a, const N: usize> EliminatedLandmark<'a, N> {
     }
 
     /// The landmark's reprojections in `tau` over the first `count` positions.
+    #[inline(always)]
     fn tau_landmark(&self, count: usize) -> Result<TauLandmark<N>, Error> {
         let lm = self.lm;
         // What stays in the window after the marginalization: the factor without position 0.
-        let mut rest = lm.obs;
-        if self.without_obs_zero {
-            if let Some(o) = rest.get_mut(0) {
-                *o = None;
-            }
-        }
-        let s = lm.anchor_s as usize;
-        TauLandmark::new(&rest, s, None, self.vs.sqrt_info, count).ok_or(Error::NotEnoughData)
+        let skip = self.without_obs_zero.then_some(0);
+        let (s, sqrt_info) = (lm.anchor_s as usize, self.vs.sqrt_info);
+        TauLandmark::without(&lm.obs, s, skip, None, sqrt_info, count).ok_or(Error::NotEnoughData)
     }
 }
 
@@ -103,7 +99,8 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
         let tau = match (self.cached_tau, &ne) {
             (Some(tau), Some(_)) => tau,
             _ => {
-                let rays = m.rays(&v.poses, &v.frames)?;
+                let mut rays = HVec::new();
+                m.rays_into(&v.poses, &v.frames, &mut rays)?;
                 let (tau, cost) = newton_tau(&rays, lm.inv_depth, huber)?;
                 if ne.is_none() {
                     // The next solve (the linearization or the marginalization at this state,
@@ -120,9 +117,15 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
         };
         let poses = &v.poses;
         let ps = poses.get(s).ok_or(Error::DimensionMismatch)?;
-        let l = v.layout;
+        let l = &v.layout;
         if !v.est_ext {
-            let cost = accumulate_eliminated(&m, poses, v.rotations(), tau, huber, &l, ne)?;
+            let cost = match v.rotations() {
+                Some(rot) => accumulate_eliminated(&m, poses, rot, tau, huber, l, ne)?,
+                None => {
+                    let rot = WindowRotations::new(poses, v.count, v.ext);
+                    accumulate_eliminated(&m, poses, &rot, tau, huber, l, ne)?
+                }
+            };
             self.tau = Some(tau);
             return Ok(cost);
         }
@@ -136,7 +139,7 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
             cost += huber.rho(sq)[0];
             let (est_td, est_ext) = (v.est_td, v.est_ext);
             let w = huber.sqrt_weight(sq);
-            add_inverse_depth_obs(sc, ne, &jac, w, s, *j, &l, est_td, est_ext)?;
+            add_inverse_depth_obs(sc, ne, &jac, w, s, *j, l, est_td, est_ext)?;
         }
         sc.fold_into(ne, 0.0)?;
         self.tau = Some(tau);
@@ -146,7 +149,7 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
     fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
         let m = self.tau_landmark(v.count)?;
         let rays = m.rays(&v.poses, &v.frames)?;
-        let (tau, _) = newton_tau(&rays, self.lm.inv_depth, &self.vs.huber)?;
+        let tau = self.lm.inv_depth;
         let mut rows = 0;
         for ray in rays.iter() {
             let (r, _) = ray.residual_and_d_tau(tau)?;
@@ -248,6 +251,7 @@ fn robust_pass(rays: &[Ray], tau: f64, huber: &Huber) -> Result<[f64; 4], Error>
 /// The landmark's linearization with `tau` eliminated, extrinsic fixed (module docs): every
 /// observation's 2x6 pose blocks and delay columns go into `ne` as usual, and the landmark's
 /// coupling to `tau` (`v`, `c`, `beta`) is folded in once at the end. Returns the robust cost.
+#[inline(never)]
 fn accumulate_eliminated<const N: usize, const D: usize>(
     m: &TauLandmark<N>,
     poses: &[KeyframePose; N],

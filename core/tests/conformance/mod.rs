@@ -1,17 +1,17 @@
 //! The factor conformance suite: one set of checks that every factor of the window's problem
 //! ([`WindowFactor`]) passes alike, instantiated per factor by [`factor_conformance!`].
 //!
-//! A case ([`Case`]) builds its factor on a [`Scene`] (a window of four keyframes from one INS
-//! propagation with their preintegrations, the extrinsic, one landmark seen by every keyframe,
-//! a marginalization prior), exact or noisy, and says how to break it. The checks:
+//! A case ([`Case`]) builds its factor on a [`Scene`] (a window of four keyframes from INS
+//! propagations with their preintegrations, the extrinsic, one landmark seen by every keyframe,
+//! a marginalization prior), exact or noisy, and says how to break it. A landmark's scene keeps
+//! the inverse depth its factor solves for (as the assembly does), and a landmark's depth is
+//! one more variable of the checks, which its factor eliminates. The checks:
 //! - **exact data**: every residual row vanishes, and so does the cost;
 //! - **Jacobian**: the factor's system in the normal equations against the Gauss–Newton system
-//!   of its residual rows differentiated by central differences ([`numdiff`], the one numerical
-//!   differentiation of the tests) over every column of the layout, with a nuisance variable of
-//!   the factor (the inverse-depth state) eliminated the way the factor does it (its Schur
-//!   complement). `H` on exact data (where `J^T J` is the whole Gauss–Newton matrix of every
-//!   form, projected or not) and `b = -J^T r` on noisy data (exact for any form: a measurement
-//!   that minimizes a depth out has `dr/dtau . r = 0` there);
+//!   of its residual rows differentiated by central differences ([`crate::numdiff`], the one
+//!   numerical differentiation of the tests) over every column of the layout and the
+//!   landmark's depth, the depth eliminated by its Schur complement: `H` on exact and on noisy
+//!   data, `b = -J^T r` on noisy data, each to 1e-7 of its largest entry;
 //! - **cost**: the cost-only evaluation equals the linearization's cost and the squared norm of
 //!   the residual rows (the noise stays inside the robust kernel's threshold);
 //! - **NaN** and **degenerate** input give an error from every path;
@@ -23,9 +23,10 @@ use crate::numdiff::central_differences;
 use crate::vision_common::{euroc_extrinsic, Rng};
 use povins_core::camera::{CameraExtrinsic, PinholeCamera};
 use povins_core::estimator::prior::{LinPoint, MargPrior};
-use povins_core::estimator::problem::{WindowFactor, WindowVars, SCHUR_COLS};
+use povins_core::estimator::problem::{LandmarkFactor, WindowFactor, WindowVars, SCHUR_COLS};
 use povins_core::estimator::window::{Block, Layout, Window};
 use povins_core::estimator::EstimatorConfig;
+use povins_core::factors::inverse_depth_visual::WindowRotations;
 use povins_core::factors::KeyframePose;
 use povins_core::inertial::ins::{Ins, InsConfig};
 use povins_core::inertial::preintegration::{PreintConfig, Preintegration};
@@ -66,6 +67,9 @@ pub struct Scene {
     pub prior: MargPrior<D, N>,
     /// Samples the preintegrations were built from.
     pub samples: Vec<ImuSample>,
+    /// Storage of the window's rotations, formed for every evaluation ([`Scene::split`]) as the
+    /// assembly forms them for a linearization.
+    pub rot: Option<WindowRotations<N>>,
     /// The exact scene's first state, delay (every keyframe's) and extrinsic: the priors'
     /// means.
     pub means: (NavState, f64, CameraExtrinsic),
@@ -170,6 +174,7 @@ impl Scene {
             schur: LandmarkSchur::new(),
             prior,
             samples,
+            rot: None,
             means: (states[0], TD_S, ext),
         });
         if est_ext && est_td {
@@ -279,7 +284,9 @@ impl Scene {
 
     /// The variables (as the assembly sees them) and the parts a factor is built from.
     pub fn split(&mut self) -> (WindowVars<'_, N>, Parts<'_>) {
-        let v = WindowVars::new(&self.window, &self.ext, self.layout);
+        let poses = self.window.poses();
+        self.rot = Some(WindowRotations::new(&poses, self.window.len(), &self.ext));
+        let v = WindowVars::new(&self.window, &self.ext, self.layout, self.rot.as_ref());
         let parts = Parts {
             cfg: &self.cfg,
             lm: &self.lm,
@@ -342,8 +349,8 @@ impl Scene {
 
 /// One factor under the suite: how to build it on a scene and how to break it.
 pub trait Case {
-    /// The factor has the landmark's inverse depth as a variable of its own (eliminated in its
-    /// linearization, moved by [`Scene::apply`] with `local`).
+    /// The factor is a landmark's measurement with the landmark's inverse depth (eliminated in
+    /// its linearization, moved by [`Scene::apply`] with `local`).
     const LOCAL_INVERSE_DEPTH: bool = false;
     /// The exact scene.
     fn scene() -> Box<Scene>;
@@ -364,6 +371,32 @@ pub trait Eval {
         ne: &mut NormalEquations<D>,
     ) -> Result<f64, Error>;
     fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error>;
+    /// The inverse depth the landmark keeps after the last evaluation, if any.
+    fn inverse_depth(&self) -> Option<f64> {
+        None
+    }
+}
+
+/// A landmark's measurement as an [`Eval`] that reports the inverse depth it keeps.
+pub struct Keeps<F>(pub F);
+
+impl<F: LandmarkFactor<N, D>> Eval for Keeps<F> {
+    fn cost(&mut self, v: &WindowVars<'_, N>) -> Result<f64, Error> {
+        self.0.add(v, None)
+    }
+    fn linearize(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        ne: &mut NormalEquations<D>,
+    ) -> Result<f64, Error> {
+        self.0.add(v, Some(ne))
+    }
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        WindowFactor::residuals(&mut self.0, v, out)
+    }
+    fn inverse_depth(&self) -> Option<f64> {
+        LandmarkFactor::<N, D>::inverse_depth(&self.0)
+    }
 }
 
 impl<F: WindowFactor<N, D>> Eval for F {
@@ -401,6 +434,33 @@ fn linearize<C: Case>(s: &mut Scene) -> Result<(Box<NormalEquations<D>>, f64), E
     ne.reset(s.layout.dim()).unwrap();
     let c = C::with(s, |f, v| f.linearize(v, &mut ne))?;
     Ok((ne, c))
+}
+
+/// The landmark keeps the inverse depth its factor solves for at `s` (as the assembly keeps it).
+fn settle<C: Case>(s: &mut Scene) {
+    let mut ne = Box::new(NormalEquations::<D>::new());
+    ne.reset(s.layout.dim()).unwrap();
+    let tau = C::with(s, |f, v| {
+        f.linearize(v, &mut ne).unwrap();
+        f.inverse_depth()
+    });
+    if let Some(tau) = tau {
+        s.lm.inv_depth = tau;
+    }
+}
+
+/// The case's exact scene, settled.
+fn exact<C: Case>() -> Box<Scene> {
+    let mut s = C::scene();
+    settle::<C>(&mut s);
+    s
+}
+
+/// The case's noisy scene, settled.
+fn noisy<C: Case>() -> Box<Scene> {
+    let mut s = C::scene().noisy();
+    settle::<C>(&mut s);
+    s
 }
 
 /// The Gauss–Newton system `(H, b)` of the residual rows at `s` by central differences over the
@@ -449,29 +509,26 @@ fn amax<'a>(v: impl IntoIterator<Item = &'a f64>) -> f64 {
 
 /// Every residual row and the cost vanish on exact data.
 pub fn residual_is_zero_on_exact_data<C: Case>() {
-    let mut s = C::scene();
+    let mut s = exact::<C>();
     let r = residuals::<C>(&mut s).unwrap();
     assert!(!r.is_empty(), "the factor has residual rows");
     assert!(amax(&r) < 1e-7, "residual on exact data: {r:?}");
     let c = cost::<C>(&mut s).unwrap();
     assert!(c < 1e-12, "cost on exact data: {c}");
     // ... and not on the noisy data the other checks use.
-    let r = residuals::<C>(&mut C::scene().noisy()).unwrap();
+    let r = residuals::<C>(&mut noisy::<C>()).unwrap();
     assert!(amax(&r) > 1e-5, "the noise shows in the residual: {r:?}");
 }
 
-/// `H` on exact data and `b` on noisy data against central differences (module docs).
+/// `H` on exact and noisy data and `b` on noisy data against central differences (module
+/// docs).
 pub fn jacobian_matches_central_differences<C: Case>() {
-    let exact = C::scene();
-    let noisy = exact.noisy();
-    for (name, scene, check_h, check_b) in [
-        ("exact", &exact, true, false),
-        ("noisy", &noisy, false, true),
-    ] {
+    let (exact, noisy) = (exact::<C>(), noisy::<C>());
+    for (name, scene, check_b) in [("exact", &exact, false), ("noisy", &noisy, true)] {
         let (ne, _) = linearize::<C>(&mut scene.clone()).unwrap();
         let (h, b) = reference::<C>(scene);
         let nx = h.len();
-        if check_h {
+        {
             let scale = amax(h.iter().flatten());
             assert!(scale > 1e-6, "{name}: the factor has information");
             let mut worst = (0.0, 0, 0);
@@ -511,7 +568,7 @@ pub fn jacobian_matches_central_differences<C: Case>() {
 
 /// The cost-only evaluation equals the linearization's cost and the squared residual rows.
 pub fn cost_only_equals_linearized_cost<C: Case>() {
-    let noisy = C::scene().noisy();
+    let noisy = noisy::<C>();
     let c = cost::<C>(&mut noisy.clone()).unwrap();
     let (_, cl) = linearize::<C>(&mut noisy.clone()).unwrap();
     let r = residuals::<C>(&mut noisy.clone()).unwrap();
@@ -538,21 +595,21 @@ fn rejected<C: Case>(s: &Scene, what: &str) {
 
 /// Non-finite input is an error on every path.
 pub fn nan_is_rejected<C: Case>() {
-    let mut s = C::scene();
+    let mut s = exact::<C>();
     C::nan(&mut s);
     rejected::<C>(&s, "NaN");
 }
 
 /// Degenerate input is an error on every path.
 pub fn degenerate_input_is_rejected<C: Case>() {
-    let mut s = C::scene();
+    let mut s = exact::<C>();
     C::degenerate(&mut s);
     rejected::<C>(&s, "degenerate");
 }
 
 /// No path allocates.
 pub fn does_not_allocate<C: Case>(count: impl Fn(&mut dyn FnMut()) -> usize) {
-    let mut s = C::scene().noisy();
+    let mut s = noisy::<C>();
     let mut ne = Box::new(NormalEquations::<D>::new());
     ne.reset(s.layout.dim()).unwrap();
     let mut out = [0.0; ROWS];
