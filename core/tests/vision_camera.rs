@@ -1,13 +1,15 @@
 //! Camera model: projection, distortion Jacobians, undistortion round trips (EuRoC radtan over the
 //! whole image, equidistant fisheye), and the real EuRoC calibration file.
 
+mod numdiff;
 mod vision_common;
 
 use nalgebra::SMatrix;
+use numdiff::num_jac;
 use povins_core::camera::{Distortion, PinholeCamera, Vec2};
 use povins_core::math::Vec3;
 use povins_core::Error;
-use vision_common::{data_dir, num_jac, Rng};
+use vision_common::{data_dir, Rng};
 
 fn euroc_cam0() -> PinholeCamera {
     PinholeCamera::EUROC_CAM0

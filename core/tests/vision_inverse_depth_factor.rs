@@ -1,8 +1,10 @@
 //! Inverse-depth reprojection factor (BA baseline): exact-data zero residual, numerical Jacobians.
 
+mod numdiff;
 mod vision_common;
 
 use nalgebra::{Matrix2x6, SMatrix};
+use numdiff::num_jac;
 use povins_core::camera::{CameraExtrinsic, Vec2};
 use povins_core::factors::inverse_depth_visual::InverseDepthVisualFactor;
 use povins_core::factors::{sqrt_info_from_pixels, KeyframePose, TimedObs};

@@ -1,9 +1,11 @@
 //! LiDAR-depth measurements: direct LDM Jacobians; MSC-based LDM (tau* solve, nullspace
 //! projection, Schur-complement equivalence, Jacobians of the whole projected residual).
 
+mod numdiff;
 mod vision_common;
 
 use nalgebra::{RowVector6, SMatrix, SVector};
+use numdiff::num_jac;
 use povins_core::camera::{CameraExtrinsic, Vec2};
 use povins_core::factors::inverse_depth_visual::InverseDepthVisualFactor;
 use povins_core::factors::lidar_depth::{DirectLidarDepthFactor, MscLidarDepth};

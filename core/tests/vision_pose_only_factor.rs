@@ -1,9 +1,11 @@
 //! Pose-only visual reprojection factor: zero residual on exact data, every Jacobian block against
 //! central differences (distinct j, j == e, time delays, extrinsic), scale-free vs explicit form.
 
+mod numdiff;
 mod vision_common;
 
 use nalgebra::{Matrix2x6, SMatrix};
+use numdiff::num_jac;
 use povins_core::camera::{CameraExtrinsic, Vec2};
 use povins_core::factors::pose_only_visual::{PoseOnlyAnchors, PoseOnlyVisualFactor};
 use povins_core::factors::{sqrt_info_from_pixels, CamFrame, KeyframePose, TimedObs};

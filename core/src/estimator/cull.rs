@@ -1,12 +1,13 @@
 //! Outlier culling after a solve: the whitened residuals of a landmark's observations at the
-//! current state (pose-only anchors, or the inverse-depth rays where the landmark has an inverse
-//! depth), the chi-square cull between the LM passes, and the reprojection cull of paper V.E
+//! current state under the model it was solved with ([`LandmarkModel`]: the two-view anchors,
+//! or the inverse-depth rays at the landmark's inverse depth), the chi-square cull between the LM passes, and the reprojection cull of paper V.E
 //! (whole landmarks by mean error, single observations above a threshold), with the anchors
 //! fixed up after observations are removed.
+#![deny(clippy::too_many_lines)]
 
-use super::problem;
+use super::problem_factor::{anchor_depth_std, LandmarkModel};
 use super::tau_landmark::TauLandmark;
-use super::{DepthEvent, DepthEventKind, Estimator, VisualMode};
+use super::{DepthEvent, DepthEventKind, Estimator};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
 use heapless::Vec as HVec;
@@ -54,10 +55,6 @@ impl<
         let obs_s = to(os);
         let sqrt_info =
             crate::camera::Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px;
-        let lc = &self.cfg.lidar;
-        // A LiDAR landmark's depth comes from the depth-only optimization (paper V.D), so that
-        // culling sees the depth the LiDAR pulled it to; without it, the pose-only depth.
-        let lidar_tau = lc.enabled && lc.depth_only_opt && lm.lidar.is_some() && lm.inv_depth > 0.0;
         let observed = lm
             .obs
             .iter()
@@ -66,13 +63,15 @@ impl<
             .take(self.window.len())
             .filter(|(j, _)| *j != s)
             .filter_map(|(j, (o, pf))| o.as_ref().map(|o| (j, to(o), pf)));
-        let eliminated = self.cfg.depth_eliminated() && lm.inv_depth > 0.0;
-        if lidar_tau || eliminated || self.cfg.mode == VisualMode::InverseDepth {
-            // The inverse-depth residuals on the landmark's rays: the anchor's ray formed once,
-            // a few flops per observation instead of the whole factor chain.
+        // Under the model the landmark was solved with. The inverse-depth residuals on the
+        // landmark's rays at its inverse depth (the last solve's, or for a LiDAR landmark the
+        // depth-only optimization's, paper V.D): the anchor's ray formed once, a few flops per
+        // observation instead of the whole factor chain.
+        if LandmarkModel::of(&self.cfg, lm).uses_inverse_depth() {
             let m = TauLandmark::new(&lm.obs, s, None, sqrt_info, self.window.len());
-            let rays = m.as_ref().map(|m| m.rays(poses, frames));
-            if let (Some(m), Some(Ok(rays))) = (m, rays) {
+            let mut rays = heapless::Vec::new();
+            let ok = m.as_ref().map(|m| m.rays_into(poses, frames, &mut rays));
+            if let (Some(m), Some(Ok(()))) = (m, ok) {
                 for ((j, _), ray) in m.obs.iter().zip(rays.iter()) {
                     if let Some(o) = out.get_mut(*j) {
                         *o = ray.residual_and_d_tau(lm.inv_depth).ok().map(|(r, _)| r);
@@ -100,7 +99,7 @@ impl<
         ) else {
             return out;
         };
-        let sd = problem::anchor_depth_std(&self.cfg, &anchors);
+        let sd = anchor_depth_std(&self.cfg, &anchors);
         let anchors = anchors.with_depth_std(sd);
         for (j, obs_j, (pj, fj)) in observed {
             if let Some(o) = out.get_mut(j) {

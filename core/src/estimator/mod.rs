@@ -26,9 +26,10 @@
 //! (steps 1, 2 and 6), `marginalize` (step 1), `prepare` (step 3), `solve` (the LM passes of
 //! step 4 and the diagnostics' single steps), `lidar` (sweeps, association, depth-only
 //! optimization), `cull` (the chi-square and reprojection culls), `health` (the breakdown
-//! check); the least-squares problem in [`problem`] with its factors in `problem_inertial`,
-//! `problem_pose_only`, `problem_visual`, `problem_inverse_depth` and `problem_lidar`, the 1-D
-//! inverse-depth solve in `tau_landmark`.
+//! check); the least-squares problem in [`problem`] with its factor interface and landmark
+//! models in `problem_factor`, the landmark pass in `problem_landmarks` and its factors in
+//! `problem_priors`, `problem_inertial`, `problem_pose_only`, `problem_visual`,
+//! `problem_inverse_depth` and `problem_lidar`, the 1-D inverse-depth solve in `tau_landmark`.
 //!
 //! Capacities are const generics: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state
 //! dimensions (15 per keyframe, 6 extrinsic, 1 delay per keyframe). The struct holds every
@@ -53,10 +54,13 @@ mod predict;
 mod prepare;
 pub mod prior;
 pub mod problem;
+mod problem_factor;
 mod problem_inertial;
 mod problem_inverse_depth;
+mod problem_landmarks;
 mod problem_lidar;
 mod problem_pose_only;
+mod problem_priors;
 mod problem_visual;
 pub mod report;
 mod slots;

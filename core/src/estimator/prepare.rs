@@ -3,6 +3,7 @@
 //! parallax, depth-range and depth-uncertainty gates (counted in [`super::Admission`]), the
 //! initial inverse depth of the modes that keep one, and the uncertainty-based rejection of
 //! LiDAR depths (paper IV.C, [`crate::lidar::rejection`]).
+#![deny(clippy::too_many_lines)]
 
 use super::config::EstimatorConfig;
 use super::window::Window;

@@ -309,6 +309,36 @@ impl<const D: usize, const N: usize> MargPrior<D, N> {
         Ok(cost)
     }
 
+    /// The prior's residual `r = r0 + J0 (x [-] x0)` (the current state given by `current`, as in
+    /// [`Self::add_to`]) into `out`: its number of rows ([`Self::dim`]); [`Error::NonFinite`]
+    /// for a non-finite row, [`Error::CapacityExceeded`] when `out` is too short.
+    pub fn residual(
+        &self,
+        layout: &Layout<N>,
+        current: impl Fn(Block) -> Option<LinPoint>,
+        out: &mut [f64],
+    ) -> Result<usize, Error> {
+        let p = self.dim;
+        let mut dx = [0.0; D];
+        let mut cols = [0usize; D];
+        self.delta(layout, current, &mut dx, &mut cols)?;
+        let out = out.get_mut(..p).ok_or(Error::CapacityExceeded)?;
+        for (i, (o, row)) in out.iter_mut().zip(self.j0.iter()).enumerate() {
+            let jdx: f64 = row
+                .get(i..p)
+                .unwrap_or(&[])
+                .iter()
+                .zip(dx.get(i..p).unwrap_or(&[]))
+                .map(|(j, d)| j * d)
+                .sum();
+            *o = self.r0.get(i).copied().unwrap_or(0.0) + jdx;
+        }
+        if !out.iter().all(|r| r.is_finite()) {
+            return Err(Error::NonFinite);
+        }
+        Ok(p)
+    }
+
     /// `dx = x [-] x0` block by block with the current state given by `current`, and the column
     /// of each prior entry in `layout` (see [`Self::add_to`]), into the first `dim` entries of
     /// `dx` and `cols`.

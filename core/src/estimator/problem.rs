@@ -1,24 +1,42 @@
 //! The least-squares problem of the sliding window: every factor, assembled into the normal
 //! equations of a [`Layout`], or evaluated for its cost only.
 //!
-//! Factors: the marginalization prior (or, before the first marginalization, diagonal priors on
-//! the first keyframe, its time delay and the extrinsic), IMU preintegration between consecutive
-//! keyframes, the time-delay random walk, and one visual measurement per observation `j != s` of
-//! every usable landmark: pose-only (PO-VINS) or inverse-depth with the depth eliminated by Schur
-//! complement (LE-VINS-WO). Visual residuals go through a Huber kernel (IRLS weights; the cost
+//! Every factor is a [`WindowFactor`] (`problem_factor`: its cost, its linearization into the
+//! caller's normal equations, its residual rows). [`Problem::assemble`] visits the marginalization
+//! prior (or, before the first marginalization, the diagonal priors on the first keyframe, its
+//! time delay and the extrinsic: `problem_priors`), IMU preintegration and the time-delay random
+//! walk between consecutive keyframes, the zero-velocity updates and the delay hold
+//! (`problem_inertial`), then every usable landmark as the factor of its [`LandmarkModel`]
+//! (`problem_landmarks`): two-view pose-only (PO-VINS, `problem_pose_only`), pose-only with the
+//! depth eliminated (`problem_visual`), MSC or direct LiDAR depth (`problem_lidar`), or
+//! inverse-depth with the depth eliminated by Schur complement (LE-VINS-WO,
+//! `problem_inverse_depth`). Visual residuals go through a Huber kernel (IRLS weights; the cost
 //! uses `rho`, so the LM gain ratio sees the robust cost).
+#![deny(clippy::too_many_lines)]
 
 use super::config::{EstimatorConfig, VisualMode};
-use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
-use super::window::{Block, Layout, Window, KF_DIM};
-use crate::camera::{CameraExtrinsic, Vec2};
-use crate::factors::pose_only_visual::PoseOnlyAnchors;
-use crate::factors::TimedObs;
+use super::prior::MargPrior;
+use super::problem_landmarks::{LandmarkPass, Pass};
+use super::window::{Block, Layout, Window};
+use crate::camera::CameraExtrinsic;
+use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::inertial::NavState;
-use crate::landmarks::{KfObs, LandmarkManager};
-use crate::math::{jr_inv_so3, quat_exp, Vec3};
-use crate::solver::{JacobianBlock, LandmarkSchur, LmProblem, NormalEquations};
+use crate::landmarks::LandmarkManager;
+use crate::math::{quat_exp, Vec3};
+use crate::solver::{LandmarkSchur, LmProblem, NormalEquations};
 use crate::Error;
+
+pub use super::problem_factor::{
+    LandmarkFactor, LandmarkModel, VisualSettings, WindowFactor, WindowVars,
+};
+pub use super::problem_inertial::{
+    ImuFactor, TdHold, TdRandomWalkFactor, ZuptPosition, ZuptRotation, ZuptVelocity,
+};
+pub use super::problem_inverse_depth::InverseDepthLandmark;
+pub use super::problem_lidar::{DirectDepth, DirectLidarLandmark, MscLandmark};
+pub use super::problem_pose_only::TwoViewLandmark;
+pub use super::problem_priors::{ExtPrior, FirstStatePrior, MargPriorFactor, TdPrior};
+pub use super::problem_visual::EliminatedLandmark;
 
 /// Pose columns a landmark can touch in the inverse-depth mode (`7 N + 6` for a window of `N`).
 pub const SCHUR_COLS: usize = 128;
@@ -150,57 +168,7 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     pub tau_fresh: bool,
 }
 
-/// The anchors' depth uncertainty for [`PoseOnlyAnchors::with_depth_std`] (0 when the weighting
-/// is off or the uncertainty is undefined).
-pub(super) fn anchor_depth_std(cfg: &EstimatorConfig, anchors: &PoseOnlyAnchors<'_>) -> f64 {
-    if !cfg.depth_uncertainty_weighting {
-        return 0.0;
-    }
-    let focal = Vec2::new(cfg.camera.fx, cfg.camera.fy);
-    crate::landmarks::depth_std(anchors.two_view(), cfg.sigma_px, &focal).unwrap_or(0.0)
-}
-
-pub(super) fn timed(o: &KfObs) -> TimedObs {
-    TimedObs {
-        x_n: Vec2::new(o.x_n[0], o.x_n[1]),
-        vel: Vec2::new(o.vel[0], o.vel[1]),
-        td0: o.td0_s,
-    }
-}
-
-/// Copies a column-major nalgebra matrix into a row-major slice.
-pub(super) fn row_major<const R: usize, const C: usize>(
-    m: &nalgebra::SMatrix<f64, R, C>,
-    out: &mut [f64],
-) {
-    for (r, row) in out.chunks_mut(C).take(R).enumerate() {
-        for (c, o) in row.iter_mut().enumerate() {
-            *o = m[(r, c)];
-        }
-    }
-}
-
-/// Accumulates a residual or only its cost.
-pub(super) fn sink<const D: usize>(
-    ne: &mut Option<&mut NormalEquations<D>>,
-    r: &[f64],
-    blocks: &[JacobianBlock<'_>],
-) -> Result<f64, Error> {
-    let c: f64 = r.iter().map(|x| x * x).sum();
-    if !c.is_finite() {
-        return Err(Error::NonFinite);
-    }
-    if let Some(ne) = ne.as_deref_mut() {
-        ne.add_blocks(r, blocks)?;
-    }
-    Ok(c)
-}
-
 impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
-    pub(super) fn sqrt_info(&self) -> Vec2 {
-        Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px
-    }
-
     /// Visits the factors of `self.set`, adding them to `ne` (or only summing their cost).
     /// Returns the (robust) cost. With `ne`, landmarks whose residual is degenerate are disabled
     /// (`usable = false`); without, such a landmark makes the evaluation fail, so an LM trial
@@ -208,126 +176,90 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
     pub fn assemble(&mut self, mut ne: Option<&mut NormalEquations<D>>) -> Result<f64, Error> {
         self.counts = AssemblyCounts::default();
         let mut cost = 0.0;
+        // The eliminated depths' linearization with the extrinsic fixed: the window's rotations
+        // once per assembly, not per residual.
         let l = self.layout;
-        let est_td = l.col(Block::Td(0)).is_some();
-        let est_ext = l.col(Block::Ext).is_some();
-        if self.set == FactorSet::OldestRest {
-            cost += self.pose_only_visual(&mut ne, est_td, est_ext)?;
-            if let Some(ne) = ne {
-                ne.cost = cost;
+        let rot = (ne.is_some() && l.col(Block::Ext).is_none() && self.cfg.depth_eliminated())
+            .then(|| WindowRotations::new(&self.window.poses(), self.window.len(), &*self.ext));
+        let v = WindowVars::new(&*self.window, &*self.ext, l, rot.as_ref());
+        // The landmark passes: the marginalization in the inverse-depth mode takes the
+        // re-anchored landmarks' observations at 0 as pose-only residuals (the pose-only form is
+        // the inverse-depth one with the depth eliminated by the anchors); the others leave
+        // whole, their depth eliminated with them.
+        let passes: &[Pass] = match (self.cfg.mode, self.set) {
+            (VisualMode::PoseOnly, _) | (VisualMode::InverseDepth, FactorSet::OldestRest) => {
+                &[Pass::PoseOnly]
             }
-            return Ok(cost);
-        }
-
-        // Priors.
-        if self.prior.dim() > 0 {
-            let (window, ext) = (&*self.window, *self.ext);
-            let current = |b: Block| match b {
-                Block::Kf(k) => window.get(k as usize).map(|kf| LinPoint::Kf(kf.state)),
-                Block::Td(k) => window.get(k as usize).map(|kf| LinPoint::Td(kf.td_s)),
-                Block::Ext => Some(LinPoint::Ext(ext)),
-            };
-            cost += self.prior.add_to(&l, current, ne.as_deref_mut())?;
-        }
-        if let Some(ip) = self.initial {
-            cost += self.initial_priors(ip, &mut ne, est_td, est_ext)?;
-        }
-
-        self.imu_factors(&mut ne, est_td, &mut cost)?;
-        cost += self.zupt_factors(&mut ne)?;
-        self.td_hold_factors(&mut ne, est_td, &mut cost)?;
-
-        if self.set == FactorSet::Oldest && !self.cfg.marginalize_visual {
-            if let Some(ne) = ne {
-                ne.cost = cost;
-            }
-            return Ok(cost);
-        }
-        cost += match (self.cfg.mode, self.set) {
-            (VisualMode::PoseOnly, _) => self.pose_only_visual(&mut ne, est_td, est_ext)?,
-            (VisualMode::InverseDepth, FactorSet::All) => {
-                self.inverse_depth_visual(&mut ne, est_td, est_ext)?
-            }
-            // Re-anchored landmarks leave their observation at 0 as a pose-only residual (the
-            // pose-only form is the inverse-depth one with the depth eliminated by the anchors);
-            // the others leave whole, their depth eliminated with them.
-            (VisualMode::InverseDepth, FactorSet::Oldest | FactorSet::OldestRest) => {
-                self.pose_only_visual(&mut ne, est_td, est_ext)?
-                    + self.inverse_depth_visual(&mut ne, est_td, est_ext)?
-            }
+            (VisualMode::InverseDepth, FactorSet::All) => &[Pass::InverseDepth],
+            (VisualMode::InverseDepth, FactorSet::Oldest) => &[Pass::PoseOnly, Pass::InverseDepth],
         };
+        let mut visual = true;
+        if self.set != FactorSet::OldestRest {
+            if self.prior.dim() > 0 {
+                let mut prior = MargPriorFactor {
+                    prior: &mut *self.prior,
+                };
+                cost += prior.add(&v, ne.as_deref_mut())?;
+            }
+            if let Some(ip) = self.initial {
+                cost += initial_priors(ip, &v, &mut ne)?;
+            }
+            self.imu_factors(&v, &mut ne, &mut cost)?;
+            cost += self.zupt_factors(&v, &mut ne)?;
+            self.td_hold_factors(&v, &mut ne, &mut cost)?;
+            visual = self.set != FactorSet::Oldest || self.cfg.marginalize_visual;
+        }
+        if visual {
+            let mut lp = LandmarkPass {
+                cfg: self.cfg,
+                set: self.set,
+                lms: &mut *self.lms,
+                schur: &mut *self.schur,
+                saved: &mut *self.saved,
+                counts: &mut self.counts,
+                tau_fresh: self.tau_fresh,
+            };
+            cost += match passes {
+                [a, b] => lp.run(&v, &mut ne, *a)? + lp.run(&v, &mut ne, *b)?,
+                [a] => lp.run(&v, &mut ne, *a)?,
+                _ => 0.0,
+            };
+        }
         if let Some(ne) = ne {
             // The normal equations summed IRLS-weighted squares; the LM compares robust costs.
             ne.cost = cost;
         }
         Ok(cost)
     }
+}
 
-    fn initial_priors(
-        &self,
-        ip: &InitialPriors,
-        ne: &mut Option<&mut NormalEquations<D>>,
-        est_td: bool,
-        est_ext: bool,
-    ) -> Result<f64, Error> {
-        let l = &self.layout;
-        let mut cost = 0.0;
-        let kf0 = self.window.get(0).ok_or(Error::NotEnoughData)?;
-        let mut e = [0.0; KF_DIM];
-        kf_minus(&kf0.state, &ip.kf0, &mut e);
-        let th = Vec3::new(e[3], e[4], e[5]);
-        let jr = jr_inv_so3(&th);
-        let mut jac = [0.0; KF_DIM * KF_DIM];
-        for i in 0..KF_DIM {
-            let s = ip.kf0_sigma.get(i / 3).copied().unwrap_or(1.0);
-            if let Some(x) = e.get_mut(i) {
-                *x /= s;
-            }
-            if (3..6).contains(&i) {
-                for c in 3..6 {
-                    if let Some(x) = jac.get_mut(i * KF_DIM + c) {
-                        *x = jr[(i - 3, c - 3)] / s;
-                    }
-                }
-            } else if let Some(x) = jac.get_mut(i * KF_DIM + i) {
-                *x = 1.0 / s;
-            }
-        }
-        let c0 = l.col(Block::Kf(0)).ok_or(Error::DimensionMismatch)?;
-        cost += sink(ne, &e, &[JacobianBlock::new(c0, KF_DIM, &jac)])?;
-        if est_td {
-            let r = (kf0.td_s - ip.td0.0) / ip.td0.1;
-            let c = l.col(Block::Td(0)).ok_or(Error::DimensionMismatch)?;
-            cost += sink(ne, &[r], &[JacobianBlock::new(c, 1, &[1.0 / ip.td0.1])])?;
-        }
-        if est_ext {
-            let (x0, st, sr) = ip.ext;
-            let mut e6 = [0.0; 6];
-            ext_minus(self.ext, &x0, &mut e6);
-            let jr = jr_inv_so3(&Vec3::new(e6[3], e6[4], e6[5]));
-            let mut j6 = [0.0; 36];
-            for i in 0..6 {
-                let s = if i < 3 { st } else { sr };
-                if let Some(x) = e6.get_mut(i) {
-                    *x /= s;
-                }
-                if i < 3 {
-                    if let Some(x) = j6.get_mut(i * 6 + i) {
-                        *x = 1.0 / s;
-                    }
-                } else {
-                    for c in 3..6 {
-                        if let Some(x) = j6.get_mut(i * 6 + c) {
-                            *x = jr[(i - 3, c - 3)] / s;
-                        }
-                    }
-                }
-            }
-            let c = l.col(Block::Ext).ok_or(Error::DimensionMismatch)?;
-            cost += sink(ne, &e6, &[JacobianBlock::new(c, 6, &j6)])?;
-        }
-        Ok(cost)
+/// The diagonal priors used until the first marginalization: the first keyframe's state, and
+/// its delay and the extrinsic where they are estimated. Returns their cost.
+fn initial_priors<const N: usize, const D: usize>(
+    ip: &InitialPriors,
+    v: &WindowVars<'_, N>,
+    ne: &mut Option<&mut NormalEquations<D>>,
+) -> Result<f64, Error> {
+    let mut cost = 0.0;
+    let mut kf0 = FirstStatePrior {
+        kf0: ip.kf0,
+        sigma: ip.kf0_sigma,
+    };
+    cost += kf0.add(v, ne.as_deref_mut())?;
+    if v.est_td {
+        let (td0_s, sigma_s) = ip.td0;
+        cost += TdPrior { td0_s, sigma_s }.add(v, ne.as_deref_mut())?;
     }
+    if v.est_ext {
+        let (ext0, sigma_p_m, sigma_theta_rad) = ip.ext;
+        let mut ext = ExtPrior {
+            ext0,
+            sigma_p_m,
+            sigma_theta_rad,
+        };
+        cost += ext.add(v, ne.as_deref_mut())?;
+    }
+    Ok(cost)
 }
 
 impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_, N, L, D> {

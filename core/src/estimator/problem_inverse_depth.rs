@@ -1,154 +1,174 @@
-//! The inverse-depth visual measurements of the window's problem (the LE-VINS-WO baseline,
-//! [`super::VisualMode::InverseDepth`]): every observation `j != s` of a usable landmark as an
-//! inverse-depth reprojection, the landmark's inverse depth eliminated by its Schur accumulator,
-//! and a LiDAR depth as a prior on the landmark's own inverse depth (LE-VINS).
+//! The inverse-depth visual measurement of a landmark ([`InverseDepthLandmark`], the LE-VINS-WO
+//! baseline, [`super::VisualMode::InverseDepth`]): every observation `j != s` as an
+//! inverse-depth reprojection at the landmark's inverse depth `tau` (a state of the problem),
+//! Huber on each, and a LiDAR depth as a prior `(1/tau - d_r) / sigma_dr` on `tau` (LE-VINS).
+//! The linearization eliminates `tau` by the landmark's Schur accumulator (the LM recovers its
+//! step by back-substitution).
+#![deny(clippy::too_many_lines)]
 
-use super::problem::{timed, FactorSet, Problem};
+use super::problem::SCHUR_COLS;
+use super::problem_factor::{
+    put_rows, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
+};
 use super::problem_lidar::add_inverse_depth_obs;
 use crate::factors::inverse_depth_visual::{InverseDepthJacobians, InverseDepthVisualFactor};
-use crate::factors::robust::Huber;
-use crate::landmarks::MargPlan;
-use crate::solver::NormalEquations;
+use crate::factors::KeyframePose;
+use crate::landmarks::{Landmark, LidarDepth};
+use crate::solver::{LandmarkSchur, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
 
-impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
-    pub(super) fn inverse_depth_visual(
-        &mut self,
-        ne: &mut Option<&mut NormalEquations<D>>,
-        est_td: bool,
-        est_ext: bool,
-    ) -> Result<f64, Error> {
-        let huber = Huber::new(self.cfg.huber_delta)?;
-        let sqrt_info = self.sqrt_info();
-        let l = self.layout;
-        let count = self.window.len();
-        let ext = *self.ext;
-        let poses = self.window.poses();
-        let mut cost = 0.0;
-        for li in 0..self.lms.len() {
-            let Some(lm) = self.lms.landmarks().get(li) else {
-                break;
-            };
-            if let Some(sc) = self.schur.get_mut(li) {
-                sc.clear();
-            }
-            if !lm.usable || lm.inv_depth <= 0.0 {
-                continue;
-            }
-            let s = lm.anchor_s as usize;
-            if self.set == FactorSet::Oldest
-                && !matches!(lm.marg, MargPlan::Whole | MargPlan::Reuse)
-            {
-                continue;
-            }
-            let (Some(Some(os)), Some(ps)) = (lm.obs.get(s), poses.get(s)) else {
-                continue;
-            };
-            let obs_s = timed(os);
-            let tau = lm.inv_depth;
-            let mut lm_cost = 0.0;
-            let mut n_obs = 0;
-            let mut failed = false;
-            let mut jacs: HVec<(usize, InverseDepthJacobians), N> = HVec::new();
-            for (j, oj) in lm.obs.iter().enumerate().take(count) {
-                let (Some(oj), Some(pj)) = (oj, poses.get(j)) else {
-                    continue;
-                };
-                if j == s {
-                    continue;
-                }
-                let f = InverseDepthVisualFactor {
-                    kf_s: s,
-                    kf_j: j,
-                    obs_s,
-                    obs_j: timed(oj),
-                    sqrt_info,
-                };
-                if ne.is_some() {
-                    match f.evaluate(ps, pj, &ext, tau) {
-                        Ok(jac) => {
-                            let _ = jacs.push((j, jac));
-                        }
-                        Err(_) => failed = true,
-                    }
-                } else {
-                    match f.residual(ps, pj, &ext, tau) {
-                        Ok(r) => {
-                            lm_cost += huber.rho(r.norm_squared())[0];
-                            n_obs += 1;
-                        }
-                        Err(_) => failed = true,
-                    }
-                }
-            }
-            if let (false, Some(ne_ref)) = (failed, ne.as_deref_mut()) {
-                for (j, jac) in jacs.iter() {
-                    let j = *j;
-                    let sq = jac.r.norm_squared();
-                    let w = huber.sqrt_weight(sq);
-                    lm_cost += huber.rho(sq)[0];
-                    n_obs += 1;
-                    let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
-                    add_inverse_depth_obs(sc, ne_ref, jac, w, s, j, &l, est_td, est_ext)?;
-                }
-            }
-            if failed {
-                if ne.is_some() {
-                    if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                        lm.usable = false;
-                    }
-                    self.counts.disabled += 1;
-                } else {
-                    return Err(Error::Degenerate);
-                }
-            }
-            // LE-VINS: a LiDAR depth is a prior on the landmark's own inverse depth.
-            if !failed {
-                if let Some(c) = self.lidar_depth_prior(li, tau, &huber, ne)? {
-                    lm_cost += c;
-                }
-            }
-            if let (false, Some(ne_ref), Some(sc)) = (failed, ne.as_deref_mut(), self.schur.get(li))
-            {
-                sc.fold_into(ne_ref, 0.0)?;
-            }
-            if n_obs > 0 {
-                self.counts.landmarks += 1;
-                self.counts.observations += n_obs;
-            }
-            cost += lm_cost;
+/// The reprojection factors of a landmark's observations `j != s`, with the pose of `j`.
+type Reprojections<'v, const N: usize> =
+    HVec<(usize, InverseDepthVisualFactor, &'v KeyframePose), N>;
+
+/// The inverse-depth measurement of a landmark (module docs).
+pub struct InverseDepthLandmark<'a, const N: usize> {
+    vs: VisualSettings<'a>,
+    lm: &'a Landmark<N>,
+    /// The LiDAR depth taken as the prior on `tau`, if any.
+    depth: Option<LidarDepth>,
+    schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    n_obs: u32,
+    ldm: u32,
+}
+
+impl<'a, const N: usize> InverseDepthLandmark<'a, N> {
+    /// The measurement of `lm` at its inverse depth, with `schur` as its accumulator, or `None`
+    /// without a positive inverse depth or without the anchor's observation.
+    pub fn new(
+        vs: VisualSettings<'a>,
+        lm: &'a Landmark<N>,
+        schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    ) -> Option<Self> {
+        if lm.inv_depth <= 0.0 {
+            return None;
         }
+        lm.obs.get(lm.anchor_s as usize)?.as_ref()?;
+        Some(InverseDepthLandmark {
+            vs,
+            lm,
+            depth: lm.lidar.filter(|_| vs.cfg.lidar.enabled),
+            schur,
+            n_obs: 0,
+            ldm: 0,
+        })
+    }
+
+    /// The reprojection factors `j != s` among the first `count` positions, with the poses.
+    fn factors<'v>(
+        &self,
+        v: &'v WindowVars<'_, N>,
+    ) -> Result<(&'v KeyframePose, Reprojections<'v, N>), Error> {
+        let lm = self.lm;
+        let s = lm.anchor_s as usize;
+        let (Some(Some(os)), Some(ps)) = (lm.obs.get(s), v.poses.get(s)) else {
+            return Err(Error::NotEnoughData);
+        };
+        let obs_s = timed(os);
+        let mut out = HVec::new();
+        for (j, oj) in lm.obs.iter().enumerate().take(v.count) {
+            let (Some(oj), Some(pj)) = (oj, v.poses.get(j)) else {
+                continue;
+            };
+            if j == s {
+                continue;
+            }
+            let f = InverseDepthVisualFactor {
+                kf_s: s,
+                kf_j: j,
+                obs_s,
+                obs_j: timed(oj),
+                sqrt_info: self.vs.sqrt_info,
+            };
+            let _ = out.push((j, f, pj));
+        }
+        Ok((ps, out))
+    }
+
+    /// The LiDAR prior's whitened residual and its derivative in `tau`.
+    fn prior_row(d: &LidarDepth, tau: f64) -> (f64, f64) {
+        let rd = (1.0 / tau - d.depth_m) / d.sigma_m;
+        let jd = -1.0 / (tau * tau * d.sigma_m);
+        (rd, jd)
+    }
+}
+
+impl<const N: usize, const D: usize> WindowFactor<N, D> for InverseDepthLandmark<'_, N> {
+    #[inline(never)]
+    fn add(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        mut ne: Option<&mut NormalEquations<D>>,
+    ) -> Result<f64, Error> {
+        (self.n_obs, self.ldm) = (0, 0);
+        self.schur.clear();
+        let (ps, factors) = self.factors(v)?;
+        let (huber, tau, s) = (&self.vs.huber, self.lm.inv_depth, self.lm.anchor_s as usize);
+        let mut cost = 0.0;
+        let mut n_obs = 0;
+        let mut jacs: HVec<(usize, InverseDepthJacobians), N> = HVec::new();
+        // Every observation first: a landmark enters the system whole or not at all.
+        for (j, f, pj) in factors.iter() {
+            if ne.is_some() {
+                let _ = jacs.push((*j, f.evaluate(ps, pj, v.ext, tau)?));
+            } else {
+                let r = f.residual(ps, pj, v.ext, tau)?;
+                cost += huber.rho(r.norm_squared())[0];
+                n_obs += 1;
+            }
+        }
+        if let Some(ne) = ne.as_deref_mut() {
+            for (j, jac) in jacs.iter() {
+                let sq = jac.r.norm_squared();
+                let w = huber.sqrt_weight(sq);
+                cost += huber.rho(sq)[0];
+                n_obs += 1;
+                let (l, est) = (&v.layout, (v.est_td, v.est_ext));
+                add_inverse_depth_obs(&mut *self.schur, ne, jac, w, s, *j, l, est.0, est.1)?;
+            }
+        }
+        // LE-VINS: a LiDAR depth is a prior on the landmark's own inverse depth.
+        if let Some(d) = self.depth {
+            let (rd, jd) = Self::prior_row(&d, tau);
+            cost += huber.rho(rd * rd)[0];
+            self.ldm = 1;
+            if let Some(ne) = ne.as_deref_mut() {
+                let w = huber.sqrt_weight(rd * rd);
+                self.schur.add_residual(ne, &[rd * w], &[], &[jd * w])?;
+            }
+        }
+        if let Some(ne) = ne {
+            self.schur.fold_into(ne, 0.0)?;
+        }
+        self.n_obs = n_obs;
         Ok(cost)
     }
 
-    /// LE-VINS: the LiDAR depth of landmark `li` (with the LiDAR enabled) as a prior on its own
-    /// inverse depth `tau`, added to the landmark's Schur accumulator with `ne`. Returns the
-    /// prior's robust cost (`None` without a depth).
-    fn lidar_depth_prior(
-        &mut self,
-        li: usize,
-        tau: f64,
-        huber: &Huber,
-        ne: &mut Option<&mut NormalEquations<D>>,
-    ) -> Result<Option<f64>, Error> {
-        let depth = self
-            .lms
-            .landmarks()
-            .get(li)
-            .and_then(|lm| lm.lidar)
-            .filter(|_| self.cfg.lidar.enabled);
-        let Some(d) = depth else {
-            return Ok(None);
-        };
-        let rd = (1.0 / tau - d.depth_m) / d.sigma_m;
-        let jd = -1.0 / (tau * tau * d.sigma_m);
-        let cost = huber.rho(rd * rd)[0];
-        self.counts.ldm += 1;
-        if let (Some(ne_ref), Some(sc)) = (ne.as_deref_mut(), self.schur.get_mut(li)) {
-            let w = huber.sqrt_weight(rd * rd);
-            sc.add_residual(ne_ref, &[rd * w], &[], &[jd * w])?;
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        let (ps, factors) = self.factors(v)?;
+        let tau = self.lm.inv_depth;
+        let mut rows = 0;
+        for (_, f, pj) in factors.iter() {
+            let r = f.residual(ps, pj, v.ext, tau)?;
+            rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
         }
-        Ok(Some(cost))
+        if let Some(d) = self.depth {
+            rows += put_rows(
+                &[Self::prior_row(&d, tau).0],
+                out.get_mut(rows..).unwrap_or(&mut []),
+            )?;
+        }
+        Ok(rows)
+    }
+}
+
+impl<const N: usize, const D: usize> LandmarkFactor<N, D> for InverseDepthLandmark<'_, N> {
+    fn observations(&self) -> u32 {
+        self.n_obs
+    }
+
+    fn depth_measurements(&self) -> u32 {
+        self.ldm
     }
 }

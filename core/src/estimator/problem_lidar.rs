@@ -24,21 +24,25 @@
 //! pose-only visual measurements, Huber on its square.
 //!
 //! [`InverseDepthVisualFactor`]: crate::factors::inverse_depth_visual::InverseDepthVisualFactor
+#![deny(clippy::too_many_lines)]
 
-use super::problem::{row_major, timed, Problem, SCHUR_COLS};
+use super::problem::SCHUR_COLS;
+use super::problem_factor::{
+    put_rows, row_major, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
+};
+use super::problem_pose_only::TwoViewLandmark;
 use super::tau_landmark::TauLandmark;
-use super::window::Layout;
+use super::window::{Block, Layout};
 use crate::camera::CameraExtrinsic;
 use crate::factors::inverse_depth_visual::InverseDepthJacobians;
-use crate::factors::lidar_depth::DirectLidarDepthFactor;
+use crate::factors::lidar_depth::{DirectDepthJacobians, DirectLidarDepthFactor};
 use crate::factors::robust::Huber;
-use crate::factors::{CamFrame, KeyframePose};
+use crate::factors::KeyframePose;
+use crate::landmarks::Landmark;
 use crate::solver::LandmarkSchur;
 use crate::solver::{JacobianBlock, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
-
-use super::window::Block;
 
 /// Robust cost of an MSC block of `n` observations with stacked squared norm `sq`, and the
 /// square root of its IRLS weight.
@@ -99,6 +103,7 @@ pub(super) fn add_inverse_depth_obs<const N: usize, const D: usize>(
 /// Linearizes the MSC block of `m` at `tau` and adds it to `ne` through the Schur
 /// accumulator `sc` (projection of `tau`). Returns the block's robust cost.
 #[allow(clippy::too_many_arguments)]
+#[inline(never)]
 pub(super) fn accumulate_msc<const N: usize, const D: usize>(
     m: &TauLandmark<N>,
     poses: &[KeyframePose; N],
@@ -132,64 +137,117 @@ pub(super) fn accumulate_msc<const N: usize, const D: usize>(
     Ok(cost)
 }
 
-impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
-    /// MSC-based LDM of landmark `li` (see the module docs). Returns its robust cost; with `ne`,
-    /// also stores `tau*` in the landmark and accumulates the projected block.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn msc_landmark(
-        &mut self,
-        li: usize,
-        ne: &mut Option<&mut NormalEquations<D>>,
-        poses: &[KeyframePose; N],
-        frames: &[CamFrame; N],
-        ext: &CameraExtrinsic,
-        huber: &Huber,
-        est_td: bool,
-        est_ext: bool,
-    ) -> Result<(f64, u32), Error> {
-        let count = self.window.len();
-        let sqrt_info = self.sqrt_info();
-        let lm = self
-            .lms
-            .landmarks()
-            .get(li)
-            .ok_or(Error::DimensionMismatch)?;
-        let depth = lm.lidar.ok_or(Error::NotEnoughData)?;
-        let m = TauLandmark::new(&lm.obs, lm.anchor_s as usize, Some(depth), sqrt_info, count)
-            .ok_or(Error::NotEnoughData)?;
-        let (tau, rays) = m.solve(poses, frames, lm.inv_depth)?;
-        let n_obs = m.obs.len();
-        let Some(ne) = ne.as_deref_mut() else {
-            let sq = m.stacked_sq_rays(&rays, tau)?;
-            return Ok((msc_robust(huber, sq, n_obs).0, n_obs as u32));
-        };
-        let l = self.layout;
-        let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
-        let cost = accumulate_msc(&m, poses, ext, tau, huber, &l, est_td, est_ext, sc, ne)?;
-        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-            lm.inv_depth = tau;
+/// The MSC-based LiDAR-depth measurement of a landmark (module docs).
+pub struct MscLandmark<'a, const N: usize> {
+    vs: VisualSettings<'a>,
+    lm: &'a Landmark<N>,
+    schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    tau: Option<f64>,
+    n_obs: u32,
+}
+
+impl<'a, const N: usize> MscLandmark<'a, N> {
+    /// The measurement of LiDAR landmark `lm`, with `schur` as its accumulator.
+    pub fn new(
+        vs: VisualSettings<'a>,
+        lm: &'a Landmark<N>,
+        schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    ) -> Self {
+        MscLandmark {
+            vs,
+            lm,
+            schur,
+            tau: None,
+            n_obs: 0,
         }
-        Ok((cost, n_obs as u32))
     }
 
-    /// Direct LDM of landmark `li` with anchors `s`, `e` (see the module docs): robust cost,
-    /// accumulated into `ne` when given.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn direct_depth(
-        &self,
-        li: usize,
-        ne: &mut Option<&mut NormalEquations<D>>,
-        poses: &[KeyframePose; N],
-        ext: &CameraExtrinsic,
-        huber: &Huber,
-        est_td: bool,
-        est_ext: bool,
+    /// The landmark's reprojections and depth row in `tau` over the first `count` positions.
+    fn tau_landmark(&self, count: usize) -> Result<TauLandmark<N>, Error> {
+        let lm = self.lm;
+        let depth = lm.lidar.ok_or(Error::NotEnoughData)?;
+        TauLandmark::new(
+            &lm.obs,
+            lm.anchor_s as usize,
+            Some(depth),
+            self.vs.sqrt_info,
+            count,
+        )
+        .ok_or(Error::NotEnoughData)
+    }
+}
+
+impl<const N: usize, const D: usize> WindowFactor<N, D> for MscLandmark<'_, N> {
+    fn add(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        ne: Option<&mut NormalEquations<D>>,
     ) -> Result<f64, Error> {
-        let lm = self
-            .lms
-            .landmarks()
-            .get(li)
-            .ok_or(Error::DimensionMismatch)?;
+        self.tau = None;
+        let m = self.tau_landmark(v.count)?;
+        let (tau, rays) = m.solve(&v.poses, &v.frames, self.lm.inv_depth)?;
+        let n_obs = m.obs.len();
+        self.n_obs = n_obs as u32;
+        let huber = &self.vs.huber;
+        let Some(ne) = ne else {
+            let sq = m.stacked_sq_rays(&rays, tau)?;
+            return Ok(msc_robust(huber, sq, n_obs).0);
+        };
+        let (l, sc) = (&v.layout, &mut *self.schur);
+        let (est_td, est_ext) = (v.est_td, v.est_ext);
+        let cost = accumulate_msc(&m, &v.poses, v.ext, tau, huber, l, est_td, est_ext, sc, ne)?;
+        self.tau = Some(tau);
+        Ok(cost)
+    }
+
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        let m = self.tau_landmark(v.count)?;
+        let rays = m.rays(&v.poses, &v.frames)?;
+        let tau = self.lm.inv_depth;
+        let mut rows = 0;
+        for ray in rays.iter() {
+            let (r, _) = ray.residual_and_d_tau(tau)?;
+            rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
+        }
+        let rd = m.depth_row(tau).0;
+        rows += put_rows(&[rd], out.get_mut(rows..).unwrap_or(&mut []))?;
+        Ok(rows)
+    }
+}
+
+impl<const N: usize, const D: usize> LandmarkFactor<N, D> for MscLandmark<'_, N> {
+    fn observations(&self) -> u32 {
+        self.n_obs
+    }
+
+    fn depth_measurements(&self) -> u32 {
+        1
+    }
+
+    fn inverse_depth(&self) -> Option<f64> {
+        self.tau
+    }
+}
+
+/// The direct LiDAR-depth measurement of a landmark with anchors `s`, `e` (module docs), Huber
+/// on its square.
+pub struct DirectDepth<'a, const N: usize> {
+    huber: Huber,
+    lm: &'a Landmark<N>,
+}
+
+impl<'a, const N: usize> DirectDepth<'a, N> {
+    /// The measurement of LiDAR landmark `lm`.
+    pub fn new(huber: Huber, lm: &'a Landmark<N>) -> Self {
+        DirectDepth { huber, lm }
+    }
+
+    /// Residual and Jacobians at `v`, with the anchors.
+    fn evaluate(
+        &self,
+        v: &WindowVars<'_, N>,
+    ) -> Result<(DirectDepthJacobians, usize, usize), Error> {
+        let lm = self.lm;
         let depth = lm.lidar.ok_or(Error::NotEnoughData)?;
         let (s, e) = (
             lm.anchor_s as usize,
@@ -207,18 +265,29 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             sigma_dr: depth.sigma_m,
         };
         let (ps, pe) = (
-            poses.get(s).ok_or(Error::DimensionMismatch)?,
-            poses.get(e).ok_or(Error::DimensionMismatch)?,
+            v.poses.get(s).ok_or(Error::DimensionMismatch)?,
+            v.poses.get(e).ok_or(Error::DimensionMismatch)?,
         );
-        let jac = f.evaluate(ps, pe, ext)?;
+        Ok((f.evaluate(ps, pe, v.ext)?, s, e))
+    }
+}
+
+impl<const N: usize, const D: usize> WindowFactor<N, D> for DirectDepth<'_, N> {
+    #[inline(never)]
+    fn add(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        ne: Option<&mut NormalEquations<D>>,
+    ) -> Result<f64, Error> {
+        let (jac, s, e) = self.evaluate(v)?;
+        let huber = &self.huber;
         let sq = jac.r * jac.r;
         let cost = huber.rho(sq)[0];
-        let Some(ne) = ne.as_deref_mut() else {
+        let Some(ne) = ne else {
             return Ok(cost);
         };
         let w = huber.sqrt_weight(sq);
-        let l = self.layout;
-        let col = |b: Block| l.col(b).ok_or(Error::DimensionMismatch);
+        let col = |b: Block| v.col(b);
         let (a, b, x) = (jac.d_pose_s * w, jac.d_pose_e * w, jac.d_ext * w);
         let td = [jac.d_td[0] * w, jac.d_td[1] * w];
         let mut blocks: HVec<JacobianBlock<'_>, 5> = HVec::new();
@@ -232,15 +301,80 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             6,
             b.as_slice(),
         ));
-        if est_ext {
+        if v.est_ext {
             let _ = blocks.push(JacobianBlock::new(col(Block::Ext)?, 6, x.as_slice()));
         }
-        if est_td {
+        if v.est_td {
             let _ = blocks.push(JacobianBlock::new(col(Block::Td(s as u8))?, 1, &td[..1]));
             let _ = blocks.push(JacobianBlock::new(col(Block::Td(e as u8))?, 1, &td[1..]));
         }
         ne.add_blocks(&[jac.r * w], &blocks)?;
         Ok(cost)
+    }
+
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        put_rows(&[self.evaluate(v)?.0.r], out)
+    }
+}
+
+/// A LiDAR landmark under the direct LDM: its two-view visual measurement and the direct
+/// LiDAR-depth measurement beside it. A degenerate depth geometry only drops the depth
+/// measurement from a linearization (the visual ones were fine); a cost evaluation fails.
+pub struct DirectLidarLandmark<'a, const N: usize> {
+    visual: TwoViewLandmark<'a, N>,
+    depth: DirectDepth<'a, N>,
+    ldm: u32,
+}
+
+impl<'a, const N: usize> DirectLidarLandmark<'a, N> {
+    /// The measurements of LiDAR landmark `lm`, or `None` as [`TwoViewLandmark::new`].
+    pub fn new(vs: VisualSettings<'a>, lm: &'a Landmark<N>) -> Option<Self> {
+        Some(DirectLidarLandmark {
+            visual: TwoViewLandmark::new(vs, lm, None)?,
+            depth: DirectDepth::new(vs.huber, lm),
+            ldm: 0,
+        })
+    }
+}
+
+impl<const N: usize, const D: usize> WindowFactor<N, D> for DirectLidarLandmark<'_, N> {
+    fn add(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        mut ne: Option<&mut NormalEquations<D>>,
+    ) -> Result<f64, Error> {
+        self.ldm = 0;
+        let mut cost = self.visual.add(v, ne.as_deref_mut())?;
+        let linearize = ne.is_some();
+        match self.depth.add(v, ne) {
+            Ok(c) => {
+                cost += c;
+                self.ldm = 1;
+            }
+            Err(_) if linearize => {}
+            Err(e) => return Err(e),
+        }
+        Ok(cost)
+    }
+
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        let rows = WindowFactor::<N, D>::residuals(&mut self.visual, v, out)?;
+        let depth = WindowFactor::<N, D>::residuals(
+            &mut self.depth,
+            v,
+            out.get_mut(rows..).unwrap_or(&mut []),
+        )?;
+        Ok(rows + depth)
+    }
+}
+
+impl<const N: usize, const D: usize> LandmarkFactor<N, D> for DirectLidarLandmark<'_, N> {
+    fn observations(&self) -> u32 {
+        LandmarkFactor::<N, D>::observations(&self.visual)
+    }
+
+    fn depth_measurements(&self) -> u32 {
+        self.ldm
     }
 }
 
@@ -251,7 +385,7 @@ mod tests {
     use crate::camera::Vec2;
     use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
     use crate::factors::lidar_depth::MscLidarDepth;
-    use crate::factors::TimedObs;
+    use crate::factors::{CamFrame, TimedObs};
     use crate::landmarks::LidarDepth;
     use crate::math::{quat_exp, Quat, Vec3};
 

@@ -1,19 +1,20 @@
-//! The pose-only visual measurements of the window's problem (PO-VINS): per usable landmark,
-//! the MSC-based LiDAR-depth measurement (`estimator::problem_lidar`), the eliminated-depth
-//! measurement (`estimator::problem_visual`), or the paper's two-anchor form with the depth
-//! from anchors `(s, e)` (with a direct LiDAR-depth measurement beside it). The two-anchor form
-//! is added through the rank structure of anchor `e` when the extrinsic is not estimated
-//! ([`add_pose_only_landmark`]), else through dense Jacobian blocks.
+//! The paper's pose-only visual measurement of a landmark ([`TwoViewLandmark`], PO-VINS): every
+//! observation `j != s` reprojected with the depth from the anchors `(s, e)`
+//! ([`crate::factors::pose_only_visual`]), Huber on each. Added through the rank structure of
+//! anchor `e` when the extrinsic is not estimated ([`add_pose_only_landmark`]), else through dense
+//! Jacobian blocks. A landmark enters the system whole or not at all: one degenerate
+//! observation makes the measurement an error.
+#![deny(clippy::too_many_lines)]
 
-use super::config::VisualMode;
-use super::problem::{anchor_depth_std, row_major, timed, FactorSet, Problem};
+use super::problem_factor::{anchor_depth_std, row_major};
+use super::problem_factor::{
+    put_rows, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
+};
 use super::window::{Block, Layout};
-use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::pose_only_visual::{InJ, PoseOnlyAnchors};
 use crate::factors::robust::Huber;
 use crate::factors::{CamFrame, KeyframePose};
-use crate::landmarks::{KfObs, MargPlan};
-use crate::lidar::LdmMode;
+use crate::landmarks::{KfObs, Landmark};
 use crate::math::{Mat3, Vec3};
 use crate::solver::{JacobianBlock, NormalEquations, SharedBlock};
 use crate::Error;
@@ -42,6 +43,7 @@ fn residual_obs<'a, const N: usize>(
 /// added), then each residual with its robust weight through a [`SharedBlock`] on anchor `e`.
 /// With `only_j`, only that observation's residual (the marginalization of a re-anchored
 /// landmark). Returns the robust cost and the number of observations.
+#[inline(never)]
 fn add_pose_only_landmark<const N: usize, const D: usize>(
     anchors: &PoseOnlyAnchors<'_>,
     obs: &[Option<KfObs>; N],
@@ -114,6 +116,7 @@ fn add_pose_only_landmark<const N: usize, const D: usize>(
 /// on the poses of `s`, `e` and `j`, the extrinsic and the delays as estimated. With `only_j`,
 /// only that observation's residual. Returns the robust cost and the number of observations.
 #[allow(clippy::too_many_arguments)]
+#[inline(never)]
 fn add_pose_only_landmark_dense<const N: usize, const D: usize>(
     anchors: &PoseOnlyAnchors<'_>,
     obs: &[Option<KfObs>; N],
@@ -201,212 +204,112 @@ fn add_pose_only_landmark_dense<const N: usize, const D: usize>(
     Ok(Some((lm_cost, n_obs)))
 }
 
-impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
-    /// Which observations of a usable landmark with marginalization plan `marg` the visited
-    /// set ([`Problem::set`]) takes: `Some(None)` all of them, `Some(Some(j))` only `j`, `None`
-    /// none (the landmark is skipped).
-    fn visited_obs(&self, marg: MargPlan) -> Option<Option<usize>> {
-        // Marginalization: the landmarks the plan involves (in the inverse-depth mode only
-        // the re-anchored ones: the others leave with their depth in `inverse_depth_visual`).
-        Some(match (self.set, marg, self.cfg.mode) {
-            (FactorSet::All, _, _) => None,
-            // The whole factor, less what stays (`FactorSet::OldestRest`).
-            (
-                FactorSet::Oldest | FactorSet::OldestRest,
-                MargPlan::ObsZero,
-                VisualMode::PoseOnly,
-            ) if self.cfg.depth_eliminated() => None,
-            (FactorSet::Oldest, MargPlan::ObsZero, _) => Some(0),
-            (FactorSet::Oldest, MargPlan::Whole | MargPlan::Reuse, VisualMode::PoseOnly) => None,
-            _ => return None,
+/// The two-view pose-only measurement of a landmark (module docs): its observations `j != s`
+/// (with `only_j`, only that one: the marginalization of a re-anchored landmark's observation at
+/// position 0) against its anchors `(s, e)`.
+pub struct TwoViewLandmark<'a, const N: usize> {
+    vs: VisualSettings<'a>,
+    obs: &'a [Option<KfObs>; N],
+    s: usize,
+    e: usize,
+    only_j: Option<usize>,
+    n_obs: u32,
+}
+
+impl<'a, const N: usize> TwoViewLandmark<'a, N> {
+    /// The measurement of `lm`, or `None` without a second anchor or without the anchors'
+    /// observations.
+    pub fn new(vs: VisualSettings<'a>, lm: &'a Landmark<N>, only_j: Option<usize>) -> Option<Self> {
+        let (s, e) = (lm.anchor_s as usize, usize::from(lm.anchor_e?));
+        let (Some(Some(_)), Some(Some(_))) = (lm.obs.get(s), lm.obs.get(e)) else {
+            return None;
+        };
+        Some(TwoViewLandmark {
+            vs,
+            obs: &lm.obs,
+            s,
+            e,
+            only_j,
+            n_obs: 0,
         })
     }
 
-    pub(super) fn pose_only_visual(
-        &mut self,
-        ne: &mut Option<&mut NormalEquations<D>>,
-        est_td: bool,
-        est_ext: bool,
-    ) -> Result<f64, Error> {
-        let huber = Huber::new(self.cfg.huber_delta)?;
-        let sqrt_info = self.sqrt_info();
-        let l = self.layout;
-        let count = self.window.len();
-        let ext = *self.ext;
-        let poses = self.window.poses();
-        // Camera frames once per keyframe rather than three times per residual.
-        let frames: [CamFrame; N] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
-        // Relative poses `(R_js, t_js)` once per keyframe pair rather than per observation,
-        // formed on first use (landmarks whose depth is eliminated do not need them).
-        let mut rel_cache: Option<[[(Mat3, Vec3); N]; N]> = None;
-        let relative_poses = || -> [[(Mat3, Vec3); N]; N] {
-            core::array::from_fn(|j| {
-                core::array::from_fn(|s| match (frames.get(j), frames.get(s)) {
-                    (Some(fj), Some(fs)) if j < count && s < count => fj.relative_from(fs),
-                    _ => (Mat3::identity(), Vec3::zeros()),
-                })
-            })
+    /// The anchors' part of the measurement at `v` (with the depth-uncertainty weighting).
+    fn anchors<'v>(&self, v: &'v WindowVars<'_, N>) -> Result<PoseOnlyAnchors<'v>, Error> {
+        let (s, e) = (self.s, self.e);
+        let (Some(Some(os)), Some(Some(oe))) = (self.obs.get(s), self.obs.get(e)) else {
+            return Err(Error::NotEnoughData);
         };
-        let mut cost = 0.0;
-        let linearize = ne.is_some();
-        // The eliminated landmarks' linearization: rotations once per assembly, not per residual.
-        let rot = (linearize && !est_ext && self.cfg.depth_eliminated())
-            .then(|| WindowRotations::new(&poses, count, &ext));
-        // Extrinsic not estimated: the landmark's products on anchor e go through the rank
-        // structure (`add_pose_only_landmark`), the delays as scalar columns.
-        let fast = linearize && !est_ext;
-        for li in 0..self.lms.len() {
-            let Some(lm) = self.lms.landmarks().get(li) else {
-                break;
-            };
-            if !lm.usable {
-                continue;
+        let (Some(ps), Some(pe)) = (v.poses.get(s), v.poses.get(e)) else {
+            return Err(Error::DimensionMismatch);
+        };
+        let (Some(fs), Some(fe)) = (v.frames.get(s), v.frames.get(e)) else {
+            return Err(Error::DimensionMismatch);
+        };
+        let rel_es = v.relative(e, s).ok_or(Error::DimensionMismatch)?;
+        let anchors = PoseOnlyAnchors::new(
+            (s, e),
+            timed(os),
+            timed(oe),
+            self.vs.sqrt_info,
+            (ps, pe),
+            (fs, fe),
+            v.ext,
+            Some(rel_es),
+        )?;
+        let sd = anchor_depth_std(self.vs.cfg, &anchors);
+        Ok(anchors.with_depth_std(sd))
+    }
+}
+
+impl<const N: usize, const D: usize> WindowFactor<N, D> for TwoViewLandmark<'_, N> {
+    fn add(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        ne: Option<&mut NormalEquations<D>>,
+    ) -> Result<f64, Error> {
+        self.n_obs = 0;
+        let anchors = self.anchors(v)?;
+        let rel_js = |j: usize| v.relative(j, self.s);
+        let ctx = (&v.poses, &v.frames, &self.vs.huber, &v.layout, &rel_js);
+        let (s, e, count) = (self.s, self.e, v.count);
+        let added = match ne {
+            // Extrinsic not estimated: the landmark's products on anchor e go through the rank
+            // structure, the delays as scalar columns.
+            Some(ne) if !v.est_ext => {
+                add_pose_only_landmark(&anchors, self.obs, count, (s, e), ctx, self.only_j, ne)?
             }
-            let Some(only_j) = self.visited_obs(lm.marg) else {
-                continue;
-            };
-            let lidar = lm.lidar.is_some() && self.cfg.lidar.enabled;
-            if lidar && self.cfg.lidar.ldm == LdmMode::Msc {
-                match self.msc_landmark(li, ne, &poses, &frames, &ext, &huber, est_td, est_ext) {
-                    Ok((c, n)) => {
-                        cost += c;
-                        self.counts.landmarks += 1;
-                        self.counts.observations += n;
-                        self.counts.ldm += 1;
-                    }
-                    Err(_) if linearize => {
-                        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                            lm.usable = false;
-                        }
-                        self.counts.disabled += 1;
-                    }
-                    Err(_) => return Err(Error::Degenerate),
-                }
-                continue;
-            }
-            if self.cfg.depth_eliminated() && only_j.is_none() {
-                let er = (&ext, rot.as_ref());
-                match self.eliminated_landmark(li, ne, &poses, &frames, er, &huber, est_td, est_ext)
-                {
-                    Ok((c, n)) => {
-                        cost += c;
-                        self.counts.landmarks += 1;
-                        self.counts.observations += n;
-                    }
-                    Err(_) if linearize => {
-                        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                            lm.usable = false;
-                        }
-                        self.counts.disabled += 1;
-                    }
-                    Err(_) => return Err(Error::Degenerate),
-                }
-                continue;
-            }
-            let (s, Some(e)) = (lm.anchor_s as usize, lm.anchor_e.map(usize::from)) else {
-                continue;
-            };
-            let (Some(Some(os)), Some(Some(oe))) = (lm.obs.get(s), lm.obs.get(e)) else {
-                continue;
-            };
-            let (Some(ps), Some(pe)) = (poses.get(s), poses.get(e)) else {
-                continue;
-            };
-            let (Some(fs), Some(fe)) = (frames.get(s), frames.get(e)) else {
-                continue;
-            };
-            let mut lm_cost = 0.0;
-            let mut n_obs = 0;
-            let mut failed = false;
-            let rel = &*rel_cache.get_or_insert_with(relative_poses);
-            let rel_js = |j: usize| rel.get(j).and_then(|row| row.get(s)).copied();
-            let Some(rel_es) = rel_js(e) else {
-                continue;
-            };
-            match PoseOnlyAnchors::new(
+            ne => add_pose_only_landmark_dense(
+                &anchors,
+                self.obs,
+                count,
                 (s, e),
-                timed(os),
-                timed(oe),
-                sqrt_info,
-                (ps, pe),
-                (fs, fe),
-                &ext,
-                Some(rel_es),
-            )
-            .map(|a| {
-                let sd = anchor_depth_std(self.cfg, &a);
-                a.with_depth_std(sd)
-            }) {
-                Err(_) => failed = true,
-                Ok(anchors) if fast => {
-                    if let Some(ne_ref) = ne.as_deref_mut() {
-                        let ctx = (&poses, &frames, &huber, &l, &rel_js);
-                        let obs = &lm.obs;
-                        match add_pose_only_landmark(
-                            &anchors,
-                            obs,
-                            count,
-                            (s, e),
-                            ctx,
-                            only_j,
-                            ne_ref,
-                        )? {
-                            Some((c, n)) => {
-                                lm_cost = c;
-                                n_obs = n;
-                            }
-                            None => failed = true,
-                        }
-                    }
-                }
-                Ok(anchors) => {
-                    let ctx = (&poses, &frames, &huber, &l, &rel_js);
-                    match add_pose_only_landmark_dense(
-                        &anchors,
-                        &lm.obs,
-                        count,
-                        (s, e),
-                        ctx,
-                        only_j,
-                        (est_td, est_ext),
-                        ne.as_deref_mut(),
-                    )? {
-                        Some((c, n)) => {
-                            lm_cost = c;
-                            n_obs = n;
-                        }
-                        None => failed = true,
-                    }
-                }
-            }
-            if failed {
-                if linearize {
-                    if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                        lm.usable = false;
-                    }
-                    self.counts.disabled += 1;
-                } else {
-                    return Err(Error::Degenerate);
-                }
-            }
-            if lidar && !failed {
-                // Direct LDM beside the visual measurements; a degenerate depth geometry only
-                // drops the depth measurement (the visual ones were fine).
-                match self.direct_depth(li, ne, &poses, &ext, &huber, est_td, est_ext) {
-                    Ok(c) => {
-                        lm_cost += c;
-                        self.counts.ldm += 1;
-                    }
-                    Err(_) if linearize => {}
-                    Err(_) => return Err(Error::Degenerate),
-                }
-            }
-            if n_obs > 0 {
-                self.counts.landmarks += 1;
-                self.counts.observations += n_obs;
-            }
-            cost += lm_cost;
-        }
+                ctx,
+                self.only_j,
+                (v.est_td, v.est_ext),
+                ne,
+            )?,
+        };
+        let (cost, n_obs) = added.ok_or(Error::Degenerate)?;
+        self.n_obs = n_obs;
         Ok(cost)
+    }
+
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        let anchors = self.anchors(v)?;
+        let mut rows = 0;
+        let frames = (&v.poses, &v.frames);
+        for (j, oj, pj, fj) in residual_obs(self.obs, v.count, self.s, self.only_j, frames) {
+            let g = anchors.geometry(j, &timed(oj), pj, fj, v.relative(j, self.s))?;
+            let r = anchors.whitened(&g);
+            rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
+        }
+        Ok(rows)
+    }
+}
+
+impl<const N: usize, const D: usize> LandmarkFactor<N, D> for TwoViewLandmark<'_, N> {
+    fn observations(&self) -> u32 {
+        self.n_obs
     }
 }

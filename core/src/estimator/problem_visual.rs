@@ -21,117 +21,151 @@
 //! `W_j` the observation's Huber weight. The measurement is a function of the poses alone: the
 //! landmark has no state, its cost is `min_tau` of the reprojection cost, so the LM's gain ratio
 //! compares what the linear model predicts.
+#![deny(clippy::too_many_lines)]
 
-use super::problem::{FactorSet, Problem};
+use super::problem::SCHUR_COLS;
+use super::problem_factor::{put_rows, LandmarkFactor, VisualSettings, WindowFactor, WindowVars};
 use super::problem_lidar::add_inverse_depth_obs;
 use super::tau_landmark::{Ray, TauLandmark};
 use super::window::{Block, Layout};
-use crate::camera::CameraExtrinsic;
 use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::robust::Huber;
-use crate::factors::{CamFrame, KeyframePose};
-use crate::solver::NormalEquations;
+use crate::factors::KeyframePose;
+use crate::landmarks::Landmark;
+use crate::solver::{LandmarkSchur, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
 use nalgebra::Vector6;
 
-impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
-    /// Landmark `li` with its inverse depth eliminated (module docs): robust cost and number of
-    /// observations; with `ne`, also accumulates the projected block and stores `tau*`.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn eliminated_landmark(
-        &mut self,
-        li: usize,
-        ne: &mut Option<&mut NormalEquations<D>>,
-        poses: &[KeyframePose; N],
-        frames: &[CamFrame; N],
-        (ext, rot): (&CameraExtrinsic, Option<&WindowRotations<N>>),
-        huber: &Huber,
-        est_td: bool,
-        est_ext: bool,
-    ) -> Result<(f64, u32), Error> {
-        let count = self.window.len();
-        let sqrt_info = self.sqrt_info();
-        let lm = self
-            .lms
-            .landmarks()
-            .get(li)
-            .ok_or(Error::DimensionMismatch)?;
-        let s = lm.anchor_s as usize;
-        // What stays in the window after the marginalization: the factor without position 0.
-        let mut rest = lm.obs;
-        if self.set == FactorSet::OldestRest {
-            if let Some(o) = rest.get_mut(0) {
-                *o = None;
-            }
+/// The pose-only measurement of a landmark with its inverse depth eliminated (module docs).
+pub struct EliminatedLandmark<'a, const N: usize> {
+    vs: VisualSettings<'a>,
+    lm: &'a Landmark<N>,
+    /// Without the observation at position 0 (what stays of a re-anchored landmark after the
+    /// marginalization, `FactorSet::OldestRest`).
+    without_obs_zero: bool,
+    /// `tau*` of a cost evaluation at the same state, for the linearization to take.
+    cached_tau: Option<f64>,
+    schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    tau: Option<f64>,
+    n_obs: u32,
+}
+
+impl<'a, const N: usize> EliminatedLandmark<'a, N> {
+    /// The measurement of `lm` (`without_obs_zero`: without its observation at position 0),
+    /// with `schur` as its accumulator when the extrinsic is estimated. A linearization takes
+    /// `cached_tau` as `tau*` when given (the state has not changed since the cost evaluation
+    /// that solved for it: bit-identical).
+    pub fn new(
+        vs: VisualSettings<'a>,
+        lm: &'a Landmark<N>,
+        without_obs_zero: bool,
+        cached_tau: Option<f64>,
+        schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    ) -> Self {
+        EliminatedLandmark {
+            vs,
+            lm,
+            without_obs_zero,
+            cached_tau,
+            schur,
+            tau: None,
+            n_obs: 0,
         }
-        let m = TauLandmark::new(&rest, s, None, sqrt_info, count).ok_or(Error::NotEnoughData)?;
-        let n_obs = m.obs.len() as u32;
-        // A linearization right after a successful cost evaluation at the same state takes the
-        // `tau*` that evaluation computed (bit-identical: same rays, same start).
-        let cached = match (self.tau_fresh, ne.is_some()) {
-            (true, true) => self.saved.tau_ok.get(li).copied().unwrap_or(false),
-            _ => false,
-        };
-        let tau = match self.saved.tau.get(li) {
-            Some(&tau) if cached => tau,
+    }
+
+    /// The landmark's reprojections in `tau` over the first `count` positions.
+    #[inline(always)]
+    fn tau_landmark(&self, count: usize) -> Result<TauLandmark<N>, Error> {
+        let lm = self.lm;
+        // What stays in the window after the marginalization: the factor without position 0.
+        let skip = self.without_obs_zero.then_some(0);
+        let (s, sqrt_info) = (lm.anchor_s as usize, self.vs.sqrt_info);
+        TauLandmark::without(&lm.obs, s, skip, None, sqrt_info, count).ok_or(Error::NotEnoughData)
+    }
+}
+
+impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'_, N> {
+    fn add(
+        &mut self,
+        v: &WindowVars<'_, N>,
+        ne: Option<&mut NormalEquations<D>>,
+    ) -> Result<f64, Error> {
+        self.tau = None;
+        let (lm, huber) = (self.lm, &self.vs.huber);
+        let s = lm.anchor_s as usize;
+        let m = self.tau_landmark(v.count)?;
+        self.n_obs = m.obs.len() as u32;
+        let tau = match (self.cached_tau, &ne) {
+            (Some(tau), Some(_)) => tau,
             _ => {
-                let rays = m.rays(poses, frames)?;
+                let mut rays = HVec::new();
+                m.rays_into(&v.poses, &v.frames, &mut rays)?;
                 let (tau, cost) = newton_tau(&rays, lm.inv_depth, huber)?;
                 if ne.is_none() {
-                    if let (Some(t), Some(ok)) =
-                        (self.saved.tau.get_mut(li), self.saved.tau_ok.get_mut(li))
-                    {
-                        (*t, *ok) = (tau, true);
-                    }
                     // The next solve (the linearization or the marginalization at this state,
-                    // the next trial near it) starts from here; a rejected LM trial restores the
-                    // depth with the state.
-                    if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                        lm.inv_depth = tau;
-                    }
-                    return Ok((cost, n_obs));
+                    // the next trial near it) starts from here; a rejected LM trial restores
+                    // the depth with the state.
+                    self.tau = Some(tau);
+                    return Ok(cost);
                 }
                 tau
             }
         };
-        let Some(ne) = ne.as_deref_mut() else {
+        let Some(ne) = ne else {
             return Err(Error::DimensionMismatch);
         };
+        let poses = &v.poses;
         let ps = poses.get(s).ok_or(Error::DimensionMismatch)?;
-        let l = self.layout;
-        if let (false, Some(rot)) = (est_ext, rot) {
-            let cost = accumulate_eliminated(&m, poses, rot, tau, huber, &l, ne)?;
-            if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-                lm.inv_depth = tau;
-            }
-            return Ok((cost, n_obs));
+        let l = &v.layout;
+        if !v.est_ext {
+            let cost = match v.rotations() {
+                Some(rot) => accumulate_eliminated(&m, poses, rot, tau, huber, l, ne)?,
+                None => {
+                    let rot = WindowRotations::new(poses, v.count, v.ext);
+                    accumulate_eliminated(&m, poses, &rot, tau, huber, l, ne)?
+                }
+            };
+            self.tau = Some(tau);
+            return Ok(cost);
         }
-        let sc = self.schur.get_mut(li).ok_or(Error::CapacityExceeded)?;
+        let sc = &mut *self.schur;
         sc.clear();
         let mut cost = 0.0;
         for (j, f) in m.obs.iter() {
             let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
-            let jac = f.evaluate(ps, pj, ext, tau)?;
+            let jac = f.evaluate(ps, pj, v.ext, tau)?;
             let sq = jac.r.norm_squared();
             cost += huber.rho(sq)[0];
-            add_inverse_depth_obs(
-                sc,
-                ne,
-                &jac,
-                huber.sqrt_weight(sq),
-                s,
-                *j,
-                &l,
-                est_td,
-                est_ext,
-            )?;
+            let (est_td, est_ext) = (v.est_td, v.est_ext);
+            let w = huber.sqrt_weight(sq);
+            add_inverse_depth_obs(sc, ne, &jac, w, s, *j, l, est_td, est_ext)?;
         }
         sc.fold_into(ne, 0.0)?;
-        if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
-            lm.inv_depth = tau;
+        self.tau = Some(tau);
+        Ok(cost)
+    }
+
+    fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
+        let m = self.tau_landmark(v.count)?;
+        let rays = m.rays(&v.poses, &v.frames)?;
+        let tau = self.lm.inv_depth;
+        let mut rows = 0;
+        for ray in rays.iter() {
+            let (r, _) = ray.residual_and_d_tau(tau)?;
+            rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
         }
-        Ok((cost, n_obs))
+        Ok(rows)
+    }
+}
+
+impl<const N: usize, const D: usize> LandmarkFactor<N, D> for EliminatedLandmark<'_, N> {
+    fn observations(&self) -> u32 {
+        self.n_obs
+    }
+
+    fn inverse_depth(&self) -> Option<f64> {
+        self.tau
     }
 }
 
@@ -217,6 +251,7 @@ fn robust_pass(rays: &[Ray], tau: f64, huber: &Huber) -> Result<[f64; 4], Error>
 /// The landmark's linearization with `tau` eliminated, extrinsic fixed (module docs): every
 /// observation's 2x6 pose blocks and delay columns go into `ne` as usual, and the landmark's
 /// coupling to `tau` (`v`, `c`, `beta`) is folded in once at the end. Returns the robust cost.
+#[inline(never)]
 fn accumulate_eliminated<const N: usize, const D: usize>(
     m: &TauLandmark<N>,
     poses: &[KeyframePose; N],
@@ -281,157 +316,17 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
     }
     poses6.sort_unstable_by_key(|p| p.0);
     scalars.sort_unstable_by_key(|p| p.0);
-    fold_rank_one(ne, &poses6, &scalars, 1.0 / c, beta);
+    ne.fold_rank_one(&poses6, &scalars, 1.0 / c, beta);
     Ok(cost)
-}
-
-/// `H -= v v^T / c` (upper triangle) and `b -= v beta / c` for `v` given as 6-wide pose
-/// segments and single delay columns, each list in ascending column order, all on distinct,
-/// non-overlapping columns. Every entry `(r, c)`, `r <= c`, gets `h -= (v_r / c) v_c` computed as
-/// `(v_r * inv_c) * v_c`, once: the order of the entries does not change any value. Pose rows are
-/// updated block pair by block pair with fixed 6-wide kernels, delays as runs of consecutive
-/// columns.
-fn fold_rank_one<const N: usize, const D: usize>(
-    ne: &mut NormalEquations<D>,
-    poses: &[(usize, [f64; 6])],
-    scalars: &HVec<(usize, f64), N>,
-    inv_c: f64,
-    beta: f64,
-) {
-    for &(ca, xa) in poses {
-        if let Some(b) = ne.b.get_mut(ca..ca + 6) {
-            for (bi, x) in b.iter_mut().zip(xa.iter()) {
-                *bi -= x * beta * inv_c;
-            }
-        }
-    }
-    for &(ct, xt) in scalars {
-        if let Some(bi) = ne.b.get_mut(ct) {
-            *bi -= xt * beta * inv_c;
-        }
-    }
-    // Delays as runs of consecutive columns (a track seen in consecutive keyframes: one run).
-    let mut tv = [0.0; N];
-    let mut runs: HVec<(usize, usize, usize), N> = HVec::new();
-    for (k, &(ct, xt)) in scalars.iter().enumerate() {
-        if let Some(v) = tv.get_mut(k) {
-            *v = xt;
-        }
-        match runs.last_mut() {
-            Some((c0, _, w)) if *c0 + *w == ct => *w += 1,
-            _ => {
-                let _ = runs.push((ct, k, 1));
-            }
-        }
-    }
-    let h = &mut ne.h;
-    for (ia, &(ca, xa)) in poses.iter().enumerate() {
-        let later = poses.get(ia + 1..).unwrap_or(&[]);
-        let first_run = runs.iter().position(|r| r.0 > ca).unwrap_or(runs.len());
-        let Some(rows) = h.get_mut(ca..ca + 6) else {
-            continue;
-        };
-        let xs: [f64; 6] = xa.map(|x| x * inv_c);
-        // The diagonal block: upper triangle, a fixed-length kernel per row.
-        for (i, (row, xi)) in rows.iter_mut().zip(xs).enumerate() {
-            tri_sub(i, row, ca, xi, &xa);
-        }
-        // Cross blocks pair by pair: the later block's values stay in registers over the rows.
-        for &(cb, xb) in later {
-            for (row, xi) in rows.iter_mut().zip(xs) {
-                if let Some(dst) = row.get_mut(cb..cb + 6) {
-                    sub_scaled6(dst, xi, xb);
-                }
-            }
-        }
-        for &(c0, k0, w) in runs.get(first_run..).unwrap_or(&[]) {
-            let Some(src) = tv.get(k0..k0 + w) else {
-                continue;
-            };
-            for (row, xi) in rows.iter_mut().zip(xs) {
-                if let Some(dst) = row.get_mut(c0..c0 + w) {
-                    for (h, y) in dst.iter_mut().zip(src) {
-                        *h -= xi * y;
-                    }
-                }
-            }
-        }
-    }
-    // Delay rows, run by run: pose blocks to their right (none in the solve layout), the rest of
-    // the run and the later runs.
-    for (ir, &(c0, k0, w)) in runs.iter().enumerate() {
-        let first_pose = poses.iter().position(|p| p.0 > c0).unwrap_or(poses.len());
-        let right = poses.get(first_pose..).unwrap_or(&[]);
-        let later = runs.get(ir + 1..).unwrap_or(&[]);
-        for u in 0..w {
-            let (Some(row), Some(&xt)) = (h.get_mut(c0 + u), tv.get(k0 + u)) else {
-                continue;
-            };
-            let xi = xt * inv_c;
-            for &(cb, xb) in right {
-                if let Some(dst) = row.get_mut(cb..cb + 6) {
-                    sub_scaled6(dst, xi, xb);
-                }
-            }
-            if let (Some(dst), Some(src)) = (row.get_mut(c0 + u..c0 + w), tv.get(k0 + u..k0 + w)) {
-                for (h, y) in dst.iter_mut().zip(src) {
-                    *h -= xi * y;
-                }
-            }
-            for &(c1, k1, w1) in later {
-                if let (Some(dst), Some(src)) = (row.get_mut(c1..c1 + w1), tv.get(k1..k1 + w1)) {
-                    for (h, y) in dst.iter_mut().zip(src) {
-                        *h -= xi * y;
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// `row[c + i..c + 6] -= x y[i..]` (row `i` of a 6x6 diagonal block's upper triangle) with a
-/// constant length per `i`: the plain loop's values, entry by entry.
-#[inline(always)]
-fn tri_sub(i: usize, row: &mut [f64], c: usize, x: f64, y: &[f64; 6]) {
-    #[inline(always)]
-    fn fixed<const I: usize>(row: &mut [f64], c: usize, x: f64, y: &[f64; 6]) {
-        if let (Some(dst), Some(src)) = (row.get_mut(c + I..c + 6), y.get(I..)) {
-            for (h, v) in dst.iter_mut().zip(src) {
-                *h -= x * v;
-            }
-        }
-    }
-    match i {
-        0 => fixed::<0>(row, c, x, y),
-        1 => fixed::<1>(row, c, x, y),
-        2 => fixed::<2>(row, c, x, y),
-        3 => fixed::<3>(row, c, x, y),
-        4 => fixed::<4>(row, c, x, y),
-        _ => fixed::<5>(row, c, x, y),
-    }
-}
-
-/// `dst[..6] -= x * y` (the operands as locals: two-wide products, no reloads).
-#[inline(always)]
-fn sub_scaled6(dst: &mut [f64], x: f64, y: [f64; 6]) {
-    if let Ok(d) = <&mut [f64; 6]>::try_from(dst) {
-        let [y0, y1, y2, y3, y4, y5] = y;
-        let [d0, d1, d2, d3, d4, d5] = d;
-        *d0 -= x * y0;
-        *d1 -= x * y1;
-        *d2 -= x * y2;
-        *d3 -= x * y3;
-        *d4 -= x * y4;
-        *d5 -= x * y5;
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::CameraExtrinsic;
     use crate::camera::Vec2;
     use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
-    use crate::factors::TimedObs;
+    use crate::factors::{CamFrame, TimedObs};
     use crate::math::{quat_exp, Vec3};
 
     /// A landmark 4 m away seen from four keyframes with pixel noise; with `outlier`, the last
@@ -541,117 +436,5 @@ mod tests {
             newton_tau(&rays, 0.0, &huber).err(),
             Some(Error::NotEnoughData)
         );
-    }
-
-    /// The generic segment-pair form the fold had before its 6-wide kernels.
-    /// `H -= v v^T / c` (upper triangle) and `b -= v beta / c` for `v` given as segments
-    /// `(first column, values, width)` on distinct, non-overlapping columns. Segment pair by segment
-    /// pair, each block row a contiguous run, so the work is the `(sum of widths)^2 / 2` products.
-    fn fold_reference<const D: usize>(
-        ne: &mut NormalEquations<D>,
-        segs: &[(usize, [f64; 6], usize)],
-        inv_c: f64,
-        beta: f64,
-    ) {
-        for (ia, &(ca, xa, wa)) in segs.iter().enumerate() {
-            let xa = xa.get(..wa).unwrap_or(&[]);
-            if let Some(b) = ne.b.get_mut(ca..ca + wa) {
-                for (bi, x) in b.iter_mut().zip(xa) {
-                    *bi -= x * beta * inv_c;
-                }
-            }
-            // The diagonal block: upper triangle.
-            for (i, x) in xa.iter().enumerate() {
-                let xi = x * inv_c;
-                if let (Some(dst), Some(src)) = (
-                    ne.h.get_mut(ca + i)
-                        .and_then(|row| row.get_mut(ca + i..ca + wa)),
-                    xa.get(i..),
-                ) {
-                    for (h, y) in dst.iter_mut().zip(src) {
-                        *h -= xi * y;
-                    }
-                }
-            }
-            // Cross blocks with the later segments, into whichever triangle is upper.
-            for &(cb, xb, wb) in segs.iter().skip(ia + 1) {
-                let xb = xb.get(..wb).unwrap_or(&[]);
-                let ((r0, xr), (c0, xc)) = if ca < cb {
-                    ((ca, xa), (cb, xb))
-                } else {
-                    ((cb, xb), (ca, xa))
-                };
-                for (i, x) in xr.iter().enumerate() {
-                    let xi = x * inv_c;
-                    if let Some(dst) =
-                        ne.h.get_mut(r0 + i)
-                            .and_then(|row| row.get_mut(c0..c0 + xc.len()))
-                    {
-                        for (h, y) in dst.iter_mut().zip(xc) {
-                            *h -= xi * y;
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn tri_sub_is_the_plain_loop() {
-        let mut rnd = crate::solver::test_rng(5);
-        let y: [f64; 6] = core::array::from_fn(|_| rnd());
-        for i in 0..6 {
-            let row: [f64; 16] = core::array::from_fn(|_| rnd());
-            let x = rnd();
-            let (mut a, mut b) = (row, row);
-            for (h, v) in a[3 + i..9].iter_mut().zip(&y[i..]) {
-                *h -= x * v;
-            }
-            tri_sub(i, &mut b, 3, x, &y);
-            assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits));
-        }
-    }
-
-    #[test]
-    fn fold_is_bit_identical_to_the_segment_pair_form() {
-        let mut rnd = crate::solver::test_rng(17);
-        // Solve layout (delays after every pose) and marginalization layout (delay 0 at 15).
-        let layouts: [(&[usize], &[usize]); 2] = [
-            (&[0, 15, 45, 60, 120], &[150, 151, 153, 154, 158]),
-            (&[0, 16, 46, 61], &[15, 140, 142, 143]),
-        ];
-        for (pcols, tcols) in layouts {
-            let mut a = NormalEquations::<166>::new();
-            a.reset(160).unwrap();
-            for i in 0..160 {
-                a.b[i] = rnd();
-                for j in i..160 {
-                    a.h[i][j] = rnd();
-                }
-            }
-            let mut b = a.clone();
-            let poses: HVec<(usize, [f64; 6]), 10> = pcols
-                .iter()
-                .map(|&c| (c, core::array::from_fn(|_| rnd())))
-                .collect();
-            let scalars: HVec<(usize, f64), 10> = tcols.iter().map(|&c| (c, rnd())).collect();
-            let (inv_c, beta) = (1.0 / (1.0 + rnd().abs()), rnd());
-            // The old order: anchor, observations, then the delays, unsorted pairs.
-            let mut segs: HVec<(usize, [f64; 6], usize), 32> = HVec::new();
-            for &(c, x) in poses.iter().rev() {
-                let _ = segs.push((c, x, 6));
-            }
-            for &(c, x) in scalars.iter().rev() {
-                let _ = segs.push((c, [x, 0.0, 0.0, 0.0, 0.0, 0.0], 1));
-            }
-            fold_reference(&mut a, &segs, inv_c, beta);
-            fold_rank_one(&mut b, &poses, &scalars, inv_c, beta);
-            for i in 0..160 {
-                assert_eq!(a.b[i].to_bits(), b.b[i].to_bits(), "b[{i}]");
-                for j in i..160 {
-                    assert_eq!(a.h[i][j].to_bits(), b.h[i][j].to_bits(), "h[{i}][{j}]");
-                }
-            }
-        }
     }
 }

@@ -6,7 +6,7 @@
 //! (`estimator::problem_visual`), the depth-only optimization (`estimator::lidar`) and the
 //! culling residuals (`estimator::cull`).
 
-use super::problem::timed;
+use super::problem_factor::timed;
 #[cfg(test)]
 use crate::camera::CameraExtrinsic;
 use crate::camera::Vec2;
@@ -51,10 +51,30 @@ impl<const N: usize> TauLandmark<N> {
         sqrt_info: Vec2,
         count: usize,
     ) -> Option<Self> {
+        Self::without(obs, s, None, depth, sqrt_info, count)
+    }
+
+    /// [`Self::new`] as if the observation at position `skip` (if any) were not there.
+    #[inline(always)]
+    pub fn without(
+        obs: &[Option<KfObs>; N],
+        s: usize,
+        skip: Option<usize>,
+        depth: Option<LidarDepth>,
+        sqrt_info: Vec2,
+        count: usize,
+    ) -> Option<Self> {
+        if skip == Some(s) {
+            return None;
+        }
         let obs_s = timed(obs.get(s)?.as_ref()?);
-        let mut out = HVec::new();
+        let mut m = TauLandmark {
+            s,
+            obs: HVec::new(),
+            depth,
+        };
         for (j, o) in obs.iter().enumerate().take(count) {
-            if let (Some(o), true) = (o, j != s) {
+            if let (Some(o), true) = (o, j != s && Some(j) != skip) {
                 let f = InverseDepthVisualFactor {
                     kf_s: s,
                     kf_j: j,
@@ -62,13 +82,13 @@ impl<const N: usize> TauLandmark<N> {
                     obs_j: timed(o),
                     sqrt_info,
                 };
-                let _ = out.push((j, f));
+                let _ = m.obs.push((j, f));
             }
         }
-        if out.is_empty() {
+        if m.obs.is_empty() {
             return None;
         }
-        Some(TauLandmark { s, obs: out, depth })
+        Some(m)
     }
 
     /// The whitened depth row and its derivative in `tau` (zero without a LiDAR depth).
@@ -83,20 +103,32 @@ impl<const N: usize> TauLandmark<N> {
     /// The observations as rays in `tau`: camera `j` sees the landmark at `P_j ~ a + tau b`
     /// with `a = R_jw R_ws x_s`, `b = R_jw (p_ws - p_wj)` (`P_j = (a + tau b) / tau`, and the
     /// projection is scale-free), so once `(a, b)` are known every 1-D step costs a few flops.
-    /// (Inlined: the rays are built in place instead of copied out.)
-    #[inline(always)]
     pub(super) fn rays(
         &self,
         poses: &[KeyframePose; N],
         frames: &[CamFrame; N],
     ) -> Result<HVec<Ray, N>, Error> {
+        let mut out = HVec::new();
+        self.rays_into(poses, frames, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Self::rays`] into `out` (cleared first; inlined: the rays are built in place instead
+    /// of copied out).
+    #[inline(always)]
+    pub(super) fn rays_into(
+        &self,
+        poses: &[KeyframePose; N],
+        frames: &[CamFrame; N],
+        out: &mut HVec<Ray, N>,
+    ) -> Result<(), Error> {
+        out.clear();
         let ps = poses.get(self.s).ok_or(Error::DimensionMismatch)?;
         let fs = frames.get(self.s).ok_or(Error::DimensionMismatch)?;
-        let mut out = HVec::new();
         // Every factor of the landmark has the same anchor observation: its ray in the world
         // is formed once.
         let Some((_, f0)) = self.obs.first() else {
-            return Ok(out);
+            return Ok(());
         };
         let ray_s = fs.r_wc * f0.obs_s.corrected(ps.td);
         for (j, f) in self.obs.iter() {
@@ -123,7 +155,7 @@ impl<const N: usize> TauLandmark<N> {
                 w: f.sqrt_info,
             });
         }
-        Ok(out)
+        Ok(())
     }
 
     /// 1-D Gauss–Newton on the inverse depth from `tau0` (or `1/d_r`): `visual(tau, g, h)`

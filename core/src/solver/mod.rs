@@ -21,6 +21,7 @@
 //! unless a function says otherwise; [`NormalEquations::symmetrize`] fills the lower one for
 //! consumers that want a full matrix.
 
+mod fixed6;
 pub mod ldlt;
 pub mod lm;
 pub mod marginalization;

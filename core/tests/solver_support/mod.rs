@@ -134,21 +134,3 @@ pub fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
 pub fn max_abs(a: &[f64]) -> f64 {
     a.iter().map(|x| x.abs()).fold(0.0, f64::max)
 }
-
-/// Central-difference Jacobian of `f: R^n -> R^m`, row-major `m x n`.
-pub fn numeric_jacobian(f: &dyn Fn(&[f64]) -> Vec<f64>, x: &[f64], h: f64) -> Vec<f64> {
-    let m = f(x).len();
-    let n = x.len();
-    let mut jac = vec![0.0; m * n];
-    for j in 0..n {
-        let mut xp = x.to_vec();
-        let mut xm = x.to_vec();
-        xp[j] += h;
-        xm[j] -= h;
-        let (fp, fm) = (f(&xp), f(&xm));
-        for i in 0..m {
-            jac[i * n + j] = (fp[i] - fm[i]) / (2.0 * h);
-        }
-    }
-    jac
-}

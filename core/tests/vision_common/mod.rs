@@ -1,5 +1,5 @@
-//! Helpers shared by the vision test crates: deterministic PRNG, perturbations, numerical
-//! differentiation.
+//! Helpers shared by the vision test crates: deterministic PRNG, perturbations (numerical
+//! differentiation is `numdiff`'s).
 #![allow(dead_code)]
 
 use nalgebra::SMatrix;
@@ -53,22 +53,6 @@ pub fn perturb_ext(ext: &CameraExtrinsic, d: &[f64; 6]) -> CameraExtrinsic {
         p_bc: ext.p_bc + Vec3::new(d[0], d[1], d[2]),
         q_bc: ext.q_bc * quat_exp(&Vec3::new(d[3], d[4], d[5])),
     }
-}
-
-/// Central-difference Jacobian (R x C) of `f` w.r.t. a C-dim perturbation.
-pub fn num_jac<const R: usize, const C: usize>(
-    h: f64,
-    mut f: impl FnMut(&[f64; C]) -> SMatrix<f64, R, 1>,
-) -> SMatrix<f64, R, C> {
-    let mut j = SMatrix::<f64, R, C>::zeros();
-    for i in 0..C {
-        let mut dp = [0.0; C];
-        let mut dm = [0.0; C];
-        dp[i] = h;
-        dm[i] = -h;
-        j.set_column(i, &((f(&dp) - f(&dm)) / (2.0 * h)));
-    }
-    j
 }
 
 /// Max abs entry difference relative to max(1, max abs of `b`).
