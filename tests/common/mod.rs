@@ -10,7 +10,7 @@ pub mod golden;
 
 use povins::core::estimator::{EstimatorConfig, ImuOutput, PoVins, VisualMode};
 use povins::core::inertial::{ImuSample, NavState};
-use povins::core::lidar::LidarPoint;
+use povins::core::lidar::{sweep_due_ns, LidarPoint};
 use povins::host_tools::config::RunConfigFile;
 use povins::host_tools::eval::{evaluate, EvalOptions};
 use povins::host_tools::progress::Progress;
@@ -164,14 +164,16 @@ pub fn step(est: &mut PoVins) -> Option<ImuOutput> {
     }
 }
 
-/// The LiDAR sweeps of a data set as `(time of the last point, points)`, sorted, for
-/// [`drive_lidar`].
+/// The LiDAR sweeps of a data set as `(when the sweep is due, points)`, sorted, for
+/// [`drive_lidar`]: due as the core decides it ([`sweep_due_ns`], with the LiDAR delay of the
+/// data set's configuration), the sweep's own stamp for a sweep without points.
 pub fn sweeps_of(ds: &Dataset) -> Vec<(i64, &[LidarPoint])> {
+    let td_l_s = config_for(ds).lidar.td_l_s;
     let mut v: Vec<(i64, &[LidarPoint])> = ds
         .lidar
         .iter()
         .map(|s| {
-            let t = s.points.iter().map(|p| p.t_ns).max().unwrap_or(s.t_ns);
+            let t = sweep_due_ns(&s.points, td_l_s).unwrap_or(s.t_ns);
             (t, s.points.as_slice())
         })
         .collect();
