@@ -64,6 +64,69 @@ pub struct FirstStatePrior {
     pub ba_mps2: f64,
 }
 
+/// Limits of the health monitor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
+pub struct HealthConfig {
+    /// Check at all.
+    pub enabled: bool,
+    /// Largest plausible gyro bias (each axis), rad/s.
+    pub max_gyro_bias_rps: f64,
+    /// Largest plausible accelerometer bias (each axis), m/s^2.
+    pub max_accel_bias_mps2: f64,
+    /// Largest velocity correction of the newest keyframe by its solve (against the INS
+    /// prediction), m/s.
+    pub max_velocity_correction_mps: f64,
+    /// Largest position change of an already estimated keyframe (every one but the newest) by
+    /// one solve ([`super::KeyframeReport::window_correction_m`]), m, plus
+    /// `max_window_correction_rel` times the path the window spans. The newest keyframe's
+    /// checks cannot see a window that slides away as a whole while its newest state stays
+    /// plausible.
+    pub max_window_correction_m: f64,
+    /// Part of the window's path (the sum of its keyframe-to-keyframe distances before the
+    /// solve) added to `max_window_correction_m`: a fast vehicle's healthy corrections are
+    /// larger in metres.
+    pub max_window_correction_rel: f64,
+    /// Visual residual RMS, in units of `sigma_px`, above which a keyframe counts as bad.
+    pub max_residual_sigmas: f64,
+    /// Consecutive bad keyframes that make a breakdown.
+    pub bad_keyframes: u32,
+    /// Prior of the first keyframe of a re-initialized window.
+    pub reinit_prior: FirstStatePrior,
+}
+
+impl HealthConfig {
+    /// The defaults (what [`Default`] gives); `const` for static configurations.
+    pub const DEFAULT: HealthConfig = HealthConfig {
+        enabled: true,
+        max_gyro_bias_rps: 0.3,
+        max_accel_bias_mps2: 2.0,
+        max_velocity_correction_mps: 2.0,
+        max_window_correction_m: 1.0,
+        max_window_correction_rel: 0.1,
+        max_residual_sigmas: 4.0,
+        bad_keyframes: 3,
+        reinit_prior: FirstStatePrior {
+            p_m: 1e-3,
+            theta_rad: 0.05,
+            v_mps: 0.5,
+            bg_rps: 0.01,
+            ba_mps2: 0.3,
+        },
+    };
+}
+
+impl Default for HealthConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
 /// Everything the estimator needs to know before the first sample.
 #[derive(Debug, Clone, Copy)]
 #[cfg_attr(
@@ -189,7 +252,7 @@ pub struct EstimatorConfig {
     /// Online scale of the IMU white-noise densities ([`super::ImuNoiseAdapt`]).
     pub imu_noise_adapt: super::ImuNoiseAdapt,
     /// Health monitor limits and the re-initialization prior.
-    pub health: super::HealthConfig,
+    pub health: HealthConfig,
     /// LiDAR enhancement (off by default: PO-VINS-WO).
     pub lidar: LidarConfig,
     /// Monotonic clock for the timing statistics, nanoseconds (none: timings are zero).
@@ -283,7 +346,7 @@ impl EstimatorConfig {
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
             imu_noise_adapt: super::ImuNoiseAdapt::DEFAULT,
-            health: super::HealthConfig::DEFAULT,
+            health: HealthConfig::DEFAULT,
             lidar: LidarConfig::DEFAULT,
             clock: None,
         }
@@ -414,7 +477,7 @@ impl EstimatorConfig {
                 min_redundancy: 0.0,
                 tolerance: 0.0,
             },
-            health: super::HealthConfig {
+            health: HealthConfig {
                 enabled: false,
                 max_gyro_bias_rps: 0.0,
                 max_accel_bias_mps2: 0.0,

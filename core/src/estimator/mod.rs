@@ -69,11 +69,10 @@ mod tau_landmark;
 pub mod timing;
 pub mod window;
 
-pub use config::{EstimatorConfig, FirstStatePrior, VisualDepth, VisualMode};
-pub use health::{Breakdown, HealthConfig};
+pub use config::{EstimatorConfig, FirstStatePrior, HealthConfig, VisualDepth, VisualMode};
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
-pub use report::{Admission, Counters, DepthEvent, DepthEventKind, KeyframeReport};
+pub use report::{Admission, Breakdown, Counters, DepthEvent, DepthEventKind, KeyframeReport};
 pub use timing::{IMU_QUEUE, PENDING_LIDAR_POINTS, PENDING_SWEEPS};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
