@@ -255,9 +255,6 @@ pub struct EstimatorConfig {
     pub health: HealthConfig,
     /// LiDAR enhancement (off by default: PO-VINS-WO).
     pub lidar: LidarConfig,
-    /// Monotonic clock for the timing statistics, nanoseconds (none: timings are zero).
-    #[cfg_attr(feature = "serde", serde(skip))]
-    pub clock: Option<fn() -> u64>,
 }
 
 impl EstimatorConfig {
@@ -348,7 +345,6 @@ impl EstimatorConfig {
             imu_noise_adapt: super::ImuNoiseAdapt::DEFAULT,
             health: HealthConfig::DEFAULT,
             lidar: LidarConfig::DEFAULT,
-            clock: None,
         }
     }
 
@@ -513,7 +509,6 @@ impl EstimatorConfig {
                     span_s: 0.0,
                 },
             },
-            clock: None,
         }
     };
 

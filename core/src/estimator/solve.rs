@@ -119,9 +119,9 @@ impl<
         }
         self.update_imu_noise_scale(&self.solve_layout());
         if self.cfg.lidar.enabled && self.cfg.lidar.depth_only_opt {
-            let t0 = now(&self.cfg);
+            let t0 = now(self.clock);
             self.depth_only_optimization();
-            report.depth_opt_ns = now(&self.cfg).saturating_sub(t0);
+            report.depth_opt_ns = now(self.clock).saturating_sub(t0);
         }
         let (obs, lms, rms) = self.reprojection_cull();
         report.culled_observations = obs;

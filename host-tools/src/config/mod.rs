@@ -105,8 +105,7 @@ impl RunConfigFile {
         let mut user = self.table.clone();
         user.remove(FRONTEND);
         user.remove(AIDING);
-        let mut merged: EstimatorConfig = overlay(cfg, &user).map_err(|e| self.error(e))?;
-        merged.clock = cfg.clock;
+        let merged: EstimatorConfig = overlay(cfg, &user).map_err(|e| self.error(e))?;
         if merged.validate().is_err() {
             return Err(self.error(anyhow!(
                 "a setting is out of range (see EstimatorConfig::validate: positive noise, \
