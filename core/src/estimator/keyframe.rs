@@ -116,9 +116,9 @@ impl<
             t_ns: nav.t_ns,
             ..*sample
         };
-        let at_rest = self.cfg.zupt
+        let at_rest = self.cfg.zupt.enabled
             && self.at_rest_since_last_keyframe()
-            && nav.v_wb.norm() <= self.cfg.zupt_max_speed_mps;
+            && nav.v_wb.norm() <= self.cfg.zupt.max_speed_mps;
         report.at_rest = at_rest;
         // The interval closes: swapped into the keyframe's slot (which hands back storage for
         // the next one).
@@ -185,7 +185,7 @@ impl<
         InitialPriors {
             kf0: *kf0,
             kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
-            td0: (td, self.cfg.td_prior_s),
+            td0: (td, self.cfg.td.prior_s),
             ext: (
                 self.cfg.extrinsic,
                 self.cfg.extrinsic_prior.0,

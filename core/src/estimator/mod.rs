@@ -69,7 +69,10 @@ mod tau_landmark;
 pub mod timing;
 pub mod window;
 
-pub use config::{EstimatorConfig, FirstStatePrior, HealthConfig, VisualDepth, VisualMode};
+pub use config::{
+    CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, TdConfig, VisualDepth, VisualMode,
+    ZuptConfig,
+};
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
 pub use report::{Admission, Breakdown, Counters, DepthEvent, DepthEventKind, KeyframeReport};

@@ -50,7 +50,7 @@ pub struct KeyframeReport {
     pub prior_gauge_std: (f64, f64),
     /// The keyframe got the zero-velocity factor (and a zero-motion factor to the previous one):
     /// the images showed rest since the previous keyframe and the INS speed agreed
-    /// ([`super::EstimatorConfig::zupt_max_speed_mps`]).
+    /// ([`super::ZuptConfig::max_speed_mps`]).
     pub at_rest: bool,
     /// Largest position change the solve gave a keyframe that earlier solves had already
     /// estimated (every keyframe but the newest), m. A healthy window moves them by millimetres
