@@ -76,7 +76,6 @@ fn bench_keyframe(c: &mut Criterion) {
     ] {
         let mut cfg = config_for(&ds);
         cfg.mode = mode;
-        cfg.clock = None;
         let (est, sample) = snapshot(&ds, cfg, 200);
         on_clone(
             c,
@@ -133,7 +132,6 @@ fn bench_keyframe_lidar(c: &mut Criterion) {
         ("lidar_direct", Some(LdmMode::Direct)),
     ] {
         let mut cfg = config_for(&ds);
-        cfg.clock = None;
         cfg.lidar.enabled = lidar.is_some();
         if let Some(m) = lidar {
             cfg.lidar.ldm = m;

@@ -196,7 +196,6 @@ fn dmvio_images_through_vio_do_not_allocate() {
             .expect("configs/dmvio.toml")
             .apply(&mut cfg)
             .expect("configs/dmvio.toml applies");
-        cfg.clock = None;
         let mut vio: Box<EurocVio> =
             povins::platform::boxed::boxed_vio(cfg, TrackerConfig::default()).expect("vio");
         let (mut keyframes, mut images, mut tracks, mut predicted) = (0usize, 0usize, 0u64, 0u64);

@@ -3,7 +3,7 @@
 //!
 //! A simulated robot (seed 9, 30 s) with exact feature tracks (no pixel noise) and 3% wrong
 //! tracks, with zero-velocity updates trusted whatever the INS speed (as before
-//! `zupt_max_speed_mps`), breaks down at 27 s: one solve moves the keyframes of the last 3 s by
+//! `zupt.max_speed_mps`), breaks down at 27 s: one solve moves the keyframes of the last 3 s by
 //! about 8 m while the newest keyframe's velocity, biases and residuals stay within the monitor's
 //! limits, so the checks of the newest keyframe alone let it through and the run ends 3.4 m off
 //! (ATE). The window-correction check (`HealthConfig::max_window_correction_m`) sees the jump of
@@ -43,12 +43,12 @@ fn run(wrong_track_rate: f64, check: bool, gate: bool) -> Outcome {
         .dataset;
     let mut cfg = config_for(&ds);
     cfg.td_s = 0.0;
-    cfg.estimate_td = false;
+    cfg.td.estimate = false;
     if !check {
         cfg.health.max_window_correction_m = f64::INFINITY;
     }
     if !gate {
-        cfg.zupt_max_speed_mps = 1e9;
+        cfg.zupt.max_speed_mps = 1e9;
     }
     let (start, s0) = gt_start(&ds, &mut cfg);
     let mut est = new_estimator(cfg);

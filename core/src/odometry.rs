@@ -143,8 +143,8 @@ pub struct ImageReport {
     pub rotation_seed: bool,
     /// Tracks offered to the estimator.
     pub tracks: u32,
-    /// Front-end time (predictions, gyro integration, tracking), ns, by the estimator
-    /// configuration's clock (0 without a clock).
+    /// Front-end time (predictions, gyro integration, tracking), ns, on the clock given to
+    /// `set_clock` (0 without a clock).
     pub frontend_ns: u64,
     /// The estimator refused the frame (its counters have the reason); the tracker advanced.
     pub frame_error: Option<Error>,

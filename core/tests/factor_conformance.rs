@@ -140,7 +140,7 @@ impl Case for TdWalk {
         Scene::moving(false, true, ImuNoise::EUROC_ADIS16448)
     }
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
-        let rw_s_per_sqrt_s = s.cfg.td_rw_s_per_sqrt_s;
+        let rw_s_per_sqrt_s = s.cfg.td.rw_s_per_sqrt_s;
         let (v, _) = s.split();
         run(
             TdRandomWalkFactor {
@@ -156,7 +156,7 @@ impl Case for TdWalk {
     }
     fn degenerate(s: &mut Scene) {
         // No random walk: no variance.
-        s.cfg.td_rw_s_per_sqrt_s = 0.0;
+        s.cfg.td.rw_s_per_sqrt_s = 0.0;
     }
 }
 
@@ -332,7 +332,7 @@ impl Case for FirstDelay {
     }
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
         let td0_s = s.means.1;
-        let sigma_s = s.cfg.td_prior_s;
+        let sigma_s = s.cfg.td.prior_s;
         let (v, _) = s.split();
         run(TdPrior { td0_s, sigma_s }, &v, f)
     }
@@ -340,7 +340,7 @@ impl Case for FirstDelay {
         s.window.get_mut(0).unwrap().td_s = f64::NAN;
     }
     fn degenerate(s: &mut Scene) {
-        s.cfg.td_prior_s = 0.0;
+        s.cfg.td.prior_s = 0.0;
     }
 }
 
@@ -420,7 +420,7 @@ impl Case for RestVelocity {
         Scene::at_rest(false, false)
     }
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
-        let sigma_mps = s.cfg.zupt_sigma_mps;
+        let sigma_mps = s.cfg.zupt.sigma_mps;
         let (v, _) = s.split();
         run(ZuptVelocity { k: 2, sigma_mps }, &v, f)
     }
@@ -428,7 +428,7 @@ impl Case for RestVelocity {
         s.window.get_mut(2).unwrap().state.v_wb.z = f64::NAN;
     }
     fn degenerate(s: &mut Scene) {
-        s.cfg.zupt_sigma_mps = 0.0;
+        s.cfg.zupt.sigma_mps = 0.0;
     }
 }
 
@@ -440,7 +440,7 @@ impl Case for RestPosition {
         Scene::at_rest(false, false)
     }
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
-        let sigma_m = s.cfg.zupt_motion_sigma.0;
+        let sigma_m = s.cfg.zupt.motion_sigma_m;
         let (v, _) = s.split();
         run(ZuptPosition { k: 2, sigma_m }, &v, f)
     }
@@ -448,7 +448,7 @@ impl Case for RestPosition {
         nan_position(s, 1);
     }
     fn degenerate(s: &mut Scene) {
-        s.cfg.zupt_motion_sigma.0 = 0.0;
+        s.cfg.zupt.motion_sigma_m = 0.0;
     }
 }
 
@@ -460,7 +460,7 @@ impl Case for RestRotation {
         Scene::at_rest(false, false)
     }
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
-        let sigma_rad = s.cfg.zupt_motion_sigma.1;
+        let sigma_rad = s.cfg.zupt.motion_sigma_rad;
         let (v, _) = s.split();
         run(ZuptRotation { k: 2, sigma_rad }, &v, f)
     }
@@ -474,7 +474,7 @@ impl Case for RestRotation {
         ));
     }
     fn degenerate(s: &mut Scene) {
-        s.cfg.zupt_motion_sigma.1 = 0.0;
+        s.cfg.zupt.motion_sigma_rad = 0.0;
     }
 }
 

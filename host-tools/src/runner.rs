@@ -144,7 +144,6 @@ pub fn config_for(rec: &dyn Recording) -> EstimatorConfig {
     let mut cfg = EstimatorConfig::new(c.camera, ext, c.imu_noise);
     cfg.gravity_mps2 = c.gravity_mps2;
     cfg.td_s = c.td_s;
-    cfg.clock = Some(monotonic_ns);
     if let (true, Some(t_bl)) = (rec.contents().lidar, c.t_bl) {
         cfg.lidar.enabled = true;
         cfg.lidar.extrinsic = LidarExtrinsic {
@@ -249,7 +248,8 @@ pub fn start(
 ) -> Result<(Box<dyn Odometry + Send>, i64)> {
     check_input(rec, fe)?;
     let (start_ns, gt_start) = start_state(rec, &mut cfg, init)?;
-    let mut odo = boxed_odometry(cfg, &fe.front_end()).with_context(|| rec.name().to_string())?;
+    let mut odo = boxed_odometry(cfg, &fe.front_end(), Some(monotonic_ns))
+        .with_context(|| rec.name().to_string())?;
     if let Some(s0) = gt_start {
         odo.initialize(s0)
             .map_err(|e| anyhow::anyhow!("cannot initialize from ground truth: {e}"))?;

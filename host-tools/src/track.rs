@@ -4,7 +4,9 @@
 
 use crate::frontend_stats::FrontendSummary;
 use crate::progress::Progress;
-use crate::runner::{check_input, config_for, FrameLog, FrontendOptions, ReplayProgress};
+use crate::runner::{
+    check_input, config_for, monotonic_ns, FrameLog, FrontendOptions, ReplayProgress,
+};
 use crate::track_pictures::{draw_frame, DrawnTrack};
 use anyhow::{Context, Result};
 use povins_core::camera::FeatureObs;
@@ -67,7 +69,8 @@ pub fn track_dataset(
         tracker: opts.tracker,
         gyro_rotation: opts.gyro,
     };
-    let mut odo = boxed_odometry(cfg, &fe).with_context(|| rec.name().to_string())?;
+    let mut odo =
+        boxed_odometry(cfg, &fe, Some(monotonic_ns)).with_context(|| rec.name().to_string())?;
     let merge = MergeOptions {
         lidar: false,
         ..MergeOptions::new(CameraInput::Images)

@@ -159,7 +159,6 @@ fn odd_images_are_counted_never_fatal_and_the_replay_is_deterministic() {
         cfg.static_init.accel_std_max_mps2 = 0.15;
         cfg.static_init.gyro_std_max_rps = 0.01;
         cfg.static_init.min_static_s = 0.8;
-        cfg.clock = None;
         let fe = FrontendOptions::images(TrackerConfig::default());
         let a = replay_with(&ds, cfg, InitMode::Static, &fe, &quiet()).unwrap();
         // Unreadable: truncated, empty, garbage, missing; refused: the 100x80 image.

@@ -86,23 +86,31 @@ pub fn check(cfg: &EstimatorConfig, fe: &FrontEnd) -> Result<(), BuildError> {
     r.map_err(BuildError::Config)
 }
 
-/// An odometry configured with `cfg` and fed by `fe`, on the heap (see the module docs).
+/// An odometry configured with `cfg` and fed by `fe`, on the heap (see the module docs), its
+/// steps timed on `clock` (monotonic, ns; none: every timing in its outputs is zero).
 pub fn boxed_odometry(
     cfg: EstimatorConfig,
     fe: &FrontEnd,
+    clock: Option<fn() -> u64>,
 ) -> Result<Box<dyn Odometry + Send>, BuildError> {
     let hd = capacity(&cfg, fe)? == Capacity::Hd;
     let c = BuildError::Config;
     Ok(match *fe {
-        FrontEnd::Tracks => boxed_povins(cfg).map_err(c)?,
+        FrontEnd::Tracks => {
+            let mut e = boxed_povins(cfg).map_err(c)?;
+            e.set_clock(clock);
+            e
+        }
         FrontEnd::Images { tracker, aiding } => {
             if hd {
                 let mut v: Box<HdVio> = boxed_vio(cfg, tracker).map_err(c)?;
                 v.set_aiding(aiding);
+                v.set_clock(clock);
                 v
             } else {
                 let mut v: Box<EurocVio> = boxed_vio(cfg, tracker).map_err(c)?;
                 v.set_aiding(aiding);
+                v.set_clock(clock);
                 v
             }
         }
@@ -117,10 +125,12 @@ pub fn boxed_odometry(
             if hd {
                 let mut t: Box<HdTracking> = boxed_tracking(cfg, tracker).map_err(c)?;
                 t.set_aiding(aiding);
+                t.set_clock(clock);
                 t
             } else {
                 let mut t: Box<EurocTracking> = boxed_tracking(cfg, tracker).map_err(c)?;
                 t.set_aiding(aiding);
+                t.set_clock(clock);
                 t
             }
         }

@@ -189,10 +189,9 @@ pub fn simulate_with_lidar(sc: Scenario, seed: u64, secs: f64) -> Dataset {
 }
 
 /// The configuration for a simulated data set with LiDAR enhancement on or off (the paper's
-/// defaults: MSC LDM, rejection and depth-only optimization on), without a clock.
+/// defaults: MSC LDM, rejection and depth-only optimization on).
 pub fn sim_lidar_config(ds: &Dataset, on: bool) -> EstimatorConfig {
     let mut cfg = config_for(ds);
-    cfg.clock = None;
     let t_bl = ds.calib.t_bl.expect("the simulated data set has a LiDAR");
     cfg.lidar.enabled = on;
     cfg.lidar.extrinsic = povins::core::lidar::LidarExtrinsic {

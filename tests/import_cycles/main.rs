@@ -26,19 +26,7 @@ use std::path::PathBuf;
 /// Cycles known and scheduled for removal (issue 29): each entry is the sorted module set of one
 /// strongly connected component. The test fails when one of them is gone too, so that the entry
 /// is removed with the cycle.
-const ALLOWED: &[&[&str]] = &[
-    // core: found by this check (issue 29 names three cycles, this is a fourth): `config` holds
-    // a `super::HealthConfig` (defined in `health`), `health` uses `config::FirstStatePrior` and
-    // `super::KeyframeReport`, and the report holds `super::Breakdown` (defined in `health`).
-    // Moving `HealthConfig` beside the other settings in `config` and `Breakdown` beside the
-    // report in `report` breaks it; left to whoever restructures the configuration and report
-    // (issue 29 items 1 and 3). Delete this entry then.
-    &[
-        "povins_core::estimator::config",
-        "povins_core::estimator::health",
-        "povins_core::estimator::report",
-    ],
-];
+const ALLOWED: &[&[&str]] = &[];
 
 const CRATES: &[(&str, &str)] = &[
     ("povins_core", "core/src/lib.rs"),

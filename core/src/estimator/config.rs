@@ -10,6 +10,10 @@ use crate::lidar::LidarConfig;
 use crate::solver::LmConfig;
 use crate::Error;
 
+mod groups;
+
+pub use groups::{CullConfig, TdConfig, ZuptConfig};
+
 /// How visual landmarks enter the optimization.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -64,6 +68,69 @@ pub struct FirstStatePrior {
     pub ba_mps2: f64,
 }
 
+/// Limits of the health monitor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
+pub struct HealthConfig {
+    /// Check at all.
+    pub enabled: bool,
+    /// Largest plausible gyro bias (each axis), rad/s.
+    pub max_gyro_bias_rps: f64,
+    /// Largest plausible accelerometer bias (each axis), m/s^2.
+    pub max_accel_bias_mps2: f64,
+    /// Largest velocity correction of the newest keyframe by its solve (against the INS
+    /// prediction), m/s.
+    pub max_velocity_correction_mps: f64,
+    /// Largest position change of an already estimated keyframe (every one but the newest) by
+    /// one solve ([`super::KeyframeReport::window_correction_m`]), m, plus
+    /// `max_window_correction_rel` times the path the window spans. The newest keyframe's
+    /// checks cannot see a window that slides away as a whole while its newest state stays
+    /// plausible.
+    pub max_window_correction_m: f64,
+    /// Part of the window's path (the sum of its keyframe-to-keyframe distances before the
+    /// solve) added to `max_window_correction_m`: a fast vehicle's healthy corrections are
+    /// larger in metres.
+    pub max_window_correction_rel: f64,
+    /// Visual residual RMS, in units of `sigma_px`, above which a keyframe counts as bad.
+    pub max_residual_sigmas: f64,
+    /// Consecutive bad keyframes that make a breakdown.
+    pub bad_keyframes: u32,
+    /// Prior of the first keyframe of a re-initialized window.
+    pub reinit_prior: FirstStatePrior,
+}
+
+impl HealthConfig {
+    /// The defaults (what [`Default`] gives); `const` for static configurations.
+    pub const DEFAULT: HealthConfig = HealthConfig {
+        enabled: true,
+        max_gyro_bias_rps: 0.3,
+        max_accel_bias_mps2: 2.0,
+        max_velocity_correction_mps: 2.0,
+        max_window_correction_m: 1.0,
+        max_window_correction_rel: 0.1,
+        max_residual_sigmas: 4.0,
+        bad_keyframes: 3,
+        reinit_prior: FirstStatePrior {
+            p_m: 1e-3,
+            theta_rad: 0.05,
+            v_mps: 0.5,
+            bg_rps: 0.01,
+            ba_mps2: 0.3,
+        },
+    };
+}
+
+impl Default for HealthConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
 /// Everything the estimator needs to know before the first sample.
 #[derive(Debug, Clone, Copy)]
 #[cfg_attr(
@@ -107,22 +174,8 @@ pub struct EstimatorConfig {
     pub static_init: StaticInitConfig,
     /// Rest detection from the images (static initialization and zero-velocity updates).
     pub rest: RestConfig,
-    /// Zero-velocity updates: while the images show the platform at rest, keyframes get a
-    /// zero-velocity factor and consecutive ones a zero-motion factor.
-    pub zupt: bool,
-    /// Standard deviation of the zero-velocity factor, m/s.
-    pub zupt_sigma_mps: f64,
-    /// Largest speed the INS may show at a keyframe for the images' rest to be believed, m/s.
-    /// Features far ahead of a platform moving towards them hardly move in the image (a robot
-    /// at 0.9 m/s: under 2 px in 0.3 s with exact tracks), so the images alone take slow forward
-    /// motion for rest, and they see a start late (a robot 0.5 s after it set off: 0.1 m/s,
-    /// 2 cm, under 2 px). Like any measurement, a zero velocity must agree with the state it
-    /// corrects: 0.05 m/s is five of the factor's sigmas and above a healthy window's velocity
-    /// error at rest (EuRoC's vibrating MAV keeps all its rest keyframes down to 0.03 m/s).
-    pub zupt_max_speed_mps: f64,
-    /// Standard deviations of the zero-motion factor between keyframes at rest: position m,
-    /// rotation rad.
-    pub zupt_motion_sigma: (f64, f64),
+    /// Zero-velocity updates (`[zupt]`).
+    pub zupt: ZuptConfig,
     /// Preintegration (re-integration thresholds).
     pub preint: PreintConfig,
     /// Prior of the first keyframe.
@@ -145,21 +198,8 @@ pub struct EstimatorConfig {
     pub slot_parallax_ref: f64,
     /// Valid landmark depth range, m (LE-VINS: 1-200 m).
     pub depth_range_m: (f64, f64),
-    /// Chi-square threshold (2 dof, 95%) of the cull between the two LM passes.
-    pub chi2_threshold: f64,
-    /// The second LM pass runs when the chi-square cull removed at least this fraction of the
-    /// observations (and at least one): an outlier burst. Removing a few Huber-weighted outliers
-    /// barely moves the optimum, and the next keyframe's solve starts from there anyway (0.02
-    /// before 2026-11-29, a second pass at 63% of the corridor's keyframes; 0.1 gave an ATE
-    /// geometric mean ratio of 0.965 over 102 regression sequences and the corridor's back-end
-    /// median 1.99 -> 1.74 ms).
-    pub second_pass_min_culled_frac: f64,
-    /// Drop a landmark whose mean reprojection error exceeds this after the solve, px.
-    pub cull_mean_px: f64,
-    /// Drop a single observation whose reprojection error exceeds this, px.
-    pub cull_obs_px: f64,
-    /// Drop (and ban) the whole track instead of the single observation.
-    pub cull_whole_tracks: bool,
+    /// Outlier culls (`[cull]`).
+    pub cull: CullConfig,
     /// Levenberg-Marquardt settings of the first pass.
     pub lm_first: LmConfig,
     /// Levenberg-Marquardt settings of the second pass (after the chi-square cull).
@@ -173,15 +213,8 @@ pub struct EstimatorConfig {
     /// (false) re-anchor them first and fold only the oldest observation's residual
     /// (`estimator::marginalize`).
     pub reuse_marginalized_landmarks: bool,
-    /// Estimate the camera-IMU time delay (random walk between keyframes).
-    pub estimate_td: bool,
-    /// Random-walk density of the time delay, s/sqrt(s).
-    pub td_rw_s_per_sqrt_s: f64,
-    /// Prior standard deviation of the first time delay, s.
-    pub td_prior_s: f64,
-    /// Fewest landmarks in a solve for the delay to be estimated (with fewer it is held: a few
-    /// landmarks cannot separate the delay from the motion).
-    pub td_min_landmarks: u32,
+    /// Estimation of the camera-IMU time delay (`[td]`).
+    pub td: TdConfig,
     /// Estimate the camera-IMU extrinsic.
     pub estimate_extrinsic: bool,
     /// Prior standard deviations of the extrinsic: translation m, rotation rad.
@@ -189,12 +222,9 @@ pub struct EstimatorConfig {
     /// Online scale of the IMU white-noise densities ([`super::ImuNoiseAdapt`]).
     pub imu_noise_adapt: super::ImuNoiseAdapt,
     /// Health monitor limits and the re-initialization prior.
-    pub health: super::HealthConfig,
+    pub health: HealthConfig,
     /// LiDAR enhancement (off by default: PO-VINS-WO).
     pub lidar: LidarConfig,
-    /// Monotonic clock for the timing statistics, nanoseconds (none: timings are zero).
-    #[cfg_attr(feature = "serde", serde(skip))]
-    pub clock: Option<fn() -> u64>,
 }
 
 impl EstimatorConfig {
@@ -248,10 +278,7 @@ impl EstimatorConfig {
             keyframe: KeyframeConfig::DEFAULT,
             static_init: StaticInitConfig::DEFAULT,
             rest: RestConfig::DEFAULT,
-            zupt: true,
-            zupt_sigma_mps: 0.01,
-            zupt_max_speed_mps: 0.05,
-            zupt_motion_sigma: (2e-3, 2e-3),
+            zupt: ZuptConfig::DEFAULT,
             preint: PreintConfig::DEFAULT,
             first_prior: FirstStatePrior {
                 p_m: 1e-3,
@@ -267,25 +294,17 @@ impl EstimatorConfig {
             slot_parallax_ref: 0.02,
             depth_uncertainty_weighting: false,
             depth_range_m: (0.1, 200.0),
-            chi2_threshold: 5.991,
-            second_pass_min_culled_frac: 0.1,
-            cull_mean_px: 4.5,
-            cull_obs_px: 4.5,
-            cull_whole_tracks: false,
+            cull: CullConfig::DEFAULT,
             lm_first: lm,
             lm_second: lm,
             marginalize_visual: true,
             reuse_marginalized_landmarks: true,
-            estimate_td: true,
-            td_rw_s_per_sqrt_s: 1e-4,
-            td_prior_s: 5e-3,
-            td_min_landmarks: 20,
+            td: TdConfig::DEFAULT,
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
             imu_noise_adapt: super::ImuNoiseAdapt::DEFAULT,
-            health: super::HealthConfig::DEFAULT,
+            health: HealthConfig::DEFAULT,
             lidar: LidarConfig::DEFAULT,
-            clock: None,
         }
     }
 
@@ -375,10 +394,13 @@ impl EstimatorConfig {
                 max_px: 0.0,
                 min_features: 0,
             },
-            zupt: false,
-            zupt_sigma_mps: 0.0,
-            zupt_max_speed_mps: 0.0,
-            zupt_motion_sigma: (0.0, 0.0),
+            zupt: ZuptConfig {
+                enabled: false,
+                sigma_mps: 0.0,
+                max_speed_mps: 0.0,
+                motion_sigma_m: 0.0,
+                motion_sigma_rad: 0.0,
+            },
             preint: PreintConfig {
                 max_dt_s: 0.0,
                 reint_bg_rps: 0.0,
@@ -392,19 +414,23 @@ impl EstimatorConfig {
             depth_uncertainty_weighting: false,
             slot_parallax_ref: 0.0,
             depth_range_m: (0.0, 0.0),
-            chi2_threshold: 0.0,
-            second_pass_min_culled_frac: 0.0,
-            cull_mean_px: 0.0,
-            cull_obs_px: 0.0,
-            cull_whole_tracks: false,
+            cull: CullConfig {
+                chi2_threshold: 0.0,
+                second_pass_min_culled_frac: 0.0,
+                mean_px: 0.0,
+                obs_px: 0.0,
+                whole_tracks: false,
+            },
             lm_first: LM,
             lm_second: LM,
             marginalize_visual: false,
             reuse_marginalized_landmarks: false,
-            estimate_td: false,
-            td_rw_s_per_sqrt_s: 0.0,
-            td_prior_s: 0.0,
-            td_min_landmarks: 0,
+            td: TdConfig {
+                estimate: false,
+                rw_s_per_sqrt_s: 0.0,
+                prior_s: 0.0,
+                min_landmarks: 0,
+            },
             estimate_extrinsic: false,
             extrinsic_prior: (0.0, 0.0),
             imu_noise_adapt: super::ImuNoiseAdapt {
@@ -414,7 +440,7 @@ impl EstimatorConfig {
                 min_redundancy: 0.0,
                 tolerance: 0.0,
             },
-            health: super::HealthConfig {
+            health: HealthConfig {
                 enabled: false,
                 max_gyro_bias_rps: 0.0,
                 max_accel_bias_mps2: 0.0,
@@ -450,11 +476,11 @@ impl EstimatorConfig {
                     span_s: 0.0,
                 },
             },
-            clock: None,
         }
     };
 
-    /// Checks ranges: positive noise and thresholds, a valid depth range.
+    /// Checks ranges: positive noise and thresholds, a valid depth range, and each group's
+    /// ranges ([`ZuptConfig::validate`], [`TdConfig::validate`], [`CullConfig::validate`]).
     pub fn validate(&self) -> Result<(), Error> {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         let p = &self.first_prior;
@@ -470,20 +496,10 @@ impl EstimatorConfig {
             && self.min_parallax.is_finite()
             && self.min_parallax >= 0.0
             && pos(self.max_rel_depth_std)
-            && pos(self.zupt_sigma_mps)
-            && pos(self.zupt_max_speed_mps)
-            && pos(self.zupt_motion_sigma.0)
-            && pos(self.zupt_motion_sigma.1)
             && pos(self.rest.max_px)
             && pos(self.slot_parallax_ref)
             && pos(self.depth_range_m.0)
             && self.depth_range_m.1 > self.depth_range_m.0
-            && pos(self.chi2_threshold)
-            && (0.0..=1.0).contains(&self.second_pass_min_culled_frac)
-            && pos(self.cull_mean_px)
-            && pos(self.cull_obs_px)
-            && pos(self.td_rw_s_per_sqrt_s)
-            && pos(self.td_prior_s)
             && pos(self.extrinsic_prior.0)
             && pos(self.extrinsic_prior.1)
             && [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2]
@@ -494,10 +510,12 @@ impl EstimatorConfig {
             && self.imu_noise_adapt.is_valid()
             && pos(self.camera.fx)
             && pos(self.camera.fy);
-        if ok {
-            self.lidar.validate()
-        } else {
-            Err(Error::InvalidConfig)
+        if !ok {
+            return Err(Error::InvalidConfig);
         }
+        self.zupt.validate()?;
+        self.td.validate()?;
+        self.cull.validate()?;
+        self.lidar.validate()
     }
 }

@@ -129,7 +129,7 @@ impl<
                 if j == s {
                     continue;
                 }
-                let bad = r.is_some_and(|r| r.norm_squared() > self.cfg.chi2_threshold);
+                let bad = r.is_some_and(|r| r.norm_squared() > self.cfg.cull.chi2_threshold);
                 if bad && self.lms.invalidate_obs(li, j) {
                     culled += 1;
                 }
@@ -160,8 +160,8 @@ impl<
         self.lms.retain(|lm| lm.first_obs().is_some(), true);
     }
 
-    /// Paper V.E: drop landmarks whose mean reprojection error exceeds `cull_mean_px`, otherwise
-    /// single observations above `cull_obs_px`. Returns (observations, landmarks, rms px).
+    /// Paper V.E: drop landmarks whose mean reprojection error exceeds `cull.mean_px`, otherwise
+    /// single observations above `cull.obs_px`. Returns (observations, landmarks, rms px).
     pub(super) fn reprojection_cull(&mut self) -> (u32, u32, f64) {
         let count = self.window.len();
         let wf = self.window_frames();
@@ -196,14 +196,14 @@ impl<
                 continue;
             }
             // A track with one gross observation is a wrong track from there on (a tracker that
-            // jumps stays on what it jumped to): with `cull_whole_tracks` it goes whole.
-            let gross = self.cfg.cull_whole_tracks
+            // jumps stays on what it jumped to): with `cull.whole_tracks` it goes whole.
+            let gross = self.cfg.cull.whole_tracks
                 && errs
                     .iter()
                     .enumerate()
                     .take(count)
-                    .any(|(j, e)| j != s && *e > self.cfg.cull_obs_px);
-            if gross || sum / f64::from(n) > self.cfg.cull_mean_px {
+                    .any(|(j, e)| j != s && *e > self.cfg.cull.obs_px);
+            if gross || sum / f64::from(n) > self.cfg.cull.mean_px {
                 let _ = drop_lm.push(id);
                 if let Some(d) = self.lms.landmarks().get(li).and_then(|l| l.lidar) {
                     let _ = self.events.push(DepthEvent {
@@ -215,7 +215,7 @@ impl<
                 continue;
             }
             for (j, e) in errs.iter().enumerate().take(count) {
-                if j != s && *e > self.cfg.cull_obs_px && self.lms.invalidate_obs(li, j) {
+                if j != s && *e > self.cfg.cull.obs_px && self.lms.invalidate_obs(li, j) {
                     n_obs += 1;
                 }
             }

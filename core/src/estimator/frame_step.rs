@@ -58,7 +58,7 @@ impl<
         &mut self,
         sample: &ImuSample,
     ) -> Result<Option<KeyframeReport>, Error> {
-        let t0 = now(&self.cfg);
+        let t0 = now(self.clock);
         let t_cam_ns = self.frame.t_cam_ns;
         let motion = self.camera_motion(sample);
         let st = match self.tracks.process(

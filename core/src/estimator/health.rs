@@ -7,94 +7,14 @@
 //! measurements). On a breakdown the window, its landmarks and its prior are dropped and the INS
 //! continues alone from its own prediction of the keyframe state (INS-only, as between
 //! keyframes); the next frame starts a new window from that state with a wide prior
-//! ([`HealthConfig::reinit_prior`]). Each re-initialization is counted
+//! ([`super::HealthConfig::reinit_prior`]). Each re-initialization is counted
 //! ([`super::Counters::reinitializations`]) and reported with its reason
 //! ([`super::KeyframeReport::breakdown`]). Only when the INS itself is no longer finite does the
 //! estimator fall back to waiting for a static initialization.
 
-use super::config::FirstStatePrior;
+use super::report::Breakdown;
 use super::Estimator;
 use crate::inertial::NavState;
-
-/// Limits of the health monitor.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[cfg_attr(
-    feature = "serde",
-    derive(serde::Serialize, serde::Deserialize),
-    serde(deny_unknown_fields)
-)]
-pub struct HealthConfig {
-    /// Check at all.
-    pub enabled: bool,
-    /// Largest plausible gyro bias (each axis), rad/s.
-    pub max_gyro_bias_rps: f64,
-    /// Largest plausible accelerometer bias (each axis), m/s^2.
-    pub max_accel_bias_mps2: f64,
-    /// Largest velocity correction of the newest keyframe by its solve (against the INS
-    /// prediction), m/s.
-    pub max_velocity_correction_mps: f64,
-    /// Largest position change of an already estimated keyframe (every one but the newest) by
-    /// one solve ([`super::KeyframeReport::window_correction_m`]), m, plus
-    /// `max_window_correction_rel` times the path the window spans. The newest keyframe's
-    /// checks cannot see a window that slides away as a whole while its newest state stays
-    /// plausible.
-    pub max_window_correction_m: f64,
-    /// Part of the window's path (the sum of its keyframe-to-keyframe distances before the
-    /// solve) added to `max_window_correction_m`: a fast vehicle's healthy corrections are
-    /// larger in metres.
-    pub max_window_correction_rel: f64,
-    /// Visual residual RMS, in units of `sigma_px`, above which a keyframe counts as bad.
-    pub max_residual_sigmas: f64,
-    /// Consecutive bad keyframes that make a breakdown.
-    pub bad_keyframes: u32,
-    /// Prior of the first keyframe of a re-initialized window.
-    pub reinit_prior: FirstStatePrior,
-}
-
-impl HealthConfig {
-    /// The defaults (what [`Default`] gives); `const` for static configurations.
-    pub const DEFAULT: HealthConfig = HealthConfig {
-        enabled: true,
-        max_gyro_bias_rps: 0.3,
-        max_accel_bias_mps2: 2.0,
-        max_velocity_correction_mps: 2.0,
-        max_window_correction_m: 1.0,
-        max_window_correction_rel: 0.1,
-        max_residual_sigmas: 4.0,
-        bad_keyframes: 3,
-        reinit_prior: FirstStatePrior {
-            p_m: 1e-3,
-            theta_rad: 0.05,
-            v_mps: 0.5,
-            bg_rps: 0.01,
-            ba_mps2: 0.3,
-        },
-    };
-}
-
-impl Default for HealthConfig {
-    fn default() -> Self {
-        Self::DEFAULT
-    }
-}
-
-/// Why the health monitor re-initialized the window.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Breakdown {
-    /// A state became non-finite or faster than `max_speed_mps`.
-    State,
-    /// A bias left its plausible range.
-    Bias,
-    /// The solve moved the newest velocity more than the INS could have drifted.
-    VelocityJump,
-    /// The visual residuals stayed many sigmas large.
-    Residuals,
-    /// The solve moved keyframes that earlier solves had estimated by more than
-    /// `max_window_correction_m` plus `max_window_correction_rel` times the window's path.
-    WindowJump,
-}
 
 impl<
         const N: usize,

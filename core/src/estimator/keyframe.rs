@@ -44,12 +44,12 @@ impl<
         let sample = self.append_keyframe(t_cam_ns, &nav, sample, &mut report)?;
 
         // 3-5. Optimize and cull.
-        let ts = now(&self.cfg);
+        let ts = now(self.clock);
         let before = self.window.poses();
         if self.window.len() >= 2 {
             self.optimize(&mut report);
         }
-        report.solve_ns = now(&self.cfg).saturating_sub(ts);
+        report.solve_ns = now(self.clock).saturating_sub(ts);
         let (correction, window_path_m) = self.window_correction(&before);
         report.window_correction_m = correction;
         if self.window.len() >= 2 {
@@ -58,7 +58,7 @@ impl<
                 // The window broke down: INS-only from its own prediction, a new window next.
                 report.breakdown = Some(b);
                 self.reinitialize_from(nav);
-                report.total_ns = now(&self.cfg).saturating_sub(t0);
+                report.total_ns = now(self.clock).saturating_sub(t0);
                 return Ok(report);
             }
         }
@@ -70,7 +70,7 @@ impl<
         report.td_s = self.current_td();
         report.imu_noise_scale = self.imu_scale.density_scale();
         report.landmarks_total = self.lms.len() as u32;
-        report.total_ns = now(&self.cfg).saturating_sub(t0);
+        report.total_ns = now(self.clock).saturating_sub(t0);
         Ok(report)
     }
 
@@ -79,7 +79,7 @@ impl<
     /// and rank deficiencies in `report`.
     fn marginalize_for_keyframe(&mut self, report: &mut KeyframeReport) {
         if self.window.is_full() {
-            let tm = now(&self.cfg);
+            let tm = now(self.clock);
             self.last_marg = None;
             if self.marginalize_oldest().is_err() {
                 self.counters.marginalization_failures += 1;
@@ -88,7 +88,7 @@ impl<
                 let _ = self.window.drop_oldest();
                 self.lms.shift_out_oldest();
             }
-            report.marginalization_ns = now(&self.cfg).saturating_sub(tm);
+            report.marginalization_ns = now(self.clock).saturating_sub(tm);
             if let Some((m, p)) = self.last_marg {
                 report.marginalized_rank_deficiency = m;
                 report.prior_rank_deficiency = p;
@@ -116,9 +116,9 @@ impl<
             t_ns: nav.t_ns,
             ..*sample
         };
-        let at_rest = self.cfg.zupt
+        let at_rest = self.cfg.zupt.enabled
             && self.at_rest_since_last_keyframe()
-            && nav.v_wb.norm() <= self.cfg.zupt_max_speed_mps;
+            && nav.v_wb.norm() <= self.cfg.zupt.max_speed_mps;
         report.at_rest = at_rest;
         // The interval closes: swapped into the keyframe's slot (which hands back storage for
         // the next one).
@@ -185,7 +185,7 @@ impl<
         InitialPriors {
             kf0: *kf0,
             kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
-            td0: (td, self.cfg.td_prior_s),
+            td0: (td, self.cfg.td.prior_s),
             ext: (
                 self.cfg.extrinsic,
                 self.cfg.extrinsic_prior.0,

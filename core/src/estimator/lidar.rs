@@ -62,7 +62,7 @@ impl<
         if !self.cfg.lidar.enabled || self.points.is_empty() {
             return;
         }
-        let t0 = super::now(&self.cfg);
+        let t0 = super::now(self.clock);
         let cfg = self.cfg.lidar;
         let cam = self.ext.camera_pose(&nav.p_wb, &nav.q_wb);
         let t_l_ns = nav
@@ -97,7 +97,7 @@ impl<
             n += 1;
         }
         report.depths_associated = n;
-        report.association_ns = super::now(&self.cfg).saturating_sub(t0);
+        report.association_ns = super::now(self.clock).saturating_sub(t0);
     }
 
     /// Depth-only optimization (paper V.D): the inverse depth of every LiDAR landmark re-solved

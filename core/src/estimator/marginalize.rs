@@ -99,7 +99,7 @@ impl<
     /// the depths anchored there) into the square-root prior, then removal from the window.
     pub(super) fn marginalize_oldest(&mut self) -> Result<(), Error> {
         let count = self.window.len();
-        let (ext, td) = (self.cfg.estimate_extrinsic, self.cfg.estimate_td);
+        let (ext, td) = (self.cfg.estimate_extrinsic, self.cfg.td.estimate);
         let layout = Layout::marginalize_oldest(count, ext, td);
         self.prepare_landmarks(false);
         self.plan_marginalization();

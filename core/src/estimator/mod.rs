@@ -69,11 +69,13 @@ mod tau_landmark;
 pub mod timing;
 pub mod window;
 
-pub use config::{EstimatorConfig, FirstStatePrior, VisualDepth, VisualMode};
-pub use health::{Breakdown, HealthConfig};
+pub use config::{
+    CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, TdConfig, VisualDepth, VisualMode,
+    ZuptConfig,
+};
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
-pub use report::{Admission, Counters, DepthEvent, DepthEventKind, KeyframeReport};
+pub use report::{Admission, Breakdown, Counters, DepthEvent, DepthEventKind, KeyframeReport};
 pub use timing::{IMU_QUEUE, PENDING_LIDAR_POINTS, PENDING_SWEEPS};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};
@@ -239,6 +241,9 @@ pub struct Estimator<
     ins_synced: u32,
     /// What the estimator lends with its outputs ([`output`]).
     out: output::OutputBuffers<N, L>,
+    /// Monotonic clock of the timing statistics, ns ([`Estimator::set_clock`]; none: every
+    /// timing is zero).
+    clock: Option<fn() -> u64>,
 }
 
 /// An optional value kept beside a flag rather than in an `Option`, so that "none" is all zero
@@ -304,8 +309,9 @@ fn corrected_obs<const N: usize>(
     )
 }
 
-fn now(cfg: &EstimatorConfig) -> u64 {
-    cfg.clock.map_or(0, |c| c())
+/// The time on `clock`, ns (0 without a clock).
+fn now(clock: Option<fn() -> u64>) -> u64 {
+    clock.map_or(0, |c| c())
 }
 
 impl<
@@ -391,7 +397,21 @@ impl<
             imu_scale: imu_noise::ImuNoiseScale::new(),
             ins_synced: 0,
             out: output::OutputBuffers::new(),
+            clock: None,
         }
+    }
+
+    /// Sets the monotonic clock, ns, that times the steps in the reports
+    /// ([`KeyframeReport::total_ns`] and the others; none, the default: every timing is zero).
+    /// It is not part of the configuration: [`Self::configure`] keeps it, and the results never
+    /// depend on it.
+    pub fn set_clock(&mut self, clock: Option<fn() -> u64>) {
+        self.clock = clock;
+    }
+
+    /// The clock set by [`Self::set_clock`].
+    pub fn clock(&self) -> Option<fn() -> u64> {
+        self.clock
     }
 
     /// Validates `cfg` ([`Error::InvalidConfig`], and then nothing changes) and resets the

@@ -44,7 +44,7 @@ impl<
         let depth_state = mode == VisualMode::InverseDepth || self.cfg.depth_eliminated();
         let lc = self.cfg.lidar;
         let test_depths = reject && lc.enabled && lc.depth_outlier_rejection;
-        let clock = self.cfg.clock;
+        let clock = self.clock;
         let (mut rejected, mut reject_ns) = (0u32, 0u64);
         let mut adm = Admission::default();
         for lm in self.lms.landmarks_mut() {

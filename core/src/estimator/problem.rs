@@ -160,7 +160,7 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     /// Counts of the last assembly.
     pub counts: AssemblyCounts,
     /// Hold every keyframe's delay at these values (a tight factor): too few landmarks to
-    /// estimate it ([`EstimatorConfig::td_min_landmarks`]).
+    /// estimate it ([`super::TdConfig::min_landmarks`]).
     pub td_hold: Option<[f64; N]>,
     /// The state has not changed since the last successful cost evaluation: its eliminated
     /// landmarks' `tau*` (in [`Saved`]) are the ones a linearization would compute (same state,

@@ -312,7 +312,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             };
             *cost += imu.add(v, ne.as_deref_mut())?;
             if v.est_td {
-                let rw_s_per_sqrt_s = self.cfg.td_rw_s_per_sqrt_s;
+                let rw_s_per_sqrt_s = self.cfg.td.rw_s_per_sqrt_s;
                 let mut td = TdRandomWalkFactor { k, rw_s_per_sqrt_s };
                 *cost += td.add(v, ne.as_deref_mut())?;
             }
@@ -355,8 +355,8 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
         } else {
             count
         };
-        let sigma_mps = self.cfg.zupt_sigma_mps;
-        let (sigma_m, sigma_rad) = self.cfg.zupt_motion_sigma;
+        let sigma_mps = self.cfg.zupt.sigma_mps;
+        let (sigma_m, sigma_rad) = (self.cfg.zupt.motion_sigma_m, self.cfg.zupt.motion_sigma_rad);
         let mut cost = 0.0;
         for k in 0..last {
             let kf = v.window.get(k).ok_or(Error::NotEnoughData)?;

@@ -50,7 +50,7 @@ pub struct KeyframeReport {
     pub prior_gauge_std: (f64, f64),
     /// The keyframe got the zero-velocity factor (and a zero-motion factor to the previous one):
     /// the images showed rest since the previous keyframe and the INS speed agreed
-    /// ([`super::EstimatorConfig::zupt_max_speed_mps`]).
+    /// ([`super::ZuptConfig::max_speed_mps`]).
     pub at_rest: bool,
     /// Largest position change the solve gave a keyframe that earlier solves had already
     /// estimated (every keyframe but the newest), m. A healthy window moves them by millimetres
@@ -94,7 +94,24 @@ pub struct KeyframeReport {
     pub landmarks_evicted: u32,
     /// The health monitor found the window broken after this solve and re-initialized it
     /// (`estimator::health`); the keyframe was dropped with the window.
-    pub breakdown: Option<super::Breakdown>,
+    pub breakdown: Option<Breakdown>,
+}
+
+/// Why the health monitor re-initialized the window.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Breakdown {
+    /// A state became non-finite or faster than `max_speed_mps`.
+    State,
+    /// A bias left its plausible range.
+    Bias,
+    /// The solve moved the newest velocity more than the INS could have drifted.
+    VelocityJump,
+    /// The visual residuals stayed many sigmas large.
+    Residuals,
+    /// The solve moved keyframes that earlier solves had estimated by more than
+    /// `max_window_correction_m` plus `max_window_correction_rel` times the window's path.
+    WindowJump,
 }
 
 /// Landmark admission at the first solve of a keyframe: every managed landmark is counted once,

@@ -58,7 +58,7 @@ impl<
         Layout::solve(
             self.window.len(),
             self.cfg.estimate_extrinsic,
-            self.cfg.estimate_td,
+            self.cfg.td.estimate,
         )
     }
 
@@ -105,13 +105,14 @@ impl<
         report.depths_rejected = rej;
         report.rejection_ns = rej_ns;
         report.admission = adm;
-        self.td_hold = adm.admitted < self.cfg.td_min_landmarks;
+        self.td_hold = adm.admitted < self.cfg.td.min_landmarks;
         let first = self.cfg.lm_first;
         if !self.run_lm(&first, report) {
             return;
         }
         report.culled_chi2 = self.chi2_cull();
-        let min_culled = self.cfg.second_pass_min_culled_frac * f64::from(report.observations_used);
+        let min_culled =
+            self.cfg.cull.second_pass_min_culled_frac * f64::from(report.observations_used);
         if report.culled_chi2 > 0 && f64::from(report.culled_chi2) >= min_culled {
             self.prepare_landmarks(false);
             let second = self.cfg.lm_second;
@@ -119,9 +120,9 @@ impl<
         }
         self.update_imu_noise_scale(&self.solve_layout());
         if self.cfg.lidar.enabled && self.cfg.lidar.depth_only_opt {
-            let t0 = now(&self.cfg);
+            let t0 = now(self.clock);
             self.depth_only_optimization();
-            report.depth_opt_ns = now(&self.cfg).saturating_sub(t0);
+            report.depth_opt_ns = now(self.clock).saturating_sub(t0);
         }
         let (obs, lms, rms) = self.reprojection_cull();
         report.culled_observations = obs;

@@ -160,6 +160,12 @@ impl<
         self.fe.set_aiding(aiding);
     }
 
+    /// Sets the monotonic clock, ns, that times the front end and the estimator's steps
+    /// ([`Estimator::set_clock`]; none, the default: every timing is zero).
+    pub fn set_clock(&mut self, clock: Option<fn() -> u64>) {
+        self.est.set_clock(clock);
+    }
+
     /// Whether this type accepts the configurations ([`Estimator::check`],
     /// [`FeatureTracker::check`]: the tracker's capacities); [`Self::configure`] checks the same.
     pub fn check(estimator: &EstimatorConfig, tracker: &TrackerConfig) -> Result<(), Error> {
@@ -229,7 +235,7 @@ impl<
     /// large for `BYTES`, [`Error::InvalidConfig`]). When the estimator refuses the tracked
     /// frame the report says so in [`ImageReport::frame_error`].
     pub fn push_image(&mut self, t_cam_ns: i64, image: &ImageView) -> Result<ImageReport, Error> {
-        let clock = self.est.config().clock;
+        let clock = self.est.clock();
         let t0 = clock.map_or(0, |c| c());
         let camera = self.est.config().camera;
         // Predicted whether or not they seed the tracker: they are part of the output.

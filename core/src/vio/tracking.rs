@@ -26,6 +26,8 @@ pub type HdTracking = Tracking<256, { pyramid_bytes(1280, 720, 4) }, 4>;
 pub struct Tracking<const F: usize, const BYTES: usize, const LEVELS: usize> {
     fe: ImageFrontEnd<F, BYTES, LEVELS>,
     cfg: EstimatorConfig,
+    /// Times the front end ([`Self::set_clock`]).
+    clock: Option<fn() -> u64>,
 }
 
 impl<const F: usize, const BYTES: usize, const LEVELS: usize> Tracking<F, BYTES, LEVELS> {
@@ -35,11 +37,12 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> Tracking<F, BYTES,
         Tracking {
             fe: ImageFrontEnd::empty(),
             cfg: EstimatorConfig::PLACEHOLDER,
+            clock: None,
         }
     }
 
     /// Configures the tracker with `tracker` and the seed and camera with `cfg` (its camera,
-    /// extrinsic, `td_s` and clock are used). [`Error::InvalidConfig`] when either is invalid
+    /// extrinsic and `td_s` are used). [`Error::InvalidConfig`] when either is invalid
     /// (then nothing changes).
     pub fn configure(&mut self, cfg: EstimatorConfig, tracker: TrackerConfig) -> Result<(), Error> {
         Self::check(&cfg, &tracker)?;
@@ -53,6 +56,12 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> Tracking<F, BYTES,
     pub fn check(cfg: &EstimatorConfig, tracker: &TrackerConfig) -> Result<(), Error> {
         cfg.validate()?;
         ImageFrontEnd::<F, BYTES, LEVELS>::check(tracker)
+    }
+
+    /// Sets the monotonic clock, ns, that times the front end (none, the default: the
+    /// timings are zero); [`Self::configure`] keeps it.
+    pub fn set_clock(&mut self, clock: Option<fn() -> u64>) {
+        self.clock = clock;
     }
 
     /// Chooses the aids: only `gyro_rotation` applies (nothing predicts features).
@@ -112,7 +121,7 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> Odometry
         let camera = self.cfg.camera;
         let report = self
             .fe
-            .track(t_cam_ns, image, &camera, &seed, &[], self.cfg.clock)?;
+            .track(t_cam_ns, image, &camera, &seed, &[], self.clock)?;
         Ok(FrameOutput {
             t_cam_ns,
             predictions: &[],

@@ -5,7 +5,9 @@
 //! - the top level is [`EstimatorConfig`] (with its tables `[camera]`, `[extrinsic]`,
 //!   `[imu_noise]` ([`povins_core::inertial::ImuNoise`]), `[keyframe]`, `[static_init]`,
 //!   `[rest]`, `[preint]`, `[first_prior]`, `[lm_first]` / `[lm_second]`
-//!   ([`povins_core::solver::LmConfig`]), `[imu_noise_adapt]`, `[health]`, `[lidar]`,
+//!   ([`povins_core::solver::LmConfig`]), `[zupt]`, `[td]`, `[cull]`
+//!   ([`povins_core::estimator::ZuptConfig`], [`povins_core::estimator::TdConfig`],
+//!   [`povins_core::estimator::CullConfig`]), `[imu_noise_adapt]`, `[health]`, `[lidar]`,
 //!   `[lidar.extrinsic]`, `[lidar.association]`);
 //! - `[frontend]` is the image front end's [`TrackerConfig`] (`[frontend.detector]`,
 //!   `[frontend.lk]`, `[frontend.ransac]`, `[frontend.reference]`: the anchored refinement,
@@ -15,7 +17,8 @@
 //!
 //! Every key is optional: the file is laid over the configuration the dataset gives (its camera,
 //! extrinsics, IMU noise, gravity, camera delay and LiDAR), key by key, nested tables merged.
-//! Unknown keys are errors naming the file and the key. Enums are kebab-case strings
+//! Unknown keys are errors naming the file and the key; a key that moved into a table (`[zupt]`,
+//! `[td]`, `[cull]`: [`MOVED`]) is an error naming its new place. Enums are kebab-case strings
 //! (`mode = "inverse-depth"`), or a one-key table for a variant with fields
 //! (`equalization = { clahe = { clip_limit = 3.0, tiles_x = 8, tiles_y = 8 } }`); vectors are
 //! arrays, quaternions `[x, y, z, w]` (normalized; the norm must be 1 within 1e-3); angles are in
@@ -66,6 +69,45 @@ use toml::{Table, Value};
 const FRONTEND: &str = "frontend";
 const AIDING: &str = "aiding";
 
+/// Top-level keys that moved into a table: `(old key, table, new keys)`. A file giving an old
+/// key is refused with an error naming the new ones (two new keys: the old value was a pair).
+pub const MOVED: &[(&str, &str, &[&str])] = &[
+    ("zupt", "zupt", &["enabled"]),
+    ("zupt_sigma_mps", "zupt", &["sigma_mps"]),
+    ("zupt_max_speed_mps", "zupt", &["max_speed_mps"]),
+    (
+        "zupt_motion_sigma",
+        "zupt",
+        &["motion_sigma_m", "motion_sigma_rad"],
+    ),
+    ("estimate_td", "td", &["estimate"]),
+    ("td_rw_s_per_sqrt_s", "td", &["rw_s_per_sqrt_s"]),
+    ("td_prior_s", "td", &["prior_s"]),
+    ("td_min_landmarks", "td", &["min_landmarks"]),
+    ("chi2_threshold", "cull", &["chi2_threshold"]),
+    (
+        "second_pass_min_culled_frac",
+        "cull",
+        &["second_pass_min_culled_frac"],
+    ),
+    ("cull_mean_px", "cull", &["mean_px"]),
+    ("cull_obs_px", "cull", &["obs_px"]),
+    ("cull_whole_tracks", "cull", &["whole_tracks"]),
+];
+
+/// The error for the first key of `user`'s top level that moved into a table ([`MOVED`]).
+fn moved_key(user: &Table) -> Option<anyhow::Error> {
+    MOVED.iter().find_map(|&(old, table, new)| {
+        let v = user.get(old)?;
+        // `zupt` names the old switch and the new table: a table is the new form.
+        if old == table && v.is_table() {
+            return None;
+        }
+        let new: Vec<String> = new.iter().map(|k| format!("`[{table}] {k}`")).collect();
+        Some(anyhow!("`{old}` moved to {}", new.join(" and ")))
+    })
+}
+
 /// A parsed configuration file: the user's keys, to be laid over a base configuration.
 #[derive(Debug, Clone)]
 pub struct RunConfigFile {
@@ -105,8 +147,10 @@ impl RunConfigFile {
         let mut user = self.table.clone();
         user.remove(FRONTEND);
         user.remove(AIDING);
-        let mut merged: EstimatorConfig = overlay(cfg, &user).map_err(|e| self.error(e))?;
-        merged.clock = cfg.clock;
+        if let Some(e) = moved_key(&user) {
+            return Err(self.error(e));
+        }
+        let merged: EstimatorConfig = overlay(cfg, &user).map_err(|e| self.error(e))?;
         if merged.validate().is_err() {
             return Err(self.error(anyhow!(
                 "a setting is out of range (see EstimatorConfig::validate: positive noise, \

@@ -177,6 +177,52 @@ fn unknown_keys_are_errors_naming_the_key_path() {
 }
 
 #[test]
+fn each_moved_key_is_an_error_naming_its_new_place() {
+    let defaults = Table::try_from(base()).expect("serializes");
+    for &(old, table, new) in MOVED {
+        let group = defaults[table].as_table().expect("a table");
+        let values: Vec<Value> = new.iter().map(|k| group[*k].clone()).collect();
+        // The old form: one value, or a pair for two new keys.
+        let old_value = match values.as_slice() {
+            [v] => v.clone(),
+            vs => Value::Array(vs.to_vec()),
+        };
+        let msg = err(&format!("{old} = {old_value}\n"));
+        let place = format!("`{old}` moved to `[{table}] {}`", new[0]);
+        assert!(msg.contains(&place), "{old}: {msg}");
+        if let Some(second) = new.get(1) {
+            assert!(msg.contains(&format!("and `[{table}] {second}`")), "{msg}");
+        }
+        assert!(msg.contains("invalid config <text>"), "{msg}");
+        // The new keys exist and take the same values.
+        let text: String = new
+            .iter()
+            .zip(&values)
+            .map(|(k, v)| format!("{k} = {v}\n"))
+            .collect();
+        let f = RunConfigFile::parse(&format!("[{table}]\n{text}")).expect("parses");
+        let mut cfg = base();
+        f.apply(&mut cfg)
+            .unwrap_or_else(|e| panic!("[{table}] {text}: {e:#}"));
+        assert!(same(&cfg, &base()));
+    }
+    // Every key of the three tables has its old name in the table.
+    for table in ["zupt", "td", "cull"] {
+        for key in defaults[table].as_table().expect("a table").keys() {
+            let listed = MOVED
+                .iter()
+                .any(|&(_, t, new)| t == table && new.contains(&key.as_str()));
+            assert!(listed, "[{table}] {key} is not in MOVED");
+        }
+    }
+    // The new table named like the old switch is not taken for the old key.
+    let f = RunConfigFile::parse("[zupt]\nenabled = false\n").expect("parses");
+    let mut cfg = base();
+    f.apply(&mut cfg).expect("applies");
+    assert!(!cfg.zupt.enabled);
+}
+
+#[test]
 fn malformed_values_are_errors() {
     for bad in [
         "[lidar]\nldm = \"msc-based\"\n",
