@@ -29,7 +29,7 @@ pub enum VisualMode {
     InverseDepth,
 }
 
-/// Where a pose-only landmark's depth comes from (see `estimator::problem_visual`).
+/// Where a pose-only landmark's depth comes from (see `estimator::problem::visual`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(

@@ -5,7 +5,7 @@
 //! fixed up after observations are removed.
 #![deny(clippy::too_many_lines)]
 
-use super::problem_factor::{anchor_depth_std, LandmarkModel};
+use super::problem::factor::{anchor_depth_std, LandmarkModel};
 use super::tau_landmark::TauLandmark;
 use super::{DepthEvent, DepthEventKind, Estimator};
 use crate::factors::pose_only_visual::PoseOnlyAnchors;

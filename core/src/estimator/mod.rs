@@ -16,7 +16,7 @@
 //!    (inverse-depth mode: initialize the inverse depth), the uncertainty-based rejection of
 //!    LiDAR depths (paper IV.C, tested in inverse depth: `lidar::rejection`);
 //! 4. LM pass 1, chi-square cull of observations, LM pass 2 when the cull removed enough; LiDAR
-//!    landmarks enter as MSC (or direct) LiDAR-depth measurements (`estimator/problem_lidar.rs`);
+//!    landmarks enter as MSC (or direct) LiDAR-depth measurements (`estimator/problem::lidar.rs`);
 //! 5. depth-only optimization of the LiDAR landmarks (paper V.D), then outlier culling by
 //!    reprojection (paper V.E);
 //! 6. restart the INS from the newest optimized keyframe (moving the de-skew window with it).
@@ -27,9 +27,9 @@
 //! step 4 and the diagnostics' single steps), `lidar` (sweeps, association, depth-only
 //! optimization), `cull` (the chi-square and reprojection culls), `health` (the breakdown
 //! check); the least-squares problem in [`problem`] with its factor interface and landmark
-//! models in `problem_factor`, the landmark pass in `problem_landmarks` and its factors in
-//! `problem_priors`, `problem_inertial`, `problem_pose_only`, `problem_visual`,
-//! `problem_inverse_depth` and `problem_lidar`, the 1-D inverse-depth solve in `tau_landmark`.
+//! models in `problem::factor`, the landmark pass in `problem::landmarks` and its factors in
+//! `problem::priors`, `problem::inertial`, `problem::pose_only`, `problem::visual`,
+//! `problem::inverse_depth` and `problem::lidar`, the 1-D inverse-depth solve in `tau_landmark`.
 //!
 //! Capacities are const generics: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state
 //! dimensions (15 per keyframe, 6 extrinsic, 1 delay per keyframe). The struct holds every
@@ -54,14 +54,6 @@ mod predict;
 mod prepare;
 pub mod prior;
 pub mod problem;
-mod problem_factor;
-mod problem_inertial;
-mod problem_inverse_depth;
-mod problem_landmarks;
-mod problem_lidar;
-mod problem_pose_only;
-mod problem_priors;
-mod problem_visual;
 pub mod report;
 mod slots;
 mod solve;

@@ -2,11 +2,11 @@
 //! ([`TauLandmark`]: the factors of its observations `j != s`, and the LiDAR depth row of an
 //! MSC-based LDM; [`Ray`]: one observation as `P_j ~ a + tau b`), and the 1-D Gauss-Newton solve
 //! for the `tau*` that minimizes their stacked cost. Shared by the MSC-based LiDAR-depth
-//! measurement (`estimator::problem_lidar`), the eliminated-depth visual measurement
-//! (`estimator::problem_visual`), the depth-only optimization (`estimator::lidar`) and the
+//! measurement (`estimator::problem::lidar`), the eliminated-depth visual measurement
+//! (`estimator::problem::visual`), the depth-only optimization (`estimator::lidar`) and the
 //! culling residuals (`estimator::cull`).
 
-use super::problem_factor::timed;
+use super::problem::factor::timed;
 #[cfg(test)]
 use crate::camera::CameraExtrinsic;
 use crate::camera::Vec2;
@@ -30,7 +30,7 @@ const TAU_TOL: f64 = 1e-7;
 
 /// Inverse-depth reprojections `j != s` of one landmark, ready to evaluate, with the LiDAR
 /// depth of an MSC-based LDM (or without one: a visual landmark whose inverse depth is
-/// eliminated the same way, `estimator::problem_visual`).
+/// eliminated the same way, `estimator::problem::visual`).
 pub(super) struct TauLandmark<const N: usize> {
     /// Anchor position.
     pub s: usize,

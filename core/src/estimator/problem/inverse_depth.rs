@@ -6,11 +6,9 @@
 //! step by back-substitution).
 #![deny(clippy::too_many_lines)]
 
-use super::problem::SCHUR_COLS;
-use super::problem_factor::{
-    put_rows, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
-};
-use super::problem_lidar::add_inverse_depth_obs;
+use super::factor::{put_rows, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars};
+use super::lidar::add_inverse_depth_obs;
+use super::SCHUR_COLS;
 use crate::factors::inverse_depth_visual::{InverseDepthJacobians, InverseDepthVisualFactor};
 use crate::factors::KeyframePose;
 use crate::landmarks::{Landmark, LidarDepth};

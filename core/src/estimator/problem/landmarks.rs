@@ -13,13 +13,13 @@
 //! landmark's geometry is rejected instead of shedding its cost.
 #![deny(clippy::too_many_lines)]
 
-use super::config::EstimatorConfig;
-use super::problem::{AssemblyCounts, FactorSet, Landmarks, Saved, SCHUR_COLS};
-use super::problem_factor::{LandmarkFactor, LandmarkModel, VisualSettings, WindowVars};
-use super::problem_inverse_depth::InverseDepthLandmark;
-use super::problem_lidar::{DirectLidarLandmark, MscLandmark};
-use super::problem_pose_only::TwoViewLandmark;
-use super::problem_visual::EliminatedLandmark;
+use super::factor::{LandmarkFactor, LandmarkModel, VisualSettings, WindowVars};
+use super::inverse_depth::InverseDepthLandmark;
+use super::lidar::{DirectLidarLandmark, MscLandmark};
+use super::pose_only::TwoViewLandmark;
+use super::visual::EliminatedLandmark;
+use super::{AssemblyCounts, FactorSet, Landmarks, Saved, SCHUR_COLS};
+use crate::estimator::config::EstimatorConfig;
 use crate::landmarks::MargPlan;
 use crate::solver::{LandmarkSchur, NormalEquations};
 use crate::Error;
@@ -63,7 +63,7 @@ pub(super) struct LandmarkPass<'p, const N: usize, const L: usize> {
     /// Counts of the assembly.
     pub counts: &'p mut AssemblyCounts,
     /// The state has not changed since the last successful cost evaluation
-    /// ([`super::problem::Problem::tau_fresh`]).
+    /// ([`super::Problem::tau_fresh`]).
     pub tau_fresh: bool,
 }
 

@@ -9,9 +9,9 @@
 //! `e = Log(R_a^T R_b)`, `de/dtheta_b = Jr^-1(e)` and `de/dtheta_a = -Jr^-1(e) R_b^T R_a`.
 #![deny(clippy::too_many_lines)]
 
-use super::problem::{FactorSet, Problem};
-use super::problem_factor::{put_rows, row_major, sink, WindowFactor, WindowVars};
-use super::window::{Block, Keyframe};
+use super::factor::{put_rows, row_major, sink, WindowFactor, WindowVars};
+use super::{FactorSet, Problem};
+use crate::estimator::window::{Block, Keyframe};
 use crate::factors::td::TdRandomWalk;
 use crate::inertial::preintegration::{Mat15, Vec15};
 use crate::math::{jr_inv_so3, Vec3};

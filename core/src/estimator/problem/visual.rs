@@ -11,7 +11,7 @@
 //! cost is solved for the current poses (one or two 1-D Newton steps on the rays
 //! `P_j ~ a_j + tau b_j`, from the last solution: [`newton_tau`]), and the linearization projects
 //! `tau` out by its Schur complement (variable projection), exactly as the MSC-based LiDAR-depth
-//! measurement does without its depth row (`estimator::problem_lidar`):
+//! measurement does without its depth row (`estimator::problem::lidar`):
 //!
 //! ```text
 //! H += sum_j J_j^T W_j J_j - v v^T / c,   v = sum_j J_j^T W_j g_j,   c = sum_j g_j^T W_j g_j
@@ -23,11 +23,11 @@
 //! compares what the linear model predicts.
 #![deny(clippy::too_many_lines)]
 
-use super::problem::SCHUR_COLS;
-use super::problem_factor::{put_rows, LandmarkFactor, VisualSettings, WindowFactor, WindowVars};
-use super::problem_lidar::add_inverse_depth_obs;
-use super::tau_landmark::{Ray, TauLandmark};
-use super::window::{Block, Layout};
+use super::factor::{put_rows, LandmarkFactor, VisualSettings, WindowFactor, WindowVars};
+use super::lidar::add_inverse_depth_obs;
+use super::SCHUR_COLS;
+use crate::estimator::tau_landmark::{Ray, TauLandmark};
+use crate::estimator::window::{Block, Layout};
 use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::robust::Huber;
 use crate::factors::KeyframePose;
@@ -196,7 +196,11 @@ const GN_LAST_STEP: f64 = 1e-7;
 /// last step (exact to third order in a step of at most 1e-4 of `tau`), so no pass is spent on
 /// it. Errors: [`Error::NotEnoughData`] without a positive start, [`Error::NonFinite`],
 /// [`Error::Degenerate`] for a ray behind its camera.
-pub(super) fn newton_tau(rays: &[Ray], tau0: f64, huber: &Huber) -> Result<(f64, f64), Error> {
+pub(super) fn newton_tau(
+    rays: &[Ray],
+    tau0: f64,
+    huber: &Huber,
+) -> Result<(f64, f64), Error> {
     if !(tau0 > 0.0 && tau0.is_finite()) {
         return Err(Error::NotEnoughData);
     }

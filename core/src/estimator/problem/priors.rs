@@ -1,5 +1,5 @@
 //! The priors of the window's problem as [`WindowFactor`]s: the marginalization prior
-//! ([`MargPriorFactor`], see [`super::prior`]) and, until the first marginalization, the
+//! ([`MargPriorFactor`], see [`crate::estimator::prior`]) and, until the first marginalization, the
 //! diagonal priors on the first keyframe ([`FirstStatePrior`]), its delay ([`TdPrior`]) and the
 //! extrinsic ([`ExtPrior`]).
 //!
@@ -8,10 +8,10 @@
 //! perturbation is `Jr^-1(e) / sigma`, the others `1 / sigma`.
 #![deny(clippy::too_many_lines)]
 
-use super::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
-use super::problem_factor::{put_rows, sink, WindowFactor, WindowVars};
-use super::window::{Block, KF_DIM};
+use super::factor::{put_rows, sink, WindowFactor, WindowVars};
 use crate::camera::CameraExtrinsic;
+use crate::estimator::prior::{ext_minus, kf_minus, LinPoint, MargPrior};
+use crate::estimator::window::{Block, KF_DIM};
 use crate::inertial::NavState;
 use crate::math::{jr_inv_so3, Vec3};
 use crate::solver::{JacobianBlock, NormalEquations};

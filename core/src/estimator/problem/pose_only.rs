@@ -6,11 +6,9 @@
 //! observation makes the measurement an error.
 #![deny(clippy::too_many_lines)]
 
-use super::problem_factor::{anchor_depth_std, row_major};
-use super::problem_factor::{
-    put_rows, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
-};
-use super::window::{Block, Layout};
+use super::factor::{anchor_depth_std, row_major};
+use super::factor::{put_rows, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars};
+use crate::estimator::window::{Block, Layout};
 use crate::factors::pose_only_visual::{InJ, PoseOnlyAnchors};
 use crate::factors::robust::Huber;
 use crate::factors::{CamFrame, KeyframePose};

@@ -1,22 +1,21 @@
 //! The least-squares problem of the sliding window: every factor, assembled into the normal
 //! equations of a [`Layout`], or evaluated for its cost only.
 //!
-//! Every factor is a [`WindowFactor`] (`problem_factor`: its cost, its linearization into the
+//! Every factor is a [`WindowFactor`] (`factor`: its cost, its linearization into the
 //! caller's normal equations, its residual rows). [`Problem::assemble`] visits the marginalization
 //! prior (or, before the first marginalization, the diagonal priors on the first keyframe, its
-//! time delay and the extrinsic: `problem_priors`), IMU preintegration and the time-delay random
+//! time delay and the extrinsic: `priors`), IMU preintegration and the time-delay random
 //! walk between consecutive keyframes, the zero-velocity updates and the delay hold
-//! (`problem_inertial`), then every usable landmark as the factor of its [`LandmarkModel`]
-//! (`problem_landmarks`): two-view pose-only (PO-VINS, `problem_pose_only`), pose-only with the
-//! depth eliminated (`problem_visual`), MSC or direct LiDAR depth (`problem_lidar`), or
+//! (`inertial`), then every usable landmark as the factor of its [`LandmarkModel`]
+//! (`landmarks`): two-view pose-only (PO-VINS, `pose_only`), pose-only with the
+//! depth eliminated (`visual`), MSC or direct LiDAR depth (`lidar`), or
 //! inverse-depth with the depth eliminated by Schur complement (LE-VINS-WO,
-//! `problem_inverse_depth`). Visual residuals go through a Huber kernel (IRLS weights; the cost
+//! `inverse_depth`). Visual residuals go through a Huber kernel (IRLS weights; the cost
 //! uses `rho`, so the LM gain ratio sees the robust cost).
 #![deny(clippy::too_many_lines)]
 
 use super::config::{EstimatorConfig, VisualMode};
 use super::prior::MargPrior;
-use super::problem_landmarks::{LandmarkPass, Pass};
 use super::window::{Block, Layout, Window};
 use crate::camera::CameraExtrinsic;
 use crate::factors::inverse_depth_visual::WindowRotations;
@@ -25,18 +24,26 @@ use crate::landmarks::LandmarkManager;
 use crate::math::{quat_exp, Vec3};
 use crate::solver::{LandmarkSchur, LmProblem, NormalEquations};
 use crate::Error;
+use landmarks::{LandmarkPass, Pass};
 
-pub use super::problem_factor::{
-    LandmarkFactor, LandmarkModel, VisualSettings, WindowFactor, WindowVars,
-};
-pub use super::problem_inertial::{
+pub(super) mod factor;
+mod inertial;
+mod inverse_depth;
+mod landmarks;
+mod lidar;
+mod pose_only;
+mod priors;
+mod visual;
+
+pub use factor::{LandmarkFactor, LandmarkModel, VisualSettings, WindowFactor, WindowVars};
+pub use inertial::{
     ImuFactor, TdHold, TdRandomWalkFactor, ZuptPosition, ZuptRotation, ZuptVelocity,
 };
-pub use super::problem_inverse_depth::InverseDepthLandmark;
-pub use super::problem_lidar::{DirectDepth, DirectLidarLandmark, MscLandmark};
-pub use super::problem_pose_only::TwoViewLandmark;
-pub use super::problem_priors::{ExtPrior, FirstStatePrior, MargPriorFactor, TdPrior};
-pub use super::problem_visual::EliminatedLandmark;
+pub use inverse_depth::InverseDepthLandmark;
+pub use lidar::{DirectDepth, DirectLidarLandmark, MscLandmark};
+pub use pose_only::TwoViewLandmark;
+pub use priors::{ExtPrior, FirstStatePrior, MargPriorFactor, TdPrior};
+pub use visual::EliminatedLandmark;
 
 /// Pose columns a landmark can touch in the inverse-depth mode (`7 N + 6` for a window of `N`).
 pub const SCHUR_COLS: usize = 128;

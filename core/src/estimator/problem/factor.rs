@@ -13,13 +13,13 @@
 //! differentiates them numerically, the depth as one more variable that it eliminates).
 //!
 //! Every landmark has one [`LandmarkModel`], chosen by [`LandmarkModel::of`] alone: the assembly
-//! (`estimator::problem_landmarks`) adds the landmark's factor of that model, and the culling
+//! (`estimator::problem::landmarks`) adds the landmark's factor of that model, and the culling
 //! (`estimator::cull`) evaluates the landmark's residuals under the same model.
 #![deny(clippy::too_many_lines)]
 
-use super::config::{EstimatorConfig, VisualMode};
-use super::window::{Block, Layout, Window};
 use crate::camera::{CameraExtrinsic, Vec2};
+use crate::estimator::config::{EstimatorConfig, VisualMode};
+use crate::estimator::window::{Block, Layout, Window};
 use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::robust::Huber;
@@ -155,20 +155,20 @@ pub trait LandmarkFactor<const N: usize, const D: usize>: WindowFactor<N, D> {
 pub enum LandmarkModel {
     /// The paper's pose-only reprojections with the depth from the anchors `(s, e)`, exact in
     /// every residual ([`VisualDepth::TwoView`](super::VisualDepth::TwoView),
-    /// `estimator::problem_pose_only`).
+    /// `estimator::problem::pose_only`).
     TwoView,
     /// [`LandmarkModel::TwoView`] with the direct LiDAR-depth measurement beside it (a LiDAR
-    /// landmark with [`LdmMode::Direct`], `estimator::problem_lidar`).
+    /// landmark with [`LdmMode::Direct`], `estimator::problem::lidar`).
     DirectLidar,
     /// Pose-only reprojections with the inverse depth that fits all observations eliminated
     /// ([`VisualDepth::Eliminated`](super::VisualDepth::Eliminated),
-    /// `estimator::problem_visual`).
+    /// `estimator::problem::visual`).
     Eliminated,
     /// The MSC-based LiDAR-depth measurement (a LiDAR landmark with [`LdmMode::Msc`],
-    /// `estimator::problem_lidar`).
+    /// `estimator::problem::lidar`).
     MscLidar,
     /// The inverse depth as a state, eliminated by its Schur accumulator
-    /// ([`VisualMode::InverseDepth`], `estimator::problem_inverse_depth`).
+    /// ([`VisualMode::InverseDepth`], `estimator::problem::inverse_depth`).
     InverseDepth,
 }
 
@@ -225,7 +225,10 @@ impl<'a> VisualSettings<'a> {
 
 /// The anchors' depth uncertainty for [`PoseOnlyAnchors::with_depth_std`] (0 when the weighting
 /// is off or the uncertainty is undefined).
-pub(super) fn anchor_depth_std(cfg: &EstimatorConfig, anchors: &PoseOnlyAnchors<'_>) -> f64 {
+pub(in crate::estimator) fn anchor_depth_std(
+    cfg: &EstimatorConfig,
+    anchors: &PoseOnlyAnchors<'_>,
+) -> f64 {
     if !cfg.depth_uncertainty_weighting {
         return 0.0;
     }
@@ -234,7 +237,7 @@ pub(super) fn anchor_depth_std(cfg: &EstimatorConfig, anchors: &PoseOnlyAnchors<
 }
 
 /// A landmark observation with its delay-correction data.
-pub(super) fn timed(o: &KfObs) -> TimedObs {
+pub(in crate::estimator) fn timed(o: &KfObs) -> TimedObs {
     TimedObs {
         x_n: Vec2::new(o.x_n[0], o.x_n[1]),
         vel: Vec2::new(o.vel[0], o.vel[1]),
@@ -243,7 +246,7 @@ pub(super) fn timed(o: &KfObs) -> TimedObs {
 }
 
 /// Copies a column-major nalgebra matrix into a row-major slice.
-pub(super) fn row_major<const R: usize, const C: usize>(
+pub(in crate::estimator) fn row_major<const R: usize, const C: usize>(
     m: &nalgebra::SMatrix<f64, R, C>,
     out: &mut [f64],
 ) {
@@ -255,7 +258,7 @@ pub(super) fn row_major<const R: usize, const C: usize>(
 }
 
 /// Accumulates a residual or only its cost.
-pub(super) fn sink<const D: usize>(
+pub(in crate::estimator) fn sink<const D: usize>(
     ne: &mut Option<&mut NormalEquations<D>>,
     r: &[f64],
     blocks: &[JacobianBlock<'_>],
@@ -272,7 +275,7 @@ pub(super) fn sink<const D: usize>(
 
 /// Copies `rows` into the front of `out`: the number of rows; [`Error::NonFinite`] for a
 /// non-finite row, [`Error::CapacityExceeded`] when `out` is too short.
-pub(super) fn put_rows(rows: &[f64], out: &mut [f64]) -> Result<usize, Error> {
+pub(in crate::estimator) fn put_rows(rows: &[f64], out: &mut [f64]) -> Result<usize, Error> {
     if !rows.iter().all(|r| r.is_finite()) {
         return Err(Error::NonFinite);
     }

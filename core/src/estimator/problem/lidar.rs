@@ -26,14 +26,14 @@
 //! [`InverseDepthVisualFactor`]: crate::factors::inverse_depth_visual::InverseDepthVisualFactor
 #![deny(clippy::too_many_lines)]
 
-use super::problem::SCHUR_COLS;
-use super::problem_factor::{
+use super::factor::{
     put_rows, row_major, timed, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
 };
-use super::problem_pose_only::TwoViewLandmark;
-use super::tau_landmark::TauLandmark;
-use super::window::{Block, Layout};
+use super::pose_only::TwoViewLandmark;
+use super::SCHUR_COLS;
 use crate::camera::CameraExtrinsic;
+use crate::estimator::tau_landmark::TauLandmark;
+use crate::estimator::window::{Block, Layout};
 use crate::factors::inverse_depth_visual::InverseDepthJacobians;
 use crate::factors::lidar_depth::{DirectDepthJacobians, DirectLidarDepthFactor};
 use crate::factors::robust::Huber;
@@ -380,9 +380,9 @@ impl<const N: usize, const D: usize> LandmarkFactor<N, D> for DirectLidarLandmar
 
 #[cfg(test)]
 mod tests {
-    use super::super::tau_landmark::Ray;
     use super::*;
     use crate::camera::Vec2;
+    use crate::estimator::tau_landmark::Ray;
     use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
     use crate::factors::lidar_depth::MscLidarDepth;
     use crate::factors::{CamFrame, TimedObs};
