@@ -196,11 +196,7 @@ const GN_LAST_STEP: f64 = 1e-7;
 /// last step (exact to third order in a step of at most 1e-4 of `tau`), so no pass is spent on
 /// it. Errors: [`Error::NotEnoughData`] without a positive start, [`Error::NonFinite`],
 /// [`Error::Degenerate`] for a ray behind its camera.
-pub(super) fn newton_tau(
-    rays: &[Ray],
-    tau0: f64,
-    huber: &Huber,
-) -> Result<(f64, f64), Error> {
+pub(super) fn newton_tau(rays: &[Ray], tau0: f64, huber: &Huber) -> Result<(f64, f64), Error> {
     if !(tau0 > 0.0 && tau0.is_finite()) {
         return Err(Error::NotEnoughData);
     }
