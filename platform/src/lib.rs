@@ -13,12 +13,14 @@ pub mod driver;
 pub mod error;
 pub mod euroc;
 pub mod image_codec;
+pub mod image_raw;
 pub mod images;
 pub mod mcap_io;
 pub mod odometry;
 pub mod pipeline;
 pub mod recording;
 pub mod ros2;
+pub mod rosbag1;
 pub mod source;
 pub mod trajectory;
 
