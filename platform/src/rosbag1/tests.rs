@@ -247,3 +247,125 @@ fn truncated_bags_give_the_messages_before_the_cut() {
         }
     }
 }
+
+/// The bag written by `scripts/make_rosbag1_fixture.py` (Python `rosbags`), in the repository.
+fn sim_bag() -> Bag {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/rosbag1-sim/sim.bag");
+    Bag::open(&p).unwrap()
+}
+
+#[test]
+fn sim_bag_topics_and_selection() {
+    let bag = sim_bag();
+    assert!(bag.indexed && bag.warnings.is_empty(), "{:?}", bag.warnings);
+    assert_eq!(bag.chunks.len(), 15);
+    let t: Vec<(String, String, u64)> = topics::topics(&bag)
+        .into_iter()
+        .map(|t| (t.topic, t.msg_type, t.count))
+        .collect();
+    let s = |a: &str, b: &str, n| (a.to_string(), b.to_string(), n);
+    assert_eq!(
+        t,
+        [
+            s("/cam0/gray_png", "sensor_msgs/CompressedImage", 14),
+            s("/cam0/image_raw", "sensor_msgs/Image", 14),
+            s("/chatter", "std_msgs/String", 14),
+            s("/imu0", "sensor_msgs/Imu", 401),
+        ]
+    );
+    // Two cameras: an error that lists both.
+    let e = topics::select(&bag, None, None).unwrap_err();
+    assert!(
+        e.contains("/cam0/gray_png") && e.contains("/cam0/image_raw"),
+        "{e}"
+    );
+    let sel = topics::select(&bag, None, Some("/cam0/image_raw")).unwrap();
+    assert_eq!(sel.imu.unwrap().topic, "/imu0");
+    assert_eq!(sel.camera.unwrap().topic, "/cam0/image_raw");
+    let e = topics::select(&bag, Some("/chatter"), Some("/cam0/image_raw")).unwrap_err();
+    assert!(e.contains("std_msgs/String"), "{e}");
+    let e = topics::select(&bag, Some("/imu1"), None).unwrap_err();
+    assert!(e.contains("not in the bag"), "{e}");
+}
+
+#[test]
+fn sim_bag_imu_samples_are_the_simulated_ones() {
+    let bag = sim_bag();
+    let imu: Vec<_> = bag
+        .messages(bag.topic_conns("/imu0"))
+        .map(|m| msgs::imu(&m.unwrap().data).unwrap())
+        .collect();
+    assert_eq!(imu.len(), 401);
+    // The first row of the simulator's mav0/imu0/data.csv.
+    assert_eq!(imu[0].t_ns, 1_000_000_000);
+    let g = [
+        0.009609999738764391,
+        -0.009721961467076243,
+        -0.00034230469319042073,
+    ];
+    let a = [-0.25878049970517975, 0.567036081959351, 9.77593441262786];
+    assert_eq!(imu[0].gyro_rps.as_slice(), g);
+    assert_eq!(imu[0].accel_mps2.as_slice(), a);
+    assert!(imu.windows(2).all(|w| w[1].t_ns - w[0].t_ns == 5_000_000));
+}
+
+#[test]
+fn sim_bag_raw_images_in_every_encoding_match_their_png() {
+    let bag = sim_bag();
+    let decode = |topic: &str| -> Vec<crate::dataset::ImageFrame> {
+        let conns = bag.topic_conns(topic);
+        let ty = bag.connections[conns.iter().next().unwrap()]
+            .msg_type
+            .clone();
+        bag.messages(conns)
+            .map(|m| msgs::any_image(&ty, &m.unwrap().data).unwrap())
+            .collect()
+    };
+    let raw = decode("/cam0/image_raw");
+    let png = decode("/cam0/gray_png");
+    assert_eq!(raw.len(), 14);
+    assert_eq!(raw, png);
+    assert!(raw.iter().all(|f| (f.width, f.height) == (64, 48)));
+    assert!(
+        raw.iter().any(|f| f.mono8.iter().any(|&v| v != f.mono8[0])),
+        "blank images"
+    );
+    // The encodings the fixture cycles through are all there.
+    let mut encodings = HashSet::new();
+    for m in bag.messages(bag.topic_conns("/cam0/image_raw")) {
+        let d = m.unwrap().data;
+        // header: seq, stamp, frame_id "cam0"; then height, width, encoding.
+        let n = u32::from_le_bytes(d[28..32].try_into().unwrap()) as usize;
+        encodings.insert(String::from_utf8(d[32..32 + n].to_vec()).unwrap());
+    }
+    assert_eq!(encodings.len(), 12, "{encodings:?}");
+}
+
+#[test]
+fn sim_bag_cut_anywhere_gives_a_prefix_of_the_imu_stream() {
+    let full = sim_bag();
+    let imu = |bag: &Bag| -> Vec<i64> {
+        bag.messages(bag.topic_conns("/imu0"))
+            .map(|m| msgs::imu(&m.unwrap().data).unwrap().t_ns)
+            .collect()
+    };
+    let want = imu(&full);
+    let mut last = 0;
+    for k in 1..40 {
+        let cut = full.file_len as usize * k / 40;
+        let f = copy_with(&full.path, |b| b.truncate(cut));
+        let Ok(bag) = Bag::open(f.path()) else {
+            assert!(cut < 4200, "cut at {cut} refused");
+            continue;
+        };
+        let got = imu(&bag);
+        assert_eq!(got[..], want[..got.len()], "cut at {cut}");
+        assert!(got.len() >= last, "cut at {cut}");
+        assert!(bag
+            .warnings
+            .iter()
+            .any(|w| w.contains("truncated") || w.contains("cut")));
+        last = got.len();
+    }
+    assert!(last > 380, "{last}");
+}
