@@ -32,6 +32,7 @@
 pub mod chunk;
 pub mod msgs;
 pub mod record;
+pub mod recording;
 pub mod topics;
 
 #[cfg(test)]

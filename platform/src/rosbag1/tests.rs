@@ -369,3 +369,26 @@ fn sim_bag_cut_anywhere_gives_a_prefix_of_the_imu_stream() {
     }
     assert!(last > 380, "{last}");
 }
+
+#[test]
+fn sim_bag_as_a_recording_streams_imu_and_images() {
+    use crate::recording::Recording;
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/rosbag1-sim/sim.bag");
+    let euroc = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/euroc-v101-30s-features");
+    let calib = crate::euroc::EurocFolder::open(&euroc)
+        .unwrap()
+        .calibration()
+        .clone();
+    let e = recording::BagRecording::open(&p, calib.clone(), None, None).unwrap_err();
+    assert!(e.to_string().contains("2 camera topics"), "{e}");
+    let rec = recording::BagRecording::open(&p, calib, None, Some("/cam0/image_raw")).unwrap();
+    assert_eq!(rec.name(), "sim");
+    let c = rec.contents();
+    assert!(c.imu && c.images && !c.lidar && c.image_count == Some(14));
+    let imu: Vec<_> = rec.imu().unwrap().map(Result::unwrap).collect();
+    assert_eq!(imu.len(), 401);
+    let images: Vec<_> = rec.images().unwrap().map(Result::unwrap).collect();
+    assert_eq!(images.len(), 14);
+    assert_eq!(images[0].t_ns, 1_000_000_000);
+    assert_eq!(images[0].mono8.len(), 64 * 48);
+}
