@@ -16,6 +16,9 @@ Contents (stamps from the EuRoC file names / rows; receipt times equal the stamp
   reference the tests compare /cam0/image_raw against.
 - /chatter std_msgs/String: a topic the reader must skip.
 Chunks are uncompressed and small (16 kB), so the bag has many chunks.
+
+With a third argument `--full`: every image at full size in mono8 on /cam0/image_raw, with
+/imu0 only, 1 MB chunks (for `povins run BAG --calib EUROC_FOLDER` against the folder itself).
 """
 
 import struct
@@ -129,10 +132,18 @@ def main() -> None:
                 angular_velocity_covariance=cov, linear_acceleration=a,
                 linear_acceleration_covariance=cov)
         msgs.append((t, "/imu0", "sensor_msgs/msg/Imu", m))
-    images = sorted((src / "mav0/cam0/data").glob("*.png"), key=lambda p: int(p.stem))[::3]
+    full_size = sys.argv[3:] == ["--full"]
+    images = sorted((src / "mav0/cam0/data").glob("*.png"), key=lambda p: int(p.stem))
+    images = images if full_size else images[::3]
     for k, path in enumerate(images):
         t = int(path.stem)
         full = read_png_gray(path)
+        if full_size:
+            h, w = full.shape
+            im = Image(header=header(t, k, "cam0"), height=h, width=w, encoding="mono8",
+                       is_bigendian=0, step=w, data=full.reshape(-1))
+            msgs.append((t, "/cam0/image_raw", "sensor_msgs/msg/Image", im))
+            continue
         ys = (np.arange(H // 2) * full.shape[0] // (H // 2))
         xs = (np.arange(W // 2) * full.shape[1] // (W // 2))
         g = np.repeat(np.repeat(full[np.ix_(ys, xs)], 2, axis=0), 2, axis=1)
@@ -153,7 +164,7 @@ def main() -> None:
     if out.exists():
         out.unlink()
     with Writer(out) as wr:
-        wr.chunk_threshold = 16 * 1024
+        wr.chunk_threshold = (1 << 20) if full_size else 16 * 1024
         conns = {}
         for t, topic, ty, m in sorted(msgs, key=lambda x: (x[0], x[1])):
             if topic not in conns:

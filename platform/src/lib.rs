@@ -36,6 +36,13 @@ pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>, IoError> {
         Ok(Box::new(crate::euroc::EurocFolder::open(path)?))
     } else if path.extension().is_some_and(|e| e == "mcap") {
         Ok(Box::new(crate::mcap_io::McapRecording::open(path)?))
+    } else if path.extension().is_some_and(|e| e == "bag") {
+        Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "a ROS 1 bag carries no calibration povins reads yet: open it with \
+                  rosbag1::recording::BagRecording (povins run BAG --calib EUROC_FOLDER)"
+                .into(),
+        })
     } else if !path.exists() {
         Err(IoError::Invalid {
             path: path.to_path_buf(),
