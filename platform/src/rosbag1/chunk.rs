@@ -71,7 +71,8 @@ pub fn read_chunk(
     let avail = (file_len - rec.data_offset).min(u64::from(rec.data_len)) as usize;
     let raw = read_at(f, rec.data_offset, avail)?;
     let cut = avail < rec.data_len as usize;
-    let mut out = Vec::with_capacity(size as usize);
+    // The header's size is only a hint until the data decompresses to it.
+    let mut out = Vec::with_capacity((size as usize).min(64 << 20));
     let res = match compression.as_str() {
         "none" => {
             out = raw;

@@ -392,3 +392,41 @@ fn sim_bag_as_a_recording_streams_imu_and_images() {
     assert_eq!(images[0].t_ns, 1_000_000_000);
     assert_eq!(images[0].mono8.len(), 64 * 48);
 }
+
+#[test]
+fn sim_bag_with_flipped_bytes_never_panics() {
+    let full = sim_bag();
+    let bytes = std::fs::read(&full.path).unwrap();
+    let mut s = 0x9E37_79B9u32;
+    let mut rng = || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        s as usize
+    };
+    let f = tempfile::NamedTempFile::new().unwrap();
+    let (mut opened, mut errors) = (0, 0);
+    for _ in 0..150 {
+        let mut b = bytes.clone();
+        for _ in 0..4 {
+            let i = rng() % b.len();
+            b[i] ^= 1 << (rng() % 8);
+        }
+        std::fs::write(f.path(), &b).unwrap();
+        let Ok(bag) = Bag::open(f.path()) else {
+            errors += 1;
+            continue;
+        };
+        opened += 1;
+        for (id, c) in &bag.connections {
+            for m in bag.messages([*id].into_iter().collect()) {
+                match m {
+                    Ok(m) if c.msg_type == msgs::IMU_TYPE => drop(msgs::imu(&m.data)),
+                    Ok(m) => drop(msgs::any_image(&c.msg_type, &m.data)),
+                    Err(e) => assert!(e.to_string().contains("byte offset"), "{e}"),
+                }
+            }
+        }
+    }
+    assert!(opened > 0 && opened + errors == 150);
+}
