@@ -26,6 +26,9 @@ enum Cmd {
     Plot(cmd::plot::Args),
     /// Replay a dataset through the estimator and evaluate it.
     Run(cmd::run::Args),
+    /// What a recording holds (ROS 1 bag: topics, types, counts, rates, time span) and which
+    /// topics `run` would use.
+    Info(cmd::info::Args),
     /// Run the image front end alone: tracks, per-image statistics, pictures.
     Track(cmd::track::Args),
     /// Compare front ends' tracks on real images: counts, lengths, epipolar violations vs gyro.
@@ -53,6 +56,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Eval(a) => cmd::eval::run(a),
         Cmd::Plot(a) => cmd::plot::run(a),
         Cmd::Run(a) => cmd::run::run(a),
+        Cmd::Info(a) => cmd::info::run(a),
         Cmd::Track(a) => cmd::track::run(a),
         Cmd::CompareTracks(a) => cmd::compare_tracks::run(a),
         Cmd::ScoreTracks(a) => cmd::score_tracks::run(a),

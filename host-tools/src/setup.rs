@@ -18,8 +18,19 @@ use std::path::{Path, PathBuf};
 /// The command-line arguments every estimating command over a recording takes.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RunArgs {
-    /// EuRoC ASL folder (containing `mav0/`) or an `.mcap` file.
+    /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file or a ROS 1 `.bag` (with
+    /// `--calib`).
     pub dataset: PathBuf,
+    /// Calibration of a ROS 1 bag: an EuRoC ASL folder whose `imu0` and `cam0` `sensor.yaml`
+    /// give it (Kalibr files: the next step).
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+    /// IMU topic of a bag (default: its one `sensor_msgs/Imu` topic).
+    #[arg(long)]
+    pub imu_topic: Option<String>,
+    /// Camera topic of a bag (default: its one `sensor_msgs/Image` or `CompressedImage` topic).
+    #[arg(long)]
+    pub image_topic: Option<String>,
     /// How to initialize.
     #[arg(long, value_enum, default_value = "static")]
     pub init: InitMode,
@@ -41,7 +52,32 @@ pub struct RunArgs {
 impl RunArgs {
     /// Opens the recording named by `dataset`.
     pub fn open(&self) -> Result<Box<dyn Recording>> {
-        Ok(povins_platform::open_recording(&self.dataset)?)
+        if self.dataset.extension().is_none_or(|e| e != "bag") {
+            anyhow::ensure!(
+                self.calib.is_none() && self.imu_topic.is_none() && self.image_topic.is_none(),
+                "--calib, --imu-topic and --image-topic apply to ROS 1 bags only"
+            );
+            return Ok(povins_platform::open_recording(&self.dataset)?);
+        }
+        let Some(dir) = &self.calib else {
+            anyhow::bail!(
+                "{}: calibration missing: a ROS 1 bag needs --calib EUROC_FOLDER (its \
+                 mav0/imu0 and mav0/cam0 sensor.yaml)",
+                self.dataset.display()
+            );
+        };
+        let calib = povins_platform::euroc::EurocFolder::open(dir)
+            .with_context(|| format!("--calib {}", dir.display()))?
+            .calibration()
+            .clone();
+        Ok(Box::new(
+            povins_platform::rosbag1::recording::BagRecording::open(
+                &self.dataset,
+                calib,
+                self.imu_topic.as_deref(),
+                self.image_topic.as_deref(),
+            )?,
+        ))
     }
 }
 

@@ -13,12 +13,14 @@ pub mod driver;
 pub mod error;
 pub mod euroc;
 pub mod image_codec;
+pub mod image_raw;
 pub mod images;
 pub mod mcap_io;
 pub mod odometry;
 pub mod pipeline;
 pub mod recording;
 pub mod ros2;
+pub mod rosbag1;
 pub mod source;
 pub mod trajectory;
 
@@ -34,6 +36,13 @@ pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>, IoError> {
         Ok(Box::new(crate::euroc::EurocFolder::open(path)?))
     } else if path.extension().is_some_and(|e| e == "mcap") {
         Ok(Box::new(crate::mcap_io::McapRecording::open(path)?))
+    } else if path.extension().is_some_and(|e| e == "bag") {
+        Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "a ROS 1 bag carries no calibration povins reads yet: open it with \
+                  rosbag1::recording::BagRecording (povins run BAG --calib EUROC_FOLDER)"
+                .into(),
+        })
     } else if !path.exists() {
         Err(IoError::Invalid {
             path: path.to_path_buf(),

@@ -4,6 +4,7 @@ pub mod ablation;
 pub mod compare_tracks;
 pub mod demo;
 pub mod eval;
+pub mod info;
 pub mod plot;
 pub mod regress;
 pub mod replay;

@@ -1,0 +1,297 @@
+//! Chunks: reading one (decompressed: `none`, `bz2`, `lz4` frames), listing its messages, and
+//! the time-ordered merge of the messages of some connections across chunks ([`Messages`]).
+//!
+//! ## Merge
+//! Chunks are taken in order of their start time (from the index, or from the scan of an
+//! unindexed bag). A chunk is read when its start time is not later than the earliest message
+//! held, so the messages come out in receipt-time order (ties: file position, then order in the
+//! chunk) even when chunks overlap or are written out of order. Only the wanted connections'
+//! messages are kept, and only of the chunks read so far and not yet emitted; at most
+//! [`WINDOW_CHUNKS`] chunks are held at once (a pathological overlap beyond that emits the
+//! earliest held message first: order may then break, never memory).
+
+use super::record::{buf_record, file_record, read_at, RecordError, OP_CHUNK, OP_MESSAGE};
+use super::{Bag, ChunkInfo};
+use crate::error::IoError;
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashSet};
+use std::io::Read;
+
+/// Chunks held by a merge at once.
+pub const WINDOW_CHUNKS: usize = 32;
+
+/// Largest decompressed chunk accepted, bytes.
+pub const MAX_CHUNK_BYTES: u32 = 1 << 30;
+
+/// A chunk's records, decompressed.
+#[derive(Debug)]
+pub struct ChunkData {
+    /// Offset of the chunk record in the file.
+    pub pos: u64,
+    /// The decompressed records.
+    pub bytes: Vec<u8>,
+    /// Bytes lost when the chunk was cut (the header's `size` minus what could be recovered).
+    pub lost: u64,
+}
+
+/// Reads and decompresses the chunk at `pos`; `allow_cut` recovers the part of a chunk that a
+/// truncation cut (what decompresses before the cut), otherwise a cut chunk is an error.
+pub fn read_chunk(
+    f: &mut std::fs::File,
+    pos: u64,
+    file_len: u64,
+    allow_cut: bool,
+) -> Result<ChunkData, RecordError> {
+    let rec = match file_record(f, pos, file_len) {
+        Ok(Some(r)) => r,
+        Ok(None) => {
+            return Err(RecordError::Truncated {
+                offset: pos,
+                msg: "chunk past the end of the file".into(),
+            })
+        }
+        Err(RecordError::Truncated { .. }) if allow_cut => cut_record(f, pos, file_len)?,
+        Err(e) => return Err(e),
+    };
+    let op = rec.fields.op()?;
+    if op != OP_CHUNK {
+        return Err(RecordError::Corrupt {
+            offset: pos,
+            msg: format!("record op {op:#04x} where the index puts a chunk"),
+        });
+    }
+    let size = rec.fields.u32("size")?;
+    if size > MAX_CHUNK_BYTES {
+        return Err(RecordError::Corrupt {
+            offset: pos,
+            msg: format!("chunk of {size} bytes (more than {MAX_CHUNK_BYTES})"),
+        });
+    }
+    let compression = rec.fields.string("compression")?;
+    let avail = (file_len - rec.data_offset).min(u64::from(rec.data_len)) as usize;
+    let raw = read_at(f, rec.data_offset, avail)?;
+    let cut = avail < rec.data_len as usize;
+    // The header's size is only a hint until the data decompresses to it.
+    let mut out = Vec::with_capacity((size as usize).min(64 << 20));
+    let res = match compression.as_str() {
+        "none" => {
+            out = raw;
+            Ok(())
+        }
+        "bz2" => bzip2::read::BzDecoder::new(&raw[..])
+            .take(u64::from(size))
+            .read_to_end(&mut out)
+            .map(drop),
+        "lz4" => lz4::Decoder::new(&raw[..])
+            .and_then(|d| d.take(u64::from(size)).read_to_end(&mut out).map(drop)),
+        other => {
+            return Err(RecordError::Corrupt {
+                offset: pos,
+                msg: format!("unknown chunk compression {other:?} (expected none, bz2 or lz4)"),
+            })
+        }
+    };
+    if let Err(e) = res {
+        if !cut {
+            return Err(RecordError::Corrupt {
+                offset: rec.data_offset,
+                msg: format!("{compression} chunk does not decompress: {e}"),
+            });
+        }
+    }
+    if out.len() != size as usize && !cut {
+        return Err(RecordError::Corrupt {
+            offset: pos,
+            msg: format!(
+                "{compression} chunk decompresses to {} bytes, its header says {size}",
+                out.len()
+            ),
+        });
+    }
+    let lost = u64::from(size).saturating_sub(out.len() as u64);
+    Ok(ChunkData {
+        pos,
+        bytes: out,
+        lost,
+    })
+}
+
+/// The header of a record whose data is cut (its header must be complete; the declared data
+/// length is kept).
+fn cut_record(
+    f: &mut std::fs::File,
+    pos: u64,
+    file_len: u64,
+) -> Result<super::record::FileRecord, RecordError> {
+    // Re-read with a pretend length that covers the declared data.
+    let probe = file_record(f, pos, u64::MAX)?.ok_or_else(|| RecordError::Truncated {
+        offset: pos,
+        msg: "empty".into(),
+    })?;
+    if probe.data_offset > file_len {
+        return Err(RecordError::Truncated {
+            offset: pos,
+            msg: "chunk header cut".into(),
+        });
+    }
+    Ok(probe)
+}
+
+/// One message record of a chunk.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawMessage {
+    /// Connection id.
+    pub conn: u32,
+    /// Receipt time (the record's `time`), ns.
+    pub time_ns: i64,
+    /// File offset of the chunk holding it.
+    pub chunk_pos: u64,
+    /// Offset of the record inside the decompressed chunk.
+    pub offset_in_chunk: u64,
+    /// The serialized message.
+    pub data: Vec<u8>,
+}
+
+/// Walks the records of a decompressed chunk: messages (kept when `keep(conn)`) and
+/// connections (given to `on_conn`). A record cut at the chunk's end stops the walk when the
+/// chunk was cut (`lost > 0`), otherwise it is an error.
+pub fn walk_chunk(
+    chunk: &ChunkData,
+    mut keep: impl FnMut(u32) -> bool,
+    mut on_conn: impl FnMut(super::record::Fields, &[u8]) -> Result<(), RecordError>,
+) -> Result<Vec<RawMessage>, RecordError> {
+    let mut out = Vec::new();
+    let mut pos = 0;
+    loop {
+        let (rec, next) = match buf_record(&chunk.bytes, pos, 0) {
+            Ok(Some(r)) => r,
+            Ok(None) => break,
+            Err(RecordError::Truncated { .. }) if chunk.lost > 0 => break,
+            Err(e) => {
+                return Err(RecordError::Corrupt {
+                    offset: chunk.pos,
+                    msg: format!("in the chunk, at byte {}: {}", e.offset(), e.msg()),
+                })
+            }
+        };
+        let in_chunk = |e: RecordError| RecordError::Corrupt {
+            offset: chunk.pos,
+            msg: format!("in the chunk, at byte {}: {}", e.offset(), e.msg()),
+        };
+        match rec.fields.op().map_err(in_chunk)? {
+            OP_MESSAGE => {
+                let conn = rec.fields.u32("conn").map_err(in_chunk)?;
+                if keep(conn) {
+                    out.push(RawMessage {
+                        conn,
+                        time_ns: rec.fields.time_ns("time").map_err(in_chunk)?,
+                        chunk_pos: chunk.pos,
+                        offset_in_chunk: pos as u64,
+                        data: chunk.bytes[rec.data.clone()].to_vec(),
+                    });
+                }
+            }
+            super::record::OP_CONNECTION => {
+                on_conn(rec.fields, &chunk.bytes[rec.data.clone()]).map_err(in_chunk)?
+            }
+            _ => {}
+        }
+        pos = next;
+    }
+    Ok(out)
+}
+
+/// The messages of some connections in receipt-time order across chunks (see the module docs).
+/// A chunk that cannot be read is an `Err` item naming the file and its offset; the iteration
+/// goes on with the next chunk.
+pub struct Messages<'a> {
+    bag: &'a Bag,
+    file: Option<std::fs::File>,
+    conns: HashSet<u32>,
+    /// Chunks with wanted messages, by start time.
+    order: Vec<&'a ChunkInfo>,
+    next_chunk: usize,
+    /// Held messages: (time, chunk order index, index in chunk) -> message.
+    heap: BinaryHeap<Reverse<(i64, usize, usize)>>,
+    held: Vec<Vec<Option<RawMessage>>>,
+    pending: Vec<usize>,
+    live_chunks: usize,
+}
+
+impl<'a> Messages<'a> {
+    /// The merge over the connections `conns` of `bag`.
+    pub fn new(bag: &'a Bag, conns: HashSet<u32>) -> Self {
+        let mut order: Vec<&ChunkInfo> = bag
+            .chunks
+            .iter()
+            .filter(|c| c.counts.iter().any(|(id, n)| *n > 0 && conns.contains(id)))
+            .collect();
+        order.sort_by_key(|c| (c.start_ns, c.pos));
+        let n = order.len();
+        Messages {
+            bag,
+            file: None,
+            conns,
+            order,
+            next_chunk: 0,
+            heap: BinaryHeap::new(),
+            held: (0..n).map(|_| Vec::new()).collect(),
+            pending: vec![0; n],
+            live_chunks: 0,
+        }
+    }
+
+    fn load(&mut self, k: usize) -> Result<(), IoError> {
+        let info = self.order[k];
+        if self.file.is_none() {
+            let f =
+                std::fs::File::open(&self.bag.path).map_err(|e| IoError::io(&self.bag.path, e))?;
+            self.file = Some(f);
+        }
+        let Some(f) = self.file.as_mut() else {
+            return Ok(());
+        };
+        let err = |e: RecordError| self.bag.error("chunk", e);
+        let chunk = read_chunk(f, info.pos, self.bag.file_len, info.cut).map_err(err)?;
+        let conns = &self.conns;
+        let msgs = walk_chunk(&chunk, |c| conns.contains(&c), |_, _| Ok(())).map_err(err)?;
+        for (i, m) in msgs.iter().enumerate() {
+            self.heap.push(Reverse((m.time_ns, k, i)));
+        }
+        self.pending[k] = msgs.len();
+        if !msgs.is_empty() {
+            self.live_chunks += 1;
+        }
+        self.held[k] = msgs.into_iter().map(Some).collect();
+        Ok(())
+    }
+}
+
+impl Iterator for Messages<'_> {
+    type Item = Result<RawMessage, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            let earliest = self.heap.peek().map(|Reverse((t, _, _))| *t);
+            let due = self.order.get(self.next_chunk).is_some_and(|c| {
+                earliest.is_none_or(|t| c.start_ns <= t) && self.live_chunks < WINDOW_CHUNKS
+            });
+            if !due {
+                break;
+            }
+            let k = self.next_chunk;
+            self.next_chunk += 1;
+            if let Err(e) = self.load(k) {
+                return Some(Err(e));
+            }
+        }
+        let Reverse((_, k, i)) = self.heap.pop()?;
+        let msg = self.held[k].get_mut(i).and_then(Option::take)?;
+        self.pending[k] -= 1;
+        if self.pending[k] == 0 {
+            self.held[k] = Vec::new();
+            self.live_chunks -= 1;
+        }
+        Some(Ok(msg))
+    }
+}
