@@ -9,10 +9,12 @@
 //! updates.
 
 mod conformance;
+mod counting_alloc;
 mod numdiff;
 mod vision_common;
 
 use conformance::{Case, Eval, Keeps, Scene, D, N};
+use counting_alloc::count_allocs;
 use povins_core::estimator::problem::{
     DirectDepth, DirectLidarLandmark, EliminatedLandmark, ExtPrior, FirstStatePrior, ImuFactor,
     InverseDepthLandmark, MargPriorFactor, MscLandmark, TdHold, TdPrior, TdRandomWalkFactor,
@@ -21,52 +23,6 @@ use povins_core::estimator::problem::{
 use povins_core::factors::robust::Huber;
 use povins_core::inertial::ImuNoise;
 use povins_core::math::{quat_exp, Vec3};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
-struct Counting;
-
-thread_local! {
-    static ACTIVE: Cell<bool> = const { Cell::new(false) };
-    static COUNT: Cell<usize> = const { Cell::new(0) };
-}
-
-fn note_alloc() {
-    if ACTIVE.with(Cell::get) {
-        COUNT.with(|c| c.set(c.get() + 1));
-    }
-}
-
-// SAFETY: forwards every call to the system allocator unchanged; only counts.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        note_alloc();
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        note_alloc();
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        note_alloc();
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
-
-/// Allocations on this thread while `f` runs.
-fn count_allocs(f: &mut dyn FnMut()) -> usize {
-    COUNT.with(|c| c.set(0));
-    ACTIVE.with(|a| a.set(true));
-    f();
-    ACTIVE.with(|a| a.set(false));
-    COUNT.with(Cell::get)
-}
 
 /// Runs `f` on `factor` with the scene's variables.
 fn run<R>(

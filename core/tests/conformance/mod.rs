@@ -658,7 +658,7 @@ macro_rules! factor_conformance {
 
                 #[test]
                 fn does_not_allocate() {
-                    conformance::does_not_allocate::<$case>(count_allocs);
+                    conformance::does_not_allocate::<$case>(|f| count_allocs(f));
                 }
             }
         )+
