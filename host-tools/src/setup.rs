@@ -71,8 +71,8 @@ impl RunArgs {
             .calibration()
             .clone();
         Ok(Box::new(
-            povins_platform::rosbag1::recording::BagRecording::open(
-                &self.dataset,
+            povins_platform::rosrec::recording::RosRecording::new(
+                povins_platform::rosrec::open_log(&self.dataset)?,
                 calib,
                 self.imu_topic.as_deref(),
                 self.image_topic.as_deref(),

@@ -21,6 +21,7 @@ pub mod pipeline;
 pub mod recording;
 pub mod ros2;
 pub mod rosbag1;
+pub mod rosrec;
 pub mod source;
 pub mod trajectory;
 
@@ -40,7 +41,7 @@ pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>, IoError> {
         Err(IoError::Invalid {
             path: path.to_path_buf(),
             msg: "a ROS 1 bag carries no calibration povins reads yet: open it with \
-                  rosbag1::recording::BagRecording (povins run BAG --calib EUROC_FOLDER)"
+                  rosrec::recording::RosRecording (povins run BAG --calib EUROC_FOLDER)"
                 .into(),
         })
     } else if !path.exists() {

@@ -60,6 +60,11 @@ pub trait Recording: Send + Sync {
     fn sim_truth(&self) -> Option<SimTruth> {
         None
     }
+    /// What was wrong in the recording but read past (samples dropped for their stamps, parts
+    /// skipped, a missing index): complete once the streams have ended.
+    fn warnings(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// Cloned items of a slice as a stream.

@@ -4,7 +4,8 @@
 //! topics (the reading speed, and every decoding error with its message index).
 
 use anyhow::{bail, Context, Result};
-use povins_platform::rosbag1::{msgs, topics, Bag};
+use povins_platform::rosbag1::{msgs, Bag};
+use povins_platform::rosrec::{topics, MessageLog};
 use std::fmt::Write;
 use std::path::PathBuf;
 
@@ -88,7 +89,7 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
             0.0
         }
     };
-    let all = topics::topics(bag);
+    let all = bag.topics();
     let total: u64 = all.iter().map(|t| t.count).sum();
     let _ = writeln!(s, "messages  {total}");
     let w = all.iter().map(|t| t.topic.len()).max().unwrap_or(5).max(5);
@@ -116,9 +117,9 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
         );
     }
     let _ = writeln!(s);
-    match topics::select(bag, imu, camera) {
+    match topics::select(&bag.topics(), imu, camera) {
         Ok(sel) => {
-            let name = |t: &Option<topics::TopicInfo>| {
+            let name = |t: &Option<povins_platform::rosrec::TopicInfo>| {
                 t.as_ref()
                     .map_or_else(|| "none".to_string(), |t| t.topic.clone())
             };
@@ -156,13 +157,13 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
 
 /// Decodes every message of the chosen topics; the counts and the reading speed.
 fn read_all(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> Result<String> {
-    let sel = topics::select(bag, imu, camera).map_err(anyhow::Error::msg)?;
+    let sel = topics::select(&bag.topics(), imu, camera).map_err(anyhow::Error::msg)?;
     let mut s = String::new();
     for t in [sel.imu, sel.camera].into_iter().flatten() {
         let t0 = std::time::Instant::now();
         let conns = bag.topic_conns(&t.topic);
         let mut n = 0usize;
-        for (k, m) in bag.messages(conns).enumerate() {
+        for (k, m) in bag.conn_messages(conns).enumerate() {
             let m = m?;
             let res = if t.msg_type == msgs::IMU_TYPE {
                 msgs::imu(&m.data).map(drop)

@@ -37,6 +37,9 @@ pub fn run(args: Args) -> Result<()> {
     for (t, e) in &out.image_errors {
         eprintln!("warning: image at {t} ns: {e}");
     }
+    for w in rec.warnings() {
+        eprintln!("warning: {w}");
+    }
     if out.image_failures > out.image_errors.len() {
         eprintln!(
             "warning: {} more images could not be used",

@@ -30,10 +30,9 @@
 //! is small. Decompression is by crates (`bzip2`, `lz4`).
 
 pub mod chunk;
+mod log;
 pub mod msgs;
 pub mod record;
-pub mod recording;
-pub mod topics;
 
 #[cfg(test)]
 mod tests;
@@ -177,7 +176,7 @@ impl Bag {
     }
 
     /// The messages of `conns` in receipt-time order (see [`chunk::Messages`]).
-    pub fn messages(&self, conns: std::collections::HashSet<u32>) -> chunk::Messages<'_> {
+    pub fn conn_messages(&self, conns: std::collections::HashSet<u32>) -> chunk::Messages<'_> {
         chunk::Messages::new(self, conns)
     }
 

@@ -2,6 +2,7 @@
 //! unindexed copies of them made here.
 
 use super::*;
+use crate::rosrec::{recording, topics, MessageLog};
 use std::collections::HashSet;
 
 fn fixture(name: &str) -> PathBuf {
@@ -19,7 +20,7 @@ fn fixture(name: &str) -> PathBuf {
 /// Every message of a bag as (receipt time, topic, bytes), in the order read.
 fn all_messages(bag: &Bag) -> Vec<(i64, String, Vec<u8>)> {
     let conns: HashSet<u32> = bag.connections.keys().copied().collect();
-    bag.messages(conns)
+    bag.conn_messages(conns)
         .map(|m| {
             let m = m.unwrap();
             (m.time_ns, bag.connections[&m.conn].topic.clone(), m.data)
@@ -71,7 +72,7 @@ fn turtlesim_bags_read_the_same_messages_uncompressed_bz2_lz4() {
         want.windows(2).all(|w| w[0].0 <= w[1].0),
         "not in time order"
     );
-    let counts = topics::topics(&plain);
+    let counts = plain.topics();
     let pose = counts.iter().find(|t| t.topic == "/turtle1/pose").unwrap();
     assert_eq!(
         (pose.msg_type.as_str(), pose.count),
@@ -120,7 +121,7 @@ fn empty_and_message_less_bags() {
     let bag = Bag::open(&fixture("rosbag/no-messages.bag")).unwrap();
     assert!(bag.indexed && bag.chunks.is_empty() && bag.connections.is_empty());
     assert_eq!(all_messages(&bag).len(), 0);
-    let sel = topics::select(&bag, None, None).unwrap();
+    let sel = topics::select(&bag.topics(), None, None).unwrap();
     assert_eq!(
         sel,
         topics::Selection {
@@ -134,7 +135,7 @@ fn empty_and_message_less_bags() {
 #[ignore = "needs ../shared/data"]
 fn ouster_bag_lists_its_packet_topics() {
     let bag = Bag::open(&fixture("ouster/512x10_raw.bag")).unwrap();
-    let t = topics::topics(&bag);
+    let t = bag.topics();
     let names: Vec<(&str, &str, u64)> = t
         .iter()
         .map(|t| (t.topic.as_str(), t.msg_type.as_str(), t.count))
@@ -259,7 +260,8 @@ fn sim_bag_topics_and_selection() {
     let bag = sim_bag();
     assert!(bag.indexed && bag.warnings.is_empty(), "{:?}", bag.warnings);
     assert_eq!(bag.chunks.len(), 15);
-    let t: Vec<(String, String, u64)> = topics::topics(&bag)
+    let t: Vec<(String, String, u64)> = bag
+        .topics()
         .into_iter()
         .map(|t| (t.topic, t.msg_type, t.count))
         .collect();
@@ -274,25 +276,25 @@ fn sim_bag_topics_and_selection() {
         ]
     );
     // Two cameras: an error that lists both.
-    let e = topics::select(&bag, None, None).unwrap_err();
+    let e = topics::select(&bag.topics(), None, None).unwrap_err();
     assert!(
         e.contains("/cam0/gray_png") && e.contains("/cam0/image_raw"),
         "{e}"
     );
-    let sel = topics::select(&bag, None, Some("/cam0/image_raw")).unwrap();
+    let sel = topics::select(&bag.topics(), None, Some("/cam0/image_raw")).unwrap();
     assert_eq!(sel.imu.unwrap().topic, "/imu0");
     assert_eq!(sel.camera.unwrap().topic, "/cam0/image_raw");
-    let e = topics::select(&bag, Some("/chatter"), Some("/cam0/image_raw")).unwrap_err();
+    let e = topics::select(&bag.topics(), Some("/chatter"), Some("/cam0/image_raw")).unwrap_err();
     assert!(e.contains("std_msgs/String"), "{e}");
-    let e = topics::select(&bag, Some("/imu1"), None).unwrap_err();
-    assert!(e.contains("not in the bag"), "{e}");
+    let e = topics::select(&bag.topics(), Some("/imu1"), None).unwrap_err();
+    assert!(e.contains("not in the recording"), "{e}");
 }
 
 #[test]
 fn sim_bag_imu_samples_are_the_simulated_ones() {
     let bag = sim_bag();
     let imu: Vec<_> = bag
-        .messages(bag.topic_conns("/imu0"))
+        .conn_messages(bag.topic_conns("/imu0"))
         .map(|m| msgs::imu(&m.unwrap().data).unwrap())
         .collect();
     assert_eq!(imu.len(), 401);
@@ -317,7 +319,7 @@ fn sim_bag_raw_images_in_every_encoding_match_their_png() {
         let ty = bag.connections[conns.iter().next().unwrap()]
             .msg_type
             .clone();
-        bag.messages(conns)
+        bag.conn_messages(conns)
             .map(|m| msgs::any_image(&ty, &m.unwrap().data).unwrap())
             .collect()
     };
@@ -332,7 +334,7 @@ fn sim_bag_raw_images_in_every_encoding_match_their_png() {
     );
     // The encodings the fixture cycles through are all there.
     let mut encodings = HashSet::new();
-    for m in bag.messages(bag.topic_conns("/cam0/image_raw")) {
+    for m in bag.conn_messages(bag.topic_conns("/cam0/image_raw")) {
         let d = m.unwrap().data;
         // header: seq, stamp, frame_id "cam0"; then height, width, encoding.
         let n = u32::from_le_bytes(d[28..32].try_into().unwrap()) as usize;
@@ -345,7 +347,7 @@ fn sim_bag_raw_images_in_every_encoding_match_their_png() {
 fn sim_bag_cut_anywhere_gives_a_prefix_of_the_imu_stream() {
     let full = sim_bag();
     let imu = |bag: &Bag| -> Vec<i64> {
-        bag.messages(bag.topic_conns("/imu0"))
+        bag.conn_messages(bag.topic_conns("/imu0"))
             .map(|m| msgs::imu(&m.unwrap().data).unwrap().t_ns)
             .collect()
     };
@@ -379,9 +381,17 @@ fn sim_bag_as_a_recording_streams_imu_and_images() {
         .unwrap()
         .calibration()
         .clone();
-    let e = recording::BagRecording::open(&p, calib.clone(), None, None).unwrap_err();
+    let e =
+        recording::RosRecording::new(Box::new(Bag::open(&p).unwrap()), calib.clone(), None, None)
+            .unwrap_err();
     assert!(e.to_string().contains("2 camera topics"), "{e}");
-    let rec = recording::BagRecording::open(&p, calib, None, Some("/cam0/image_raw")).unwrap();
+    let rec = recording::RosRecording::new(
+        Box::new(Bag::open(&p).unwrap()),
+        calib,
+        None,
+        Some("/cam0/image_raw"),
+    )
+    .unwrap();
     assert_eq!(rec.name(), "sim");
     let c = rec.contents();
     assert!(c.imu && c.images && !c.lidar && c.image_count == Some(14));
@@ -419,7 +429,7 @@ fn sim_bag_with_flipped_bytes_never_panics() {
         };
         opened += 1;
         for (id, c) in &bag.connections {
-            for m in bag.messages([*id].into_iter().collect()) {
+            for m in bag.conn_messages([*id].into_iter().collect()) {
                 match m {
                     Ok(m) if c.msg_type == msgs::IMU_TYPE => drop(msgs::imu(&m.data)),
                     Ok(m) => drop(msgs::any_image(&c.msg_type, &m.data)),

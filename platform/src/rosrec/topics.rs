@@ -1,42 +1,10 @@
-//! Which topics of a bag a run uses: one IMU (`sensor_msgs/Imu`) and one camera
+//! Which topics of a recording a run uses: one IMU (`sensor_msgs/Imu`) and one camera
 //! (`sensor_msgs/Image` or `sensor_msgs/CompressedImage`), chosen by message type among the
 //! topics that have messages, or named by the user. Two candidates of a kind is an error listing
 //! them; every other topic is skipped.
 
-use super::msgs::{COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE};
-use super::Bag;
-
-/// One topic of a bag.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TopicInfo {
-    /// Topic name.
-    pub topic: String,
-    /// Message type.
-    pub msg_type: String,
-    /// Messages (all its connections).
-    pub count: u64,
-}
-
-/// The bag's topics, by name (a topic published with two types appears twice).
-pub fn topics(bag: &Bag) -> Vec<TopicInfo> {
-    let mut out: Vec<TopicInfo> = Vec::new();
-    for c in bag.connections.values() {
-        let n = bag.count(c.id);
-        match out
-            .iter_mut()
-            .find(|t| t.topic == c.topic && t.msg_type == c.msg_type)
-        {
-            Some(t) => t.count += n,
-            None => out.push(TopicInfo {
-                topic: c.topic.clone(),
-                msg_type: c.msg_type.clone(),
-                count: n,
-            }),
-        }
-    }
-    out.sort_by(|a, b| (&a.topic, &a.msg_type).cmp(&(&b.topic, &b.msg_type)));
-    out
-}
+use super::decode::{COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE};
+use super::TopicInfo;
 
 /// The topics a run reads.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -50,14 +18,13 @@ pub struct Selection {
 /// Chooses the IMU and camera topics: `want_*` names one, otherwise the single topic of the
 /// kind that has messages. Errors list the candidates.
 pub fn select(
-    bag: &Bag,
+    all: &[TopicInfo],
     want_imu: Option<&str>,
     want_camera: Option<&str>,
 ) -> Result<Selection, String> {
-    let all = topics(bag);
-    let imu = pick(&all, "IMU", &[IMU_TYPE], want_imu)?;
+    let imu = pick(all, "IMU", &[IMU_TYPE], want_imu)?;
     let camera = pick(
-        &all,
+        all,
         "camera",
         &[IMAGE_TYPE, COMPRESSED_IMAGE_TYPE],
         want_camera,
@@ -81,7 +48,7 @@ fn pick(
         let t = all
             .iter()
             .find(|t| t.topic == name)
-            .ok_or_else(|| format!("{kind} topic {name:?} is not in the bag"))?;
+            .ok_or_else(|| format!("{kind} topic {name:?} is not in the recording"))?;
         if !types.contains(&t.msg_type.as_str()) {
             return Err(format!(
                 "{kind} topic {name:?} has type {}, expected {}",

@@ -1,0 +1,334 @@
+//! A ROS recording as a [`Recording`]: the IMU and camera topics chosen by [`super::topics`],
+//! their messages pulled in the container's log-time order and decoded one at a time as the
+//! streams are pulled (images to gray then, not before). The calibration is given by the caller
+//! (Kalibr files, an EuRoC folder's `sensor.yaml` files).
+//!
+//! ## Stamps
+//! A sample's time is its `header.stamp`. A stamp of zero (a driver that leaves the header
+//! empty) is replaced by the message's log time, with one warning per topic. Faulty samples are
+//! data, not errors: a sample whose stamp is not after the previous one of its topic (duplicated
+//! or backward) is dropped and counted; only a topic where most samples are dropped (more than
+//! half once [`MIN_SAMPLES_FOR_ORDER_CHECK`] were seen) is refused. A part of the container that
+//! cannot be read (a corrupt chunk) is skipped with a warning naming its byte offset. The counts
+//! are in [`Recording::warnings`] once a stream has ended.
+
+use super::decode::{self, MsgError};
+use super::topics::select;
+use super::{LogStream, MessageLog, TopicInfo};
+use crate::dataset::{Calibration, FeatureFrame, ImageFrame, LidarScan};
+use crate::error::IoError;
+use crate::recording::{Contents, Recording, Stream};
+use povins_core::inertial::{ImuSample, NavState};
+use std::sync::Mutex;
+
+/// Samples of a topic seen before a mostly-out-of-order topic is refused.
+pub const MIN_SAMPLES_FOR_ORDER_CHECK: u64 = 20;
+
+/// A ROS recording with its chosen topics and a calibration (see the module docs).
+#[derive(Debug)]
+pub struct RosRecording {
+    name: String,
+    log: Box<dyn MessageLog>,
+    calib: Calibration,
+    imu: TopicInfo,
+    camera: Option<TopicInfo>,
+    warnings: Mutex<Vec<String>>,
+}
+
+impl RosRecording {
+    /// Takes `log`, chooses its topics (`imu_topic`, `image_topic` name them; otherwise by
+    /// type) and takes `calib` as its calibration. A recording without an IMU topic is an error
+    /// listing its topics.
+    pub fn new(
+        log: Box<dyn MessageLog>,
+        calib: Calibration,
+        imu_topic: Option<&str>,
+        image_topic: Option<&str>,
+    ) -> Result<Self, IoError> {
+        let path = log.path().to_path_buf();
+        let invalid = |msg: String| IoError::Invalid {
+            path: path.clone(),
+            msg,
+        };
+        let all = log.topics();
+        let sel = select(&all, imu_topic, image_topic).map_err(invalid)?;
+        let imu = sel.imu.ok_or_else(|| {
+            let mut list: Vec<String> = all
+                .iter()
+                .map(|t| format!("{} ({})", t.topic, t.msg_type))
+                .collect();
+            if list.is_empty() {
+                list.push("none".into());
+            }
+            invalid(format!(
+                "no sensor_msgs/Imu topic with messages; topics: {}",
+                list.join(", ")
+            ))
+        })?;
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let warnings = Mutex::new(log.warnings());
+        Ok(RosRecording {
+            name,
+            log,
+            calib,
+            imu,
+            camera: sel.camera,
+            warnings,
+        })
+    }
+
+    /// The container.
+    pub fn log(&self) -> &dyn MessageLog {
+        self.log.as_ref()
+    }
+
+    /// The chosen IMU topic.
+    pub fn imu_topic(&self) -> &TopicInfo {
+        &self.imu
+    }
+
+    /// The chosen camera topic.
+    pub fn camera_topic(&self) -> Option<&TopicInfo> {
+        self.camera.as_ref()
+    }
+
+    fn warn(&self, msg: String) {
+        if let Ok(mut w) = self.warnings.lock() {
+            w.push(msg);
+        }
+    }
+
+    /// `topic`'s messages decoded by `decode`, with the stamp rules of the module docs.
+    fn checked<'a, T: Stamped + Send + 'a>(
+        &'a self,
+        topic: &'a TopicInfo,
+        decode: impl Fn(&[u8]) -> Result<T, MsgError> + Send + 'a,
+    ) -> Stream<'a, T> {
+        Box::new(Checked {
+            _sample: std::marker::PhantomData,
+            rec: self,
+            topic,
+            inner: self.log.messages(&topic.topic),
+            decode,
+            index: 0,
+            last_ns: None,
+            seen: 0,
+            dropped_dup: 0,
+            dropped_back: 0,
+            skipped_parts: 0,
+            zero_stamps: 0,
+            done: false,
+        })
+    }
+}
+
+/// A sample with a time.
+trait Stamped {
+    fn t_ns(&self) -> i64;
+    fn set_t_ns(&mut self, t_ns: i64);
+}
+
+impl Stamped for ImuSample {
+    fn t_ns(&self) -> i64 {
+        self.t_ns
+    }
+    fn set_t_ns(&mut self, t_ns: i64) {
+        self.t_ns = t_ns;
+    }
+}
+
+impl Stamped for ImageFrame {
+    fn t_ns(&self) -> i64 {
+        self.t_ns
+    }
+    fn set_t_ns(&mut self, t_ns: i64) {
+        self.t_ns = t_ns;
+    }
+}
+
+/// One topic's decoded, stamp-checked samples (see the module docs).
+struct Checked<'a, T, D> {
+    _sample: std::marker::PhantomData<fn() -> T>,
+    rec: &'a RosRecording,
+    topic: &'a TopicInfo,
+    inner: LogStream<'a>,
+    decode: D,
+    index: u64,
+    last_ns: Option<i64>,
+    seen: u64,
+    dropped_dup: u64,
+    dropped_back: u64,
+    skipped_parts: u64,
+    zero_stamps: u64,
+    done: bool,
+}
+
+impl<T: Stamped, D: Fn(&[u8]) -> Result<T, MsgError>> Checked<'_, T, D> {
+    fn path(&self) -> std::path::PathBuf {
+        self.rec.log.path().to_path_buf()
+    }
+
+    /// The counts, as a warning, when something was dropped.
+    fn finish(&mut self) {
+        self.done = true;
+        let t = &self.topic.topic;
+        if self.dropped_dup + self.dropped_back > 0 {
+            self.rec.warn(format!(
+                "{}: {t}: {} of {} samples dropped ({} duplicated and {} backward stamps)",
+                self.path().display(),
+                self.dropped_dup + self.dropped_back,
+                self.seen,
+                self.dropped_dup,
+                self.dropped_back
+            ));
+        }
+        if self.skipped_parts > 0 {
+            self.rec.warn(format!(
+                "{}: {t}: {} unreadable parts skipped (see the warnings above)",
+                self.path().display(),
+                self.skipped_parts
+            ));
+        }
+    }
+}
+
+impl<T: Stamped, D: Fn(&[u8]) -> Result<T, MsgError>> Iterator for Checked<'_, T, D> {
+    type Item = Result<T, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        loop {
+            let m = match self.inner.next() {
+                None => {
+                    self.finish();
+                    return None;
+                }
+                Some(Err(IoError::Corrupt {
+                    file,
+                    what,
+                    offset,
+                    msg,
+                })) => {
+                    self.skipped_parts += 1;
+                    self.rec.warn(format!(
+                        "{}: {}: {what} at byte offset {offset} skipped: {msg}",
+                        file.display(),
+                        self.topic.topic
+                    ));
+                    continue;
+                }
+                Some(Err(e)) => {
+                    self.done = true;
+                    return Some(Err(e));
+                }
+                Some(Ok(m)) => m,
+            };
+            let k = self.index;
+            self.index += 1;
+            let mut s = match (self.decode)(&m.data) {
+                Ok(s) => s,
+                Err(e) => {
+                    self.done = true;
+                    return Some(Err(IoError::Corrupt {
+                        file: self.path(),
+                        what: format!(
+                            "{} message {k} ({}, record at byte offset {})",
+                            self.topic.topic, self.topic.msg_type, m.offset
+                        ),
+                        offset: e.offset as u64,
+                        msg: e.msg,
+                    }));
+                }
+            };
+            if s.t_ns() == 0 {
+                if self.zero_stamps == 0 {
+                    self.rec.warn(format!(
+                        "{}: {}: header.stamp is zero: the log time is used instead",
+                        self.path().display(),
+                        self.topic.topic
+                    ));
+                }
+                self.zero_stamps += 1;
+                s.set_t_ns(m.log_time_ns);
+            }
+            self.seen += 1;
+            let t = s.t_ns();
+            match self.last_ns {
+                Some(last) if t == last => self.dropped_dup += 1,
+                Some(last) if t < last => self.dropped_back += 1,
+                _ => {
+                    self.last_ns = Some(t);
+                    return Some(Ok(s));
+                }
+            }
+            let dropped = self.dropped_dup + self.dropped_back;
+            if self.seen >= MIN_SAMPLES_FOR_ORDER_CHECK && 2 * dropped > self.seen {
+                self.done = true;
+                return Some(Err(IoError::Invalid {
+                    path: self.path(),
+                    msg: format!(
+                        "{}: {dropped} of the first {} samples have a stamp not after the \
+                         previous one: the topic is mostly out of order",
+                        self.topic.topic, self.seen
+                    ),
+                }));
+            }
+        }
+    }
+}
+
+impl Recording for RosRecording {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn calibration(&self) -> &Calibration {
+        &self.calib
+    }
+
+    fn contents(&self) -> Contents {
+        Contents {
+            imu: true,
+            frames: false,
+            images: self.camera.is_some(),
+            lidar: false,
+            ground_truth: false,
+            imu_span_ns: self.imu.span_ns,
+            image_count: self.camera.as_ref().map(|c| c.count as usize),
+        }
+    }
+
+    fn imu(&self) -> Result<Stream<'_, ImuSample>, IoError> {
+        let enc = self.imu.encoding;
+        Ok(self.checked(&self.imu, move |b| decode::imu(enc, b)))
+    }
+
+    fn frames(&self) -> Result<Stream<'_, FeatureFrame>, IoError> {
+        Ok(Box::new(std::iter::empty()))
+    }
+
+    fn images(&self) -> Result<Stream<'_, ImageFrame>, IoError> {
+        let Some(t) = &self.camera else {
+            return Ok(Box::new(std::iter::empty()));
+        };
+        let (enc, ty) = (t.encoding, t.msg_type.clone());
+        Ok(self.checked(t, move |b| decode::image(enc, &ty, b)))
+    }
+
+    fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError> {
+        Ok(Box::new(std::iter::empty()))
+    }
+
+    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
+        Ok(Vec::new())
+    }
+
+    fn warnings(&self) -> Vec<String> {
+        self.warnings.lock().map(|w| w.clone()).unwrap_or_default()
+    }
+}
