@@ -74,8 +74,11 @@ impl RunArgs {
             povins_platform::rosrec::recording::RosRecording::new(
                 povins_platform::rosrec::open_log(&self.dataset)?,
                 calib,
-                self.imu_topic.as_deref(),
-                self.image_topic.as_deref(),
+                &povins_platform::rosrec::topics::TopicChoice {
+                    imu: self.imu_topic.clone(),
+                    image: self.image_topic.clone(),
+                    ..Default::default()
+                },
             )?,
         ))
     }

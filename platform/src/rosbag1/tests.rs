@@ -126,7 +126,8 @@ fn empty_and_message_less_bags() {
         sel,
         topics::Selection {
             imu: None,
-            camera: None
+            camera: None,
+            accel: None
         }
     );
 }
@@ -381,15 +382,20 @@ fn sim_bag_as_a_recording_streams_imu_and_images() {
         .unwrap()
         .calibration()
         .clone();
-    let e =
-        recording::RosRecording::new(Box::new(Bag::open(&p).unwrap()), calib.clone(), None, None)
-            .unwrap_err();
+    let e = recording::RosRecording::new(
+        Box::new(Bag::open(&p).unwrap()),
+        calib.clone(),
+        &Default::default(),
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("2 camera topics"), "{e}");
     let rec = recording::RosRecording::new(
         Box::new(Bag::open(&p).unwrap()),
         calib,
-        None,
-        Some("/cam0/image_raw"),
+        &topics::TopicChoice {
+            image: Some("/cam0/image_raw".into()),
+            ..Default::default()
+        },
     )
     .unwrap();
     assert_eq!(rec.name(), "sim");

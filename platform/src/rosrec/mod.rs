@@ -13,6 +13,7 @@
 //! ([`recording::RosRecording`]).
 
 pub mod decode;
+pub mod merge;
 pub mod recording;
 pub mod topics;
 

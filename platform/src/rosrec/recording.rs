@@ -13,7 +13,8 @@
 //! are in [`Recording::warnings`] once a stream has ended.
 
 use super::decode::{self, MsgError};
-use super::topics::select;
+use super::merge::{self, AccelUnit, Merged};
+use super::topics::{select_with, TopicChoice};
 use super::{LogStream, MessageLog, TopicInfo};
 use crate::dataset::{Calibration, FeatureFrame, ImageFrame, LidarScan};
 use crate::error::IoError;
@@ -32,18 +33,19 @@ pub struct RosRecording {
     calib: Calibration,
     imu: TopicInfo,
     camera: Option<TopicInfo>,
-    warnings: Mutex<Vec<String>>,
+    accel: Option<TopicInfo>,
+    unit: AccelUnit,
+    warnings: std::sync::Arc<Mutex<Vec<String>>>,
 }
 
 impl RosRecording {
-    /// Takes `log`, chooses its topics (`imu_topic`, `image_topic` name them; otherwise by
-    /// type) and takes `calib` as its calibration. A recording without an IMU topic is an error
-    /// listing its topics.
+    /// Takes `log`, chooses its topics as `choice` says ([`super::topics`]), decides the
+    /// accelerometer's unit ([`merge`]) and takes `calib` as its calibration. A recording
+    /// without an IMU topic is an error listing its topics.
     pub fn new(
         log: Box<dyn MessageLog>,
         calib: Calibration,
-        imu_topic: Option<&str>,
-        image_topic: Option<&str>,
+        choice: &TopicChoice,
     ) -> Result<Self, IoError> {
         let path = log.path().to_path_buf();
         let invalid = |msg: String| IoError::Invalid {
@@ -51,7 +53,7 @@ impl RosRecording {
             msg,
         };
         let all = log.topics();
-        let sel = select(&all, imu_topic, image_topic).map_err(invalid)?;
+        let sel = select_with(&all, choice).map_err(invalid)?;
         let imu = sel.imu.ok_or_else(|| {
             let mut list: Vec<String> = all
                 .iter()
@@ -69,15 +71,46 @@ impl RosRecording {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let warnings = Mutex::new(log.warnings());
-        Ok(RosRecording {
+        let warnings = std::sync::Arc::new(Mutex::new(log.warnings()));
+        let mut rec = RosRecording {
             name,
             log,
             calib,
             imu,
             camera: sel.camera,
+            accel: sel.accel,
+            unit: choice.accel_unit,
             warnings,
-        })
+        };
+        if rec.unit == AccelUnit::Auto {
+            let (unit, warning) = merge::detect_unit(&rec.first_accels());
+            rec.unit = unit;
+            if let Some(w) = warning {
+                rec.warn(format!("{}: {w}", path.display()));
+            }
+        }
+        Ok(rec)
+    }
+
+    /// The first accelerometer samples (decodable ones), for the unit.
+    fn first_accels(&self) -> Vec<povins_core::math::Vec3> {
+        let t = self.accel.as_ref().unwrap_or(&self.imu);
+        self.log
+            .messages(&t.topic)
+            .filter_map(|m| decode::imu(t.encoding, &m.ok()?.data).ok())
+            .take(merge::UNIT_SAMPLES)
+            .map(|s| s.accel_mps2)
+            .collect()
+    }
+
+    /// The accelerometer's unit (decided when it was `Auto`).
+    pub fn accel_unit(&self) -> AccelUnit {
+        self.unit
+    }
+
+    /// The accelerometer topic merged into the IMU's samples.
+    pub fn accel_topic(&self) -> Option<&TopicInfo> {
+        self.accel.as_ref()
     }
 
     /// The container.
@@ -305,7 +338,38 @@ impl Recording for RosRecording {
 
     fn imu(&self) -> Result<Stream<'_, ImuSample>, IoError> {
         let enc = self.imu.encoding;
-        Ok(self.checked(&self.imu, move |b| decode::imu(enc, b)))
+        let gyro = self.checked(&self.imu, move |b| decode::imu(enc, b));
+        let samples = match &self.accel {
+            None => gyro,
+            Some(a) => {
+                let enc = a.encoding;
+                let accel = self.checked(a, move |b| decode::imu(enc, b));
+                let (warnings, path, topic) = (
+                    self.warnings.clone(),
+                    self.log.path().display().to_string(),
+                    self.imu.topic.clone(),
+                );
+                let on_end = Box::new(move |dropped: u64| {
+                    if let (true, Ok(mut w)) = (dropped > 0, warnings.lock()) {
+                        w.push(format!(
+                            "{path}: {topic}: {dropped} gyro samples outside the \
+                             accelerometer's time span dropped (nothing to interpolate)"
+                        ));
+                    }
+                });
+                Box::new(Merged::new(gyro, accel, on_end))
+            }
+        };
+        let k = merge::scale(self.unit);
+        if k == 1.0 {
+            return Ok(samples);
+        }
+        Ok(Box::new(samples.map(move |s| {
+            s.map(|mut s| {
+                s.accel_mps2 *= k;
+                s
+            })
+        })))
     }
 
     fn frames(&self) -> Result<Stream<'_, FeatureFrame>, IoError> {

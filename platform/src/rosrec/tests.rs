@@ -92,7 +92,7 @@ fn recording(items: Vec<Result<(i64, i64), u64>>) -> RosRecording {
         path: "mem.bag".into(),
         items,
     };
-    RosRecording::new(Box::new(log), calib(), None, None).unwrap()
+    RosRecording::new(Box::new(log), calib(), &Default::default()).unwrap()
 }
 
 #[test]
@@ -178,7 +178,7 @@ fn a_message_that_does_not_decode_names_topic_index_and_offsets() {
         path: "mem.bag".into(),
         items: vec![Ok((1, 1)), Ok((2, 2))],
     });
-    let rec = RosRecording::new(Box::new(log), calib(), None, None).unwrap();
+    let rec = RosRecording::new(Box::new(log), calib(), &Default::default()).unwrap();
     let r: Result<Vec<_>, _> = rec.imu().unwrap().collect();
     let e = r.unwrap_err().to_string();
     assert!(
@@ -192,4 +192,83 @@ fn ros2_type_names_become_ros1_names() {
     assert_eq!(normalize_type("sensor_msgs/msg/Imu"), "sensor_msgs/Imu");
     assert_eq!(normalize_type("sensor_msgs/Imu"), "sensor_msgs/Imu");
     assert_eq!(normalize_type("a/msg/b/c"), "a/msg/b/c");
+}
+
+/// A RealSense-like log: gyro and accelerometer apart, the accelerometer in `accel_z` units.
+#[derive(Debug)]
+struct PairLog {
+    path: PathBuf,
+    accel_z: f64,
+}
+
+/// A ROS 1 `sensor_msgs/Imu` with the given gyro x and accel z.
+fn imu_msg_with(stamp_ns: i64, gyro_x: f64, accel_z: f64) -> Vec<u8> {
+    let mut b = imu_msg(stamp_ns);
+    let at = b.len() - 37 * 8;
+    b[at + 13 * 8..at + 14 * 8].copy_from_slice(&gyro_x.to_le_bytes());
+    b[at + 27 * 8..at + 28 * 8].copy_from_slice(&accel_z.to_le_bytes());
+    b
+}
+
+impl MessageLog for PairLog {
+    fn path(&self) -> &Path {
+        &self.path
+    }
+    fn describe(&self) -> String {
+        "memory".into()
+    }
+    fn topics(&self) -> Vec<TopicInfo> {
+        let t = |name: &str, n| TopicInfo {
+            topic: name.into(),
+            msg_type: "sensor_msgs/Imu".into(),
+            encoding: Encoding::Ros1,
+            count: n,
+            span_ns: None,
+        };
+        vec![t("/camera/accel/sample", 30), t("/camera/gyro/sample", 60)]
+    }
+    fn messages(&self, topic: &str) -> LogStream<'_> {
+        let ms = 1_000_000;
+        let msgs: Vec<_> = if topic.contains("gyro") {
+            (0..60).map(|k| imu_msg_with(k * 5 * ms, k as f64, 0.0)).collect()
+        } else {
+            // z rises by one unit per 10 ms from `accel_z`.
+            (0..30)
+                .map(|k| imu_msg_with(k * 10 * ms, 0.0, self.accel_z + k as f64 * 1e-3))
+                .collect()
+        };
+        Box::new(msgs.into_iter().map(|data| {
+            let t = crate::rosbag1::msgs::imu(&data).unwrap().t_ns;
+            Ok(LogMessage {
+                log_time_ns: t,
+                offset: 0,
+                data,
+            })
+        }))
+    }
+    fn warnings(&self) -> Vec<String> {
+        Vec::new()
+    }
+}
+
+#[test]
+fn a_realsense_pair_is_found_merged_and_its_unit_told() {
+    for (accel_z, scale) in [(9.81, 1.0), (1.0, merge::STANDARD_GRAVITY_MPS2)] {
+        let log = PairLog {
+            path: "rs.bag".into(),
+            accel_z,
+        };
+        let rec = RosRecording::new(Box::new(log), calib(), &Default::default()).unwrap();
+        assert_eq!(rec.imu_topic().topic, "/camera/gyro/sample");
+        assert_eq!(rec.accel_topic().unwrap().topic, "/camera/accel/sample");
+        let got: Vec<_> = rec.imu().unwrap().map(Result::unwrap).collect();
+        // Gyro at 0..295 ms; accel at 0..290 ms: the last gyro sample (295 ms) is dropped.
+        assert_eq!(got.len(), 59);
+        let s = got[3]; // 15 ms: halfway between accel samples 1 and 2.
+        assert_eq!(s.gyro_rps.x, 3.0);
+        let want = (accel_z + 1.5e-3) * scale;
+        assert!((s.accel_mps2.z - want).abs() < 1e-12, "{} vs {want}", s.accel_mps2.z);
+        let w = rec.warnings().join("\n");
+        assert!(w.contains("1 gyro samples outside"), "{w}");
+    }
 }
