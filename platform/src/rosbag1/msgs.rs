@@ -27,20 +27,25 @@ pub struct MsgError {
 }
 
 /// Cursor over one ROS 1 message.
-struct Reader<'a> {
+pub(crate) struct Reader<'a> {
     b: &'a [u8],
     pos: usize,
 }
 
 impl<'a> Reader<'a> {
-    fn err(&self, msg: impl Into<String>) -> MsgError {
+    /// A cursor at the start of `b`.
+    pub(crate) fn new(b: &'a [u8]) -> Self {
+        Reader { b, pos: 0 }
+    }
+
+    pub(crate) fn err(&self, msg: impl Into<String>) -> MsgError {
         MsgError {
             offset: self.pos,
             msg: msg.into(),
         }
     }
 
-    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], MsgError> {
+    pub(crate) fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], MsgError> {
         let left = self.b.len() - self.pos;
         if n > left {
             return Err(self.err(format!("truncated: {what} needs {n} bytes, {left} left")));
@@ -56,15 +61,15 @@ impl<'a> Reader<'a> {
         Ok(a)
     }
 
-    fn u8(&mut self) -> Result<u8, MsgError> {
+    pub(crate) fn u8(&mut self) -> Result<u8, MsgError> {
         Ok(self.arr::<1>("uint8")?[0])
     }
 
-    fn u32(&mut self) -> Result<u32, MsgError> {
+    pub(crate) fn u32(&mut self) -> Result<u32, MsgError> {
         Ok(u32::from_le_bytes(self.arr("uint32")?))
     }
 
-    fn f64s<const N: usize>(&mut self) -> Result<[f64; N], MsgError> {
+    pub(crate) fn f64s<const N: usize>(&mut self) -> Result<[f64; N], MsgError> {
         let mut a = [0.0; N];
         for x in &mut a {
             *x = f64::from_le_bytes(self.arr("float64")?);
@@ -77,7 +82,7 @@ impl<'a> Reader<'a> {
         self.take(n, what)
     }
 
-    fn string(&mut self) -> Result<&'a str, MsgError> {
+    pub(crate) fn string(&mut self) -> Result<&'a str, MsgError> {
         let at = self.pos;
         let b = self.bytes("string")?;
         std::str::from_utf8(b).map_err(|_| MsgError {
@@ -87,11 +92,20 @@ impl<'a> Reader<'a> {
     }
 
     /// `std_msgs/Header`: the stamp in ns.
-    fn header(&mut self) -> Result<i64, MsgError> {
+    pub(crate) fn header(&mut self) -> Result<i64, MsgError> {
+        Ok(self.header_with_frame()?.0)
+    }
+
+    /// `std_msgs/Header`: the stamp in ns and the frame id.
+    pub(crate) fn header_with_frame(&mut self) -> Result<(i64, &'a str), MsgError> {
         let _seq = self.u32()?;
         let t = super::record::time_ns(&self.arr::<8>("stamp")?);
-        self.string()?;
-        Ok(t)
+        Ok((t, self.string()?))
+    }
+
+    /// Bytes left.
+    pub(crate) fn remaining(&self) -> usize {
+        self.b.len() - self.pos
     }
 }
 

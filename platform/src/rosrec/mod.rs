@@ -12,6 +12,7 @@
 //! other error ends it. The recording layer skips the corrupt part with a warning
 //! ([`recording::RosRecording`]).
 
+pub mod calib_msgs;
 pub mod decode;
 pub mod merge;
 pub mod recording;

@@ -230,7 +230,9 @@ impl MessageLog for PairLog {
     fn messages(&self, topic: &str) -> LogStream<'_> {
         let ms = 1_000_000;
         let msgs: Vec<_> = if topic.contains("gyro") {
-            (0..60).map(|k| imu_msg_with(k * 5 * ms, k as f64, 0.0)).collect()
+            (0..60)
+                .map(|k| imu_msg_with(k * 5 * ms, k as f64, 0.0))
+                .collect()
         } else {
             // z rises by one unit per 10 ms from `accel_z`.
             (0..30)
@@ -267,7 +269,11 @@ fn a_realsense_pair_is_found_merged_and_its_unit_told() {
         let s = got[3]; // 15 ms: halfway between accel samples 1 and 2.
         assert_eq!(s.gyro_rps.x, 3.0);
         let want = (accel_z + 1.5e-3) * scale;
-        assert!((s.accel_mps2.z - want).abs() < 1e-12, "{} vs {want}", s.accel_mps2.z);
+        assert!(
+            (s.accel_mps2.z - want).abs() < 1e-12,
+            "{} vs {want}",
+            s.accel_mps2.z
+        );
         let w = rec.warnings().join("\n");
         assert!(w.contains("1 gyro samples outside"), "{w}");
     }
