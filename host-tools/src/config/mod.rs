@@ -13,7 +13,9 @@
 //!   `[frontend.lk]`, `[frontend.ransac]`, `[frontend.reference]`: the anchored refinement,
 //!   `enabled = true` to turn it on; `[frontend.provisional]`: the first-steps check of new
 //!   tracks against occlusion-edge corners, `enabled = true` to turn it on) and `[aiding]` its
-//!   [`VioAiding`].
+//!   [`VioAiding`];
+//! - `[input]` is the host side's [`InputOptions`] (the recording's topics and calibration files,
+//!   [`input`]); it is not laid over the estimator.
 //!
 //! Every key is optional: the file is laid over the configuration the dataset gives (its camera,
 //! extrinsics, IMU noise, gravity, camera delay and LiDAR), key by key, nested tables merged.
