@@ -19,8 +19,24 @@ Chunks are uncompressed and small (16 kB), so the bag has many chunks.
 
 With a third argument `--full`: every image at full size in mono8 on /cam0/image_raw, with
 /imu0 only, 1 MB chunks (for `povins run BAG --calib EUROC_FOLDER` against the folder itself).
+
+Kalibr files (PyYAML as the independent writer, in Kalibr's own layout: `T_cam_imu` as a block
+list of flow rows, `imu0:` nesting with `--nested`):
+
+    make_rosbag1_fixture.py --kalibr EUROC_DIR OUT_PREFIX [--size W H] [--image-topic T] [--nested]
+
+writes OUT_PREFIX-camchain-imucam.yaml and OUT_PREFIX-imu.yaml from EUROC_DIR's
+mav0/cam0/sensor.yaml and mav0/imu0/sensor.yaml: `T_cam_imu` is the matrix inverse of
+`T_B_imu^-1 T_B_cam` (numpy), `distortion_model` radial-tangential -> radtan, `rate_hz` and
+`gravity_magnitude` carried as povins' extension keys. `--size W H` rescales the resolution and
+the intrinsics (the fixture bag's 64x48 images: `tests/data/kalibr/sim-*.yaml`).
+
+    /work/venv-rosbags/bin/pip install pyyaml
+    make_rosbag1_fixture.py --kalibr tests/data/euroc-v101-30s-features tests/data/kalibr/euroc-v101 --nested
+    make_rosbag1_fixture.py --kalibr /tmp/simrb tests/data/kalibr/sim --size 64 48 --image-topic /cam0/gray_png
 """
 
+import re
 import struct
 import sys
 import zlib
@@ -107,7 +123,66 @@ def encode(enc: str, g: np.ndarray) -> tuple[int, bytes]:
     return 2, np.stack([g, chroma], axis=2)  # yuv422_yuy2: Y U Y V
 
 
+def read_euroc_yaml(path: Path) -> dict:
+    import yaml
+    text = path.read_text()
+    return yaml.safe_load(re.sub(r"^%YAML:1.0", "", text, flags=re.M))
+
+
+def t_bs(d: dict) -> np.ndarray:
+    t = d.get("T_BS")
+    return np.eye(4) if t is None else np.array(t["data"], np.float64).reshape(4, 4)
+
+
+def write_kalibr(args: list[str]) -> None:
+    import yaml
+    src, prefix = Path(args[0]), args[1]
+    cam = read_euroc_yaml(src / "mav0/cam0/sensor.yaml")
+    imu = read_euroc_yaml(src / "mav0/imu0/sensor.yaml")
+    w, h = cam["resolution"]
+    fu, fv, pu, pv = cam["intrinsics"]
+    if "--size" in args:
+        k = args.index("--size")
+        nw, nh = int(args[k + 1]), int(args[k + 2])
+        sx, sy = nw / w, nh / h
+        fu, fv, pu, pv, w, h = fu * sx, fv * sy, pu * sx, pv * sy, nw, nh
+    topic = args[args.index("--image-topic") + 1] if "--image-topic" in args else "/cam0/image_raw"
+    model = {"radial-tangential": "radtan", "equidistant": "equidistant"}[cam["distortion_model"]]
+    t_cam_imu = np.linalg.inv(np.linalg.inv(t_bs(imu)) @ t_bs(cam))
+    t_cam_imu[3] = [0.0, 0.0, 0.0, 1.0]
+    cam0 = {
+        "camera_model": "pinhole",
+        "intrinsics": [float(fu), float(fv), float(pu), float(pv)],
+        "distortion_model": model,
+        "distortion_coeffs": [float(c) for c in cam["distortion_coefficients"]],
+        "T_cam_imu": [[float(v) for v in row] for row in t_cam_imu],
+        "timeshift_cam_imu": float(cam.get("timeshift_cam_imu", 0.0)),
+        "rostopic": topic,
+        "resolution": [int(w), int(h)],
+        "rate_hz": float(cam["rate_hz"]),
+    }
+    noise = {
+        "accelerometer_noise_density": float(imu["accelerometer_noise_density"]),
+        "accelerometer_random_walk": float(imu["accelerometer_random_walk"]),
+        "gyroscope_noise_density": float(imu["gyroscope_noise_density"]),
+        "gyroscope_random_walk": float(imu["gyroscope_random_walk"]),
+        "rostopic": "/imu0",
+        "update_rate": float(imu["rate_hz"]),
+    }
+    if "gravity_magnitude" in imu:
+        noise["gravity_magnitude"] = float(imu["gravity_magnitude"])
+    if "--nested" in args:
+        noise = {"imu0": dict(noise, model="calibrated", time_offset=0.0)}
+    dump = lambda d: yaml.safe_dump(d, default_flow_style=None, sort_keys=False)
+    Path(prefix + "-camchain-imucam.yaml").write_text(dump({"cam0": cam0}))
+    Path(prefix + "-imu.yaml").write_text(yaml.safe_dump(noise, default_flow_style=False, sort_keys=False))
+    print(f"wrote {prefix}-camchain-imucam.yaml and {prefix}-imu.yaml")
+
+
 def main() -> None:
+    if sys.argv[1] == "--kalibr":
+        write_kalibr(sys.argv[2:])
+        return
     src, out = Path(sys.argv[1]), Path(sys.argv[2])
     ts = get_typestore(Stores.ROS1_NOETIC)
     T = ts.types

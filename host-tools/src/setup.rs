@@ -7,7 +7,8 @@
 //! [`povins_platform::odometry::check`]), so a setting that does not fit is an error naming the
 //! file before anything runs.
 
-use crate::config::{effective_toml, LidarArgs, ModeArg, RunConfigFile};
+use crate::config::input::open_bag;
+use crate::config::{effective_toml, InputArgs, InputOptions, LidarArgs, ModeArg, RunConfigFile};
 use crate::progress::Progress;
 use crate::runner::{config_for, replay_with, Frontend, FrontendOptions, InitMode, RunOutput};
 use anyhow::{Context, Result};
@@ -21,16 +22,9 @@ pub struct RunArgs {
     /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file or a ROS 1 `.bag` (with
     /// `--calib`).
     pub dataset: PathBuf,
-    /// Calibration of a ROS 1 bag: an EuRoC ASL folder whose `imu0` and `cam0` `sensor.yaml`
-    /// give it (Kalibr files: the next step).
-    #[arg(long)]
-    pub calib: Option<PathBuf>,
-    /// IMU topic of a bag (default: its one `sensor_msgs/Imu` topic).
-    #[arg(long)]
-    pub imu_topic: Option<String>,
-    /// Camera topic of a bag (default: its one `sensor_msgs/Image` or `CompressedImage` topic).
-    #[arg(long)]
-    pub image_topic: Option<String>,
+    /// The recording's calibration files and topics (override the config's `[input]`).
+    #[command(flatten)]
+    pub input: InputArgs,
     /// How to initialize.
     #[arg(long, value_enum, default_value = "static")]
     pub init: InitMode,
@@ -50,37 +44,33 @@ pub struct RunArgs {
 }
 
 impl RunArgs {
-    /// Opens the recording named by `dataset`.
+    /// Opens the recording named by `dataset`: a ROS 1 bag with the calibration and topics of
+    /// the switches and the config's `[input]` ([`InputOptions`]), laid over the config's
+    /// `[imu_noise]` when no file gives the IMU noise.
     pub fn open(&self) -> Result<Box<dyn Recording>> {
+        let file = self
+            .config
+            .as_deref()
+            .map(RunConfigFile::read)
+            .transpose()?;
+        let input = InputOptions::new(file.as_ref(), &self.input)?;
+        for note in input.unused_notes() {
+            eprintln!("{note}");
+        }
         if self.dataset.extension().is_none_or(|e| e != "bag") {
             anyhow::ensure!(
-                self.calib.is_none() && self.imu_topic.is_none() && self.image_topic.is_none(),
-                "--calib, --imu-topic and --image-topic apply to ROS 1 bags only"
+                !input.any_for_bags(),
+                "--calib, --imu-calib, --camera, --imu-topic and --image-topic (and their \
+                 `[input]` keys) apply to ROS 1 bags only"
             );
             return Ok(povins_platform::open_recording(&self.dataset)?);
         }
-        let Some(dir) = &self.calib else {
-            anyhow::bail!(
-                "{}: calibration missing: a ROS 1 bag needs --calib EUROC_FOLDER (its \
-                 mav0/imu0 and mav0/cam0 sensor.yaml)",
-                self.dataset.display()
-            );
-        };
-        let calib = povins_platform::euroc::EurocFolder::open(dir)
-            .with_context(|| format!("--calib {}", dir.display()))?
-            .calibration()
-            .clone();
-        Ok(Box::new(
-            povins_platform::rosrec::recording::RosRecording::new(
-                povins_platform::rosrec::open_log(&self.dataset)?,
-                calib,
-                &povins_platform::rosrec::topics::TopicChoice {
-                    imu: self.imu_topic.clone(),
-                    image: self.image_topic.clone(),
-                    ..Default::default()
-                },
-            )?,
-        ))
+        let toml_noise = file
+            .as_ref()
+            .map(RunConfigFile::imu_noise)
+            .transpose()?
+            .flatten();
+        open_bag(&self.dataset, &input, toml_noise)
     }
 }
 

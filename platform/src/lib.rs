@@ -15,6 +15,7 @@ pub mod euroc;
 pub mod image_codec;
 pub mod image_raw;
 pub mod images;
+pub mod kalibr;
 pub mod mcap_io;
 pub mod odometry;
 pub mod pipeline;

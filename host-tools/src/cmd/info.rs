@@ -1,8 +1,10 @@
 //! `povins info RECORDING`: what a recording holds (for a ROS 1 bag: topics, types, message
 //! counts, mean rates over the bag's span, time span, chunks, index state and warnings) and which topics `run`
-//! would use. `--read-all` also reads and decodes every message of the chosen IMU and camera
+//! would use; with `--calib` (and `--imu-calib`, `--camera`) the calibration found in those
+//! files, and the topics `run` would use with their Kalibr `rostopic`s. `--read-all` also reads and decodes every message of the chosen IMU and camera
 //! topics (the reading speed, and every decoding error with its message index).
 
+use crate::config::{InputArgs, InputOptions};
 use anyhow::{bail, Context, Result};
 use povins_platform::rosbag1::{msgs, Bag};
 use povins_platform::rosrec::{topics, MessageLog};
@@ -14,12 +16,9 @@ use std::path::PathBuf;
 pub struct Args {
     /// The recording (a ROS 1 `.bag` file).
     pub recording: PathBuf,
-    /// The IMU topic (default: the one `sensor_msgs/Imu` topic).
-    #[arg(long)]
-    pub imu_topic: Option<String>,
-    /// The camera topic (default: the one `sensor_msgs/Image` or `CompressedImage` topic).
-    #[arg(long)]
-    pub image_topic: Option<String>,
+    /// The topics and the calibration files (as for `povins run`).
+    #[command(flatten)]
+    pub input: InputArgs,
     /// Read and decode every message of the chosen topics.
     #[arg(long)]
     pub read_all: bool,
@@ -34,16 +33,24 @@ pub fn run(a: Args) -> Result<()> {
             a.recording.display()
         );
     }
+    let input = InputOptions::new(None, &a.input)?;
     let bag = Bag::open(&a.recording)?;
-    print!(
-        "{}",
-        bag_summary(&bag, a.imu_topic.as_deref(), a.image_topic.as_deref())
-    );
+    let mut calib = String::new();
+    let (imu, image) = if input.calib.is_some() {
+        let found = input.calibration_files(&bag)?;
+        calib = found.describe();
+        let kalibr_imu = found.imu.as_ref().and_then(|i| i.rostopic.as_deref());
+        let c = input.topic_choice(&bag.topics(), kalibr_imu, found.camera.rostopic.as_deref());
+        (c.imu, c.image)
+    } else if input.imu_calib.is_some() || input.camera.is_some() {
+        bail!("--imu-calib and --camera need --calib");
+    } else {
+        (input.imu_topic.clone(), input.image_topic.clone())
+    };
+    print!("{}", bag_summary(&bag, imu.as_deref(), image.as_deref()));
+    print!("{calib}");
     if a.read_all {
-        print!(
-            "{}",
-            read_all(&bag, a.imu_topic.as_deref(), a.image_topic.as_deref())?
-        );
+        print!("{}", read_all(&bag, imu.as_deref(), image.as_deref())?);
     }
     Ok(())
 }

@@ -13,7 +13,9 @@
 //!   `[frontend.lk]`, `[frontend.ransac]`, `[frontend.reference]`: the anchored refinement,
 //!   `enabled = true` to turn it on; `[frontend.provisional]`: the first-steps check of new
 //!   tracks against occlusion-edge corners, `enabled = true` to turn it on) and `[aiding]` its
-//!   [`VioAiding`].
+//!   [`VioAiding`];
+//! - `[input]` is the host side's [`InputOptions`] (the recording's topics and calibration files,
+//!   [`input`]); it is not laid over the estimator.
 //!
 //! Every key is optional: the file is laid over the configuration the dataset gives (its camera,
 //! extrinsics, IMU noise, gravity, camera delay and LiDAR), key by key, nested tables merged.
@@ -53,10 +55,12 @@
 //! The command-line switches ([`LidarArgs`], `--mode`) override the file.
 
 mod args;
+pub mod input;
 #[cfg(test)]
 mod tests;
 
 pub use args::{ldm_name, LdmArg, LidarArgs, ModeArg};
+pub use input::{AccelUnit, InputArgs, InputOptions};
 
 use anyhow::{anyhow, Context, Result};
 use povins_core::estimator::EstimatorConfig;
@@ -68,6 +72,8 @@ use toml::{Table, Value};
 /// Top-level tables that are not part of [`EstimatorConfig`].
 const FRONTEND: &str = "frontend";
 const AIDING: &str = "aiding";
+/// The host-side `[input]` table ([`InputOptions`]).
+const INPUT: &str = "input";
 
 /// Top-level keys that moved into a table: `(old key, table, new keys)`. A file giving an old
 /// key is refused with an error naming the new ones (two new keys: the old value was a pair).
@@ -113,6 +119,8 @@ fn moved_key(user: &Table) -> Option<anyhow::Error> {
 pub struct RunConfigFile {
     /// Where it came from (for the errors).
     source: String,
+    /// The folder of the file: relative paths in `[input]` are relative to it.
+    dir: Option<std::path::PathBuf>,
     /// The file's keys.
     table: Table,
 }
@@ -122,7 +130,9 @@ impl RunConfigFile {
     pub fn read(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read config {}", path.display()))?;
-        Self::parse_named(&text, &path.display().to_string())
+        let mut f = Self::parse_named(&text, &path.display().to_string())?;
+        f.dir = Some(path.parent().unwrap_or(Path::new("")).to_path_buf());
+        Ok(f)
     }
 
     /// Parses TOML text. The keys are checked when the file is applied (against the
@@ -137,6 +147,7 @@ impl RunConfigFile {
             toml::from_str(text).with_context(|| format!("invalid config {source}"))?;
         Ok(RunConfigFile {
             source: source.to_string(),
+            dir: None,
             table,
         })
     }
@@ -147,6 +158,7 @@ impl RunConfigFile {
         let mut user = self.table.clone();
         user.remove(FRONTEND);
         user.remove(AIDING);
+        user.remove(INPUT);
         if let Some(e) = moved_key(&user) {
             return Err(self.error(e));
         }
