@@ -3,7 +3,7 @@
 
 use povins_core::estimator::Estimator;
 use povins_core::frontend::image::{pyramid_bytes, FeatureTracker};
-use povins_core::vio::{EurocVio, HdVio};
+use povins_core::vio::{EurocVio, HdVio, WuxgaVio};
 use std::mem::size_of;
 use std::sync::Mutex;
 
@@ -47,6 +47,7 @@ fn footprints() -> Vec<(&'static str, usize)> {
     if cfg!(feature = "lidar") {
         v.push(("EurocVio", size_of::<EurocVio>()));
         v.push(("HdVio", size_of::<HdVio>()));
+        v.push(("WuxgaVio", size_of::<WuxgaVio>()));
     }
     v
 }

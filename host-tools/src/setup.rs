@@ -223,13 +223,18 @@ mod tests {
             .expect_err("256 features at most");
         assert!(format!("{e:#}").contains("invalid"), "{e:#}");
         let huge = PinholeCamera {
-            width: 1920,
+            width: 1921,
             height: 1200,
             ..euroc
         };
         let e = setup(huge, TrackerConfig::default())
             .check()
             .expect_err("larger than the largest capacity");
-        assert!(format!("{e:#}").contains("1920x1200"), "{e:#}");
+        assert!(
+            format!("{e:#}").contains(
+                "1921x1200 images are larger than the front end's largest capacity (1920x1200)"
+            ),
+            "{e:#}"
+        );
     }
 }

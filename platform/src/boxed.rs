@@ -65,8 +65,8 @@ pub fn boxed_povins(cfg: EstimatorConfig) -> Result<Box<PoVins>, Error> {
 /// The tracker's [`Vio::empty`] is not all zero bits, so the box is initialized by assigning
 /// the constant `Vio::empty()` to it (a copy from the executable's read-only data straight
 /// into the heap, also in unoptimized builds: an assignment, not a by-value call), then
-/// [`Vio::configure`]d in place. The price is the constant's size in `.rodata` (about 6 MB
-/// per capacity).
+/// [`Vio::configure`]d in place. The price is the constant's size in `.rodata` (the type's
+/// size: 7 to 12 MB per capacity, see the README's footprint table).
 pub fn boxed_vio<
     const N: usize,
     const L: usize,
@@ -121,7 +121,7 @@ mod tests {
     use povins_core::camera::{CameraExtrinsic, Distortion, PinholeCamera};
     use povins_core::estimator::Status;
     use povins_core::inertial::ImuNoise;
-    use povins_core::vio::EurocVio;
+    use povins_core::vio::{EurocVio, WuxgaTracking, WuxgaVio};
 
     fn config() -> EstimatorConfig {
         let camera = PinholeCamera {
@@ -173,6 +173,24 @@ mod tests {
             assert_eq!(v.tracker().config(), &TrackerConfig::default());
             assert!(v.features().is_empty());
             let bad: Result<Box<EurocVio>, _> = boxed_vio(config(), TrackerConfig::PLACEHOLDER);
+            assert_eq!(bad.err(), Some(Error::InvalidConfig));
+        });
+    }
+
+    /// The largest capacity (about 12 MB, 48 times the stack) and its front end alone.
+    #[test]
+    fn boxed_wuxga_vio_and_tracking_need_no_stack() {
+        on_small_stack(|| {
+            let v: Box<WuxgaVio> =
+                boxed_vio(config(), TrackerConfig::default()).expect("valid configuration");
+            assert!(std::mem::size_of_val(&*v) > 40 * (256 << 10));
+            assert_eq!(v.estimator().status(), Status::WaitingForInit);
+            assert_eq!(v.tracker().config(), &TrackerConfig::default());
+            let t: Box<WuxgaTracking> =
+                boxed_tracking(config(), TrackerConfig::default()).expect("valid configuration");
+            assert_eq!(t.tracker().config(), &TrackerConfig::default());
+            let bad: Result<Box<WuxgaTracking>, _> =
+                boxed_tracking(config(), TrackerConfig::PLACEHOLDER);
             assert_eq!(bad.err(), Some(Error::InvalidConfig));
         });
     }

@@ -1,14 +1,17 @@
 //! The odometry of a run, chosen once: the estimator alone for feature tracks, the estimator
 //! with the image front end, or the image front end alone, the front end's capacity fitting the
 //! camera's images (up to 752x480: [`EurocVio`], [`EurocTracking`]; up to 1280x720: [`HdVio`],
-//! [`HdTracking`]), built on the heap ([`crate::boxed`]) and driven from there on as a `dyn`
-//! [`Odometry`] ([`crate::driver`], [`crate::pipeline`]).
+//! [`HdTracking`]; up to 1920x1200: [`WuxgaVio`], [`WuxgaTracking`]), built on the heap
+//! ([`crate::boxed`]) and driven from there on as a `dyn` [`Odometry`] ([`crate::driver`],
+//! [`crate::pipeline`]).
 
 use crate::boxed::{boxed_povins, boxed_tracking, boxed_vio};
 use povins_core::estimator::{EstimatorConfig, PoVins};
 use povins_core::frontend::image::TrackerConfig;
 use povins_core::odometry::Odometry;
-use povins_core::vio::{EurocTracking, EurocVio, HdTracking, HdVio, VioAiding};
+use povins_core::vio::{
+    EurocTracking, EurocVio, HdTracking, HdVio, Tracking, Vio, VioAiding, WuxgaTracking, WuxgaVio,
+};
 
 /// What feeds the estimator's camera updates.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,7 +45,11 @@ pub enum BuildError {
     #[error("invalid estimator or front-end configuration: {0}")]
     Config(povins_core::Error),
     /// No front-end capacity fits the camera's images.
-    #[error("{width}x{height} images are larger than the front end's largest capacity (1280x720)")]
+    #[error(
+        "{width}x{height} images are larger than the front end's largest capacity ({}x{})",
+        LARGEST.0,
+        LARGEST.1
+    )]
     ImagesTooLarge {
         /// The camera's width, px.
         width: u32,
@@ -60,17 +67,32 @@ enum Capacity {
     Euroc,
     /// Images up to 1280x720.
     Hd,
+    /// Images up to 1920x1200.
+    Wuxga,
 }
 
-/// The capacity `fe` needs for `cfg`'s camera (the one place that knows the sizes).
+/// Each image capacity with its largest image, `(width, height)` px, smallest first (the one
+/// place that knows the sizes; each type's pyramid is sized for its entry).
+const CAPACITIES: [(Capacity, (u32, u32)); 3] = [
+    (Capacity::Euroc, (752, 480)),
+    (Capacity::Hd, (1280, 720)),
+    (Capacity::Wuxga, (1920, 1200)),
+];
+
+/// The largest image any capacity takes (in [`BuildError::ImagesTooLarge`]).
+const LARGEST: (u32, u32) = CAPACITIES[CAPACITIES.len() - 1].1;
+
+/// The capacity `fe` needs for `cfg`'s camera: the smallest that holds its images.
 fn capacity(cfg: &EstimatorConfig, fe: &FrontEnd) -> Result<Capacity, BuildError> {
     let (width, height) = (cfg.camera.width, cfg.camera.height);
-    Ok(match fe {
-        FrontEnd::Tracks => Capacity::Tracks,
-        _ if width <= 752 && height <= 480 => Capacity::Euroc,
-        _ if width <= 1280 && height <= 720 => Capacity::Hd,
-        _ => return Err(BuildError::ImagesTooLarge { width, height }),
-    })
+    if let FrontEnd::Tracks = fe {
+        return Ok(Capacity::Tracks);
+    }
+    CAPACITIES
+        .iter()
+        .find(|(_, (w, h))| width <= *w && height <= *h)
+        .map(|&(c, _)| c)
+        .ok_or(BuildError::ImagesTooLarge { width, height })
 }
 
 /// Whether [`boxed_odometry`] would accept `cfg` and `fe` (the core's checks of the type it
@@ -79,8 +101,12 @@ pub fn check(cfg: &EstimatorConfig, fe: &FrontEnd) -> Result<(), BuildError> {
     let r = match (capacity(cfg, fe)?, *fe) {
         (_, FrontEnd::Tracks) => PoVins::check(cfg),
         (Capacity::Hd, FrontEnd::Images { tracker, .. }) => HdVio::check(cfg, &tracker),
+        (Capacity::Wuxga, FrontEnd::Images { tracker, .. }) => WuxgaVio::check(cfg, &tracker),
         (_, FrontEnd::Images { tracker, .. }) => EurocVio::check(cfg, &tracker),
         (Capacity::Hd, FrontEnd::TrackingOnly { tracker, .. }) => HdTracking::check(cfg, &tracker),
+        (Capacity::Wuxga, FrontEnd::TrackingOnly { tracker, .. }) => {
+            WuxgaTracking::check(cfg, &tracker)
+        }
         (_, FrontEnd::TrackingOnly { tracker, .. }) => EurocTracking::check(cfg, &tracker),
     };
     r.map_err(BuildError::Config)
@@ -93,7 +119,7 @@ pub fn boxed_odometry(
     fe: &FrontEnd,
     clock: Option<fn() -> u64>,
 ) -> Result<Box<dyn Odometry + Send>, BuildError> {
-    let hd = capacity(&cfg, fe)? == Capacity::Hd;
+    let cap = capacity(&cfg, fe)?;
     let c = BuildError::Config;
     Ok(match *fe {
         FrontEnd::Tracks => {
@@ -101,19 +127,15 @@ pub fn boxed_odometry(
             e.set_clock(clock);
             e
         }
-        FrontEnd::Images { tracker, aiding } => {
-            if hd {
-                let mut v: Box<HdVio> = boxed_vio(cfg, tracker).map_err(c)?;
-                v.set_aiding(aiding);
-                v.set_clock(clock);
-                v
-            } else {
-                let mut v: Box<EurocVio> = boxed_vio(cfg, tracker).map_err(c)?;
-                v.set_aiding(aiding);
-                v.set_clock(clock);
-                v
+        FrontEnd::Images { tracker, aiding } => match cap {
+            Capacity::Hd => aided::<HdVio>(boxed_vio(cfg, tracker).map_err(c)?, aiding, clock),
+            Capacity::Wuxga => {
+                aided::<WuxgaVio>(boxed_vio(cfg, tracker).map_err(c)?, aiding, clock)
             }
-        }
+            Capacity::Euroc | Capacity::Tracks => {
+                aided::<EurocVio>(boxed_vio(cfg, tracker).map_err(c)?, aiding, clock)
+            }
+        },
         FrontEnd::TrackingOnly {
             tracker,
             gyro_rotation,
@@ -122,17 +144,161 @@ pub fn boxed_odometry(
                 predictions: false,
                 gyro_rotation,
             };
-            if hd {
-                let mut t: Box<HdTracking> = boxed_tracking(cfg, tracker).map_err(c)?;
-                t.set_aiding(aiding);
-                t.set_clock(clock);
-                t
-            } else {
-                let mut t: Box<EurocTracking> = boxed_tracking(cfg, tracker).map_err(c)?;
-                t.set_aiding(aiding);
-                t.set_clock(clock);
-                t
+            match cap {
+                Capacity::Hd => {
+                    aided::<HdTracking>(boxed_tracking(cfg, tracker).map_err(c)?, aiding, clock)
+                }
+                Capacity::Wuxga => {
+                    aided::<WuxgaTracking>(boxed_tracking(cfg, tracker).map_err(c)?, aiding, clock)
+                }
+                Capacity::Euroc | Capacity::Tracks => {
+                    aided::<EurocTracking>(boxed_tracking(cfg, tracker).map_err(c)?, aiding, clock)
+                }
             }
         }
     })
+}
+
+/// The image front ends' setters ([`Vio`], [`Tracking`]), so that [`aided`] finishes any
+/// capacity.
+trait Aided: Odometry + Send + 'static {
+    fn set_aiding(&mut self, aiding: VioAiding);
+    fn set_clock(&mut self, clock: Option<fn() -> u64>);
+}
+
+impl<
+        const N: usize,
+        const L: usize,
+        const D: usize,
+        const F: usize,
+        const BYTES: usize,
+        const LEVELS: usize,
+    > Aided for Vio<N, L, D, F, BYTES, LEVELS>
+{
+    fn set_aiding(&mut self, aiding: VioAiding) {
+        Vio::set_aiding(self, aiding);
+    }
+    fn set_clock(&mut self, clock: Option<fn() -> u64>) {
+        Vio::set_clock(self, clock);
+    }
+}
+
+impl<const F: usize, const BYTES: usize, const LEVELS: usize> Aided for Tracking<F, BYTES, LEVELS> {
+    fn set_aiding(&mut self, aiding: VioAiding) {
+        Tracking::set_aiding(self, aiding);
+    }
+    fn set_clock(&mut self, clock: Option<fn() -> u64>) {
+        Tracking::set_clock(self, clock);
+    }
+}
+
+/// `fe` with its aids and clock set, as a `dyn` [`Odometry`].
+fn aided<T: Aided>(
+    mut fe: Box<T>,
+    aiding: VioAiding,
+    clock: Option<fn() -> u64>,
+) -> Box<dyn Odometry + Send> {
+    fe.set_aiding(aiding);
+    fe.set_clock(clock);
+    fe
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use povins_core::camera::{CameraExtrinsic, Distortion, PinholeCamera};
+    use povins_core::inertial::ImuNoise;
+
+    fn config(width: u32, height: u32) -> EstimatorConfig {
+        let camera = PinholeCamera {
+            width,
+            height,
+            fx: 0.6 * f64::from(width),
+            fy: 0.6 * f64::from(width),
+            cx: 0.5 * f64::from(width),
+            cy: 0.5 * f64::from(height),
+            distortion: Distortion::None,
+        };
+        let ext = CameraExtrinsic {
+            p_bc: nalgebra::Vector3::zeros(),
+            q_bc: nalgebra::UnitQuaternion::identity(),
+        };
+        EstimatorConfig::new(camera, ext, ImuNoise::EUROC_ADIS16448)
+    }
+
+    fn images() -> FrontEnd {
+        FrontEnd::Images {
+            tracker: TrackerConfig::default(),
+            aiding: VioAiding::default(),
+        }
+    }
+
+    fn tracking_only() -> FrontEnd {
+        FrontEnd::TrackingOnly {
+            tracker: TrackerConfig::default(),
+            gyro_rotation: true,
+        }
+    }
+
+    #[test]
+    fn each_camera_gets_the_smallest_capacity_that_holds_its_images() {
+        let cap = |w, h| capacity(&config(w, h), &images());
+        assert_eq!(cap(752, 480), Ok(Capacity::Euroc));
+        assert_eq!(cap(640, 360), Ok(Capacity::Euroc));
+        assert_eq!(cap(753, 480), Ok(Capacity::Hd));
+        assert_eq!(cap(1280, 720), Ok(Capacity::Hd));
+        assert_eq!(cap(1280, 1024), Ok(Capacity::Wuxga));
+        assert_eq!(cap(1920, 1080), Ok(Capacity::Wuxga));
+        assert_eq!(cap(1920, 1200), Ok(Capacity::Wuxga));
+        assert_eq!(
+            capacity(&config(4000, 3000), &FrontEnd::Tracks),
+            Ok(Capacity::Tracks)
+        );
+    }
+
+    /// The paper's 1280x1024 camera (refused before the 1920x1200 capacity) and 1920x1200
+    /// build both image front ends; they take an image of their size.
+    #[test]
+    fn images_up_to_1920x1200_build_the_odometry() {
+        for (w, h) in [(1280u32, 1024u32), (1920, 1200)] {
+            for fe in [images(), tracking_only()] {
+                let cfg = config(w, h);
+                assert_eq!(check(&cfg, &fe), Ok(()), "{w}x{h} {fe:?}");
+                let mut odo = boxed_odometry(cfg, &fe, None)
+                    .unwrap_or_else(|e| panic!("{w}x{h} {fe:?}: {e}"));
+                let img = vec![128u8; (w * h) as usize];
+                let view = povins_core::frontend::image::ImageView::new(
+                    &img, w as usize, h as usize, w as usize,
+                )
+                .expect("a valid view");
+                let out = odo
+                    .push_image(0, &view)
+                    .expect("an image of the camera's size");
+                assert!(out.image.is_some());
+            }
+        }
+    }
+
+    #[test]
+    fn images_larger_than_1920x1200_are_refused_naming_the_largest_capacity() {
+        for (w, h) in [(1921u32, 1200u32), (1920, 1201), (4000, 3000)] {
+            for fe in [images(), tracking_only()] {
+                let cfg = config(w, h);
+                let want = BuildError::ImagesTooLarge {
+                    width: w,
+                    height: h,
+                };
+                assert_eq!(check(&cfg, &fe), Err(want.clone()));
+                let e = boxed_odometry(cfg, &fe, None).err().expect("refused");
+                assert_eq!(e, want);
+                assert_eq!(
+                    e.to_string(),
+                    format!(
+                        "{w}x{h} images are larger than the front end's largest capacity \
+                         (1920x1200)"
+                    )
+                );
+            }
+        }
+    }
 }

@@ -30,8 +30,8 @@
 //!
 //! Memory: `size_of::<Estimator<N, L, D>>() + size_of::<FeatureTracker<F, BYTES, LEVELS>>()`
 //! plus `L` hints (24 bytes each) and the gyro buffer ([`GYRO_SAMPLES`] x 32 bytes): the README's
-//! footprint table gives [`EurocVio`] and [`HdVio`]. Keep it in a `static` or a `Box`, built on a
-//! thread with a large stack.
+//! footprint table gives [`EurocVio`], [`HdVio`] and [`WuxgaVio`]. Keep it in a `static` or a
+//! `Box`, built on a thread with a large stack.
 
 mod front_end;
 mod gyro;
@@ -39,7 +39,7 @@ mod tracking;
 
 pub use front_end::{ImageFrontEnd, SeedFrame};
 pub use gyro::GyroIntegrator;
-pub use tracking::{EurocTracking, HdTracking, Tracking};
+pub use tracking::{EurocTracking, HdTracking, Tracking, WuxgaTracking};
 
 use crate::camera::FeatureObs;
 use crate::estimator::{Estimator, EstimatorConfig, ImuOutput, Status};
@@ -68,6 +68,25 @@ pub type EurocVio = Vio<10, 200, 166, 256, { pyramid_bytes(752, 480, 4) }, 4>;
 
 /// The same for images up to 1280x720: about 7.4 MB.
 pub type HdVio = Vio<10, 200, 166, 256, { pyramid_bytes(1280, 720, 4) }, 4>;
+
+/// Pyramid levels of the 1920x1200 capacity ([`WuxgaVio`], [`WuxgaTracking`]): one more than
+/// the smaller capacities, so that a configuration may track on `max_level = 4` (the same angular
+/// motion is about 2.5 times as many pixels as on a 752-pixel-wide camera; the coarsest level of
+/// 1920x1200 is 120x75). The default configuration uses 4 of them.
+pub const WUXGA_LEVELS: usize = 5;
+
+/// Bytes of each pyramid of the 1920x1200 capacity ([`pyramid_bytes`]`(1920, 1200, 5)` =
+/// 3 069 000).
+pub const WUXGA_PYRAMID_BYTES: usize = pyramid_bytes(1920, 1200, WUXGA_LEVELS);
+
+/// The paper's estimator with a front end for images up to 1920x1200 (WUXGA; 1920x1080 and the
+/// paper's 1280x1024 fit too), 256 features, 5 pyramid levels ([`WUXGA_LEVELS`]): about
+/// 12 MB. The front end's arithmetic holds for sides up to
+/// [`crate::frontend::image::MAX_IMAGE_SIDE`]; at this size the 8 x 6 default grid has cells of
+/// 240 x 200 px (at most [`crate::frontend::image::corners::MAX_CELL_SIDE`] = 512) and the
+/// detector's occupancy mask has 8 px
+/// blocks.
+pub type WuxgaVio = Vio<10, 200, 166, 256, WUXGA_PYRAMID_BYTES, WUXGA_LEVELS>;
 
 /// Which parts of the INS aid the tracker.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -6,7 +6,7 @@
 //! never has an output.
 
 use super::front_end::{ImageFrontEnd, SeedFrame};
-use super::VioAiding;
+use super::{VioAiding, WUXGA_LEVELS, WUXGA_PYRAMID_BYTES};
 use crate::camera::FeatureObs;
 use crate::estimator::{EstimatorConfig, Status};
 use crate::frontend::image::{pyramid_bytes, FeatureTracker, ImageView, TrackerConfig};
@@ -21,6 +21,9 @@ pub type EurocTracking = Tracking<256, { pyramid_bytes(752, 480, 4) }, 4>;
 
 /// The front end alone for images up to 1280x720.
 pub type HdTracking = Tracking<256, { pyramid_bytes(1280, 720, 4) }, 4>;
+
+/// The front end alone for images up to 1920x1200 (5 levels, see [`super::WuxgaVio`]).
+pub type WuxgaTracking = Tracking<256, WUXGA_PYRAMID_BYTES, WUXGA_LEVELS>;
 
 /// The image front end alone (see the module docs).
 pub struct Tracking<const F: usize, const BYTES: usize, const LEVELS: usize> {
@@ -145,5 +148,107 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> Odometry
             estimator: Default::default(),
             images: self.fe.counters(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::camera::{CameraExtrinsic, Distortion, PinholeCamera};
+    use crate::frontend::image::testutil::{big_stack, render, texture};
+    use crate::inertial::ImuNoise;
+    use crate::math::Quat;
+    use std::boxed::Box;
+
+    /// The unit tests' texture with structure at every scale up to a few hundred pixels, so that
+    /// the coarse levels of a large image have texture too.
+    fn multiscale(x: f64, y: f64) -> f64 {
+        0.6 * texture(x, y)
+            + 0.4 * texture(x * 0.2 + 517.0, y * 0.2 - 311.0)
+            + 10.0 * libm::sin(0.013 * x - 0.021 * y)
+    }
+
+    fn config(width: u32, height: u32) -> EstimatorConfig {
+        let camera = PinholeCamera {
+            width,
+            height,
+            fx: 0.6 * f64::from(width),
+            fy: 0.6 * f64::from(width),
+            cx: 0.5 * f64::from(width) - 0.5,
+            cy: 0.5 * f64::from(height) - 0.5,
+            distortion: Distortion::None,
+        };
+        let ext = CameraExtrinsic {
+            p_bc: Vec3::zeros(),
+            q_bc: Quat::identity(),
+        };
+        EstimatorConfig::new(camera, ext, ImuNoise::EUROC_ADIS16448)
+    }
+
+    /// Tracks a `w x h` image into the same texture shifted by `(dx, dy)` px (no gyro, no
+    /// prediction: every feature seeded at its previous position) with the default tracker, in
+    /// the 1920x1200 capacity: at least 100 features, each moved by the shift within 0.1 px.
+    fn tracks_a_known_shift(w: usize, h: usize, (dx, dy): (f64, f64)) {
+        let mut t: Box<WuxgaTracking> = Box::new(Tracking::empty());
+        t.configure(config(w as u32, h as u32), TrackerConfig::default())
+            .unwrap();
+        let a = render(w, h, 0.0, 0.0, multiscale);
+        let b = render(w, h, dx, dy, multiscale);
+        let first = t
+            .push_image(0, &ImageView::new(&a, w, h, w).unwrap())
+            .unwrap();
+        let before = first.tracks.to_vec();
+        assert_eq!(before.len(), 150, "{:?}", first.image);
+        let second = t
+            .push_image(50_000_000, &ImageView::new(&b, w, h, w).unwrap())
+            .unwrap();
+        let stats = second.image.unwrap().track;
+        assert!(stats.tracked >= 100, "{stats:?}");
+        let mut matched = 0;
+        for f in second.tracks {
+            // Features new in this frame have ids the first frame did not give.
+            let Some(p) = before.iter().find(|p| p.id == f.id) else {
+                continue;
+            };
+            let (ex, ey) = (f.u_px - p.u_px - dx, f.v_px - p.v_px - dy);
+            assert!(
+                ex.abs() < 0.1 && ey.abs() < 0.1,
+                "feature {} at ({}, {}) moved by ({}, {}), not ({dx}, {dy})",
+                f.id,
+                p.u_px,
+                p.v_px,
+                f.u_px - p.u_px,
+                f.v_px - p.v_px
+            );
+            matched += 1;
+        }
+        assert_eq!(matched, stats.tracked as usize);
+        assert_eq!(t.counters().images.images_rejected, 0);
+    }
+
+    #[test]
+    fn wuxga_capacity_tracks_a_1920x1200_image_across_a_known_shift() {
+        big_stack(|| tracks_a_known_shift(1920, 1200, (23.5, -11.25)));
+    }
+
+    /// The paper's 1280x1024 camera (taller than [`HdTracking`]'s 720 rows).
+    #[test]
+    fn wuxga_capacity_tracks_a_1280x1024_image_across_a_known_shift() {
+        big_stack(|| tracks_a_known_shift(1280, 1024, (-17.0, 9.5)));
+    }
+
+    /// An image whose pyramid does not fit (2048x1536) is refused, and counted.
+    #[test]
+    fn wuxga_capacity_refuses_a_larger_image() {
+        big_stack(|| {
+            let mut t: Box<WuxgaTracking> = Box::new(Tracking::empty());
+            t.configure(config(2048, 1536), TrackerConfig::default())
+                .unwrap();
+            let img = std::vec![128u8; 2048 * 1536];
+            let view = ImageView::new(&img, 2048, 1536, 2048).unwrap();
+            assert_eq!(t.push_image(0, &view).err(), Some(Error::CapacityExceeded));
+            assert_eq!(t.counters().images.images_rejected, 1);
+        });
     }
 }
