@@ -15,9 +15,10 @@ use povins_core::estimator::EstimatorConfig;
 use povins_platform::recording::Recording;
 use std::path::{Path, PathBuf};
 
-/// The command-line arguments every estimating command over a recording takes.
+/// The command-line arguments that name a recording and how to open it (`run`, `timing`,
+/// `convert`).
 #[derive(clap::Args, Debug, Clone)]
-pub struct RunArgs {
+pub struct RecordingArgs {
     /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file or a ROS 1 `.bag` (with
     /// `--calib`).
     pub dataset: PathBuf,
@@ -31,25 +32,9 @@ pub struct RunArgs {
     /// Camera topic of a bag (default: its one `sensor_msgs/Image` or `CompressedImage` topic).
     #[arg(long)]
     pub image_topic: Option<String>,
-    /// How to initialize.
-    #[arg(long, value_enum, default_value = "static")]
-    pub init: InitMode,
-    /// TOML file of estimator and front-end settings (docs/formats.md).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// What feeds the estimator: the camera images through povins' front end, or the
-    /// dataset's feature tracks (default: images when the dataset has them, else tracks).
-    #[arg(long, value_enum)]
-    pub frontend: Option<Frontend>,
-    /// Visual measurement model (overrides the config file).
-    #[arg(long, value_enum)]
-    pub mode: Option<ModeArg>,
-    /// LiDAR switches (override the config file).
-    #[command(flatten)]
-    pub lidar: LidarArgs,
 }
 
-impl RunArgs {
+impl RecordingArgs {
     /// Opens the recording named by `dataset`.
     pub fn open(&self) -> Result<Box<dyn Recording>> {
         if self.dataset.extension().is_none_or(|e| e != "bag") {
@@ -78,6 +63,37 @@ impl RunArgs {
                 self.image_topic.as_deref(),
             )?,
         ))
+    }
+}
+
+/// The command-line arguments every estimating command over a recording takes.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunArgs {
+    /// The recording.
+    #[command(flatten)]
+    pub recording: RecordingArgs,
+    /// How to initialize.
+    #[arg(long, value_enum, default_value = "static")]
+    pub init: InitMode,
+    /// TOML file of estimator and front-end settings (docs/formats.md).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// What feeds the estimator: the camera images through povins' front end, or the
+    /// dataset's feature tracks (default: images when the dataset has them, else tracks).
+    #[arg(long, value_enum)]
+    pub frontend: Option<Frontend>,
+    /// Visual measurement model (overrides the config file).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// LiDAR switches (override the config file).
+    #[command(flatten)]
+    pub lidar: LidarArgs,
+}
+
+impl RunArgs {
+    /// Opens the recording named by `dataset` ([`RecordingArgs::open`]).
+    pub fn open(&self) -> Result<Box<dyn Recording>> {
+        self.recording.open()
     }
 }
 
