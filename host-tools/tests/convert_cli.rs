@@ -76,12 +76,17 @@ fn a_converted_bag_replays_to_the_bags_trajectory() {
     let (ok, out, err) = povins(&args);
     assert!(ok, "convert failed: {err}");
     assert!(out.contains("401 IMU samples, 14 images"), "{out}");
-    let pngs = std::fs::read_dir(euroc.join("mav0/cam0/data")).unwrap().count();
+    let pngs = std::fs::read_dir(euroc.join("mav0/cam0/data"))
+        .unwrap()
+        .count();
     assert_eq!(pngs, 14);
     let a = run(&bag_args, &dir.path().join("run-bag"));
     let b = run(&[s(&euroc)], &dir.path().join("run-euroc"));
     assert!(a.len() > 10_000, "trajectory too short: {} bytes", a.len());
-    assert!(a == b, "the converted folder's trajectory differs from the bag's");
+    assert!(
+        a == b,
+        "the converted folder's trajectory differs from the bag's"
+    );
 
     // A non-empty --out is refused, naming it; nothing is written into it.
     args.truncate(args.len() - 1);
@@ -142,7 +147,11 @@ fn a_simulated_bag_replays_to_the_euroc_folders_trajectory() {
     let euroc = dir.path().join("euroc");
     sim("euroc", &euroc, &[]);
     let want = run(&[s(&euroc)], &dir.path().join("run-euroc"));
-    assert!(want.len() > 20_000, "trajectory too short: {} bytes", want.len());
+    assert!(
+        want.len() > 20_000,
+        "trajectory too short: {} bytes",
+        want.len()
+    );
     for compression in ["none", "lz4"] {
         let bag = dir.path().join(format!("sim-{compression}.bag"));
         sim("rosbag1", &bag, &["--compression", compression]);
@@ -152,12 +161,18 @@ fn a_simulated_bag_replays_to_the_euroc_folders_trajectory() {
             &[s(&bag), "--calib", s(&euroc)],
             &dir.path().join(format!("run-{compression}")),
         );
-        assert!(got == want, "{compression} bag: trajectory differs from the folder's");
+        assert!(
+            got == want,
+            "{compression} bag: trajectory differs from the folder's"
+        );
         let got = run(
             &[s(&bag), "--calib", s(&calib)],
             &dir.path().join(format!("run-{compression}-own-calib")),
         );
-        assert!(got == want, "{compression} bag with the calibration beside it");
+        assert!(
+            got == want,
+            "{compression} bag with the calibration beside it"
+        );
     }
     let converted = dir.path().join("converted");
     let bag = dir.path().join("sim-lz4.bag");

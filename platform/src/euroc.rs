@@ -30,8 +30,6 @@ mod csv;
 mod png_io;
 pub mod rows;
 pub mod writer;
-#[cfg(test)]
-mod oldcheck;
 mod yaml;
 
 pub use png_io::{read_mono8 as read_png_mono8, write_mono8 as write_png_mono8};

@@ -70,7 +70,8 @@ impl TimeProgress {
     }
 
     fn start(&self, stream: &str) {
-        self.bar.set_message(format!("{stream} (ms of the recording)"));
+        self.bar
+            .set_message(format!("{stream} (ms of the recording)"));
         self.bar.set_position(0);
     }
 
@@ -103,8 +104,20 @@ fn copy<T>(
 fn convert(rec: &dyn Recording, out: &Path, progress: &TimeProgress) -> Result<Written> {
     let mut w = EurocWriter::create(out, rec.calibration())?;
     copy(rec.imu()?, "imu", progress, |s| s.t_ns, |s| w.imu(s))?;
-    copy(rec.images()?, "images", progress, |im| im.t_ns, |im| w.image(im))?;
-    copy(rec.frames()?, "features", progress, |f| f.t_ns, |f| w.frame(f))?;
+    copy(
+        rec.images()?,
+        "images",
+        progress,
+        |im| im.t_ns,
+        |im| w.image(im),
+    )?;
+    copy(
+        rec.frames()?,
+        "features",
+        progress,
+        |f| f.t_ns,
+        |f| w.frame(f),
+    )?;
     copy(rec.sweeps()?, "lidar", progress, |s| s.t_ns, |s| w.sweep(s))?;
     w.ground_truth(&rec.ground_truth()?)?;
     Ok(w.finish()?)

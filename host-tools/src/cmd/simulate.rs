@@ -2,8 +2,8 @@
 
 use crate::sim::render::{sequence, RenderOptions};
 use crate::sim::{self, LidarKind, Scenario, SimConfig, SimOutput};
-use indicatif::{ProgressBar, ProgressStyle};
 use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
 use povins_platform::dataset::{Calibration, Dataset, ImageFrame};
 use povins_platform::rosbag1::write::{self as bag, Compression, DatasetTopics};
 use std::io::IsTerminal;

@@ -122,7 +122,8 @@ impl EurocWriter {
             Some(c) => c,
             None => {
                 mkdir(&data_dir)?;
-                self.images.insert(Csv::create(cam_dir.join("data.csv"), CAM_HEADER)?)
+                self.images
+                    .insert(Csv::create(cam_dir.join("data.csv"), CAM_HEADER)?)
             }
         };
         let dst = data_dir.join(format!("{}.png", im.t_ns));
@@ -220,7 +221,10 @@ impl EurocWriter {
     /// Flushes every file; returns what was written.
     pub fn finish(self) -> Result<Written, IoError> {
         self.imu.finish()?;
-        for csv in [self.images, self.features, self.lidar].into_iter().flatten() {
+        for csv in [self.images, self.features, self.lidar]
+            .into_iter()
+            .flatten()
+        {
             csv.finish()?;
         }
         Ok(self.written)

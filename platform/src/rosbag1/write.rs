@@ -11,7 +11,9 @@
 //! ([`super::msgs`] encodes the messages).
 
 use super::msgs::{ros_time, MsgType};
-use super::record::{OP_BAG_HEADER, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION, OP_INDEX_DATA, OP_MESSAGE};
+use super::record::{
+    OP_BAG_HEADER, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION, OP_INDEX_DATA, OP_MESSAGE,
+};
 use super::MAGIC;
 use crate::error::IoError;
 use std::collections::BTreeMap;
@@ -138,7 +140,9 @@ impl BagWriter {
     }
 
     fn put(&mut self, b: &[u8]) -> Result<(), IoError> {
-        self.f.write_all(b).map_err(|e| IoError::io(&self.path, e))?;
+        self.f
+            .write_all(b)
+            .map_err(|e| IoError::io(&self.path, e))?;
         self.pos += b.len() as u64;
         Ok(())
     }
@@ -147,8 +151,16 @@ impl BagWriter {
     fn bag_header(&self, index_pos: u64) -> Vec<u8> {
         let mut h = Vec::new();
         field(&mut h, "index_pos", &index_pos.to_le_bytes());
-        field(&mut h, "conn_count", &(self.conns.len() as u32).to_le_bytes());
-        field(&mut h, "chunk_count", &(self.chunks.len() as u32).to_le_bytes());
+        field(
+            &mut h,
+            "conn_count",
+            &(self.conns.len() as u32).to_le_bytes(),
+        );
+        field(
+            &mut h,
+            "chunk_count",
+            &(self.chunks.len() as u32).to_le_bytes(),
+        );
         field(&mut h, "op", &[OP_BAG_HEADER]);
         let pad = BAG_HEADER_LEN - 8 - h.len();
         let mut out = Vec::with_capacity(BAG_HEADER_LEN);
@@ -402,8 +414,8 @@ pub fn write_dataset(
     let mut w = BagWriter::create(path, compression)?;
     let ci = w.add_connection(&topics.imu.0, msgs::IMU_MSG);
     let cc = (!ds.images.is_empty()).then(|| w.add_connection(&topics.image.0, msgs::IMAGE_MSG));
-    let cl = (!ds.lidar.is_empty())
-        .then(|| w.add_connection(&topics.lidar.0, msgs::POINT_CLOUD2_MSG));
+    let cl =
+        (!ds.lidar.is_empty()).then(|| w.add_connection(&topics.lidar.0, msgs::POINT_CLOUD2_MSG));
     // (time, stream, index): stream 0 IMU, 1 image, 2 sweep.
     let mut order: Vec<(i64, u8, usize)> = Vec::new();
     order.extend(ds.imu.iter().enumerate().map(|(k, s)| (s.t_ns, 0, k)));
@@ -414,14 +426,26 @@ pub fn write_dataset(
     for (t_ns, stream, k) in order {
         let seq = k as u32;
         let (conn, topic, data) = match (stream, cc, cl) {
-            (0, _, _) => (ci, &topics.imu, msgs::encode_imu(&ds.imu[k], seq, &topics.imu.1)),
+            (0, _, _) => (
+                ci,
+                &topics.imu,
+                msgs::encode_imu(&ds.imu[k], seq, &topics.imu.1),
+            ),
             (1, Some(c), _) => {
                 let im = &ds.images[k];
-                (c, &topics.image, msgs::encode_mono8(im, seq, &topics.image.1))
+                (
+                    c,
+                    &topics.image,
+                    msgs::encode_mono8(im, seq, &topics.image.1),
+                )
             }
             (2, _, Some(c)) => {
                 let s = &ds.lidar[k];
-                (c, &topics.lidar, msgs::encode_point_cloud2(s, seq, &topics.lidar.1))
+                (
+                    c,
+                    &topics.lidar,
+                    msgs::encode_point_cloud2(s, seq, &topics.lidar.1),
+                )
             }
             _ => continue,
         };
