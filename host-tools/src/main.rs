@@ -29,6 +29,8 @@ enum Cmd {
     /// What a recording holds (ROS 1 bag: topics, types, counts, rates, time span) and which
     /// topics `run` would use.
     Info(cmd::info::Args),
+    /// Write a recording (EuRoC folder, MCAP, ROS 1 bag with --calib) as an EuRoC ASL folder.
+    Convert(cmd::convert::Args),
     /// Run the image front end alone: tracks, per-image statistics, pictures.
     Track(cmd::track::Args),
     /// Compare front ends' tracks on real images: counts, lengths, epipolar violations vs gyro.
@@ -57,6 +59,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Plot(a) => cmd::plot::run(a),
         Cmd::Run(a) => cmd::run::run(a),
         Cmd::Info(a) => cmd::info::run(a),
+        Cmd::Convert(a) => cmd::convert::run(a),
         Cmd::Track(a) => cmd::track::run(a),
         Cmd::CompareTracks(a) => cmd::compare_tracks::run(a),
         Cmd::ScoreTracks(a) => cmd::score_tracks::run(a),

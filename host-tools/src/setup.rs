@@ -16,15 +16,51 @@ use povins_core::estimator::EstimatorConfig;
 use povins_platform::recording::Recording;
 use std::path::{Path, PathBuf};
 
-/// The command-line arguments every estimating command over a recording takes.
+/// The command-line arguments that name a recording and how to open it (`run`, `timing`,
+/// `convert`).
 #[derive(clap::Args, Debug, Clone)]
-pub struct RunArgs {
-    /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file or a ROS 1 `.bag` (with
-    /// `--calib`).
+pub struct RecordingArgs {
+    /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file, or a ROS recording (a ROS 1
+    /// `.bag`) with its calibration (`--calib`, or its own CameraInfo and `/tf_static`).
     pub dataset: PathBuf,
     /// The recording's calibration files and topics (override the config's `[input]`).
     #[command(flatten)]
     pub input: InputArgs,
+}
+
+impl RecordingArgs {
+    /// Opens the recording named by `dataset`: a ROS recording with the calibration and topics
+    /// of the switches and `config`'s `[input]` ([`InputOptions`]), laid over `config`'s
+    /// `[imu_noise]` when no file gives the IMU noise.
+    pub fn open(&self, config: Option<&Path>) -> Result<Box<dyn Recording>> {
+        let file = config.map(RunConfigFile::read).transpose()?;
+        let input = InputOptions::new(file.as_ref(), &self.input)?;
+        for note in input.unused_notes() {
+            eprintln!("{note}");
+        }
+        if self.dataset.extension().is_none_or(|e| e != "bag") {
+            anyhow::ensure!(
+                !input.any_for_bags(),
+                "--calib, --imu-calib, --camera, --imu-topic, --image-topic, --accel-topic and \
+                 --accel-unit (and their `[input]` keys) apply to ROS recordings only"
+            );
+            return Ok(povins_platform::open_recording(&self.dataset)?);
+        }
+        let toml_noise = file
+            .as_ref()
+            .map(RunConfigFile::imu_noise)
+            .transpose()?
+            .flatten();
+        open_bag(&self.dataset, &input, toml_noise)
+    }
+}
+
+/// The command-line arguments every estimating command over a recording takes.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunArgs {
+    /// The recording.
+    #[command(flatten)]
+    pub recording: RecordingArgs,
     /// How to initialize.
     #[arg(long, value_enum, default_value = "static")]
     pub init: InitMode,
@@ -44,33 +80,9 @@ pub struct RunArgs {
 }
 
 impl RunArgs {
-    /// Opens the recording named by `dataset`: a ROS 1 bag with the calibration and topics of
-    /// the switches and the config's `[input]` ([`InputOptions`]), laid over the config's
-    /// `[imu_noise]` when no file gives the IMU noise.
+    /// Opens the recording ([`RecordingArgs::open`] with `--config`'s `[input]`).
     pub fn open(&self) -> Result<Box<dyn Recording>> {
-        let file = self
-            .config
-            .as_deref()
-            .map(RunConfigFile::read)
-            .transpose()?;
-        let input = InputOptions::new(file.as_ref(), &self.input)?;
-        for note in input.unused_notes() {
-            eprintln!("{note}");
-        }
-        if self.dataset.extension().is_none_or(|e| e != "bag") {
-            anyhow::ensure!(
-                !input.any_for_bags(),
-                "--calib, --imu-calib, --camera, --imu-topic and --image-topic (and their \
-                 `[input]` keys) apply to ROS 1 bags only"
-            );
-            return Ok(povins_platform::open_recording(&self.dataset)?);
-        }
-        let toml_noise = file
-            .as_ref()
-            .map(RunConfigFile::imu_noise)
-            .transpose()?
-            .flatten();
-        open_bag(&self.dataset, &input, toml_noise)
+        self.recording.open(self.config.as_deref())
     }
 }
 

@@ -29,20 +29,20 @@
 mod csv;
 mod png_io;
 pub mod rows;
+pub mod writer;
 mod yaml;
 
 pub use png_io::{read_mono8 as read_png_mono8, write_mono8 as write_png_mono8};
+pub use writer::{EurocWriter, Written};
 
 use crate::dataset::{Calibration, Dataset, Extrinsic, FeatureFrame, ImageFrame, LidarScan};
 use crate::error::IoError;
 use crate::recording::{Contents, Recording, Stream};
-use crate::trajectory::{read_euroc_groundtruth, write_euroc_groundtruth};
+use crate::trajectory::read_euroc_groundtruth;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use povins_core::camera::{Distortion, PinholeCamera};
 use povins_core::inertial::{ImuNoise, ImuSample, NavState};
 use povins_core::math::Vec3;
-use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use yaml::Doc;
 
@@ -415,191 +415,23 @@ fn read_camera(d: &Doc) -> Result<(PinholeCamera, Extrinsic, f64, f64), IoError>
     Ok((camera, t, td_s, rate))
 }
 
-fn t_bs_yaml(out: &mut String, t: &Extrinsic) {
-    let m = t.q_ab.to_rotation_matrix();
-    let m = m.matrix();
-    let p = t.p_ab;
-    let _ = writeln!(out, "T_BS:\n  cols: 4\n  rows: 4");
-    let _ = writeln!(
-        out,
-        "  data: [{:?}, {:?}, {:?}, {:?},\n         {:?}, {:?}, {:?}, {:?},\n         {:?}, {:?}, {:?}, {:?},\n         0.0, 0.0, 0.0, 1.0]",
-        m[(0, 0)], m[(0, 1)], m[(0, 2)], p.x,
-        m[(1, 0)], m[(1, 1)], m[(1, 2)], p.y,
-        m[(2, 0)], m[(2, 1)], m[(2, 2)], p.z
-    );
-}
-
-fn write_file(path: &Path, text: &str) -> Result<(), IoError> {
-    std::fs::write(path, text).map_err(|e| IoError::io(path, e))
-}
-
-fn mkdir(p: &Path) -> Result<(), IoError> {
-    std::fs::create_dir_all(p).map_err(|e| IoError::io(p, e))
-}
-
-/// Buffered writing of one CSV file with an error that names it.
-fn write_csv(
-    path: &Path,
-    body: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
-) -> Result<(), IoError> {
-    let f = std::fs::File::create(path).map_err(|e| IoError::io(path, e))?;
-    let mut w = std::io::BufWriter::with_capacity(1 << 16, f);
-    body(&mut w)
-        .and_then(|()| w.flush())
-        .map_err(|e| IoError::io(path, e))
-}
-
 /// Writes calibration, IMU, features, LiDAR, images and ground truth as an EuRoC ASL folder
-/// under `dir/mav0`. Images with pixels are encoded as PNG; images with only a path are copied.
+/// under `dir/mav0` (through [`EurocWriter`]). Images with pixels are encoded as PNG; images with
+/// only a path are copied.
 pub fn write_dataset(dir: &Path, ds: &Dataset) -> Result<(), IoError> {
-    let mav0 = dir.join("mav0");
-    let c = &ds.calib;
-
-    let imu_dir = mav0.join("imu0");
-    mkdir(&imu_dir)?;
-    let mut y = String::from("%YAML:1.0\nsensor_type: imu\ncomment: written by povins\n");
-    t_bs_yaml(&mut y, &Extrinsic::identity());
-    let n = &c.imu_noise;
-    let _ = writeln!(y, "rate_hz: {:?}", c.imu_rate_hz);
-    let _ = writeln!(y, "gyroscope_noise_density: {:?}", n.gyro_noise_density);
-    let _ = writeln!(y, "gyroscope_random_walk: {:?}", n.gyro_bias_rw);
-    let _ = writeln!(
-        y,
-        "accelerometer_noise_density: {:?}",
-        n.accel_noise_density
-    );
-    let _ = writeln!(y, "accelerometer_random_walk: {:?}", n.accel_bias_rw);
-    let _ = writeln!(y, "gravity_magnitude: {:?}", c.gravity_mps2);
-    if let Some(t) = n.bias_corr_time_s {
-        let _ = writeln!(y, "bias_correlation_time: {t:?}");
+    let mut w = EurocWriter::create(dir, &ds.calib)?;
+    for s in &ds.imu {
+        w.imu(s)?;
     }
-    write_file(&imu_dir.join("sensor.yaml"), &y)?;
-    write_csv(&imu_dir.join("data.csv"), |w| {
-        writeln!(w, "{IMU_HEADER}")?;
-        for s in &ds.imu {
-            let (g, a) = (s.gyro_rps, s.accel_mps2);
-            writeln!(
-                w,
-                "{},{:?},{:?},{:?},{:?},{:?},{:?}",
-                s.t_ns, g.x, g.y, g.z, a.x, a.y, a.z
-            )?;
-        }
-        Ok(())
-    })?;
-
-    let cam_dir = mav0.join("cam0");
-    mkdir(&cam_dir)?;
-    let cam = &c.camera;
-    let mut y = String::from("%YAML:1.0\nsensor_type: camera\ncomment: written by povins\n");
-    t_bs_yaml(&mut y, &c.t_bc);
-    let (model, coeffs) = match cam.distortion {
-        Distortion::None => ("none", [0.0; 4]),
-        Distortion::RadTan { k1, k2, p1, p2 } => ("radial-tangential", [k1, k2, p1, p2]),
-        Distortion::Equidistant { k } => ("equidistant", k),
-    };
-    let _ = writeln!(y, "rate_hz: {:?}", c.camera_rate_hz);
-    let _ = writeln!(y, "resolution: [{}, {}]", cam.width, cam.height);
-    let _ = writeln!(y, "camera_model: pinhole");
-    let _ = writeln!(
-        y,
-        "intrinsics: [{:?}, {:?}, {:?}, {:?}] # fu, fv, cu, cv",
-        cam.fx, cam.fy, cam.cx, cam.cy
-    );
-    let _ = writeln!(y, "distortion_model: {model}");
-    let _ = writeln!(
-        y,
-        "distortion_coefficients: [{:?}, {:?}, {:?}, {:?}]",
-        coeffs[0], coeffs[1], coeffs[2], coeffs[3]
-    );
-    let _ = writeln!(y, "timeshift_cam_imu: {:?} # t_imu = t_cam + shift", c.td_s);
-    write_file(&cam_dir.join("sensor.yaml"), &y)?;
-    if !ds.images.is_empty() {
-        write_images(&cam_dir, &ds.images)?;
+    for im in &ds.images {
+        w.image(im)?;
     }
-
-    if !ds.features.is_empty() {
-        let fdir = mav0.join("features0");
-        mkdir(&fdir)?;
-        write_csv(&fdir.join("data.csv"), |w| {
-            writeln!(w, "{FEATURES_HEADER}")?;
-            for fr in &ds.features {
-                for o in &fr.obs {
-                    writeln!(w, "{},{},{:?},{:?}", fr.t_ns, o.id, o.u_px, o.v_px)?;
-                }
-            }
-            Ok(())
-        })?;
+    for fr in &ds.features {
+        w.frame(fr)?;
     }
-
-    if c.t_bl.is_some() || !ds.lidar.is_empty() {
-        let ldir = mav0.join("lidar0");
-        mkdir(&ldir)?;
-        if let Some(t) = &c.t_bl {
-            let mut y = String::from("%YAML:1.0\nsensor_type: lidar\ncomment: written by povins\n");
-            t_bs_yaml(&mut y, t);
-            write_file(&ldir.join("sensor.yaml"), &y)?;
-        }
-        if let Some(s) = ds.lidar.iter().find(|s| s.points.is_empty()) {
-            return Err(IoError::Invalid {
-                path: ldir,
-                msg: format!(
-                    "sweep at {} ns has no points; a CSV cannot store it",
-                    s.t_ns
-                ),
-            });
-        }
-        if !ds.lidar.is_empty() {
-            write_csv(&ldir.join("data.csv"), |w| {
-                writeln!(w, "{LIDAR_HEADER}")?;
-                for s in &ds.lidar {
-                    for p in &s.points {
-                        writeln!(
-                            w,
-                            "{},{},{:?},{:?},{:?},{:?}",
-                            s.t_ns, p.t_ns, p.p_l[0], p.p_l[1], p.p_l[2], p.intensity
-                        )?;
-                    }
-                }
-                Ok(())
-            })?;
-        }
+    for s in &ds.lidar {
+        w.sweep(s)?;
     }
-
-    if !ds.ground_truth.is_empty() {
-        let gdir = mav0.join("state_groundtruth_estimate0");
-        mkdir(&gdir)?;
-        write_euroc_groundtruth(&gdir.join("data.csv"), &ds.ground_truth)?;
-    }
-    Ok(())
-}
-
-fn write_images(cam_dir: &Path, images: &[ImageFrame]) -> Result<(), IoError> {
-    let data_dir = cam_dir.join("data");
-    mkdir(&data_dir)?;
-    for im in images {
-        let dst = data_dir.join(format!("{}.png", im.t_ns));
-        if !im.mono8.is_empty() {
-            png_io::write_mono8(&dst, im.width, im.height, &im.mono8)?;
-        } else if let Some(src) = &im.path {
-            let same = match (std::fs::canonicalize(src), std::fs::canonicalize(&dst)) {
-                (Ok(a), Ok(b)) => a == b,
-                _ => false,
-            };
-            if !same {
-                std::fs::copy(src, &dst).map_err(|e| IoError::io(src, e))?;
-            }
-        } else {
-            return Err(IoError::Invalid {
-                path: dst,
-                msg: "image has neither pixels nor a source file".into(),
-            });
-        }
-    }
-    write_csv(&cam_dir.join("data.csv"), |w| {
-        writeln!(w, "{CAM_HEADER}")?;
-        for im in images {
-            writeln!(w, "{},{}.png", im.t_ns, im.t_ns)?;
-        }
-        Ok(())
-    })
+    w.ground_truth(&ds.ground_truth)?;
+    w.finish().map(|_| ())
 }

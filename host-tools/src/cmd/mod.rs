@@ -2,6 +2,7 @@
 
 pub mod ablation;
 pub mod compare_tracks;
+pub mod convert;
 pub mod demo;
 pub mod eval;
 pub mod info;

@@ -2,10 +2,12 @@
 
 use crate::sim::render::{sequence, RenderOptions};
 use crate::sim::{self, LidarKind, Scenario, SimConfig, SimOutput};
+use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use povins_platform::dataset::ImageFrame;
+use povins_platform::dataset::{Calibration, Dataset, ImageFrame};
+use povins_platform::rosbag1::write::{self as bag, Compression, DatasetTopics};
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 /// Output container.
@@ -15,6 +17,32 @@ pub enum Format {
     Mcap,
     /// EuRoC ASL folder: camera calibration, IMU, features, ground truth.
     Euroc,
+    /// ROS 1 bag with the topic names of a RealSense D435i (`/camera/imu`,
+    /// `/camera/infra1/image_rect_raw` mono8 with --images) and `/lidar/points`
+    /// (`sensor_msgs/PointCloud2`), chunks compressed by --compression; the calibration beside
+    /// it ([`write_bag_calibration`]).
+    Rosbag1,
+}
+
+/// Chunk compression of a ROS 1 bag.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BagCompression {
+    /// Uncompressed chunks.
+    None,
+    /// LZ4 (`rosbag record --lz4`).
+    Lz4,
+    /// bzip2 (`rosbag record --bz2`).
+    Bz2,
+}
+
+impl From<BagCompression> for Compression {
+    fn from(c: BagCompression) -> Self {
+        match c {
+            BagCompression::None => Compression::None,
+            BagCompression::Lz4 => Compression::Lz4,
+            BagCompression::Bz2 => Compression::Bz2,
+        }
+    }
 }
 
 /// Arguments of `povins simulate`.
@@ -29,12 +57,15 @@ pub struct Args {
     /// Sequence length, s.
     #[arg(long, default_value_t = 60.0)]
     pub duration: f64,
-    /// Output file (MCAP) or folder (EuRoC).
+    /// Output file (MCAP, ROS 1 bag) or folder (EuRoC).
     #[arg(long)]
     pub out: PathBuf,
     /// Output format.
     #[arg(long, value_enum, default_value = "mcap")]
     pub format: Format,
+    /// Chunk compression of `--format rosbag1`.
+    #[arg(long, value_enum, default_value = "none")]
+    pub compression: BagCompression,
     /// Camera-IMU time offset td, ms (`t_imu = t_cam + td`).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub td_ms: f64,
@@ -165,8 +196,60 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     match args.format {
         Format::Mcap => povins_platform::mcap_io::write_dataset(&args.out, &out.dataset)?,
         Format::Euroc => povins_platform::euroc::write_dataset(&args.out, &out.dataset)?,
+        Format::Rosbag1 => write_rosbag1(&args.out, &out.dataset, args.compression.into())?,
     }
     eprintln!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Writes `ds` as a ROS 1 bag at `out` with RealSense topic names, and its calibration beside
+/// it.
+fn write_rosbag1(out: &Path, ds: &Dataset, compression: Compression) -> anyhow::Result<()> {
+    let topics = DatasetTopics::realsense();
+    let n = bag::write_dataset(out, ds, &topics, compression)?;
+    eprintln!(
+        "bag             {} IMU on {}, {} images on {}, {} point clouds on {} (chunks: {})",
+        n.imu,
+        topics.imu.0,
+        n.images,
+        topics.image.0,
+        n.sweeps,
+        topics.lidar.0,
+        compression.name()
+    );
+    let calib_dir = bag_calibration_dir(out);
+    write_bag_calibration(&ds.calib, &calib_dir)?;
+    eprintln!("calibration     {}", calib_dir.display());
+    Ok(())
+}
+
+/// Where the calibration of the bag `out` is written: `<folder>/<stem>-calib` beside it.
+pub fn bag_calibration_dir(out: &Path) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or("bag".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}-calib"))
+}
+
+/// Writes the calibration of a simulated bag into `dir`: Kalibr's `camchain-imucam.yaml` and
+/// `imu.yaml` with the bag's topics (`povins run BAG --calib DIR/camchain-imucam.yaml
+/// --imu-calib DIR/imu.yaml`), and the same as the EuRoC `sensor.yaml` files of `imu0` and
+/// `cam0` with an `imu0/data.csv` of no samples (`povins run BAG --calib DIR`).
+pub fn write_bag_calibration(calib: &Calibration, dir: &Path) -> anyhow::Result<()> {
+    let topics = povins_platform::rosbag1::write::DatasetTopics::realsense();
+    povins_platform::euroc::EurocWriter::create(dir, calib)
+        .and_then(|w| w.finish())
+        .and_then(|_| {
+            povins_platform::kalibr::write_camchain(
+                &dir.join("camchain-imucam.yaml"),
+                calib,
+                Some(&topics.image.0),
+            )
+        })
+        .and_then(|_| {
+            povins_platform::kalibr::write_imu(&dir.join("imu.yaml"), calib, Some(&topics.imu.0))
+        })
+        .with_context(|| format!("writing the calibration to {}", dir.display()))?;
     Ok(())
 }
 

@@ -33,6 +33,7 @@ pub mod chunk;
 mod log;
 pub mod msgs;
 pub mod record;
+pub mod write;
 
 #[cfg(test)]
 mod tests;

@@ -1,4 +1,6 @@
-//! ROS 1 message decoders: `sensor_msgs/Imu`, `sensor_msgs/Image`, `sensor_msgs/CompressedImage`.
+//! ROS 1 message decoders (`sensor_msgs/Imu`, `sensor_msgs/Image`, `sensor_msgs/CompressedImage`)
+//! and encoders (the same and `sensor_msgs/PointCloud2`, with their definitions and md5sums for
+//! a bag's connection records: [`MsgType`]).
 //!
 //! ROS 1 serialization is little-endian with no alignment: primitives back to back, strings and
 //! variable arrays a `u32` length then the elements (strings without a NUL), fixed arrays
@@ -178,6 +180,233 @@ pub fn any_image(msg_type: &str, msg: &[u8]) -> Result<ImageFrame, MsgError> {
     } else {
         image(msg)
     }
+}
+
+/// A ROS 1 message type as a bag's connection record names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MsgType {
+    /// `package/Name`.
+    pub name: &'static str,
+    /// The type's md5sum (ROS 1's hash of the definition without comments, nested types
+    /// replaced by their md5sums).
+    pub md5sum: &'static str,
+    /// The full definition as `rosbag record` stores it: the type's fields, then each nested
+    /// type after a line of 80 `=` and `MSG: package/Name`.
+    pub definition: &'static str,
+}
+
+macro_rules! header_def {
+    () => {
+        "================================================================================\n\
+         MSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n"
+    };
+}
+
+/// `sensor_msgs/Imu` (fields of ros/common_msgs `sensor_msgs/msg/Imu.msg`, comments dropped).
+pub const IMU_MSG: MsgType = MsgType {
+    name: IMU_TYPE,
+    md5sum: "6a62c6daae103f4ff57a132d6f95cec2",
+    definition: concat!(
+        "Header header\n\ngeometry_msgs/Quaternion orientation\nfloat64[9] orientation_covariance\n\n",
+        "geometry_msgs/Vector3 angular_velocity\nfloat64[9] angular_velocity_covariance\n\n",
+        "geometry_msgs/Vector3 linear_acceleration\nfloat64[9] linear_acceleration_covariance\n",
+        header_def!(),
+        "================================================================================\n",
+        "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n",
+        "================================================================================\n",
+        "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+    ),
+};
+
+/// `sensor_msgs/Image`.
+pub const IMAGE_MSG: MsgType = MsgType {
+    name: IMAGE_TYPE,
+    md5sum: "060021388200f6f0f447d0fcd9c64743",
+    definition: concat!(
+        "Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\n",
+        "uint32 step\nuint8[] data\n",
+        header_def!()
+    ),
+};
+
+/// `sensor_msgs/CompressedImage`.
+pub const COMPRESSED_IMAGE_MSG: MsgType = MsgType {
+    name: COMPRESSED_IMAGE_TYPE,
+    md5sum: "8f7a12909da2c9d3332d540a0977563f",
+    definition: concat!(
+        "Header header\nstring format\nuint8[] data\n",
+        header_def!()
+    ),
+};
+
+/// `sensor_msgs/PointCloud2`.
+pub const POINT_CLOUD2_MSG: MsgType = MsgType {
+    name: "sensor_msgs/PointCloud2",
+    md5sum: "1158d486dd51d683ce2f1be655c3c181",
+    definition: concat!(
+        "Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\n",
+        "uint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n",
+        header_def!(),
+        "================================================================================\n",
+        "MSG: sensor_msgs/PointField\nuint8 INT8    = 1\nuint8 UINT8   = 2\nuint8 INT16   = 3\n",
+        "uint8 UINT16  = 4\nuint8 INT32   = 5\nuint8 UINT32  = 6\nuint8 FLOAT32 = 7\n",
+        "uint8 FLOAT64 = 8\n\nstring name\nuint32 offset\nuint8  datatype\nuint32 count\n"
+    ),
+};
+
+/// The PointCloud2 fields [`point_cloud2`] writes: `x`, `y`, `z`, `intensity` (float32) and `t`
+/// (uint32, ns after the header stamp, as the Ouster driver writes it), 20 bytes a point.
+pub const POINT_FIELDS: [(&str, u32, u8); 5] = [
+    ("x", 0, 7),
+    ("y", 4, 7),
+    ("z", 8, 7),
+    ("intensity", 12, 7),
+    ("t", 16, 6),
+];
+
+/// A ROS time (`sec: u32`, `nsec: u32`, little-endian) of `t_ns`, when it fits one.
+pub fn ros_time(t_ns: i64) -> Option<[u8; 8]> {
+    let sec = u32::try_from(t_ns.div_euclid(1_000_000_000)).ok()?;
+    let nsec = t_ns.rem_euclid(1_000_000_000) as u32;
+    let mut b = [0u8; 8];
+    b[..4].copy_from_slice(&sec.to_le_bytes());
+    b[4..].copy_from_slice(&nsec.to_le_bytes());
+    Some(b)
+}
+
+/// Appends ROS 1 fields to a message.
+struct Writer(Vec<u8>);
+
+impl Writer {
+    fn u32(&mut self, v: u32) {
+        self.0.extend(v.to_le_bytes());
+    }
+
+    fn len(&mut self, n: usize) -> Result<(), MsgError> {
+        let n = u32::try_from(n).map_err(|_| MsgError {
+            offset: self.0.len(),
+            msg: format!("{n} elements do not fit a ROS 1 array length"),
+        })?;
+        self.u32(n);
+        Ok(())
+    }
+
+    fn bytes(&mut self, b: &[u8]) -> Result<(), MsgError> {
+        self.len(b.len())?;
+        self.0.extend_from_slice(b);
+        Ok(())
+    }
+
+    fn f64s(&mut self, v: &[f64]) {
+        for x in v {
+            self.0.extend(x.to_le_bytes());
+        }
+    }
+
+    /// `std_msgs/Header`.
+    fn header(seq: u32, t_ns: i64, frame_id: &str) -> Result<Self, MsgError> {
+        let stamp = ros_time(t_ns).ok_or_else(|| MsgError {
+            offset: 4,
+            msg: format!("stamp {t_ns} ns is not a ROS 1 time (0 to 2^32 s)"),
+        })?;
+        let mut w = Writer(Vec::new());
+        w.u32(seq);
+        w.0.extend(stamp);
+        w.bytes(frame_id.as_bytes())?;
+        Ok(w)
+    }
+}
+
+/// `sensor_msgs/Imu` of a sample: orientation unknown (covariance element 0 is -1, as the
+/// message's documentation asks), covariances of the rates zero ("unknown").
+pub fn encode_imu(s: &ImuSample, seq: u32, frame_id: &str) -> Result<Vec<u8>, MsgError> {
+    let mut w = Writer::header(seq, s.t_ns, frame_id)?;
+    let mut unknown = [0.0; 9];
+    unknown[0] = -1.0;
+    w.f64s(&[0.0, 0.0, 0.0, 1.0]);
+    w.f64s(&unknown);
+    w.f64s(s.gyro_rps.as_slice());
+    w.f64s(&[0.0; 9]);
+    w.f64s(s.accel_mps2.as_slice());
+    w.f64s(&[0.0; 9]);
+    Ok(w.0)
+}
+
+/// `sensor_msgs/Image` of a gray image: `mono8`, step = width.
+pub fn encode_mono8(im: &ImageFrame, seq: u32, frame_id: &str) -> Result<Vec<u8>, MsgError> {
+    if im.mono8.len() as u64 != u64::from(im.width) * u64::from(im.height) {
+        return Err(MsgError {
+            offset: 0,
+            msg: format!(
+                "{} pixels for a {}x{} image",
+                im.mono8.len(),
+                im.width,
+                im.height
+            ),
+        });
+    }
+    let mut w = Writer::header(seq, im.t_ns, frame_id)?;
+    w.u32(im.height);
+    w.u32(im.width);
+    w.bytes(b"mono8")?;
+    w.0.push(0);
+    w.u32(im.width);
+    w.bytes(&im.mono8)?;
+    Ok(w.0)
+}
+
+/// `sensor_msgs/CompressedImage` (`format` e.g. `png` or `jpeg`).
+pub fn encode_compressed_image(
+    t_ns: i64,
+    seq: u32,
+    frame_id: &str,
+    format: &str,
+    data: &[u8],
+) -> Result<Vec<u8>, MsgError> {
+    let mut w = Writer::header(seq, t_ns, frame_id)?;
+    w.bytes(format.as_bytes())?;
+    w.bytes(data)?;
+    Ok(w.0)
+}
+
+/// `sensor_msgs/PointCloud2` of a sweep: one row of [`POINT_FIELDS`], little-endian, stamped
+/// with the sweep time; a point before it or more than 2^32 ns after it is an error.
+pub fn encode_point_cloud2(
+    scan: &crate::dataset::LidarScan,
+    seq: u32,
+    frame_id: &str,
+) -> Result<Vec<u8>, MsgError> {
+    let mut w = Writer::header(seq, scan.t_ns, frame_id)?;
+    let n = scan.points.len();
+    w.u32(1);
+    w.len(n)?;
+    w.len(POINT_FIELDS.len())?;
+    for (name, offset, datatype) in POINT_FIELDS {
+        w.bytes(name.as_bytes())?;
+        w.u32(offset);
+        w.0.push(datatype);
+        w.u32(1);
+    }
+    w.0.push(0);
+    let step = 20usize;
+    w.u32(step as u32);
+    w.len(n * step)?;
+    w.len(n * step)?;
+    for (i, p) in scan.points.iter().enumerate() {
+        let dt = u32::try_from(p.t_ns - scan.t_ns).map_err(|_| MsgError {
+            offset: w.0.len(),
+            msg: format!(
+                "point {i} at {} ns is not within 2^32 ns after the sweep stamp {} ns",
+                p.t_ns, scan.t_ns
+            ),
+        })?;
+        for v in [p.p_l[0], p.p_l[1], p.p_l[2], p.intensity] {
+            w.0.extend(v.to_le_bytes());
+        }
+        w.u32(dt);
+    }
+    w.0.push(1);
+    Ok(w.0)
 }
 
 #[cfg(test)]
