@@ -18,10 +18,11 @@ use std::path::{Path, PathBuf};
 /// The command-line arguments every estimating command over a recording takes.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RunArgs {
-    /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file or a ROS 1 `.bag` (with
-    /// `--calib`).
+    /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file written by povins, or a ROS
+    /// recording (with `--calib`): a ROS 1 `.bag`, a ROS 2 bag folder or `.db3` file, any other
+    /// `.mcap` file.
     pub dataset: PathBuf,
-    /// Calibration of a ROS 1 bag: an EuRoC ASL folder whose `imu0` and `cam0` `sensor.yaml`
+    /// Calibration of a ROS recording: an EuRoC ASL folder whose `imu0` and `cam0` `sensor.yaml`
     /// give it (Kalibr files: the next step).
     #[arg(long)]
     pub calib: Option<PathBuf>,
@@ -52,16 +53,17 @@ pub struct RunArgs {
 impl RunArgs {
     /// Opens the recording named by `dataset`.
     pub fn open(&self) -> Result<Box<dyn Recording>> {
-        if self.dataset.extension().is_none_or(|e| e != "bag") {
+        if !povins_platform::rosrec::is_ros_recording(&self.dataset) {
             anyhow::ensure!(
                 self.calib.is_none() && self.imu_topic.is_none() && self.image_topic.is_none(),
-                "--calib, --imu-topic and --image-topic apply to ROS 1 bags only"
+                "--calib, --imu-topic and --image-topic apply to ROS recordings only (ROS 1 \
+                 and ROS 2 bags, MCAP files other than povins' own)"
             );
             return Ok(povins_platform::open_recording(&self.dataset)?);
         }
         let Some(dir) = &self.calib else {
             anyhow::bail!(
-                "{}: calibration missing: a ROS 1 bag needs --calib EUROC_FOLDER (its \
+                "{}: calibration missing: a ROS recording needs --calib EUROC_FOLDER (its \
                  mav0/imu0 and mav0/cam0 sensor.yaml)",
                 self.dataset.display()
             );
