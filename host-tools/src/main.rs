@@ -26,7 +26,7 @@ enum Cmd {
     Plot(cmd::plot::Args),
     /// Replay a dataset through the estimator and evaluate it.
     Run(cmd::run::Args),
-    /// What a recording holds (ROS 1 bag: topics, types, counts, rates, time span) and which
+    /// What a ROS recording holds (bags, MCAP: topics, types, counts, rates, time span) and which
     /// topics `run` would use.
     Info(cmd::info::Args),
     /// Write a recording (EuRoC folder, MCAP, ROS 1 bag with --calib) as an EuRoC ASL folder.

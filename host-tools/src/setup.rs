@@ -20,8 +20,9 @@ use std::path::{Path, PathBuf};
 /// `convert`).
 #[derive(clap::Args, Debug, Clone)]
 pub struct RecordingArgs {
-    /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file, or a ROS recording (a ROS 1
-    /// `.bag`) with its calibration (`--calib`, or its own CameraInfo and `/tf_static`).
+    /// EuRoC ASL folder (containing `mav0/`), an `.mcap` file written by povins, or a ROS
+    /// recording (a ROS 1 `.bag`, a ROS 2 bag folder or `.db3` file, any other `.mcap` file)
+    /// with its calibration (`--calib`, or its own CameraInfo and `/tf_static`).
     pub dataset: PathBuf,
     /// The recording's calibration files and topics (override the config's `[input]`).
     #[command(flatten)]
@@ -38,7 +39,7 @@ impl RecordingArgs {
         for note in input.unused_notes() {
             eprintln!("{note}");
         }
-        if self.dataset.extension().is_none_or(|e| e != "bag") {
+        if !povins_platform::rosrec::is_ros_recording(&self.dataset) {
             anyhow::ensure!(
                 !input.any_for_bags(),
                 "--calib, --imu-calib, --camera, --imu-topic, --image-topic, --accel-topic and \

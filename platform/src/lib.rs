@@ -17,11 +17,13 @@ pub mod image_raw;
 pub mod images;
 pub mod kalibr;
 pub mod mcap_io;
+pub mod mcap_log;
 pub mod odometry;
 pub mod pipeline;
 pub mod recording;
 pub mod ros2;
 pub mod rosbag1;
+pub mod rosbag2;
 pub mod rosrec;
 pub mod source;
 pub mod trajectory;
@@ -32,19 +34,22 @@ pub use error::IoError;
 use recording::Recording;
 use std::path::Path;
 
-/// Opens a recording by path: a folder is an EuRoC ASL folder, an `.mcap` file an MCAP file.
+/// Opens a recording by path: a folder is an EuRoC ASL folder, an `.mcap` file written by povins
+/// an MCAP file ([`mcap_io`]); a ROS recording ([`rosrec::is_ros_recording`]) is refused with a
+/// hint, as it needs a calibration given apart.
 pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>, IoError> {
-    if path.is_dir() {
+    if rosrec::is_ros_recording(path) {
+        Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "a ROS recording (ROS 1 or ROS 2 bag, MCAP file) carries no calibration \
+                  povins reads yet: open it with rosrec::recording::RosRecording (povins run \
+                  RECORDING --calib EUROC_FOLDER)"
+                .into(),
+        })
+    } else if path.is_dir() {
         Ok(Box::new(crate::euroc::EurocFolder::open(path)?))
     } else if path.extension().is_some_and(|e| e == "mcap") {
         Ok(Box::new(crate::mcap_io::McapRecording::open(path)?))
-    } else if path.extension().is_some_and(|e| e == "bag") {
-        Err(IoError::Invalid {
-            path: path.to_path_buf(),
-            msg: "a ROS 1 bag carries no calibration povins reads yet: open it with \
-                  rosrec::recording::RosRecording (povins run BAG --calib EUROC_FOLDER)"
-                .into(),
-        })
     } else if !path.exists() {
         Err(IoError::Invalid {
             path: path.to_path_buf(),

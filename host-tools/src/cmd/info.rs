@@ -1,20 +1,25 @@
-//! `povins info RECORDING`: what a recording holds (for a ROS 1 bag: topics, types, message
-//! counts, mean rates over the bag's span, time span, chunks, index state and warnings) and which topics `run`
-//! would use; with `--calib` (and `--imu-calib`, `--camera`) the calibration found in those
-//! files, and the topics `run` would use with their Kalibr `rostopic`s. `--read-all` also reads and decodes every message of the chosen IMU and camera
-//! topics (the reading speed, and every decoding error with its message index).
+//! `povins info RECORDING`: what a recording holds, for every container `rosrec::open_log`
+//! reads (ROS 1 bags, ROS 2 bags, MCAP files): its format, topics, types, message counts, mean
+//! rates over each topic's span, time span, the container's warnings, and which topics `run`
+//! would use. `--read-all` also reads and decodes every message of the chosen IMU and camera
+//! topics through `rosrec::decode` (the reading speed in messages and MB per second, every
+//! decoding error with its message index, corrupt parts counted and skipped). With `--calib`
+//! (and `--imu-calib`, `--camera`) the calibration found in those files and the topics `run`
+//! would use with their Kalibr `rostopic`s; without it, the calibration the recording carries
+//! (its CameraInfo and `/tf_static`), or why there is none.
 
 use crate::config::{InputArgs, InputOptions};
 use anyhow::{bail, Context, Result};
-use povins_platform::rosbag1::{msgs, Bag};
-use povins_platform::rosrec::{topics, MessageLog};
+use povins_platform::rosrec::topics::TopicChoice;
+use povins_platform::rosrec::{decode, open_log, topics, MessageLog, TopicInfo};
+use povins_platform::IoError;
 use std::fmt::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `povins info`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The recording (a ROS 1 `.bag` file).
+    /// The recording: a ROS 1 `.bag`, a ROS 2 bag folder or `.db3` file, an `.mcap` file.
     pub recording: PathBuf,
     /// The topics and the calibration files (as for `povins run`).
     #[command(flatten)]
@@ -26,61 +31,62 @@ pub struct Args {
 
 /// Runs `povins info`.
 pub fn run(a: Args) -> Result<()> {
-    let is_bag = a.recording.extension().is_some_and(|e| e == "bag");
-    if !is_bag {
-        bail!(
-            "{}: `info` reads ROS 1 bags (.bag) so far",
-            a.recording.display()
-        );
-    }
     let input = InputOptions::new(None, &a.input)?;
-    let bag = Bag::open(&a.recording)?;
-    let mut calib = String::new();
-    let (imu, image) = if input.calib.is_some() {
-        let found = input.calibration_files(&bag)?;
-        calib = found.describe();
-        let kalibr_imu = found.imu.as_ref().and_then(|i| i.rostopic.as_deref());
-        let c = input.topic_choice(&bag.topics(), kalibr_imu, found.camera.rostopic.as_deref());
-        (c.imu, c.image)
-    } else if input.imu_calib.is_some() || input.camera.is_some() {
-        bail!("--imu-calib and --camera need --calib");
-    } else {
-        (input.imu_topic.clone(), input.image_topic.clone())
+    if input.calib.is_none() && input.camera.is_some() {
+        bail!("--camera needs --calib (a Kalibr camchain)");
+    }
+    let log = open_log(&a.recording)?;
+    let all = log.topics();
+    let (choice, calib) = match input.calibration_files(log.as_ref()) {
+        Ok(found) => {
+            let kalibr_imu = found.imu.as_ref().and_then(|i| i.rostopic.as_deref());
+            let choice = input.topic_choice(&all, kalibr_imu, found.camera.rostopic.as_deref());
+            (choice, found.describe())
+        }
+        Err(e) if input.calib.is_none() => (
+            input.topic_choice(&all, None, None),
+            format!("calib     none in the recording: {e:#}\n"),
+        ),
+        Err(e) => return Err(e),
     };
-    print!("{}", bag_summary(&bag, imu.as_deref(), image.as_deref()));
+    print!("{}", summary(log.as_ref(), &choice));
     print!("{calib}");
     if a.read_all {
-        print!("{}", read_all(&bag, imu.as_deref(), image.as_deref())?);
+        print!("{}", read_all(log.as_ref(), &choice)?);
     }
     Ok(())
+}
+
+/// Bytes of a file, or of the files of a folder.
+fn size_of(path: &Path) -> u64 {
+    if path.is_dir() {
+        std::fs::read_dir(path)
+            .map(|d| {
+                d.filter_map(|e| e.ok()?.metadata().ok())
+                    .filter(|m| m.is_file())
+                    .map(|m| m.len())
+                    .sum()
+            })
+            .unwrap_or(0)
+    } else {
+        std::fs::metadata(path).map_or(0, |m| m.len())
+    }
 }
 
 fn secs(ns: i64) -> f64 {
     ns as f64 * 1e-9
 }
 
-/// The summary of a bag, as `info` prints it.
-pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String {
+/// The summary of a recording, as `info` prints it.
+pub fn summary(log: &dyn MessageLog, choice: &TopicChoice) -> String {
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "file      {} ({} bytes)",
-        bag.path.display(),
-        bag.file_len
-    );
-    let index = if bag.indexed {
-        "indexed"
-    } else {
-        "no usable index: scanned"
-    };
-    let _ = writeln!(
-        s,
-        "format    ROS 1 bag v2.0, {index}, {} chunks",
-        bag.chunks.len()
-    );
-    let start = bag.chunks.iter().map(|c| c.start_ns).min();
-    let end = bag.chunks.iter().map(|c| c.end_ns).max();
-    let span_s = match (start, end) {
+    let path = log.path();
+    let _ = writeln!(s, "file      {} ({} bytes)", path.display(), size_of(path));
+    let _ = writeln!(s, "format    {}", log.describe());
+    let all = log.topics();
+    let start = all.iter().filter_map(|t| t.span_ns).map(|s| s.0).min();
+    let end = all.iter().filter_map(|t| t.span_ns).map(|s| s.1).max();
+    match (start, end) {
         (Some(a), Some(b)) => {
             let _ = writeln!(
                 s,
@@ -89,14 +95,11 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
                 secs(b),
                 secs(b - a)
             );
-            secs(b - a)
         }
         _ => {
             let _ = writeln!(s, "time      no messages");
-            0.0
         }
-    };
-    let all = bag.topics();
+    }
     let total: u64 = all.iter().map(|t| t.count).sum();
     let _ = writeln!(s, "messages  {total}");
     let w = all.iter().map(|t| t.topic.len()).max().unwrap_or(5).max(5);
@@ -112,10 +115,11 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
         "topic", "type", "messages", "rate_hz"
     );
     for t in &all {
-        let rate = if span_s > 0.0 && t.count > 1 {
-            format!("{:.2}", t.count.saturating_sub(1) as f64 / span_s)
-        } else {
-            "-".into()
+        let rate = match t.span_ns {
+            Some((a, b)) if b > a && t.count > 1 => {
+                format!("{:.2}", t.count.saturating_sub(1) as f64 / secs(b - a))
+            }
+            _ => "-".into(),
         };
         let _ = writeln!(
             s,
@@ -124,9 +128,9 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
         );
     }
     let _ = writeln!(s);
-    match topics::select(&bag.topics(), imu, camera) {
+    match topics::select_with(&all, choice) {
         Ok(sel) => {
-            let name = |t: &Option<povins_platform::rosrec::TopicInfo>| {
+            let name = |t: &Option<TopicInfo>| {
                 t.as_ref()
                     .map_or_else(|| "none".to_string(), |t| t.topic.clone())
             };
@@ -136,6 +140,13 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
                 name(&sel.imu),
                 name(&sel.camera)
             );
+            if let Some(a) = &sel.accel {
+                let _ = writeln!(
+                    s,
+                    "          accelerometer {} merged into the IMU's samples",
+                    a.topic
+                );
+            }
             if sel.imu.is_none() || sel.camera.is_none() {
                 let _ = writeln!(
                     s,
@@ -156,36 +167,59 @@ pub fn bag_summary(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> String
             t.topic, t.msg_type
         );
     }
-    for warn in &bag.warnings {
+    for warn in &log.warnings() {
         let _ = writeln!(s, "warning: {warn}");
     }
     s
 }
 
 /// Decodes every message of the chosen topics; the counts and the reading speed.
-fn read_all(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> Result<String> {
-    let sel = topics::select(&bag.topics(), imu, camera).map_err(anyhow::Error::msg)?;
+fn read_all(log: &dyn MessageLog, choice: &TopicChoice) -> Result<String> {
+    let sel = topics::select_with(&log.topics(), choice).map_err(anyhow::Error::msg)?;
     let mut s = String::new();
-    for t in [sel.imu, sel.camera].into_iter().flatten() {
+    for t in [sel.imu, sel.accel, sel.camera].into_iter().flatten() {
         let t0 = std::time::Instant::now();
-        let conns = bag.topic_conns(&t.topic);
-        let mut n = 0usize;
-        for (k, m) in bag.conn_messages(conns).enumerate() {
-            let m = m?;
-            let res = if t.msg_type == msgs::IMU_TYPE {
-                msgs::imu(&m.data).map(drop)
-            } else {
-                msgs::any_image(&t.msg_type, &m.data).map(drop)
+        let (mut n, mut bytes, mut skipped) = (0u64, 0u64, 0u64);
+        for m in log.messages(&t.topic) {
+            let m = match m {
+                Ok(m) => m,
+                Err(e @ IoError::Corrupt { .. }) => {
+                    skipped += 1;
+                    let _ = writeln!(s, "warning: {}: {e} (skipped)", t.topic);
+                    continue;
+                }
+                Err(e) => return Err(e.into()),
             };
-            res.map_err(|e| anyhow::anyhow!("byte {}: {}", e.offset, e.msg))
-                .with_context(|| format!("{} message {k} ({})", t.topic, t.msg_type))?;
+            let res = if t.msg_type == decode::IMU_TYPE {
+                decode::imu(t.encoding, &m.data).map(drop)
+            } else {
+                decode::image(t.encoding, &t.msg_type, &m.data).map(drop)
+            };
+            res.map_err(|e| anyhow::anyhow!("byte {} of the message: {}", e.offset, e.msg))
+                .with_context(|| {
+                    format!(
+                        "{}: {} message {n} ({}, record at byte offset {})",
+                        log.path().display(),
+                        t.topic,
+                        t.msg_type,
+                        m.offset
+                    )
+                })?;
             n += 1;
+            bytes += m.data.len() as u64;
         }
+        let dt = t0.elapsed().as_secs_f64().max(1e-9);
         let _ = writeln!(
             s,
-            "read      {}: {n} messages decoded in {:.3} s",
+            "read      {}: {n} messages decoded in {dt:.3} s ({:.0} messages/s, {:.1} MB/s){}",
             t.topic,
-            t0.elapsed().as_secs_f64()
+            n as f64 / dt,
+            bytes as f64 / dt * 1e-6,
+            if skipped > 0 {
+                format!(", {skipped} corrupt parts skipped")
+            } else {
+                String::new()
+            }
         );
     }
     Ok(s)
@@ -195,12 +229,16 @@ fn read_all(bag: &Bag, imu: Option<&str>, camera: Option<&str>) -> Result<String
 mod tests {
     use super::*;
 
+    fn data(rel: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/data")
+            .join(rel)
+    }
+
     #[test]
     fn summary_of_the_sim_bag() {
-        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../tests/data/rosbag1-sim/sim.bag");
-        let bag = Bag::open(&p).unwrap();
-        let s = bag_summary(&bag, None, None);
+        let log = open_log(&data("rosbag1-sim/sim.bag")).unwrap();
+        let s = summary(log.as_ref(), &TopicChoice::default());
         assert!(s.contains("indexed, 15 chunks"), "{s}");
         assert!(s.contains("1.000 .. 3.000 s (2.000 s)"), "{s}");
         assert!(s.contains("messages  443"), "{s}");
@@ -213,15 +251,74 @@ mod tests {
             .collect();
         assert_eq!(imu, ["/imu0", "sensor_msgs/Imu", "401", "200.00"]);
         assert!(s.contains("cannot choose: 2 camera topics"), "{s}");
-        let s = bag_summary(&bag, None, Some("/cam0/image_raw"));
+        let s = summary(
+            log.as_ref(),
+            &TopicChoice {
+                image: Some("/cam0/image_raw".into()),
+                ..TopicChoice::default()
+            },
+        );
         assert!(
             s.contains("run uses  IMU /imu0, camera /cam0/image_raw"),
             "{s}"
         );
-        let r = read_all(&bag, None, Some("/cam0/gray_png")).unwrap();
+        let r = read_all(
+            log.as_ref(),
+            &TopicChoice {
+                image: Some("/cam0/gray_png".into()),
+                ..TopicChoice::default()
+            },
+        )
+        .unwrap();
         assert!(
             r.contains("/imu0: 401 messages") && r.contains("/cam0/gray_png: 14"),
             "{r}"
         );
+        assert!(r.contains("messages/s") && r.contains("MB/s"), "{r}");
+    }
+
+    #[test]
+    fn summary_of_every_container() {
+        for (rel, format) in [
+            ("ros2-sim/sqlite3", "ROS 2 bag, sqlite3 storage, 2 files"),
+            ("ros2-sim/mcap", "ROS 2 bag, mcap storage"),
+            ("ros2-sim/ros1.mcap", "MCAP, with summary"),
+            (
+                "ros2-sim/cdr-nosummary.mcap",
+                "MCAP, no usable summary: scanned",
+            ),
+        ] {
+            let log = open_log(&data(rel)).unwrap();
+            let s = summary(
+                log.as_ref(),
+                &TopicChoice {
+                    image: Some("/cam0/image_raw".into()),
+                    ..TopicChoice::default()
+                },
+            );
+            assert!(s.contains(format), "{rel}: {s}");
+            assert!(s.contains("1.000 .. 3.000 s (2.000 s)"), "{rel}: {s}");
+            assert!(s.contains("messages  443"), "{rel}: {s}");
+            let imu: Vec<&str> = s
+                .lines()
+                .find(|l| l.starts_with("/imu0 "))
+                .unwrap()
+                .split_whitespace()
+                .collect();
+            assert_eq!(imu, ["/imu0", "sensor_msgs/Imu", "401", "200.00"], "{rel}");
+            assert!(!s.contains("warning"), "{rel}: {s}");
+            let r = read_all(
+                log.as_ref(),
+                &TopicChoice {
+                    image: Some("/cam0/image_raw".into()),
+                    ..TopicChoice::default()
+                },
+            )
+            .unwrap();
+            assert!(
+                r.contains("/imu0: 401 messages") && r.contains("/cam0/image_raw: 14"),
+                "{rel}: {r}"
+            );
+        }
     }
 }

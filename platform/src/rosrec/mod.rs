@@ -74,6 +74,10 @@ pub trait MessageLog: Send + Sync + std::fmt::Debug {
     fn messages(&self, topic: &str) -> LogStream<'_>;
     /// What was wrong but could be read past when it was opened (a missing index, a cut file).
     fn warnings(&self) -> Vec<String>;
+    /// Where the message at `offset` ([`LogMessage::offset`]) is, for an error message.
+    fn locate(&self, offset: u64) -> String {
+        format!("record at byte offset {offset}")
+    }
 }
 
 /// A message type in ROS 1 form: `pkg/msg/Name` -> `pkg/Name`; other names unchanged.
@@ -84,13 +88,53 @@ pub fn normalize_type(t: &str) -> String {
     }
 }
 
-/// Opens the message log at `path` by its kind: a `.bag` file is a ROS 1 bag.
+/// Opens the message log at `path` by its kind: a `.bag` file is a ROS 1 bag, a folder holding
+/// `metadata.yaml` a ROS 2 bag, a `.db3` file a ROS 2 sqlite3 bag, an `.mcap` file any MCAP file.
 pub fn open_log(path: &Path) -> Result<Box<dyn MessageLog>, IoError> {
-    if path.extension().is_some_and(|e| e == "bag") {
-        return Ok(Box::new(crate::rosbag1::Bag::open(path)?));
+    match LogKind::of(path) {
+        Some(LogKind::Ros1Bag) => Ok(Box::new(crate::rosbag1::Bag::open(path)?)),
+        Some(LogKind::Ros2Bag) => Ok(Box::new(crate::rosbag2::Rosbag2::open(path)?)),
+        Some(LogKind::Mcap) => Ok(Box::new(crate::mcap_log::McapLog::open(path)?)),
+        None => Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "not a ROS recording povins reads (a ROS 1 .bag, a ROS 2 bag folder with \
+                  metadata.yaml, a .db3 file or an .mcap file)"
+                .into(),
+        }),
     }
-    Err(IoError::Invalid {
-        path: path.to_path_buf(),
-        msg: "not a ROS recording povins reads (a ROS 1 .bag)".into(),
-    })
+}
+
+/// Whether `path` is a ROS recording to open with [`open_log`] (and a calibration given
+/// apart): a ROS 1 bag, a ROS 2 bag, or an MCAP file that is not povins' own (an MCAP carrying
+/// the [`crate::mcap_io::CALIBRATION_METADATA`] record opens with [`crate::open_recording`]).
+pub fn is_ros_recording(path: &Path) -> bool {
+    match LogKind::of(path) {
+        Some(LogKind::Mcap) => {
+            !crate::mcap_log::has_metadata(path, crate::mcap_io::CALIBRATION_METADATA)
+        }
+        Some(_) => true,
+        None => false,
+    }
+}
+
+/// The containers [`open_log`] reads.
+enum LogKind {
+    Ros1Bag,
+    Ros2Bag,
+    Mcap,
+}
+
+impl LogKind {
+    fn of(path: &Path) -> Option<Self> {
+        let ext = |e: &str| path.extension().is_some_and(|x| x == e) && !path.is_dir();
+        if ext("bag") {
+            Some(LogKind::Ros1Bag)
+        } else if ext("db3") || crate::rosbag2::is_bag_folder(path) {
+            Some(LogKind::Ros2Bag)
+        } else if ext("mcap") {
+            Some(LogKind::Mcap)
+        } else {
+            None
+        }
+    }
 }

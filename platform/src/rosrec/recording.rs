@@ -270,8 +270,10 @@ impl<T: Stamped, D: Fn(&[u8]) -> Result<T, MsgError>> Iterator for Checked<'_, T
                     return Some(Err(IoError::Corrupt {
                         file: self.path(),
                         what: format!(
-                            "{} message {k} ({}, record at byte offset {})",
-                            self.topic.topic, self.topic.msg_type, m.offset
+                            "{} message {k} ({}, {})",
+                            self.topic.topic,
+                            self.topic.msg_type,
+                            self.rec.log.locate(m.offset)
                         ),
                         offset: e.offset as u64,
                         msg: e.msg,
