@@ -39,7 +39,7 @@ impl RecordingArgs {
         for note in input.unused_notes() {
             eprintln!("{note}");
         }
-        if !povins_platform::rosrec::is_ros_recording(&self.dataset) {
+        if !povins_platform::containers::is_ros_recording(&self.dataset) {
             anyhow::ensure!(
                 !input.any_for_bags(),
                 "--calib, --imu-calib, --camera, --imu-topic, --image-topic, --accel-topic and \

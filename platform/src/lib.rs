@@ -8,6 +8,7 @@
 
 pub mod boxed;
 pub mod cdr;
+pub mod containers;
 pub mod dataset;
 pub mod driver;
 pub mod error;
@@ -35,10 +36,10 @@ use recording::Recording;
 use std::path::Path;
 
 /// Opens a recording by path: a folder is an EuRoC ASL folder, an `.mcap` file written by povins
-/// an MCAP file ([`mcap_io`]); a ROS recording ([`rosrec::is_ros_recording`]) is refused with a
+/// an MCAP file ([`mcap_io`]); a ROS recording ([`containers::is_ros_recording`]) is refused with a
 /// hint, as it needs a calibration given apart.
 pub fn open_recording(path: &Path) -> Result<Box<dyn Recording>, IoError> {
-    if rosrec::is_ros_recording(path) {
+    if containers::is_ros_recording(path) {
         Err(IoError::Invalid {
             path: path.to_path_buf(),
             msg: "a ROS recording (ROS 1 or ROS 2 bag, MCAP file) carries no calibration \

@@ -1,4 +1,4 @@
-//! `povins info RECORDING`: what a recording holds, for every container `rosrec::open_log`
+//! `povins info RECORDING`: what a recording holds, for every container `containers::open_log`
 //! reads (ROS 1 bags, ROS 2 bags, MCAP files): its format, topics, types, message counts, mean
 //! rates over each topic's span, time span, the container's warnings, and which topics `run`
 //! would use. `--read-all` also reads and decodes every message of the chosen IMU and camera
@@ -10,8 +10,9 @@
 
 use crate::config::{InputArgs, InputOptions};
 use anyhow::{bail, Context, Result};
+use povins_platform::containers::open_log;
 use povins_platform::rosrec::topics::TopicChoice;
-use povins_platform::rosrec::{decode, open_log, topics, MessageLog, TopicInfo};
+use povins_platform::rosrec::{decode, topics, MessageLog, TopicInfo};
 use povins_platform::IoError;
 use std::fmt::Write;
 use std::path::{Path, PathBuf};

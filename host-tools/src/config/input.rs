@@ -473,7 +473,7 @@ pub fn open_bag(
     input: &InputOptions,
     toml_noise: Option<ImuNoise>,
 ) -> Result<Box<dyn Recording>> {
-    let log = povins_platform::rosrec::open_log(path)?;
+    let log = povins_platform::containers::open_log(path)?;
     let k = input
         .calibration_files(&*log)?
         .calibration(toml_noise)

@@ -257,9 +257,9 @@ fn povins_own_mcap_is_told_apart() {
     crate::mcap_io::write_dataset(f.path(), &ds).unwrap();
     let cal = crate::mcap_io::CALIBRATION_METADATA;
     assert!(has_metadata(f.path(), cal));
-    assert!(!crate::rosrec::is_ros_recording(f.path()));
+    assert!(!crate::containers::is_ros_recording(f.path()));
     for name in ["ros1.mcap", "cdr-nosummary.mcap"] {
         assert!(!has_metadata(&fixture(name), cal));
-        assert!(crate::rosrec::is_ros_recording(&fixture(name)));
+        assert!(crate::containers::is_ros_recording(&fixture(name)));
     }
 }

@@ -200,22 +200,55 @@ fn times_a_ros_1_time_cannot_hold_are_refused_with_the_topic() {
     s.t_ns = -5;
     assert!(msgs::encode_imu(&s, 0, "imu").is_err());
 }
-/// The Python interpreter with `rosbags`: `POVINS_ROSBAGS_PYTHON`, else the venv, else
-/// `python3`.
+/// The Python interpreter with `rosbags`: `POVINS_ROSBAGS_PYTHON`, else a venv in
+/// `<repo>/target/pyenv-rosbags` made on first use (`python3 -m venv`, `pip install rosbags`:
+/// needs PyPI; without it the test fails saying so).
 fn rosbags_python() -> PathBuf {
     if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
         return p.into();
     }
-    let venv = Path::new("/work/venv-rosbags/bin/python");
-    if venv.exists() {
-        venv.to_path_buf()
-    } else {
-        "python3".into()
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/pyenv-rosbags");
+    let py = venv.join("bin").join("python");
+    let run = |cmd: &mut std::process::Command, what: &str| {
+        let out = cmd
+            .output()
+            .unwrap_or_else(|e| panic!("{what}: could not start: {e} (is python3 installed?)"));
+        assert!(
+            out.status.success(),
+            "{what} failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    if !py.exists() {
+        run(
+            std::process::Command::new("python3")
+                .args(["-m", "venv"])
+                .arg(&venv),
+            "creating the venv (python3 -m venv)",
+        );
     }
+    let ready = std::process::Command::new(&py)
+        .args(["-c", "import rosbags"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ready {
+        run(
+            std::process::Command::new(&py).args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--disable-pip-version-check",
+                "rosbags==0.11.9",
+            ]),
+            "pip install rosbags",
+        );
+    }
+    py
 }
 
 #[test]
-#[ignore = "needs /work/venv-rosbags or python3 with rosbags"]
+#[ignore = "needs python3 and PyPI (installs rosbags into target/pyenv-rosbags)"]
 fn python_rosbags_reads_our_bags() {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/check_rosbag1.py");
     let dir = tempfile::tempdir().unwrap();

@@ -2,11 +2,12 @@
 //! container of the same sequence read the same through [`RosRecording`].
 
 use super::*;
+use crate::containers::open_log;
 use crate::dataset::ImageFrame;
 use crate::mcap_log::tests::{euroc_calibration, fixture};
 use crate::recording::Recording;
 use crate::rosrec::recording::RosRecording;
-use crate::rosrec::{open_log, Encoding};
+use crate::rosrec::Encoding;
 use povins_core::inertial::ImuSample;
 
 fn reference_bag() -> PathBuf {
