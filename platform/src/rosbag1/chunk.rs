@@ -42,6 +42,21 @@ pub fn read_chunk(
     file_len: u64,
     allow_cut: bool,
 ) -> Result<ChunkData, RecordError> {
+    read_chunk_of(f, pos, file_len, allow_cut, None)
+}
+
+/// [`read_chunk`], keeping of an uncompressed, whole chunk only the message records whose
+/// connection `keep` wants (and every other record): the others' data are skipped over in the
+/// file, never read, so a topic of small messages sharing chunks with images costs its own
+/// bytes. The records kept are laid end to end as in a chunk (offsets inside it then differ
+/// from the file's chunk). Compressed or cut chunks are read whole.
+pub fn read_chunk_of(
+    f: &mut std::fs::File,
+    pos: u64,
+    file_len: u64,
+    allow_cut: bool,
+    keep: Option<&dyn Fn(u32) -> bool>,
+) -> Result<ChunkData, RecordError> {
     let rec = match file_record(f, pos, file_len) {
         Ok(Some(r)) => r,
         Ok(None) => {
@@ -69,8 +84,18 @@ pub fn read_chunk(
     }
     let compression = rec.fields.string("compression")?;
     let avail = (file_len - rec.data_offset).min(u64::from(rec.data_len)) as usize;
-    let raw = read_at(f, rec.data_offset, avail)?;
     let cut = avail < rec.data_len as usize;
+    if let (Some(keep), "none", false) = (keep, compression.as_str(), cut) {
+        if size == rec.data_len {
+            let bytes = sparse_records(f, rec.data_offset, rec.data_len, keep)?;
+            return Ok(ChunkData {
+                pos,
+                bytes,
+                lost: 0,
+            });
+        }
+    }
+    let raw = read_at(f, rec.data_offset, avail)?;
     // The header's size is only a hint until the data decompresses to it.
     let mut out = Vec::with_capacity((size as usize).min(64 << 20));
     let res = match compression.as_str() {
@@ -114,6 +139,52 @@ pub fn read_chunk(
         bytes: out,
         lost,
     })
+}
+
+/// The records of the uncompressed chunk data at `start` (`len` bytes), message records of
+/// connections `keep` does not want left out without reading their data.
+fn sparse_records(
+    f: &mut std::fs::File,
+    start: u64,
+    len: u32,
+    keep: &dyn Fn(u32) -> bool,
+) -> Result<Vec<u8>, RecordError> {
+    let end = start + u64::from(len);
+    let mut out = Vec::new();
+    let mut at = start;
+    let u32_at = |f: &mut std::fs::File, p: u64| -> Result<u32, RecordError> {
+        let b = read_at(f, p, 4)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let over = |p: u64, what: &str| RecordError::Corrupt {
+        offset: p,
+        msg: format!("{what} runs past the end of its chunk"),
+    };
+    while at < end {
+        if at + 4 > end {
+            return Err(over(at, "record header length"));
+        }
+        let header_len = u64::from(u32_at(f, at)?);
+        if at + 4 + header_len + 4 > end {
+            return Err(over(at, "record header"));
+        }
+        let header = read_at(f, at + 4, header_len as usize)?;
+        let data_len = u64::from(u32_at(f, at + 4 + header_len)?);
+        let data_at = at + 4 + header_len + 4;
+        if data_at + data_len > end {
+            return Err(over(at, "record data"));
+        }
+        let fields = super::record::Fields::parse(&header, at + 4)?;
+        let wanted = fields.op()? != OP_MESSAGE || keep(fields.u32("conn")?);
+        if wanted {
+            out.extend_from_slice(&(header_len as u32).to_le_bytes());
+            out.extend_from_slice(&header);
+            out.extend_from_slice(&(data_len as u32).to_le_bytes());
+            out.extend_from_slice(&read_at(f, data_at, data_len as usize)?);
+        }
+        at = data_at + data_len;
+    }
+    Ok(out)
 }
 
 /// The header of a record whose data is cut (its header must be complete; the declared data
@@ -252,8 +323,10 @@ impl<'a> Messages<'a> {
             return Ok(());
         };
         let err = |e: RecordError| self.bag.error("chunk", e);
-        let chunk = read_chunk(f, info.pos, self.bag.file_len, info.cut).map_err(err)?;
         let conns = &self.conns;
+        let keep = |c: u32| conns.contains(&c);
+        let chunk =
+            read_chunk_of(f, info.pos, self.bag.file_len, info.cut, Some(&keep)).map_err(err)?;
         let msgs = walk_chunk(&chunk, |c| conns.contains(&c), |_, _| Ok(())).map_err(err)?;
         for (i, m) in msgs.iter().enumerate() {
             self.heap.push(Reverse((m.time_ns, k, i)));

@@ -446,3 +446,27 @@ fn sim_bag_with_flipped_bytes_never_panics() {
     }
     assert!(opened > 0 && opened + errors == 150);
 }
+
+#[test]
+fn one_topic_read_sparsely_is_the_same_as_filtered_from_all() {
+    // Uncompressed chunks: a topic's messages are read record by record, the others' data
+    // skipped (chunk::read_chunk_of); they must equal the topic's share of a full read.
+    let bag = sim_bag();
+    let all = all_messages(&bag);
+    for (id, c) in &bag.connections {
+        let got: Vec<(i64, Vec<u8>)> = bag
+            .conn_messages([*id].into_iter().collect())
+            .map(|m| {
+                let m = m.unwrap();
+                (m.time_ns, m.data)
+            })
+            .collect();
+        let want: Vec<(i64, Vec<u8>)> = all
+            .iter()
+            .filter(|m| m.1 == c.topic)
+            .map(|m| (m.0, m.2.clone()))
+            .collect();
+        assert!(!got.is_empty(), "{}", c.topic);
+        assert_eq!(got, want, "{}", c.topic);
+    }
+}
