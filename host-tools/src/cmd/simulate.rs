@@ -5,7 +5,12 @@ use crate::sim::{self, LidarKind, Scenario, SimConfig, SimOutput};
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use povins_platform::dataset::{Calibration, Dataset, ImageFrame};
-use povins_platform::rosbag1::write::{self as bag, Compression, DatasetTopics};
+use povins_platform::mcap_log::write::McapWriter;
+use povins_platform::rosbag1::write::{BagWriter, Compression};
+use povins_platform::rosbag2::write::{Rosbag2Writer, Storage};
+use povins_platform::rosrec::write::{self as roswrite, ContainerWriter, DatasetTopics};
+use povins_platform::rosrec::Encoding;
+use povins_platform::IoError;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -22,6 +27,18 @@ pub enum Format {
     /// (`sensor_msgs/PointCloud2`), chunks compressed by --compression; the calibration beside
     /// it ([`write_bag_calibration`]).
     Rosbag1,
+    /// ROS 2 bag folder, sqlite3 storage (`metadata.yaml`, `<name>_0.db3`), CDR messages on the
+    /// topics of `rosbag1`; the calibration beside it.
+    #[value(name = "rosbag2-sqlite3")]
+    Rosbag2Sqlite3,
+    /// ROS 2 bag folder, MCAP storage (`metadata.yaml`, `<name>_0.mcap`), CDR messages on the
+    /// topics of `rosbag1`; the calibration beside it.
+    #[value(name = "rosbag2-mcap")]
+    Rosbag2Mcap,
+    /// One MCAP file of ROS 1 messages (profile `ros1`, `ros1msg` schemas) on the topics of
+    /// `rosbag1`; the calibration beside it.
+    #[value(name = "mcap-ros1")]
+    McapRos1,
 }
 
 /// Chunk compression of a ROS 1 bag.
@@ -57,15 +74,15 @@ pub struct Args {
     /// Sequence length, s.
     #[arg(long, default_value_t = 60.0)]
     pub duration: f64,
-    /// Output file (MCAP, ROS 1 bag) or folder (EuRoC).
+    /// Output file (MCAP, ROS 1 bag) or folder (EuRoC, ROS 2 bag).
     #[arg(long)]
     pub out: PathBuf,
     /// Output format.
     #[arg(long, value_enum, default_value = "mcap")]
     pub format: Format,
-    /// Chunk compression of `--format rosbag1`.
-    #[arg(long, value_enum, default_value = "none")]
-    pub compression: BagCompression,
+    /// Chunk compression of `--format rosbag1` (default none).
+    #[arg(long, value_enum)]
+    pub compression: Option<BagCompression>,
     /// Camera-IMU time offset td, ms (`t_imu = t_cam + td`).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub td_ms: f64,
@@ -98,7 +115,8 @@ pub struct Args {
     #[arg(long, default_value_t = 1.0)]
     pub static_s: f64,
     /// Render grayscale camera images at the camera rate (EuRoC: `cam0/data/<ns>.png`; MCAP:
-    /// `sensor_msgs/msg/Image` on `/cam0/image_raw`).
+    /// `sensor_msgs/msg/Image` on `/cam0/image_raw`; ROS recordings: mono8 `sensor_msgs/Image`
+    /// on `/camera/infra1/image_rect_raw`).
     #[arg(long)]
     pub images: bool,
     /// Motion blur: exposure time, ms (0 = off; the stamp is mid-exposure). Needs --images.
@@ -160,6 +178,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cfg.pixel_noise_px = args.pixel_noise;
     cfg.static_s = args.static_s;
     let render = args.render_options()?;
+    anyhow::ensure!(
+        args.compression.is_none() || args.format == Format::Rosbag1,
+        "--compression applies to --format rosbag1 only"
+    );
 
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = ProgressBar::new(1);
@@ -196,26 +218,56 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     match args.format {
         Format::Mcap => povins_platform::mcap_io::write_dataset(&args.out, &out.dataset)?,
         Format::Euroc => povins_platform::euroc::write_dataset(&args.out, &out.dataset)?,
-        Format::Rosbag1 => write_rosbag1(&args.out, &out.dataset, args.compression.into())?,
+        f => write_ros_recording(&args.out, &out.dataset, f, &args)?,
     }
     eprintln!("wrote {}", args.out.display());
     Ok(())
 }
 
-/// Writes `ds` as a ROS 1 bag at `out` with RealSense topic names, and its calibration beside
-/// it.
-fn write_rosbag1(out: &Path, ds: &Dataset, compression: Compression) -> anyhow::Result<()> {
+/// Writes `ds` at `out` as the ROS recording `format` with RealSense topic names
+/// ([`DatasetTopics::realsense`]; [`roswrite::write_dataset`] decides the messages, the
+/// container stores them), and its calibration beside it.
+fn write_ros_recording(
+    out: &Path,
+    ds: &Dataset,
+    format: Format,
+    args: &Args,
+) -> anyhow::Result<()> {
     let topics = DatasetTopics::realsense();
-    let n = bag::write_dataset(out, ds, &topics, compression)?;
+    let (what, n) = match format {
+        Format::Rosbag1 => {
+            let c: Compression = args.compression.unwrap_or(BagCompression::None).into();
+            let w = BagWriter::create(out, c)?;
+            let what = format!("ROS 1 bag, chunks: {}", c.name());
+            (
+                what,
+                store(w, out, ds, &topics, Encoding::Ros1, BagWriter::finish)?,
+            )
+        }
+        Format::Rosbag2Sqlite3 | Format::Rosbag2Mcap => {
+            let storage = match format {
+                Format::Rosbag2Sqlite3 => Storage::Sqlite3,
+                _ => Storage::Mcap,
+            };
+            let w = Rosbag2Writer::create(out, storage)?;
+            let what = format!("ROS 2 bag, {} storage", storage.identifier());
+            (
+                what,
+                store(w, out, ds, &topics, Encoding::Cdr, Rosbag2Writer::finish)?,
+            )
+        }
+        _ => {
+            let w = McapWriter::create(out, Encoding::Ros1)?;
+            let what = "MCAP, ROS 1 messages".to_string();
+            (
+                what,
+                store(w, out, ds, &topics, Encoding::Ros1, McapWriter::finish)?,
+            )
+        }
+    };
     eprintln!(
-        "bag             {} IMU on {}, {} images on {}, {} point clouds on {} (chunks: {})",
-        n.imu,
-        topics.imu.0,
-        n.images,
-        topics.image.0,
-        n.sweeps,
-        topics.lidar.0,
-        compression.name()
+        "recording       {what}: {} IMU on {}, {} images on {}, {} point clouds on {}",
+        n.imu, topics.imu.0, n.images, topics.image.0, n.sweeps, topics.lidar.0,
     );
     let calib_dir = bag_calibration_dir(out);
     write_bag_calibration(&ds.calib, &calib_dir)?;
@@ -223,7 +275,22 @@ fn write_rosbag1(out: &Path, ds: &Dataset, compression: Compression) -> anyhow::
     Ok(())
 }
 
-/// Where the calibration of the bag `out` is written: `<folder>/<stem>-calib` beside it.
+/// Writes `ds` into the container `w` in `encoding`, then `finish`es it.
+fn store<W: ContainerWriter>(
+    mut w: W,
+    out: &Path,
+    ds: &Dataset,
+    topics: &DatasetTopics,
+    encoding: Encoding,
+    finish: impl FnOnce(W) -> Result<(), IoError>,
+) -> Result<roswrite::DatasetCounts, IoError> {
+    let n = roswrite::write_dataset(&mut w, out, ds, topics, encoding, None)?;
+    finish(w)?;
+    Ok(n)
+}
+
+/// Where the calibration of the recording `out` (a file or a ROS 2 bag folder) is written:
+/// `<folder>/<stem>-calib` beside it.
 pub fn bag_calibration_dir(out: &Path) -> PathBuf {
     let stem = out
         .file_stem()
@@ -236,7 +303,7 @@ pub fn bag_calibration_dir(out: &Path) -> PathBuf {
 /// --imu-calib DIR/imu.yaml`), and the same as the EuRoC `sensor.yaml` files of `imu0` and
 /// `cam0` with an `imu0/data.csv` of no samples (`povins run BAG --calib DIR`).
 pub fn write_bag_calibration(calib: &Calibration, dir: &Path) -> anyhow::Result<()> {
-    let topics = povins_platform::rosbag1::write::DatasetTopics::realsense();
+    let topics = DatasetTopics::realsense();
     povins_platform::euroc::EurocWriter::create(dir, calib)
         .and_then(|w| w.finish())
         .and_then(|_| {

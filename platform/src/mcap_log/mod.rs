@@ -28,6 +28,7 @@
 mod stream;
 #[cfg(test)]
 pub(crate) mod tests;
+pub mod write;
 
 use crate::error::IoError;
 use crate::rosrec::{normalize_type, Encoding, LogStream, MessageLog, TopicInfo};

@@ -52,7 +52,9 @@ pub struct ConnId(u32);
 
 struct Conn {
     topic: String,
-    msg_type: MsgType,
+    name: String,
+    md5sum: String,
+    definition: String,
     in_a_chunk: bool,
 }
 
@@ -175,7 +177,9 @@ impl BagWriter {
     pub fn add_connection(&mut self, topic: &str, msg_type: MsgType) -> ConnId {
         self.conns.push(Conn {
             topic: topic.to_string(),
-            msg_type,
+            name: msg_type.name.into(),
+            md5sum: msg_type.md5sum.into(),
+            definition: msg_type.definition.into(),
             in_a_chunk: false,
         });
         ConnId(self.conns.len() as u32 - 1)
@@ -185,13 +189,9 @@ impl BagWriter {
         let c = &self.conns[id as usize];
         let mut data = Vec::new();
         field(&mut data, "topic", c.topic.as_bytes());
-        field(&mut data, "type", c.msg_type.name.as_bytes());
-        field(&mut data, "md5sum", c.msg_type.md5sum.as_bytes());
-        field(
-            &mut data,
-            "message_definition",
-            c.msg_type.definition.as_bytes(),
-        );
+        field(&mut data, "type", c.name.as_bytes());
+        field(&mut data, "md5sum", c.md5sum.as_bytes());
+        field(&mut data, "message_definition", c.definition.as_bytes());
         record(
             out,
             &[
@@ -363,103 +363,48 @@ impl BagWriter {
     }
 }
 
-/// Topics and frame ids of a sequence written as a bag by [`write_dataset`].
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct DatasetTopics {
-    /// `sensor_msgs/Imu` topic and its `header.frame_id`.
-    pub imu: (String, String),
-    /// `sensor_msgs/Image` (mono8) topic and frame id.
-    pub image: (String, String),
-    /// `sensor_msgs/PointCloud2` topic and frame id.
-    pub lidar: (String, String),
-}
+use crate::rosrec::write::{ContainerWriter, TopicSpec};
+pub use crate::rosrec::write::{DatasetCounts, DatasetTopics};
+use crate::rosrec::Encoding;
 
-impl DatasetTopics {
-    /// The names an Intel RealSense D435i's ROS driver publishes (`realsense2_camera`, infra1
-    /// stream, IMU united on one topic), and `/lidar/points` for a LiDAR.
-    pub fn realsense() -> Self {
-        let pair = |a: &str, b: &str| (a.to_string(), b.to_string());
-        DatasetTopics {
-            imu: pair("/camera/imu", "camera_imu_optical_frame"),
-            image: pair(
-                "/camera/infra1/image_rect_raw",
-                "camera_infra1_optical_frame",
-            ),
-            lidar: pair("/lidar/points", "lidar"),
+impl ContainerWriter for BagWriter {
+    fn add_topic(&mut self, spec: &TopicSpec) -> Result<usize, IoError> {
+        if spec.encoding != Encoding::Ros1 {
+            return Err(IoError::Invalid {
+                path: self.path.clone(),
+                msg: format!(
+                    "topic {}: a ROS 1 bag holds ROS 1 messages, not CDR",
+                    spec.topic
+                ),
+            });
         }
+        self.conns.push(Conn {
+            topic: spec.topic.clone(),
+            name: spec.msg_type.clone(),
+            md5sum: spec.type_hash.clone(),
+            definition: spec.definition.clone(),
+            in_a_chunk: false,
+        });
+        Ok(self.conns.len() - 1)
     }
-}
 
-/// What [`write_dataset`] wrote: messages per topic.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct DatasetCounts {
-    /// IMU messages.
-    pub imu: u64,
-    /// Image messages.
-    pub images: u64,
-    /// Point clouds.
-    pub sweeps: u64,
+    fn write(&mut self, topic: usize, t_ns: i64, data: &[u8]) -> Result<(), IoError> {
+        BagWriter::write(self, ConnId(topic as u32), t_ns, data)
+    }
 }
 
 /// Writes the IMU samples, the images (they need their pixels) and the LiDAR sweeps of `ds` as
 /// a ROS 1 bag at `path` on `topics`, in time order (IMU first at equal times), each message
-/// received at its stamp. Feature tracks, ground truth and the calibration have no place in it.
+/// received at its stamp ([`crate::rosrec::write`] decides the messages). Feature tracks,
+/// ground truth and the calibration have no place in it.
 pub fn write_dataset(
     path: &Path,
     ds: &crate::dataset::Dataset,
     topics: &DatasetTopics,
     compression: Compression,
 ) -> Result<DatasetCounts, IoError> {
-    use super::msgs;
     let mut w = BagWriter::create(path, compression)?;
-    let ci = w.add_connection(&topics.imu.0, msgs::IMU_MSG);
-    let cc = (!ds.images.is_empty()).then(|| w.add_connection(&topics.image.0, msgs::IMAGE_MSG));
-    let cl =
-        (!ds.lidar.is_empty()).then(|| w.add_connection(&topics.lidar.0, msgs::POINT_CLOUD2_MSG));
-    // (time, stream, index): stream 0 IMU, 1 image, 2 sweep.
-    let mut order: Vec<(i64, u8, usize)> = Vec::new();
-    order.extend(ds.imu.iter().enumerate().map(|(k, s)| (s.t_ns, 0, k)));
-    order.extend(ds.images.iter().enumerate().map(|(k, s)| (s.t_ns, 1, k)));
-    order.extend(ds.lidar.iter().enumerate().map(|(k, s)| (s.t_ns, 2, k)));
-    order.sort_unstable();
-    let mut n = DatasetCounts::default();
-    for (t_ns, stream, k) in order {
-        let seq = k as u32;
-        let (conn, topic, data) = match (stream, cc, cl) {
-            (0, _, _) => (
-                ci,
-                &topics.imu,
-                msgs::encode_imu(&ds.imu[k], seq, &topics.imu.1),
-            ),
-            (1, Some(c), _) => {
-                let im = &ds.images[k];
-                (
-                    c,
-                    &topics.image,
-                    msgs::encode_mono8(im, seq, &topics.image.1),
-                )
-            }
-            (2, _, Some(c)) => {
-                let s = &ds.lidar[k];
-                (
-                    c,
-                    &topics.lidar,
-                    msgs::encode_point_cloud2(s, seq, &topics.lidar.1),
-                )
-            }
-            _ => continue,
-        };
-        let data = data.map_err(|e| IoError::Invalid {
-            path: path.to_path_buf(),
-            msg: format!("{} message {k}: byte {}: {}", topic.0, e.offset, e.msg),
-        })?;
-        w.write(conn, t_ns, &data)?;
-        match stream {
-            0 => n.imu += 1,
-            1 => n.images += 1,
-            _ => n.sweeps += 1,
-        }
-    }
+    let n = crate::rosrec::write::write_dataset(&mut w, path, ds, topics, Encoding::Ros1, None)?;
     w.finish()?;
     Ok(n)
 }

@@ -12,6 +12,7 @@
 pub mod sqlite;
 #[cfg(test)]
 mod tests;
+pub mod write;
 
 use crate::error::IoError;
 use crate::mcap_log::McapLog;

@@ -17,6 +17,7 @@ pub mod decode;
 pub mod merge;
 pub mod recording;
 pub mod topics;
+pub mod write;
 
 #[cfg(test)]
 mod tests;

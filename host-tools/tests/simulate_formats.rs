@@ -1,0 +1,271 @@
+//! `povins simulate --format rosbag2-sqlite3|rosbag2-mcap|mcap-ros1`, through the binary:
+//! - each recording, run with the calibration written beside it, gives the byte-identical
+//!   `trajectory.tum` and `keyframes_state.csv` as the EuRoC folder of the same simulation;
+//! - independent readers (Python `rosbags` for the ROS 2 bags, PyPI `mcap` +
+//!   `mcap-ros1-support` for the MCAP of ROS 1 messages) read every message back, with the
+//!   simulation's stamps, values and counts (ignored: needs python3 and PyPI);
+//! - a ROS 2 bag is not written into a non-empty folder; `--compression` is for ROS 1 bags only.
+
+mod common;
+
+use common::povins;
+use std::path::{Path, PathBuf};
+
+/// The new formats, and the name of the recording each writes.
+const FORMATS: [(&str, &str); 3] = [
+    ("rosbag2-sqlite3", "sim-sqlite3"),
+    ("rosbag2-mcap", "sim-mcap"),
+    ("mcap-ros1", "sim-ros1.mcap"),
+];
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// `povins simulate` of a 4 s hand-held sequence with images (and LiDAR when `lidar`).
+fn simulate(format: &str, out: &Path, seconds: &str, lidar: bool) {
+    let mut args = vec![
+        "simulate",
+        "--scenario",
+        "handheld",
+        "--seed",
+        "3",
+        "--duration",
+        seconds,
+        "--images",
+        "--format",
+        format,
+        "--out",
+        s(out),
+    ];
+    if !lidar {
+        args.extend_from_slice(&["--lidar", "none"]);
+    }
+    let (ok, _, err) = povins(&args);
+    assert!(ok, "simulate {format} failed: {err}");
+}
+
+/// `povins run RECORDING...` -> (trajectory.tum, keyframes_state.csv).
+fn run(recording: &[&str], out: &Path) -> (Vec<u8>, Vec<u8>) {
+    let mut args = vec!["run"];
+    args.extend_from_slice(recording);
+    args.extend_from_slice(&["--out", s(out)]);
+    let (ok, _, err) = povins(&args);
+    assert!(ok, "povins {args:?} failed: {err}");
+    (
+        std::fs::read(out.join("trajectory.tum")).expect("trajectory.tum"),
+        std::fs::read(out.join("keyframes_state.csv")).expect("keyframes_state.csv"),
+    )
+}
+
+fn calib_dir(rec: &Path) -> PathBuf {
+    let stem = rec.file_stem().unwrap().to_string_lossy();
+    rec.with_file_name(format!("{stem}-calib"))
+}
+
+#[test]
+fn simulated_recordings_replay_to_the_euroc_folders_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let euroc = dir.path().join("euroc");
+    simulate("euroc", &euroc, "4", false);
+    let want = run(&[s(&euroc)], &dir.path().join("run-euroc"));
+    assert!(
+        want.0.len() > 20_000,
+        "trajectory too short: {} bytes",
+        want.0.len()
+    );
+    assert!(want.1.len() > 1_000, "keyframes too short");
+    for (format, name) in FORMATS {
+        let rec = dir.path().join(name);
+        simulate(format, &rec, "4", false);
+        let calib = calib_dir(&rec);
+        for f in ["camchain-imucam.yaml", "imu.yaml", "mav0/cam0/sensor.yaml"] {
+            assert!(calib.join(f).is_file(), "{format}: no {f} beside it");
+        }
+        let got = run(
+            &[s(&rec), "--calib", s(&calib)],
+            &dir.path().join(format!("run-{format}")),
+        );
+        assert!(got.0 == want.0, "{format}: trajectory.tum differs");
+        assert!(got.1 == want.1, "{format}: keyframes_state.csv differs");
+    }
+}
+
+#[test]
+fn a_ros2_bag_needs_a_new_folder_and_compression_is_for_ros1_bags() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bag");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("keep.txt"), "x").unwrap();
+    let base = [
+        "simulate",
+        "--duration",
+        "0.5",
+        "--lidar",
+        "none",
+        "--format",
+        "rosbag2-sqlite3",
+        "--out",
+        s(&out),
+    ];
+    let (ok, _, err) = povins(&base);
+    assert!(!ok, "a bag was written into a non-empty folder");
+    assert!(err.contains("not empty") && err.contains("bag"), "{err}");
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 1);
+
+    let mut args = base.to_vec();
+    args.extend_from_slice(&["--compression", "lz4"]);
+    let (ok, _, err) = povins(&args);
+    assert!(!ok, "--compression accepted for a ROS 2 bag");
+    assert!(err.contains("--compression"), "{err}");
+}
+
+/// The Python interpreter with `rosbags`, `mcap` and `mcap-ros1-support`:
+/// `POVINS_ROSBAGS_PYTHON`, else the venv `<repo>/target/pyenv-rosbags` (made on first use with
+/// `python3 -m venv`, the packages installed with pip: needs PyPI, without it the test fails
+/// saying so).
+fn python() -> PathBuf {
+    if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
+        return p.into();
+    }
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/pyenv-rosbags");
+    let py = venv.join("bin").join("python");
+    let run = |cmd: &mut std::process::Command, what: &str| {
+        let out = cmd
+            .output()
+            .unwrap_or_else(|e| panic!("{what}: could not start: {e} (is python3 installed?)"));
+        assert!(
+            out.status.success(),
+            "{what} failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    if !py.exists() {
+        run(
+            std::process::Command::new("python3")
+                .args(["-m", "venv"])
+                .arg(&venv),
+            "creating the venv (python3 -m venv)",
+        );
+    }
+    let ready = std::process::Command::new(&py)
+        .args(["-c", "import rosbags, yaml, mcap, mcap_ros1"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ready {
+        run(
+            std::process::Command::new(&py).args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--disable-pip-version-check",
+                "rosbags==0.11.9",
+                "pyyaml",
+                "mcap==1.6.0",
+                "mcap-ros1-support==0.9.0",
+            ]),
+            "pip install rosbags mcap mcap-ros1-support",
+        );
+    }
+    py
+}
+
+/// Python's `float.hex` of a finite `v`.
+fn hexf(v: f64) -> String {
+    if v == 0.0 {
+        return if v.is_sign_negative() {
+            "-0x0.0p+0"
+        } else {
+            "0x0.0p+0"
+        }
+        .into();
+    }
+    let bits = v.to_bits();
+    let sign = if v < 0.0 { "-" } else { "" };
+    let exp = ((bits >> 52) & 0x7ff) as i64;
+    let mant = bits & ((1 << 52) - 1);
+    let (lead, e) = if exp == 0 {
+        (0, -1022)
+    } else {
+        (1, exp - 1023)
+    };
+    format!("{sign}0x{lead}.{mant:013x}p{e:+}")
+}
+
+#[test]
+#[ignore = "needs python3 and PyPI (installs rosbags, mcap, mcap-ros1-support into target/pyenv-rosbags)"]
+fn independent_readers_read_our_recordings() {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/check_ros_recording.py");
+    let dir = tempfile::tempdir().unwrap();
+    let euroc = dir.path().join("euroc");
+    simulate("euroc", &euroc, "2", true);
+    let ds = povins_platform::read_dataset(&euroc).unwrap();
+    assert!(!ds.imu.is_empty() && !ds.images.is_empty() && !ds.lidar.is_empty());
+    let py = python();
+    for (format, name) in FORMATS {
+        let rec = dir.path().join(name);
+        simulate(format, &rec, "2", true);
+        let out = std::process::Command::new(&py)
+            .arg(&script)
+            .arg(&rec)
+            .output()
+            .expect("python runs");
+        assert!(
+            out.status.success(),
+            "{format}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let topics = v["topics"].as_object().unwrap();
+        assert_eq!(topics.len(), 3, "{format}: {:?}", topics.keys());
+        let want_type = if format.starts_with("rosbag2") {
+            "sensor_msgs/msg/Imu"
+        } else {
+            "sensor_msgs/Imu"
+        };
+        let imu = &topics["/camera/imu"];
+        assert_eq!(imu["type"].as_str(), Some(want_type), "{format}");
+        let msgs = imu["messages"].as_array().unwrap();
+        assert_eq!(msgs.len(), ds.imu.len(), "{format}: IMU count");
+        assert_eq!(imu["count"].as_u64(), Some(ds.imu.len() as u64));
+        for (g, s) in msgs.iter().zip(&ds.imu) {
+            assert_eq!(g["t"].as_i64(), Some(s.t_ns), "{format}");
+            assert_eq!(g["stamp"].as_i64(), Some(s.t_ns), "{format}");
+            assert_eq!(g["frame_id"].as_str(), Some("camera_imu_optical_frame"));
+            for i in 0..3 {
+                assert_eq!(g["gyro"][i].as_str(), Some(hexf(s.gyro_rps[i]).as_str()));
+                assert_eq!(g["accel"][i].as_str(), Some(hexf(s.accel_mps2[i]).as_str()));
+            }
+            assert_eq!(g["ocov0"].as_str(), Some(hexf(-1.0).as_str()));
+        }
+        let images = topics["/camera/infra1/image_rect_raw"]["messages"]
+            .as_array()
+            .unwrap();
+        assert_eq!(images.len(), ds.images.len(), "{format}: image count");
+        for (g, im) in images.iter().zip(&ds.images) {
+            let (w, h, px) =
+                povins_platform::euroc::read_png_mono8(im.path.as_ref().unwrap()).unwrap();
+            assert_eq!(g["stamp"].as_i64(), Some(im.t_ns), "{format}");
+            assert_eq!(
+                (g["width"].as_u64(), g["height"].as_u64()),
+                (Some(w.into()), Some(h.into()))
+            );
+            assert_eq!(g["encoding"].as_str(), Some("mono8"));
+            assert_eq!(g["step"].as_u64(), Some(w.into()));
+            let sum: u64 = px.iter().map(|&b| u64::from(b)).sum();
+            assert_eq!(
+                g["sum"].as_u64(),
+                Some(sum),
+                "{format}: pixels at {}",
+                im.t_ns
+            );
+        }
+        let sweeps = topics["/lidar/points"]["messages"].as_array().unwrap();
+        assert_eq!(sweeps.len(), ds.lidar.len(), "{format}: sweep count");
+        for (g, sw) in sweeps.iter().zip(&ds.lidar) {
+            assert_eq!(g["stamp"].as_i64(), Some(sw.t_ns), "{format}");
+            assert_eq!(g["points"].as_u64(), Some(sw.points.len() as u64));
+        }
+    }
+}
