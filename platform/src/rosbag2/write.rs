@@ -102,7 +102,7 @@ const INSERT_MESSAGE: &str = "INSERT INTO messages (topic_id, timestamp, data) V
 
 enum Store {
     Sqlite(Connection),
-    Mcap(McapWriter),
+    Mcap(Box<McapWriter>),
 }
 
 struct Topic {
@@ -161,7 +161,7 @@ impl Rosbag2Writer {
                     .map_err(|e| sql_err(&file, "begin", e))?;
                 Store::Sqlite(conn)
             }
-            Storage::Mcap => Store::Mcap(McapWriter::create(&file, Encoding::Cdr)?),
+            Storage::Mcap => Store::Mcap(Box::new(McapWriter::create(&file, Encoding::Cdr)?)),
         };
         Ok(Rosbag2Writer {
             dir: dir.to_path_buf(),
