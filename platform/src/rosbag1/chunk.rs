@@ -20,6 +20,10 @@ use std::io::Read;
 /// Chunks held by a merge at once.
 pub const WINDOW_CHUNKS: usize = 32;
 
+/// A walk that read less than 1 / `SPARSE_SHARE` of its last chunk's bytes (a topic of small
+/// messages sharing chunks with images) reads its file without read-ahead ([`advise`]).
+pub const SPARSE_SHARE: u64 = 4;
+
 /// Largest decompressed chunk accepted, bytes.
 pub const MAX_CHUNK_BYTES: u32 = 1 << 30;
 
@@ -32,6 +36,8 @@ pub struct ChunkData {
     pub bytes: Vec<u8>,
     /// Bytes lost when the chunk was cut (the header's `size` minus what could be recovered).
     pub lost: u64,
+    /// Bytes of the chunk's data skipped over in the file, never read (a sparse read).
+    pub skipped: u64,
 }
 
 /// Reads and decompresses the chunk at `pos`; `allow_cut` recovers the part of a chunk that a
@@ -90,6 +96,7 @@ pub fn read_chunk_of(
             let bytes = sparse_records(f, rec.data_offset, rec.data_len, keep)?;
             return Ok(ChunkData {
                 pos,
+                skipped: u64::from(rec.data_len).saturating_sub(bytes.len() as u64),
                 bytes,
                 lost: 0,
             });
@@ -138,6 +145,7 @@ pub fn read_chunk_of(
         pos,
         bytes: out,
         lost,
+        skipped: 0,
     })
 }
 
@@ -206,6 +214,22 @@ fn cut_record(
         });
     }
     Ok(probe)
+}
+
+/// Tells the kernel how the walk on `f` reads: `random` (a sparse walk, record by record with
+/// the other topics' data skipped: no read-ahead, which would pull the skipped pages from disk
+/// anyway) or sequential (a walk reading its chunks whole). A hint: when it fails, the default
+/// read-ahead stays.
+fn advise(f: &std::fs::File, random: bool) {
+    use std::os::fd::AsRawFd;
+    let advice = if random {
+        libc::POSIX_FADV_RANDOM
+    } else {
+        libc::POSIX_FADV_SEQUENTIAL
+    };
+    // SAFETY: posix_fadvise takes a descriptor `f` owns (open for the call) and integers; it
+    // touches no memory of ours.
+    let _ = unsafe { libc::posix_fadvise(f.as_raw_fd(), 0, 0, advice) };
 }
 
 /// One message record of a chunk.
@@ -287,6 +311,8 @@ pub struct Messages<'a> {
     held: Vec<Vec<Option<RawMessage>>>,
     pending: Vec<usize>,
     live_chunks: usize,
+    /// The file handle is read without read-ahead (see [`advise`]).
+    random: bool,
 }
 
 impl<'a> Messages<'a> {
@@ -309,6 +335,7 @@ impl<'a> Messages<'a> {
             held: (0..n).map(|_| Vec::new()).collect(),
             pending: vec![0; n],
             live_chunks: 0,
+            random: false,
         }
     }
 
@@ -317,6 +344,7 @@ impl<'a> Messages<'a> {
         if self.file.is_none() {
             let f =
                 std::fs::File::open(&self.bag.path).map_err(|e| IoError::io(&self.bag.path, e))?;
+            advise(&f, false);
             self.file = Some(f);
         }
         let Some(f) = self.file.as_mut() else {
@@ -327,6 +355,12 @@ impl<'a> Messages<'a> {
         let keep = |c: u32| conns.contains(&c);
         let chunk =
             read_chunk_of(f, info.pos, self.bag.file_len, info.cut, Some(&keep)).map_err(err)?;
+        let sparse = chunk.skipped > 0
+            && chunk.bytes.len() as u64 * SPARSE_SHARE < chunk.bytes.len() as u64 + chunk.skipped;
+        if sparse != self.random {
+            advise(f, sparse);
+            self.random = sparse;
+        }
         let msgs = walk_chunk(&chunk, |c| conns.contains(&c), |_, _| Ok(())).map_err(err)?;
         for (i, m) in msgs.iter().enumerate() {
             self.heap.push(Reverse((m.time_ns, k, i)));
