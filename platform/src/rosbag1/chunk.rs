@@ -3,22 +3,21 @@
 //!
 //! ## Merge
 //! Chunks are taken in order of their start time (from the index, or from the scan of an
-//! unindexed bag). A chunk is read when its start time is not later than the earliest message
-//! held, so the messages come out in receipt-time order (ties: file position, then order in the
-//! chunk) even when chunks overlap or are written out of order. Only the wanted connections'
-//! messages are kept, and only of the chunks read so far and not yet emitted; at most
-//! [`WINDOW_CHUNKS`] chunks are held at once (a pathological overlap beyond that emits the
-//! earliest held message first: order may then break, never memory).
+//! unindexed bag; ties by file position) and merged by [`crate::rosrec::parts`]: messages come
+//! out in receipt-time order (ties: file position, then order in the chunk) even when chunks
+//! overlap or are written out of order. Only the wanted connections' messages are kept, and only
+//! of the chunks read so far and not yet emitted; at most [`WINDOW_CHUNKS`] chunks are held at
+//! once.
 
 use super::record::{buf_record, file_record, read_at, RecordError, OP_CHUNK, OP_MESSAGE};
 use super::{Bag, ChunkInfo};
 use crate::error::IoError;
-use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashSet};
+use crate::rosrec::parts::{PartLoader, PartMerge};
+use std::collections::HashSet;
 use std::io::Read;
 
 /// Chunks held by a merge at once.
-pub const WINDOW_CHUNKS: usize = 32;
+pub use crate::rosrec::parts::WINDOW_PARTS as WINDOW_CHUNKS;
 
 /// A walk that read less than 1 / `SPARSE_SHARE` of its last chunk's bytes (a topic of small
 /// messages sharing chunks with images) reads its file without read-ahead ([`advise`]).
@@ -296,51 +295,56 @@ pub fn walk_chunk(
     Ok(out)
 }
 
-/// The messages of some connections in receipt-time order across chunks (see the module docs).
-/// A chunk that cannot be read is an `Err` item naming the file and its offset; the iteration
-/// goes on with the next chunk.
-pub struct Messages<'a> {
+/// The messages of some connections in receipt-time order across chunks: the merge of
+/// [`crate::rosrec::parts`] over the chunks holding them. A chunk that cannot be read is an
+/// `Err` item naming the file and its offset; the iteration goes on with the next chunk.
+pub type Messages<'a> = PartMerge<ChunkLoader<'a>>;
+
+/// The merge over the connections `conns` of `bag` (see [`Messages`]).
+pub fn messages(bag: &Bag, conns: HashSet<u32>) -> Messages<'_> {
+    let mut order: Vec<&ChunkInfo> = bag
+        .chunks
+        .iter()
+        .filter(|c| c.counts.iter().any(|(id, n)| *n > 0 && conns.contains(id)))
+        .collect();
+    order.sort_by_key(|c| (c.start_ns, c.pos));
+    let starts = order.iter().map(|c| c.start_ns).collect();
+    let loader = ChunkLoader {
+        bag,
+        file: None,
+        conns,
+        order,
+        random: false,
+    };
+    PartMerge::new(loader, starts)
+}
+
+/// Reads the chunks of a [`Messages`] merge, keeping the wanted connections' messages, on its
+/// own file handle.
+pub struct ChunkLoader<'a> {
     bag: &'a Bag,
     file: Option<std::fs::File>,
     conns: HashSet<u32>,
     /// Chunks with wanted messages, by start time.
     order: Vec<&'a ChunkInfo>,
-    next_chunk: usize,
-    /// Held messages: (time, chunk order index, index in chunk) -> message.
-    heap: BinaryHeap<Reverse<(i64, usize, usize)>>,
-    held: Vec<Vec<Option<RawMessage>>>,
-    pending: Vec<usize>,
-    live_chunks: usize,
     /// The file handle is read without read-ahead (see [`advise`]).
     random: bool,
 }
 
-impl<'a> Messages<'a> {
-    /// The merge over the connections `conns` of `bag`.
-    pub fn new(bag: &'a Bag, conns: HashSet<u32>) -> Self {
-        let mut order: Vec<&ChunkInfo> = bag
-            .chunks
-            .iter()
-            .filter(|c| c.counts.iter().any(|(id, n)| *n > 0 && conns.contains(id)))
-            .collect();
-        order.sort_by_key(|c| (c.start_ns, c.pos));
-        let n = order.len();
-        Messages {
-            bag,
-            file: None,
-            conns,
-            order,
-            next_chunk: 0,
-            heap: BinaryHeap::new(),
-            held: (0..n).map(|_| Vec::new()).collect(),
-            pending: vec![0; n],
-            live_chunks: 0,
-            random: false,
-        }
+impl ChunkLoader<'_> {
+    /// The walk reads its file without read-ahead (its last chunk was read sparsely).
+    pub fn is_random(&self) -> bool {
+        self.random
     }
+}
 
-    fn load(&mut self, k: usize) -> Result<(), IoError> {
-        let info = self.order[k];
+impl PartLoader for ChunkLoader<'_> {
+    type Msg = RawMessage;
+
+    fn load(&mut self, k: usize) -> Result<Vec<RawMessage>, IoError> {
+        let Some(&info) = self.order.get(k) else {
+            return Ok(Vec::new());
+        };
         if self.file.is_none() {
             let f =
                 std::fs::File::open(&self.bag.path).map_err(|e| IoError::io(&self.bag.path, e))?;
@@ -348,7 +352,7 @@ impl<'a> Messages<'a> {
             self.file = Some(f);
         }
         let Some(f) = self.file.as_mut() else {
-            return Ok(());
+            return Ok(Vec::new());
         };
         let err = |e: RecordError| self.bag.error("chunk", e);
         let conns = &self.conns;
@@ -361,44 +365,10 @@ impl<'a> Messages<'a> {
             advise(f, sparse);
             self.random = sparse;
         }
-        let msgs = walk_chunk(&chunk, |c| conns.contains(&c), |_, _| Ok(())).map_err(err)?;
-        for (i, m) in msgs.iter().enumerate() {
-            self.heap.push(Reverse((m.time_ns, k, i)));
-        }
-        self.pending[k] = msgs.len();
-        if !msgs.is_empty() {
-            self.live_chunks += 1;
-        }
-        self.held[k] = msgs.into_iter().map(Some).collect();
-        Ok(())
+        walk_chunk(&chunk, |c| conns.contains(&c), |_, _| Ok(())).map_err(err)
     }
-}
 
-impl Iterator for Messages<'_> {
-    type Item = Result<RawMessage, IoError>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            let earliest = self.heap.peek().map(|Reverse((t, _, _))| *t);
-            let due = self.order.get(self.next_chunk).is_some_and(|c| {
-                earliest.is_none_or(|t| c.start_ns <= t) && self.live_chunks < WINDOW_CHUNKS
-            });
-            if !due {
-                break;
-            }
-            let k = self.next_chunk;
-            self.next_chunk += 1;
-            if let Err(e) = self.load(k) {
-                return Some(Err(e));
-            }
-        }
-        let Reverse((_, k, i)) = self.heap.pop()?;
-        let msg = self.held[k].get_mut(i).and_then(Option::take)?;
-        self.pending[k] -= 1;
-        if self.pending[k] == 0 {
-            self.held[k] = Vec::new();
-            self.live_chunks -= 1;
-        }
-        Some(Ok(msg))
+    fn time_ns(m: &RawMessage) -> i64 {
+        m.time_ns
     }
 }
