@@ -21,9 +21,10 @@
 //!
 //! ## Streaming
 //! A topic's messages come from the chunks that hold it, in log-time order across chunks
-//! (see [`stream`]): at most [`stream::WINDOW_CHUNKS`] decompressed chunks are held at once,
-//! whatever the file's length. Messages written outside chunks are read the same way, in runs of
-//! at most [`LOOSE_RUN_BYTES`].
+//! (see [`stream`], merged by [`crate::rosrec::parts`]): at most
+//! [`crate::rosrec::parts::WINDOW_PARTS`] decompressed chunks are held at once, whatever the
+//! file's length. Messages written outside chunks are read the same way, in runs of at most
+//! [`LOOSE_RUN_BYTES`].
 
 mod stream;
 #[cfg(test)]
@@ -507,7 +508,7 @@ impl MessageLog for McapLog {
             .into_iter()
             .filter_map(|(id, enc)| enc.map(|_| id))
             .collect();
-        Box::new(stream::Messages::new(self, channels))
+        Box::new(stream::messages(self, channels))
     }
 
     fn warnings(&self) -> Vec<String> {

@@ -1,27 +1,21 @@
 //! A topic's messages across the parts (chunks, runs of loose messages) that hold it, in
 //! log-time order.
 //!
-//! Parts are taken in order of their start time (from the chunk index, or from the walk). A
-//! part is read when its start time is not later than the earliest message held, so messages
-//! come out in log-time order (ties: part order, then order in the part) even when chunks
-//! overlap in time or were written out of order. Only the wanted channels' messages of the parts
-//! read and not yet emitted are held, and at most [`WINDOW_CHUNKS`] parts at once (a
-//! pathological overlap beyond that emits the earliest held message first: order may then
-//! break, never memory).
+//! Parts are taken in order of their start time (from the chunk index, or from the walk; ties by
+//! file position) and merged by [`crate::rosrec::parts`]: messages come out in log-time order
+//! (ties: part order, then order in the part) even when chunks overlap in time or were written
+//! out of order. Only the wanted channels' messages of the parts read and not yet emitted are
+//! held, and at most [`crate::rosrec::parts::WINDOW_PARTS`] parts at once.
 
 use super::{corrupt, read_at, span_text, McapLog, Part, FRAME};
 use crate::error::IoError;
+use crate::rosrec::parts::{PartLoader, PartMerge};
 use crate::rosrec::LogMessage;
 use mcap::records::{op, Record};
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 
 /// Largest decompressed chunk accepted, bytes.
 pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
-
-/// Parts held by a stream at once.
-pub const WINDOW_CHUNKS: usize = 32;
 
 /// The records of the chunk record whose body is `body`, decompressed and CRC-checked (the
 /// check ends the chunk, so a chunk is used whole or not at all). No record inside, and not the
@@ -73,51 +67,52 @@ pub(super) fn chunk_records(body: &[u8]) -> Result<Vec<Record<'static>>, String>
     Ok(out)
 }
 
-/// One topic's stream (see the module docs).
-pub(super) struct Messages<'a> {
+/// One topic's stream: the merge of [`crate::rosrec::parts`] over the parts holding it.
+pub(super) type Messages<'a> = PartMerge<PartReader<'a>>;
+
+/// The merge over the channels `channels` of `log` (see [`Messages`]).
+pub(super) fn messages(log: &McapLog, channels: Vec<u16>) -> Messages<'_> {
+    let mut order: Vec<&Part> = if channels.is_empty() {
+        Vec::new()
+    } else {
+        log.parts
+            .iter()
+            .filter(|p| {
+                p.channels
+                    .as_ref()
+                    .is_none_or(|c| c.iter().any(|id| channels.contains(id)))
+            })
+            .collect()
+    };
+    order.sort_by_key(|p| (p.start_ns, p.pos));
+    let starts = order.iter().map(|p| p.start_ns).collect();
+    let reader = PartReader {
+        log,
+        file: None,
+        channels,
+        order,
+    };
+    PartMerge::new(reader, starts)
+}
+
+/// Reads the parts of a [`Messages`] merge, keeping the wanted channels' messages, on its own
+/// file handle.
+pub(super) struct PartReader<'a> {
     log: &'a McapLog,
     file: Option<std::fs::File>,
     channels: Vec<u16>,
+    /// Parts that may hold wanted messages, by start time.
     order: Vec<&'a Part>,
-    next_part: usize,
-    heap: BinaryHeap<Reverse<(i64, usize, usize)>>,
-    held: Vec<Vec<Option<LogMessage>>>,
-    pending: Vec<usize>,
-    live: usize,
 }
 
-impl<'a> Messages<'a> {
-    pub(super) fn new(log: &'a McapLog, channels: Vec<u16>) -> Self {
-        let mut order: Vec<&Part> = if channels.is_empty() {
-            Vec::new()
-        } else {
-            log.parts
-                .iter()
-                .filter(|p| {
-                    p.channels
-                        .as_ref()
-                        .is_none_or(|c| c.iter().any(|id| channels.contains(id)))
-                })
-                .collect()
-        };
-        order.sort_by_key(|p| (p.start_ns, p.pos));
-        let n = order.len();
-        Messages {
-            log,
-            file: None,
-            channels,
-            order,
-            next_part: 0,
-            heap: BinaryHeap::new(),
-            held: (0..n).map(|_| Vec::new()).collect(),
-            pending: vec![0; n],
-            live: 0,
-        }
-    }
+impl PartLoader for PartReader<'_> {
+    type Msg = LogMessage;
 
     /// The wanted messages of part `k`.
-    fn read_part(&mut self, k: usize) -> Result<Vec<LogMessage>, IoError> {
-        let p = self.order[k];
+    fn load(&mut self, k: usize) -> Result<Vec<LogMessage>, IoError> {
+        let Some(&p) = self.order.get(k) else {
+            return Ok(Vec::new());
+        };
         let path = &self.log.path;
         let what = format!("MCAP chunk ({})", span_text(p.start_ns, p.end_ns));
         if p.pos
@@ -176,45 +171,7 @@ impl<'a> Messages<'a> {
         Ok(out)
     }
 
-    fn load(&mut self, k: usize) -> Result<(), IoError> {
-        let msgs = self.read_part(k)?;
-        for (i, m) in msgs.iter().enumerate() {
-            self.heap.push(Reverse((m.log_time_ns, k, i)));
-        }
-        self.pending[k] = msgs.len();
-        if !msgs.is_empty() {
-            self.live += 1;
-        }
-        self.held[k] = msgs.into_iter().map(Some).collect();
-        Ok(())
-    }
-}
-
-impl Iterator for Messages<'_> {
-    type Item = Result<LogMessage, IoError>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            let earliest = self.heap.peek().map(|Reverse((t, _, _))| *t);
-            let due = self.order.get(self.next_part).is_some_and(|p| {
-                earliest.is_none_or(|t| p.start_ns <= t) && self.live < WINDOW_CHUNKS
-            });
-            if !due {
-                break;
-            }
-            let k = self.next_part;
-            self.next_part += 1;
-            if let Err(e) = self.load(k) {
-                return Some(Err(e));
-            }
-        }
-        let Reverse((_, k, i)) = self.heap.pop()?;
-        let msg = self.held[k].get_mut(i).and_then(Option::take)?;
-        self.pending[k] -= 1;
-        if self.pending[k] == 0 {
-            self.held[k] = Vec::new();
-            self.live -= 1;
-        }
-        Some(Ok(msg))
+    fn time_ns(m: &LogMessage) -> i64 {
+        m.log_time_ns
     }
 }

@@ -3,22 +3,25 @@
 //!
 //! ## Merge
 //! Chunks are taken in order of their start time (from the index, or from the scan of an
-//! unindexed bag). A chunk is read when its start time is not later than the earliest message
-//! held, so the messages come out in receipt-time order (ties: file position, then order in the
-//! chunk) even when chunks overlap or are written out of order. Only the wanted connections'
-//! messages are kept, and only of the chunks read so far and not yet emitted; at most
-//! [`WINDOW_CHUNKS`] chunks are held at once (a pathological overlap beyond that emits the
-//! earliest held message first: order may then break, never memory).
+//! unindexed bag; ties by file position) and merged by [`crate::rosrec::parts`]: messages come
+//! out in receipt-time order (ties: file position, then order in the chunk) even when chunks
+//! overlap or are written out of order. Only the wanted connections' messages are kept, and only
+//! of the chunks read so far and not yet emitted; at most [`WINDOW_CHUNKS`] chunks are held at
+//! once.
 
 use super::record::{buf_record, file_record, read_at, RecordError, OP_CHUNK, OP_MESSAGE};
 use super::{Bag, ChunkInfo};
 use crate::error::IoError;
-use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashSet};
+use crate::rosrec::parts::{PartLoader, PartMerge};
+use std::collections::HashSet;
 use std::io::Read;
 
 /// Chunks held by a merge at once.
-pub const WINDOW_CHUNKS: usize = 32;
+pub use crate::rosrec::parts::WINDOW_PARTS as WINDOW_CHUNKS;
+
+/// A walk that read less than 1 / `SPARSE_SHARE` of its last chunk's bytes (a topic of small
+/// messages sharing chunks with images) reads its file without read-ahead ([`advise`]).
+pub const SPARSE_SHARE: u64 = 4;
 
 /// Largest decompressed chunk accepted, bytes.
 pub const MAX_CHUNK_BYTES: u32 = 1 << 30;
@@ -32,6 +35,8 @@ pub struct ChunkData {
     pub bytes: Vec<u8>,
     /// Bytes lost when the chunk was cut (the header's `size` minus what could be recovered).
     pub lost: u64,
+    /// Bytes of the chunk's data skipped over in the file, never read (a sparse read).
+    pub skipped: u64,
 }
 
 /// Reads and decompresses the chunk at `pos`; `allow_cut` recovers the part of a chunk that a
@@ -90,6 +95,7 @@ pub fn read_chunk_of(
             let bytes = sparse_records(f, rec.data_offset, rec.data_len, keep)?;
             return Ok(ChunkData {
                 pos,
+                skipped: u64::from(rec.data_len).saturating_sub(bytes.len() as u64),
                 bytes,
                 lost: 0,
             });
@@ -138,6 +144,7 @@ pub fn read_chunk_of(
         pos,
         bytes: out,
         lost,
+        skipped: 0,
     })
 }
 
@@ -208,6 +215,22 @@ fn cut_record(
     Ok(probe)
 }
 
+/// Tells the kernel how the walk on `f` reads: `random` (a sparse walk, record by record with
+/// the other topics' data skipped: no read-ahead, which would pull the skipped pages from disk
+/// anyway) or sequential (a walk reading its chunks whole). A hint: when it fails, the default
+/// read-ahead stays.
+fn advise(f: &std::fs::File, random: bool) {
+    use std::os::fd::AsRawFd;
+    let advice = if random {
+        libc::POSIX_FADV_RANDOM
+    } else {
+        libc::POSIX_FADV_SEQUENTIAL
+    };
+    // SAFETY: posix_fadvise takes a descriptor `f` owns (open for the call) and integers; it
+    // touches no memory of ours.
+    let _ = unsafe { libc::posix_fadvise(f.as_raw_fd(), 0, 0, advice) };
+}
+
 /// One message record of a chunk.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RawMessage {
@@ -272,99 +295,80 @@ pub fn walk_chunk(
     Ok(out)
 }
 
-/// The messages of some connections in receipt-time order across chunks (see the module docs).
-/// A chunk that cannot be read is an `Err` item naming the file and its offset; the iteration
-/// goes on with the next chunk.
-pub struct Messages<'a> {
+/// The messages of some connections in receipt-time order across chunks: the merge of
+/// [`crate::rosrec::parts`] over the chunks holding them. A chunk that cannot be read is an
+/// `Err` item naming the file and its offset; the iteration goes on with the next chunk.
+pub type Messages<'a> = PartMerge<ChunkLoader<'a>>;
+
+/// The merge over the connections `conns` of `bag` (see [`Messages`]).
+pub fn messages(bag: &Bag, conns: HashSet<u32>) -> Messages<'_> {
+    let mut order: Vec<&ChunkInfo> = bag
+        .chunks
+        .iter()
+        .filter(|c| c.counts.iter().any(|(id, n)| *n > 0 && conns.contains(id)))
+        .collect();
+    order.sort_by_key(|c| (c.start_ns, c.pos));
+    let starts = order.iter().map(|c| c.start_ns).collect();
+    let loader = ChunkLoader {
+        bag,
+        file: None,
+        conns,
+        order,
+        random: false,
+    };
+    PartMerge::new(loader, starts)
+}
+
+/// Reads the chunks of a [`Messages`] merge, keeping the wanted connections' messages, on its
+/// own file handle.
+pub struct ChunkLoader<'a> {
     bag: &'a Bag,
     file: Option<std::fs::File>,
     conns: HashSet<u32>,
     /// Chunks with wanted messages, by start time.
     order: Vec<&'a ChunkInfo>,
-    next_chunk: usize,
-    /// Held messages: (time, chunk order index, index in chunk) -> message.
-    heap: BinaryHeap<Reverse<(i64, usize, usize)>>,
-    held: Vec<Vec<Option<RawMessage>>>,
-    pending: Vec<usize>,
-    live_chunks: usize,
+    /// The file handle is read without read-ahead (see [`advise`]).
+    random: bool,
 }
 
-impl<'a> Messages<'a> {
-    /// The merge over the connections `conns` of `bag`.
-    pub fn new(bag: &'a Bag, conns: HashSet<u32>) -> Self {
-        let mut order: Vec<&ChunkInfo> = bag
-            .chunks
-            .iter()
-            .filter(|c| c.counts.iter().any(|(id, n)| *n > 0 && conns.contains(id)))
-            .collect();
-        order.sort_by_key(|c| (c.start_ns, c.pos));
-        let n = order.len();
-        Messages {
-            bag,
-            file: None,
-            conns,
-            order,
-            next_chunk: 0,
-            heap: BinaryHeap::new(),
-            held: (0..n).map(|_| Vec::new()).collect(),
-            pending: vec![0; n],
-            live_chunks: 0,
-        }
+impl ChunkLoader<'_> {
+    /// The walk reads its file without read-ahead (its last chunk was read sparsely).
+    pub fn is_random(&self) -> bool {
+        self.random
     }
+}
 
-    fn load(&mut self, k: usize) -> Result<(), IoError> {
-        let info = self.order[k];
+impl PartLoader for ChunkLoader<'_> {
+    type Msg = RawMessage;
+
+    fn load(&mut self, k: usize) -> Result<Vec<RawMessage>, IoError> {
+        let Some(&info) = self.order.get(k) else {
+            return Ok(Vec::new());
+        };
         if self.file.is_none() {
             let f =
                 std::fs::File::open(&self.bag.path).map_err(|e| IoError::io(&self.bag.path, e))?;
+            advise(&f, false);
             self.file = Some(f);
         }
         let Some(f) = self.file.as_mut() else {
-            return Ok(());
+            return Ok(Vec::new());
         };
         let err = |e: RecordError| self.bag.error("chunk", e);
         let conns = &self.conns;
         let keep = |c: u32| conns.contains(&c);
         let chunk =
             read_chunk_of(f, info.pos, self.bag.file_len, info.cut, Some(&keep)).map_err(err)?;
-        let msgs = walk_chunk(&chunk, |c| conns.contains(&c), |_, _| Ok(())).map_err(err)?;
-        for (i, m) in msgs.iter().enumerate() {
-            self.heap.push(Reverse((m.time_ns, k, i)));
+        let sparse = chunk.skipped > 0
+            && chunk.bytes.len() as u64 * SPARSE_SHARE < chunk.bytes.len() as u64 + chunk.skipped;
+        if sparse != self.random {
+            advise(f, sparse);
+            self.random = sparse;
         }
-        self.pending[k] = msgs.len();
-        if !msgs.is_empty() {
-            self.live_chunks += 1;
-        }
-        self.held[k] = msgs.into_iter().map(Some).collect();
-        Ok(())
+        walk_chunk(&chunk, |c| conns.contains(&c), |_, _| Ok(())).map_err(err)
     }
-}
 
-impl Iterator for Messages<'_> {
-    type Item = Result<RawMessage, IoError>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            let earliest = self.heap.peek().map(|Reverse((t, _, _))| *t);
-            let due = self.order.get(self.next_chunk).is_some_and(|c| {
-                earliest.is_none_or(|t| c.start_ns <= t) && self.live_chunks < WINDOW_CHUNKS
-            });
-            if !due {
-                break;
-            }
-            let k = self.next_chunk;
-            self.next_chunk += 1;
-            if let Err(e) = self.load(k) {
-                return Some(Err(e));
-            }
-        }
-        let Reverse((_, k, i)) = self.heap.pop()?;
-        let msg = self.held[k].get_mut(i).and_then(Option::take)?;
-        self.pending[k] -= 1;
-        if self.pending[k] == 0 {
-            self.held[k] = Vec::new();
-            self.live_chunks -= 1;
-        }
-        Some(Ok(msg))
+    fn time_ns(m: &RawMessage) -> i64 {
+        m.time_ns
     }
 }

@@ -178,7 +178,7 @@ impl Bag {
 
     /// The messages of `conns` in receipt-time order (see [`chunk::Messages`]).
     pub fn conn_messages(&self, conns: std::collections::HashSet<u32>) -> chunk::Messages<'_> {
-        chunk::Messages::new(self, conns)
+        chunk::messages(self, conns)
     }
 
     /// Message count of connection `id` (from the index or the scan).

@@ -470,3 +470,37 @@ fn one_topic_read_sparsely_is_the_same_as_filtered_from_all() {
         assert_eq!(got, want, "{}", c.topic);
     }
 }
+
+#[test]
+fn a_sparse_walk_reads_without_read_ahead_a_full_one_with() {
+    // Uncompressed chunks where 100 kB "images" share chunks with 100-byte IMU records (the
+    // bytes are not decoded: the read-ahead policy looks at the shares read). The IMU's walk
+    // reads a small share of each chunk: read-ahead off; the images' walk and a walk over
+    // everything keep it. Every walk still gets its messages.
+    use write::{BagWriter, Compression};
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("sparse.bag");
+    let mut w = BagWriter::create(&p, Compression::None).unwrap();
+    let imu = w.add_connection("/imu", msgs::IMU_MSG);
+    let cam = w.add_connection("/cam", msgs::IMAGE_MSG);
+    for k in 0..200i64 {
+        w.write(imu, 1_000_000 + k * 5_000_000, &[7; 100]).unwrap();
+        if k % 10 == 0 {
+            w.write(cam, 1_000_000 + k * 5_000_000, &vec![9; 100_000])
+                .unwrap();
+        }
+    }
+    w.finish().unwrap();
+    let bag = Bag::open(&p).unwrap();
+    assert!(bag.chunks.len() > 1, "{}", bag.chunks.len());
+    let walk = |conns: HashSet<u32>, n: usize, random: bool| {
+        let mut m = bag.conn_messages(conns);
+        let got = m.by_ref().take(n).filter(|x| x.is_ok()).count();
+        assert_eq!(got, n);
+        assert_eq!(m.loader().is_random(), random);
+        assert!(m.next().is_none());
+    };
+    walk(bag.topic_conns("/imu"), 200, true);
+    walk(bag.topic_conns("/cam"), 20, false);
+    walk(bag.connections.keys().copied().collect(), 220, false);
+}

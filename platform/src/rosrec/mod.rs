@@ -2,7 +2,9 @@
 //! file) gives its topics and each topic's serialized messages in log-time order; this layer
 //! chooses the topics ([`topics`]), decodes the messages by their encoding ([`decode`]) and
 //! serves them as a [`crate::recording::Recording`] ([`recording::RosRecording`]), so a new
-//! container is one `MessageLog` implementation and everything above it is written once.
+//! container is one `MessageLog` implementation and everything above it is written once. The
+//! time-ordered merge of a topic's messages across a container's parts (chunks) is written once
+//! too ([`parts`]): a container gives its parts' start times and a loader of one part.
 //!
 //! Message types are named the ROS 1 way (`sensor_msgs/Imu`); a ROS 2 name
 //! (`sensor_msgs/msg/Imu`) is normalized by [`normalize_type`] when a container lists its topics.
@@ -15,6 +17,7 @@
 pub mod calib_msgs;
 pub mod decode;
 pub mod merge;
+pub mod parts;
 pub mod recording;
 pub mod topics;
 pub mod write;
