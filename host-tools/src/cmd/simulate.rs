@@ -1,4 +1,11 @@
 //! `povins simulate`: writes a simulated camera + IMU + LiDAR sequence with ground truth.
+//!
+//! Every scenario starts at rest and ramps up to full motion. `--start-s T` drops the first T
+//! seconds of every stream (stamps unchanged), so the sequence starts in motion; the bar of
+//! issue 31 (in-motion initialization) uses T = the scenario's rest plus its ramp to full motion,
+//! `--start-s motion` ([`sim::motion_start_s`]): with the default `--static-s 1`, 3 s for robot,
+//! handheld, flight and fast, 9 s for vehicle. `--td-step-ms D --td-step-at-s T` steps the true
+//! camera-IMU delay by D from T on (issue 31, item 6).
 
 use crate::sim::render::{sequence, RenderOptions};
 use crate::sim::{self, LidarKind, Scenario, SimConfig, SimOutput};
@@ -83,9 +90,26 @@ pub struct Args {
     /// Chunk compression of `--format rosbag1` (default none).
     #[arg(long, value_enum)]
     pub compression: Option<BagCompression>,
-    /// Camera-IMU time offset td, ms (`t_imu = t_cam + td`).
+    /// Camera-IMU time offset td, ms (`t_imu = t_cam + td`). A camera stamp is its exposure
+    /// instant on the IMU clock minus td (of that frame, see --td-step-ms); the calibration
+    /// written (`timeshift_cam_imu`) holds this value, the delay before any step.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub td_ms: f64,
+    /// Step of the true camera-IMU delay, ms: frames exposed at or after --td-step-at-s are
+    /// stamped with td = td_ms + D (`t_cam = t_imu - td`; a positive D moves their stamps D
+    /// earlier). Must be below the frame period. The calibration keeps td_ms.
+    #[arg(long, allow_hyphen_values = true, requires = "td_step_at_s")]
+    pub td_step_ms: Option<f64>,
+    /// When the delay steps, s on the IMU clock from the first IMU sample (the sequence's time,
+    /// --start-s not subtracted).
+    #[arg(long, requires = "td_step_ms")]
+    pub td_step_at_s: Option<f64>,
+    /// Drop the first T seconds of every stream (IMU, ground truth, camera frames and images by
+    /// exposure instant, LiDAR sweeps by their start), stamps unchanged: a sequence that starts
+    /// in motion. `motion`: the scenario's rest plus its ramp to full motion (3 s; vehicle 9 s,
+    /// with --static-s 1). 0 = the whole sequence.
+    #[arg(long, default_value = "0")]
+    pub start_s: StartAt,
     /// LiDAR pattern (default: livox for robot/handheld, ouster for vehicle).
     #[arg(long, value_enum)]
     pub lidar: Option<LidarKind>,
@@ -135,6 +159,30 @@ pub struct Args {
     pub image_supersample: u32,
 }
 
+/// Where the written sequence starts (`--start-s`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StartAt {
+    /// Seconds from the first IMU sample.
+    Seconds(f64),
+    /// The scenario's rest plus its ramp to full motion ([`sim::motion_start_s`]).
+    Motion,
+}
+
+impl std::str::FromStr for StartAt {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s == "motion" {
+            return Ok(StartAt::Motion);
+        }
+        match s.parse::<f64>() {
+            Ok(t) if t.is_finite() && t >= 0.0 => Ok(StartAt::Seconds(t)),
+            _ => Err(format!(
+                "`{s}`: expected seconds >= 0 or `motion` (the scenario's rest plus its ramp)"
+            )),
+        }
+    }
+}
+
 impl Args {
     /// Render options from the flags; an error when a render flag is given without --images.
     pub fn render_options(&self) -> anyhow::Result<Option<RenderOptions>> {
@@ -164,6 +212,16 @@ impl Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mut cfg = SimConfig::new(args.scenario, args.seed, args.duration);
     cfg.td_s = args.td_ms * 1e-3;
+    if let (Some(d), Some(at)) = (args.td_step_ms, args.td_step_at_s) {
+        cfg.td_step = Some(sim::TdStep {
+            step_s: d * 1e-3,
+            at_s: at,
+        });
+    }
+    cfg.start_s = match args.start_s {
+        StartAt::Seconds(t) => t,
+        StartAt::Motion => sim::motion_start_s(args.scenario, args.static_s),
+    };
     cfg.lidar = args.lidar;
     cfg.lidar_points = args.lidar_points;
     cfg.lidar_extrinsic_error_deg = args.lidar_extrinsic_error_deg;
@@ -214,6 +272,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         b.finish_and_clear();
     }
     eprintln!("{} (seed {}):", out.dataset.name, args.seed);
+    if cfg.start_s > 0.0 {
+        eprintln!(
+            "start           {:.3} s after the first IMU sample (the scenario is in full motion from {:.3} s)",
+            cfg.start_s,
+            sim::motion_start_s(args.scenario, args.static_s)
+        );
+    }
     eprintln!("{}", out.summary);
     match args.format {
         Format::Mcap => povins_platform::mcap_io::write_dataset(&args.out, &out.dataset)?,

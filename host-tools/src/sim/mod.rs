@@ -9,7 +9,9 @@
 //!
 //! Clocks: the IMU and the LiDAR share the reference clock, starting at [`T0_NS`]. Images are
 //! taken on the IMU sample grid and stamped on the camera clock `t_cam = t_imu - td`
-//! (LE-VINS convention `t_imu = t_cam + td`), the true `td` is stored in the calibration.
+//! (LE-VINS convention `t_imu = t_cam + td`), the true `td` is stored in the calibration (with a
+//! [`TdStep`], the delay before the step). A sequence can start in motion: [`window`] drops
+//! what precedes [`SimConfig::start_s`].
 //! The LiDAR is cast with the true mounting `T_bl * Exp(err)`, while the calibration stores the
 //! nominal `T_bl`, so LiDAR depth attached to features near object edges can hit the background.
 
@@ -21,9 +23,11 @@ pub mod rng;
 pub mod scenario;
 pub mod scene;
 pub mod trajectory;
+pub mod window;
 pub mod world;
 
 pub use scenario::{LidarKind, Scenario};
+pub use window::{motion_start_s, KeptFrames, TdStep};
 
 use camera::{CameraSim, CameraTruth};
 use lidar::{LidarParams, SweepOut};
@@ -56,6 +60,11 @@ pub struct SimConfig {
     pub static_s: f64,
     /// Camera-IMU time offset `td` (`t_imu = t_cam + td`), s.
     pub td_s: f64,
+    /// A step of `td` during the run (`None`: constant).
+    pub td_step: Option<TdStep>,
+    /// Time dropped at the start, s (seconds from the first IMU sample; 0: the whole sequence,
+    /// from the rest). See [`window`].
+    pub start_s: f64,
     /// LiDAR to simulate (`None` = scenario default).
     pub lidar: Option<LidarKind>,
     /// Points per sweep (rosette) or points per sweep rounded to whole columns (spinning).
@@ -87,6 +96,8 @@ impl SimConfig {
             duration_s,
             static_s: 1.0,
             td_s: 0.0,
+            td_step: None,
+            start_s: 0.0,
             lidar: None,
             lidar_points: None,
             lidar_extrinsic_error_deg: 0.5,
@@ -191,6 +202,9 @@ pub struct SimOutput {
     pub t_bl_true: Option<Extrinsic>,
     /// Summary numbers.
     pub summary: Summary,
+    /// The camera frames of `dataset.features`: their exposure times on the IMU clock and index
+    /// in the uncropped sequence.
+    pub frames: KeptFrames,
 }
 
 /// Progress report: `(stage, done, total)`.
@@ -228,6 +242,22 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
         cfg.td_s.is_finite() && cfg.td_s.abs() < 1.0,
         "|td| must be < 1 s"
     );
+    anyhow::ensure!(
+        cfg.start_s.is_finite() && cfg.start_s >= 0.0 && cfg.start_s < cfg.duration_s,
+        "the start ({} s) must be within [0, duration = {} s)",
+        cfg.start_s,
+        cfg.duration_s
+    );
+    if let Some(st) = &cfg.td_step {
+        anyhow::ensure!(
+            st.step_s.is_finite() && (cfg.td_s + st.step_s).abs() < 1.0,
+            "|td + step| must be < 1 s"
+        );
+        anyhow::ensure!(
+            st.at_s.is_finite() && st.at_s >= 0.0,
+            "the delay step's time must be >= 0"
+        );
+    }
     let mut pre = scenario::preset(cfg.scenario, cfg.static_s);
     anyhow::ensure!(
         (0.0..=1.0).contains(&cfg.foliage_porosity),
@@ -338,7 +368,8 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             for k in 0..n_frames {
                 let t_rel_ns = k as i64 * cam_dt_ns;
                 let kin = traj.eval(t_rel_ns as f64 * 1e-9);
-                frames.push(cam.step(&kin, T0_NS + t_rel_ns - td_ns));
+                let td_k_ns = window::frame_td_ns(td_ns, cfg.td_step.as_ref(), t_rel_ns);
+                frames.push(cam.step(&kin, T0_NS + t_rel_ns - td_k_ns));
                 progress("camera", k + 1, n_frames);
             }
             (frames, cam.finish())
@@ -384,6 +415,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
         (frames, truth, sweeps)
     });
     anyhow::ensure!(frames.len() == n_frames, "camera simulation failed");
+    window::check_stamps(&frames)?;
     anyhow::ensure!(
         sweeps.iter().all(Option::is_some),
         "LiDAR simulation failed"
@@ -394,18 +426,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
         .map(|s| (s.scan, s.edge))
         .unzip();
 
-    let summary = summarize(
-        cfg,
-        &traj,
-        &run.ground_truth,
-        &frames,
-        &cam_truth,
-        &lidar_scans,
-        &lidar_edges,
-        &world,
-        lms.len(),
-    );
-    let dataset = Dataset {
+    let mut dataset = Dataset {
         name: format!("sim-{}-seed{}", cfg.scenario.name(), cfg.seed),
         calib: Calibration {
             camera: pre.camera,
@@ -429,27 +450,30 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             lidar_edge_points: lidar_edges,
         }),
     };
+    let frame_t_rel_ns: Vec<i64> = (0..n_frames).map(|k| k as i64 * cam_dt_ns).collect();
+    let frames = window::crop(&mut dataset, &frame_t_rel_ns, cfg.start_s);
+    let summary = summarize(cfg, &traj, &dataset, &world, lms.len());
     Ok(SimOutput {
         dataset,
         trajectory: traj,
         world,
         t_bl_true,
         summary,
+        frames,
     })
 }
 
-#[allow(clippy::too_many_arguments)]
 fn summarize(
     cfg: &SimConfig,
     traj: &Trajectory,
-    gt: &[povins_core::inertial::NavState],
-    frames: &[FeatureFrame],
-    cam: &CameraTruth,
-    scans: &[povins_platform::dataset::LidarScan],
-    edges: &[Vec<bool>],
+    ds: &Dataset,
     world: &World,
     landmarks: usize,
 ) -> Summary {
+    let (gt, frames, scans) = (&ds.ground_truth, &ds.features, &ds.lidar);
+    let no_truth = SimTruth::default();
+    let truth = ds.sim_truth.as_ref().unwrap_or(&no_truth);
+    let edges = &truth.lidar_edge_points;
     let distance_m = gt.windows(2).map(|w| (w[1].p_wb - w[0].p_wb).norm()).sum();
     let t_moving = traj.warp.t_static + traj.warp.t_ramp;
     let mut speed = (f64::INFINITY, 0.0f64);
@@ -468,9 +492,9 @@ fn summarize(
         speed.0 = 0.0;
     }
     let n_obs: usize = frames.iter().map(|f| f.obs.len()).sum();
-    let tracks = cam.landmarks_w.len();
+    let tracks = truth.landmarks_w.len();
     Summary {
-        duration_s: cfg.duration_s,
+        duration_s: cfg.duration_s - cfg.start_s,
         distance_m,
         speed_range_mps: speed,
         max_rate_rps: max_rate,
@@ -483,8 +507,8 @@ fn summarize(
         primitives: world.primitives().len(),
         scans: scans.len(),
         points: scans.iter().map(|s| s.points.len()).sum(),
-        wrong_tracks: cam.wrong_tracks.len(),
-        edge_features: cam.edge_features.len(),
+        wrong_tracks: truth.wrong_tracks.len(),
+        edge_features: truth.edge_features.len(),
         lidar_edge_points: edges.iter().map(|e| e.iter().filter(|&&b| b).count()).sum(),
     }
 }

@@ -70,7 +70,13 @@ pub fn render_sequence(
                     }
                     let (stamp, t) = frames[k];
                     let (t0, c0) = (Instant::now(), thread_cpu_s());
-                    let px = renderer.render_frame(&out.trajectory, t, k as u64, seed, opts);
+                    let px = renderer.render_frame(
+                        &out.trajectory,
+                        t,
+                        (out.frames.first + k) as u64,
+                        seed,
+                        opts,
+                    );
                     busy += match (c0, thread_cpu_s()) {
                         (Some(a), Some(b)) => b - a,
                         _ => t0.elapsed().as_secs_f64(),

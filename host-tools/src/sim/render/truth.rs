@@ -9,7 +9,7 @@
 use super::{Renderer, View};
 use crate::sim::camera::{project, unproject};
 use crate::sim::world::World;
-use crate::sim::{SimOutput, T0_NS};
+use crate::sim::SimOutput;
 use povins_core::camera::PinholeCamera;
 use povins_core::math::Vec3;
 use povins_platform::dataset::Extrinsic;
@@ -22,13 +22,14 @@ pub struct ImageTruth<'w> {
 }
 
 /// Camera frames of a simulated sequence: `(stamp on the camera clock, trajectory time in s)`.
-/// The trajectory time is `stamp - T0 + td` (the simulator's clock convention).
+/// The trajectory time is the exposure instant on the IMU clock, `stamp - T0 + td` (the
+/// simulator's clock convention; the frame's own `td` when the delay steps).
 pub fn camera_frames(out: &SimOutput) -> Vec<(i64, f64)> {
-    let td_ns = (out.dataset.calib.td_s * 1e9).round() as i64;
     out.dataset
         .features
         .iter()
-        .map(|f| (f.t_ns, (f.t_ns - T0_NS + td_ns) as f64 * 1e-9))
+        .zip(&out.frames.t_s)
+        .map(|(f, &t)| (f.t_ns, t))
         .collect()
 }
 
