@@ -26,41 +26,46 @@ pub fn write_frames_csv(path: &Path, frames: &[FrameLog]) -> Result<()> {
     );
     writeln!(f, "{FRAMES_HEADER}")?;
     for fr in frames {
-        let s = fr.stats();
-        writeln!(
-            f,
-            "{},{:.4},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{},{}",
-            povins_platform::trajectory::ns_to_seconds_string(fr.t_ns),
-            fr.frontend_ms(),
-            fr.decode_ms,
-            s.previous,
-            s.tracked,
-            s.seeded_prediction,
-            s.seeded_rotation,
-            s.seeded_previous,
-            s.lost_small_eigen,
-            s.lost_out_of_image,
-            s.lost_residual,
-            s.lost_nonfinite,
-            s.lost_forward_backward,
-            s.lost_ransac,
-            s.lost_reference,
-            s.lost_provisional,
-            s.refined,
-            s.reanchored,
-            s.reference_median_shift_px,
-            ransac_name(s.ransac_run),
-            s.ransac.inliers,
-            s.detected,
-            s.total,
-            s.lk_iterations,
-            fr.report
-                .frame_error
-                .map_or(String::new(), |e| format!("{e:?}")),
-        )?;
+        write_frame_row(&mut f, fr)?;
     }
     f.flush()
         .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// One row of the per-frame CSV (columns in [`FRAMES_HEADER`]).
+pub fn write_frame_row(f: &mut impl Write, fr: &FrameLog) -> std::io::Result<()> {
+    let s = fr.stats();
+    writeln!(
+        f,
+        "{},{:.4},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{},{}",
+        povins_platform::trajectory::ns_to_seconds_string(fr.t_ns),
+        fr.frontend_ms(),
+        fr.decode_ms,
+        s.previous,
+        s.tracked,
+        s.seeded_prediction,
+        s.seeded_rotation,
+        s.seeded_previous,
+        s.lost_small_eigen,
+        s.lost_out_of_image,
+        s.lost_residual,
+        s.lost_nonfinite,
+        s.lost_forward_backward,
+        s.lost_ransac,
+        s.lost_reference,
+        s.lost_provisional,
+        s.refined,
+        s.reanchored,
+        s.reference_median_shift_px,
+        ransac_name(s.ransac_run),
+        s.ransac.inliers,
+        s.detected,
+        s.total,
+        s.lk_iterations,
+        fr.report
+            .frame_error
+            .map_or(String::new(), |e| format!("{e:?}")),
+    )
 }
 
 /// Front-end figures of a run.
@@ -111,47 +116,90 @@ pub struct FrontendSummary {
 
 /// Summarizes the frames (`None` without frames).
 pub fn summarize_frames(frames: &[FrameLog]) -> Option<FrontendSummary> {
-    if frames.is_empty() {
-        return None;
+    let mut d = FrameDigest::default();
+    for f in frames {
+        d.push(f);
     }
-    let n = frames.len() as f64;
-    let mean = |f: &dyn Fn(&FrameLog) -> f64| frames.iter().map(f).sum::<f64>() / n;
-    let mut ms: Vec<f64> = frames.iter().map(FrameLog::frontend_ms).collect();
-    ms.sort_by(f64::total_cmp);
-    let prev: f64 = frames.iter().map(|f| f64::from(f.stats().previous)).sum();
-    let tracked: f64 = frames.iter().map(|f| f64::from(f.stats().tracked)).sum();
-    Some(FrontendSummary {
-        frames: frames.len(),
-        frontend_ms_median: percentile(&ms, 50.0),
-        frontend_ms_mean: ms.iter().sum::<f64>() / n,
-        frontend_ms_p90: percentile(&ms, 90.0),
-        frontend_ms_max: ms.last().copied().unwrap_or(0.0),
-        tracks_per_frame: mean(&|f| f64::from(f.stats().total)),
-        tracked_per_frame: mean(&|f| f64::from(f.stats().tracked)),
-        tracked_share: if prev > 0.0 { tracked / prev } else { 0.0 },
-        detected_per_frame: mean(&|f| f64::from(f.stats().detected)),
-        seeded_prediction_per_frame: mean(&|f| f64::from(f.stats().seeded_prediction)),
-        seeded_rotation_per_frame: mean(&|f| f64::from(f.stats().seeded_rotation)),
-        lost_lk_per_frame: mean(&|f| {
-            let s = f.stats();
-            f64::from(s.lost_small_eigen + s.lost_out_of_image + s.lost_residual + s.lost_nonfinite)
-        }),
-        lost_fb_per_frame: mean(&|f| f64::from(f.stats().lost_forward_backward)),
-        lost_ransac_per_frame: mean(&|f| f64::from(f.stats().lost_ransac)),
-        lost_reference_per_frame: mean(&|f| f64::from(f.stats().lost_reference)),
-        lost_provisional_per_frame: mean(&|f| f64::from(f.stats().lost_provisional)),
-        refined_per_frame: mean(&|f| f64::from(f.stats().refined)),
-        reanchored_per_frame: mean(&|f| f64::from(f.stats().reanchored)),
-        reference_median_shift_px: {
-            let mut v: Vec<f64> = frames
-                .iter()
-                .map(|f| f64::from(f.stats().reference_median_shift_px))
-                .collect();
-            v.sort_by(f64::total_cmp);
-            percentile(&v, 50.0)
-        },
-        decode_ms_mean: mean(&|f| f.decode_ms),
-    })
+    d.summary()
+}
+
+/// What [`FrontendSummary`] needs of the frames, accumulated one frame at a time: two `f64`s
+/// per frame (for the medians) and running sums, in the frames' order.
+#[derive(Debug, Clone, Default)]
+pub struct FrameDigest {
+    frontend_ms: Vec<f64>,
+    reference_shift_px: Vec<f64>,
+    /// Sums in frame order of: total, tracked, detected, seeded by prediction, seeded by
+    /// rotation, lost LK, forward-backward, RANSAC, reference, provisional, refined,
+    /// re-anchored, decode ms, previous (each term is +0.0 or more, so these equal
+    /// `Iterator::sum`, which starts from -0.0, bit for bit).
+    sums: [f64; 14],
+}
+
+impl FrameDigest {
+    /// Adds a frame.
+    pub fn push(&mut self, f: &FrameLog) {
+        let s = f.stats();
+        self.frontend_ms.push(f.frontend_ms());
+        self.reference_shift_px
+            .push(f64::from(s.reference_median_shift_px));
+        let lost_lk = s.lost_small_eigen + s.lost_out_of_image + s.lost_residual + s.lost_nonfinite;
+        let v = [
+            f64::from(s.total),
+            f64::from(s.tracked),
+            f64::from(s.detected),
+            f64::from(s.seeded_prediction),
+            f64::from(s.seeded_rotation),
+            f64::from(lost_lk),
+            f64::from(s.lost_forward_backward),
+            f64::from(s.lost_ransac),
+            f64::from(s.lost_reference),
+            f64::from(s.lost_provisional),
+            f64::from(s.refined),
+            f64::from(s.reanchored),
+            f.decode_ms,
+            f64::from(s.previous),
+        ];
+        for (a, x) in self.sums.iter_mut().zip(v) {
+            *a += x;
+        }
+    }
+
+    /// The summary (`None` without frames).
+    pub fn summary(&self) -> Option<FrontendSummary> {
+        if self.frontend_ms.is_empty() {
+            return None;
+        }
+        let n = self.frontend_ms.len() as f64;
+        let [total, tracked, detected, seeded_prediction, seeded_rotation, lost_lk, lost_fb, lost_ransac, lost_reference, lost_provisional, refined, reanchored, decode_ms, prev] =
+            self.sums;
+        let mut ms = self.frontend_ms.clone();
+        ms.sort_by(f64::total_cmp);
+        let mut shift = self.reference_shift_px.clone();
+        shift.sort_by(f64::total_cmp);
+        Some(FrontendSummary {
+            frames: self.frontend_ms.len(),
+            frontend_ms_median: percentile(&ms, 50.0),
+            frontend_ms_mean: ms.iter().sum::<f64>() / n,
+            frontend_ms_p90: percentile(&ms, 90.0),
+            frontend_ms_max: ms.last().copied().unwrap_or(0.0),
+            tracks_per_frame: total / n,
+            tracked_per_frame: tracked / n,
+            tracked_share: if prev > 0.0 { tracked / prev } else { 0.0 },
+            detected_per_frame: detected / n,
+            seeded_prediction_per_frame: seeded_prediction / n,
+            seeded_rotation_per_frame: seeded_rotation / n,
+            lost_lk_per_frame: lost_lk / n,
+            lost_fb_per_frame: lost_fb / n,
+            lost_ransac_per_frame: lost_ransac / n,
+            lost_reference_per_frame: lost_reference / n,
+            lost_provisional_per_frame: lost_provisional / n,
+            refined_per_frame: refined / n,
+            reanchored_per_frame: reanchored / n,
+            reference_median_shift_px: percentile(&shift, 50.0),
+            decode_ms_mean: decode_ms / n,
+        })
+    }
 }
 
 /// The human-readable lines of a summary.

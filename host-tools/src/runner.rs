@@ -2,7 +2,8 @@
 //! feed it: the recording's streams merged into the one arrival order
 //! ([`povins_platform::source::MergedSource`], images decoded ahead on a helper thread), each
 //! message handed to the one driver step ([`povins_platform::driver`]) and the odometry's outputs
-//! collected into a [`RunOutput`]. The threaded pipeline ([`crate::realtime`]) builds the same
+//! handed to a [`RunSink`] as they are produced (collected into a [`RunOutput`], or streamed).
+//! The threaded pipeline ([`crate::realtime`]) builds the same
 //! odometry, starts it the same way and reads the same source.
 
 use crate::progress::Progress;
@@ -14,7 +15,7 @@ use povins_core::estimator::{
 use povins_core::frontend::image::{TrackStats, TrackerConfig};
 use povins_core::inertial::NavState;
 use povins_core::lidar::{LidarConfig, LidarExtrinsic};
-use povins_core::odometry::{FrameOutput, Odometry, Output};
+use povins_core::odometry::{FrameOutput, KeyframeState, Odometry, Output};
 use povins_core::vio::{ImageReport, VioAiding, VioCounters};
 use povins_platform::driver::{self, ImageIn, Observer};
 use povins_platform::odometry::{boxed_odometry, FrontEnd};
@@ -163,7 +164,73 @@ pub struct KeyframeDepthEvents {
     pub events: Vec<DepthEvent>,
 }
 
-/// Everything a replay produced.
+/// Receives a replay's outputs as they are produced (see [`replay_into`]): [`RunOutput`] collects
+/// them, `povins run` streams them to its files ([`crate::report::OutputFiles`]) and keeps what
+/// the summary needs ([`crate::report::RunDigest`]). A pair of sinks is a sink that hands each
+/// output to both.
+pub trait RunSink {
+    /// An IMU-rate navigation state (INS from the newest optimized keyframe).
+    fn nav(&mut self, s: &NavState);
+    /// A keyframe step's report and its LiDAR-depth events, in the order of the steps.
+    fn report(&mut self, r: &KeyframeReport, lidar_events: &[DepthEvent]);
+    /// A keyframe's final state: at its last optimized value, when it left the window or at the
+    /// end, in the order of the keyframes' IMU stamps.
+    fn keyframe(&mut self, s: &NavState);
+    /// An image the front end tracked (images only).
+    fn frame(&mut self, f: &FrameLog);
+    /// The prediction errors of one camera frame after initialization, px (see
+    /// [`RunOutput::prediction_err_px`]).
+    fn prediction_errors(&mut self, e_px: &[f32]);
+}
+
+impl<A: RunSink, B: RunSink> RunSink for (A, B) {
+    fn nav(&mut self, s: &NavState) {
+        self.0.nav(s);
+        self.1.nav(s);
+    }
+    fn report(&mut self, r: &KeyframeReport, lidar_events: &[DepthEvent]) {
+        self.0.report(r, lidar_events);
+        self.1.report(r, lidar_events);
+    }
+    fn keyframe(&mut self, s: &NavState) {
+        self.0.keyframe(s);
+        self.1.keyframe(s);
+    }
+    fn frame(&mut self, f: &FrameLog) {
+        self.0.frame(f);
+        self.1.frame(f);
+    }
+    fn prediction_errors(&mut self, e_px: &[f32]) {
+        self.0.prediction_errors(e_px);
+        self.1.prediction_errors(e_px);
+    }
+}
+
+/// What a replay knows once it has ended (the counts and settings of [`RunOutput`]).
+#[derive(Debug, Clone)]
+pub struct RunTotals {
+    /// Rejection counters.
+    pub counters: Counters,
+    /// Camera frames (or images) the replay read from the recording.
+    pub camera_frames: usize,
+    /// LiDAR sweeps the replay read from the recording.
+    pub lidar_scans: usize,
+    /// The LiDAR settings of the run.
+    pub lidar: LidarConfig,
+    /// Wall time of the whole replay (estimator calls only), s.
+    pub estimator_wall_s: f64,
+    /// The front end that fed the estimator.
+    pub frontend: Frontend,
+    /// Images that could not be read or were refused (images only).
+    pub image_failures: usize,
+    /// The first of them with the reason.
+    pub image_errors: Vec<(i64, String)>,
+    /// The image entry point's counters (images only).
+    pub vio_counters: VioCounters,
+}
+
+/// Everything a replay produced, collected in memory (the [`RunSink`] of the tests, `demo`,
+/// `regress` and `ablation`).
 #[derive(Debug, Clone)]
 pub struct RunOutput {
     /// IMU-rate navigation states (INS from the newest optimized keyframe).
@@ -200,6 +267,97 @@ pub struct RunOutput {
     pub image_errors: Vec<(i64, String)>,
     /// The image entry point's counters (images only).
     pub vio_counters: VioCounters,
+}
+
+impl RunOutput {
+    /// The outputs collected in `sink` with the run's `totals`.
+    fn new(sink: Collected, t: RunTotals) -> Self {
+        RunOutput {
+            imu_rate: sink.imu_rate,
+            keyframes: sink.keyframe_states.iter().map(StampedPose::from).collect(),
+            keyframe_states: sink.keyframe_states,
+            reports: sink.reports,
+            lidar_events: sink.lidar_events,
+            counters: t.counters,
+            camera_frames: t.camera_frames,
+            lidar_scans: t.lidar_scans,
+            lidar: t.lidar,
+            estimator_wall_s: t.estimator_wall_s,
+            prediction_err_px: sink.prediction_err_px,
+            frontend: t.frontend,
+            frames: sink.frames,
+            image_failures: t.image_failures,
+            image_errors: t.image_errors,
+            vio_counters: t.vio_counters,
+        }
+    }
+
+    /// The run's counts and settings.
+    pub fn totals(&self) -> RunTotals {
+        RunTotals {
+            counters: self.counters,
+            camera_frames: self.camera_frames,
+            lidar_scans: self.lidar_scans,
+            lidar: self.lidar,
+            estimator_wall_s: self.estimator_wall_s,
+            frontend: self.frontend,
+            image_failures: self.image_failures,
+            image_errors: self.image_errors.clone(),
+            vio_counters: self.vio_counters,
+        }
+    }
+
+    /// Hands every output to `sink` in the order a replay produced them, kind by kind (what
+    /// `povins run` streamed, for the files written from a collected run).
+    pub fn replay_into(&self, sink: &mut impl RunSink) {
+        for s in &self.imu_rate {
+            sink.nav(s);
+        }
+        for (k, r) in self.reports.iter().enumerate() {
+            let events = self.lidar_events.get(k).map_or(&[][..], |e| &e.events[..]);
+            sink.report(r, events);
+        }
+        for s in &self.keyframe_states {
+            sink.keyframe(s);
+        }
+        for f in &self.frames {
+            sink.frame(f);
+        }
+        sink.prediction_errors(&self.prediction_err_px);
+    }
+}
+
+/// The outputs [`RunOutput`] collects.
+#[derive(Debug, Default)]
+struct Collected {
+    imu_rate: Vec<NavState>,
+    keyframe_states: Vec<NavState>,
+    reports: Vec<KeyframeReport>,
+    lidar_events: Vec<KeyframeDepthEvents>,
+    prediction_err_px: Vec<f32>,
+    frames: Vec<FrameLog>,
+}
+
+impl RunSink for Collected {
+    fn nav(&mut self, s: &NavState) {
+        self.imu_rate.push(*s);
+    }
+    fn report(&mut self, r: &KeyframeReport, lidar_events: &[DepthEvent]) {
+        self.lidar_events.push(KeyframeDepthEvents {
+            t_cam_ns: r.t_cam_ns,
+            events: lidar_events.to_vec(),
+        });
+        self.reports.push(*r);
+    }
+    fn keyframe(&mut self, s: &NavState) {
+        self.keyframe_states.push(*s);
+    }
+    fn frame(&mut self, f: &FrameLog) {
+        self.frames.push(*f);
+    }
+    fn prediction_errors(&mut self, e_px: &[f32]) {
+        self.prediction_err_px.extend_from_slice(e_px);
+    }
 }
 
 /// Replays `rec` through a new estimator with `cfg`, fed with the recording's feature tracks.
@@ -267,6 +425,22 @@ pub fn replay_with(
     fe: &FrontendOptions,
     progress: &Progress,
 ) -> Result<RunOutput> {
+    let mut sink = Collected::default();
+    let totals = replay_into(rec, cfg, init, fe, progress, &mut sink)?;
+    Ok(RunOutput::new(sink, totals))
+}
+
+/// [`replay_with`] handing each output to `sink` as it is produced (keyframe states when they
+/// are final). On an error part-way, `sink` has had the outputs up to it (without the keyframes
+/// still in the window).
+pub fn replay_into(
+    rec: &dyn Recording,
+    cfg: EstimatorConfig,
+    init: InitMode,
+    fe: &FrontendOptions,
+    progress: &Progress,
+    sink: &mut impl RunSink,
+) -> Result<RunTotals> {
     let lidar = cfg.lidar;
     let (mut odo, start_ns) = start(rec, cfg, init, fe)?;
     let opts = MergeOptions {
@@ -277,19 +451,24 @@ pub fn replay_with(
         pacing: Pacing::AsFastAsPossible,
     };
     let source = MergedSource::new(rec, &opts)?;
-    let mut out = RunCollector::new(lidar, fe.frontend, rec, progress);
-    let (ran, source) = Prefetch::run(source, |p| driver::run(&mut *odo, p, &mut out));
+    let mut obs = RunObserver::new(sink, rec, progress);
+    let (ran, source) = Prefetch::run(source, |p| driver::run(&mut *odo, p, &mut obs));
     let stats = ran.with_context(|| format!("reading {}", rec.name()))?;
     progress.finish();
     let read = source.stats();
-    let mut run = out.finish();
-    run.estimator_wall_s = stats.odometry_s;
-    run.camera_frames = read.camera_read as usize;
-    run.lidar_scans = read.sweeps_read as usize;
+    let (image_failures, image_errors) = obs.finish();
     let c = odo.counters();
-    run.counters = c.estimator;
-    run.vio_counters = c.images;
-    Ok(run)
+    Ok(RunTotals {
+        counters: c.estimator,
+        camera_frames: read.camera_read as usize,
+        lidar_scans: read.sweeps_read as usize,
+        lidar,
+        estimator_wall_s: stats.odometry_s,
+        frontend: fe.frontend,
+        image_failures,
+        image_errors,
+        vio_counters: c.images,
+    })
 }
 
 /// Where a replay of `rec` starts with `init`: the stamp of the first IMU sample replayed and,
@@ -373,89 +552,113 @@ impl<'p> ReplayProgress<'p> {
     }
 }
 
-/// Collects a replay's outputs into a [`RunOutput`] (the driver's observer).
-struct RunCollector<'p> {
-    out: RunOutput,
-    /// Each keyframe's last optimized state, by IMU stamp.
-    kf_states: BTreeMap<i64, NavState>,
+/// Hands a replay's outputs to a [`RunSink`] (the driver's observer): keyframe states once
+/// final, prediction errors per frame; counts the images that failed.
+struct RunObserver<'s, 'p, S: RunSink> {
+    sink: &'s mut S,
+    window: KeyframeWindow,
     progress: ReplayProgress<'p>,
+    /// One frame's prediction errors (reused).
+    errors_px: Vec<f32>,
+    image_failures: usize,
+    image_errors: Vec<(i64, String)>,
 }
 
-impl<'p> RunCollector<'p> {
-    fn new(
-        lidar: LidarConfig,
-        frontend: Frontend,
-        rec: &dyn Recording,
-        progress: &'p Progress,
-    ) -> Self {
-        RunCollector {
-            out: RunOutput {
-                imu_rate: Vec::new(),
-                keyframes: Vec::new(),
-                keyframe_states: Vec::new(),
-                reports: Vec::new(),
-                lidar_events: Vec::new(),
-                counters: Counters::default(),
-                camera_frames: 0,
-                lidar_scans: 0,
-                lidar,
-                estimator_wall_s: 0.0,
-                prediction_err_px: Vec::new(),
-                frontend,
-                frames: Vec::new(),
-                image_failures: 0,
-                image_errors: Vec::new(),
-                vio_counters: VioCounters::default(),
-            },
-            kf_states: BTreeMap::new(),
+impl<'s, 'p, S: RunSink> RunObserver<'s, 'p, S> {
+    fn new(sink: &'s mut S, rec: &dyn Recording, progress: &'p Progress) -> Self {
+        RunObserver {
+            sink,
+            window: KeyframeWindow::default(),
             progress: ReplayProgress::new(rec, progress),
+            errors_px: Vec::new(),
+            image_failures: 0,
+            image_errors: Vec::new(),
         }
     }
 
-    fn finish(mut self) -> RunOutput {
-        self.out.keyframe_states = self.kf_states.into_values().collect();
-        self.out.keyframes = self
-            .out
-            .keyframe_states
-            .iter()
-            .map(StampedPose::from)
-            .collect();
-        self.out
+    /// Hands over the keyframes still in the window; the image failures (count, first ones).
+    fn finish(self) -> (usize, Vec<(i64, String)>) {
+        let sink = self.sink;
+        self.window.finish(|s| sink.keyframe(s));
+        (self.image_failures, self.image_errors)
     }
 }
 
-impl Observer for RunCollector<'_> {
+impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
     fn imu(&mut self, t_ns: i64) {
         self.progress.imu(t_ns);
     }
 
     fn output(&mut self, o: &Output<'_>) {
         if let Some(k) = &o.keyframe {
-            self.out.lidar_events.push(KeyframeDepthEvents {
-                t_cam_ns: k.report.t_cam_ns,
-                events: k.lidar_events.to_vec(),
-            });
-            self.out.reports.push(k.report);
-            for kf in k.window {
-                self.kf_states.insert(kf.state.t_ns, kf.state);
-            }
+            self.sink.report(&k.report, k.lidar_events);
+            let sink = &mut *self.sink;
+            self.window.step(k.window, |s| sink.keyframe(s));
         }
         if let Some(nav) = o.nav {
-            self.out.imu_rate.push(nav);
+            self.sink.nav(&nav);
         }
     }
 
     fn frame(&mut self, f: &FrameOutput<'_>, image: Option<&ImageIn<'_>>) {
-        prediction_errors(f.predictions, f.tracks, &mut self.out.prediction_err_px);
+        self.errors_px.clear();
+        prediction_errors(f.predictions, f.tracks, &mut self.errors_px);
+        if !self.errors_px.is_empty() {
+            self.sink.prediction_errors(&self.errors_px);
+        }
         if let (Some(report), Some(im)) = (f.image, image) {
-            self.out.frames.push(FrameLog::of(f.t_cam_ns, report, im));
+            self.sink.frame(&FrameLog::of(f.t_cam_ns, report, im));
         }
     }
 
     fn image_failed(&mut self, t_cam_ns: i64, why: String) {
-        self.out.image_failures += 1;
-        if self.out.image_errors.len() < MAX_IMAGE_ERRORS {
-            self.out.image_errors.push((t_cam_ns, why));
+        self.image_failures += 1;
+        if self.image_errors.len() < MAX_IMAGE_ERRORS {
+            self.image_errors.push((t_cam_ns, why));
+        }
+    }
+}
+
+/// Which keyframe states are final. Each keyframe's state is its value in the last window that
+/// held it; the states are handed over in the order of their IMU stamps. A keyframe that left
+/// the window waits while an older one is still in it (a window may drop a newer keyframe
+/// first); new keyframes are newer than every one before, so the states older than the
+/// window's oldest are final.
+#[derive(Debug, Default)]
+struct KeyframeWindow {
+    /// The window after the last step, by IMU stamp.
+    window: BTreeMap<i64, NavState>,
+    /// Left the window, not yet handed over, by IMU stamp.
+    left: BTreeMap<i64, NavState>,
+}
+
+impl KeyframeWindow {
+    /// A keyframe step left `window`: hands the states now final to `emit`, oldest first.
+    fn step(&mut self, window: &[KeyframeState], mut emit: impl FnMut(&NavState)) {
+        let before = std::mem::take(&mut self.window);
+        for kf in window {
+            self.left.remove(&kf.state.t_ns);
+            self.window.insert(kf.state.t_ns, kf.state);
+        }
+        for (t, s) in before {
+            if !self.window.contains_key(&t) {
+                self.left.insert(t, s);
+            }
+        }
+        // Without a window (after a reset), wait: the next one may hold older keyframes.
+        if let Some((&oldest, _)) = self.window.first_key_value() {
+            let keep = self.left.split_off(&oldest);
+            for s in std::mem::replace(&mut self.left, keep).values() {
+                emit(s);
+            }
+        }
+    }
+
+    /// The run ended: hands over every state not handed over yet, oldest first.
+    fn finish(mut self, mut emit: impl FnMut(&NavState)) {
+        self.left.append(&mut self.window);
+        for s in self.left.values() {
+            emit(s);
         }
     }
 }
@@ -503,11 +706,75 @@ pub fn sorted_ms(reports: &[KeyframeReport], f: impl Fn(&KeyframeReport) -> u64)
     v
 }
 
-/// Percentile (nearest rank) of a sorted slice.
-pub fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return 0.0;
-    }
+/// Percentile (nearest rank) of a sorted slice (0 when empty).
+pub fn percentile<T: Copy + Into<f64>>(sorted: &[T], p: f64) -> f64 {
     let rank = ((p / 100.0) * sorted.len() as f64).ceil() as usize;
-    sorted[rank.clamp(1, sorted.len()) - 1]
+    match sorted.get(rank.clamp(1, sorted.len().max(1)) - 1) {
+        Some(&v) => v.into(),
+        None => 0.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::KeyframeWindow;
+    use povins_core::inertial::NavState;
+    use povins_core::odometry::KeyframeState;
+    use std::collections::BTreeMap;
+
+    fn kf(t_ns: i64, step: usize) -> KeyframeState {
+        let mut state = NavState::ZERO;
+        state.t_ns = t_ns;
+        // Marks the step that optimized it: the last value must win.
+        state.p_wb.x = step as f64;
+        KeyframeState {
+            t_cam_ns: t_ns,
+            state,
+            td_s: 0.0,
+        }
+    }
+
+    #[test]
+    fn keyframes_are_handed_over_once_final_in_stamp_order_at_their_last_value() {
+        // A window of up to four keyframes; every third step drops the second-newest keyframe
+        // (which then leaves before older ones), otherwise the oldest; one step with an empty
+        // window (a reset).
+        let mut window: Vec<i64> = Vec::new();
+        let mut steps: Vec<Vec<KeyframeState>> = Vec::new();
+        for k in 0..40_i64 {
+            let t = 1_000 + 10 * k;
+            if window.len() == 4 {
+                let drop = if k % 3 == 0 { 2 } else { 0 };
+                window.remove(drop);
+            }
+            window.push(t);
+            if k == 25 {
+                window.clear();
+            }
+            steps.push(window.iter().map(|&t| kf(t, steps.len())).collect());
+        }
+        // What a run collected: each keyframe's value in the last window holding it, by stamp.
+        let mut want: BTreeMap<i64, NavState> = BTreeMap::new();
+        for w in &steps {
+            for k in w {
+                want.insert(k.state.t_ns, k.state);
+            }
+        }
+        let mut got: Vec<NavState> = Vec::new();
+        let mut handed_during_run = 0;
+        let mut kw = KeyframeWindow::default();
+        for w in &steps {
+            kw.step(w, |s| got.push(*s));
+            handed_during_run = got.len();
+            // Nothing still in the window was handed over.
+            for k in w {
+                assert!(got.iter().all(|s| s.t_ns != k.state.t_ns));
+            }
+        }
+        kw.finish(|s| got.push(*s));
+        let want: Vec<NavState> = want.into_values().collect();
+        assert_eq!(got, want);
+        // Most were handed over during the run, not kept to the end.
+        assert!(handed_during_run >= want.len() - 5, "{handed_during_run}");
+    }
 }

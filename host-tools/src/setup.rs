@@ -10,7 +10,10 @@
 use crate::config::input::open_bag;
 use crate::config::{effective_toml, InputArgs, InputOptions, LidarArgs, ModeArg, RunConfigFile};
 use crate::progress::Progress;
-use crate::runner::{config_for, replay_with, Frontend, FrontendOptions, InitMode, RunOutput};
+use crate::runner::{
+    config_for, replay_into, replay_with, Frontend, FrontendOptions, InitMode, RunOutput, RunSink,
+    RunTotals,
+};
 use anyhow::{Context, Result};
 use povins_core::estimator::EstimatorConfig;
 use povins_platform::recording::Recording;
@@ -197,6 +200,23 @@ impl RunSetup {
     /// Replays `rec` with these settings ([`replay_with`]).
     pub fn replay(&self, rec: &dyn Recording, progress: &Progress) -> Result<RunOutput> {
         replay_with(rec, self.estimator, self.init, &self.frontend, progress)
+    }
+
+    /// Replays `rec` with these settings into `sink` ([`replay_into`]).
+    pub fn replay_into(
+        &self,
+        rec: &dyn Recording,
+        progress: &Progress,
+        sink: &mut impl RunSink,
+    ) -> Result<RunTotals> {
+        replay_into(
+            rec,
+            self.estimator,
+            self.init,
+            &self.frontend,
+            progress,
+            sink,
+        )
     }
 }
 

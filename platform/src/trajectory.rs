@@ -181,25 +181,37 @@ pub fn write_tum(path: &Path, poses: &[StampedPose]) -> Result<(), IoError> {
     let f = std::fs::File::create(path).map_err(|e| IoError::io(path, e))?;
     let mut w = BufWriter::new(f);
     let mut body = || -> std::io::Result<()> {
-        writeln!(w, "# t[s] x y z qx qy qz qw (body in world)")?;
+        write_tum_header(&mut w)?;
         for p in poses {
-            let q = p.q_wb.quaternion();
-            writeln!(
-                w,
-                "{} {:?} {:?} {:?} {:?} {:?} {:?} {:?}",
-                ns_to_seconds_string(p.t_ns),
-                p.p_wb.x,
-                p.p_wb.y,
-                p.p_wb.z,
-                q.i,
-                q.j,
-                q.k,
-                q.w
-            )?;
+            write_tum_row(&mut w, p)?;
         }
         w.flush()
     };
     body().map_err(|e| IoError::io(path, e))
+}
+
+/// The header line of a TUM trajectory as [`write_tum`] writes it (for a writer that streams
+/// the rows with [`write_tum_row`]).
+pub fn write_tum_header(w: &mut impl Write) -> std::io::Result<()> {
+    writeln!(w, "# t[s] x y z qx qy qz qw (body in world)")
+}
+
+/// One pose of a TUM trajectory: exact decimal seconds, then position and quaternion (x y z w)
+/// as the shortest decimals that read back to the same `f64`.
+pub fn write_tum_row(w: &mut impl Write, p: &StampedPose) -> std::io::Result<()> {
+    let q = p.q_wb.quaternion();
+    writeln!(
+        w,
+        "{} {:?} {:?} {:?} {:?} {:?} {:?} {:?}",
+        ns_to_seconds_string(p.t_ns),
+        p.p_wb.x,
+        p.p_wb.y,
+        p.p_wb.z,
+        q.i,
+        q.j,
+        q.k,
+        q.w
+    )
 }
 
 /// Reads an EuRoC `state_groundtruth_estimate0/data.csv` (full state).

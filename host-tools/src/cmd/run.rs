@@ -7,9 +7,16 @@
 //! (ATE, position + yaw alignment) and prints the result. LiDAR sweeps in the dataset are used
 //! by default (`--no-lidar`, `--ldm`, `--no-depth-outlier-rejection`, `--no-depth-only-opt`
 //! switch parts off); with simulator truth the LiDAR depth association is checked against it.
+//!
+//! The files are written row by row while the run goes (memory does not grow with the
+//! recording's length), each as `NAME.partial` until the run has ended, then renamed. A run that
+//! fails part-way (a recording that cannot be read, a write error) exits non-zero, says so, and
+//! leaves the `.partial` files with the rows up to the failure (the keyframes still in the window
+//! are not in them) and no `summary.json`; the complete files of an earlier run into the same
+//! folder are left as they were.
 
 use crate::progress::Progress;
-use crate::report::{print_summary, summarize, write_outputs};
+use crate::report::{print_summary, summarize_digest, OutputFiles, RunDigest};
 use crate::setup::{RunArgs, RunSetup};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -33,21 +40,33 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("{note}");
     }
     let progress = Progress::new(0, "run");
-    let out = setup.replay(&*rec, &progress)?;
-    for (t, e) in &out.image_errors {
+    let mut sink = (
+        OutputFiles::create(&args.out, setup.frontend.frontend)?,
+        RunDigest::for_recording(&*rec),
+    );
+    let ran = setup.replay_into(&*rec, &progress, &mut sink);
+    let (files, digest) = sink;
+    let totals = match ran {
+        Ok(t) => t,
+        Err(e) => return Err(files.abandon(e)),
+    };
+    for (t, e) in &totals.image_errors {
         eprintln!("warning: image at {t} ns: {e}");
     }
     for w in rec.warnings() {
         eprintln!("warning: {w}");
     }
-    if out.image_failures > out.image_errors.len() {
+    if totals.image_failures > totals.image_errors.len() {
         eprintln!(
             "warning: {} more images could not be used",
-            out.image_failures - out.image_errors.len()
+            totals.image_failures - totals.image_errors.len()
         );
     }
-    let summary = summarize(&*rec, &setup.mode_name(), setup.init, &out)?;
-    write_outputs(&args.out, &out, &summary)?;
+    let summary = match summarize_digest(&*rec, &setup.mode_name(), setup.init, digest, &totals) {
+        Ok(s) => s,
+        Err(e) => return Err(files.abandon(e)),
+    };
+    files.finish(&summary)?;
     let path = args.out.join("config.toml");
     std::fs::write(&path, setup.effective_toml()?)
         .with_context(|| format!("cannot write {}", path.display()))?;

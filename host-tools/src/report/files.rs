@@ -1,41 +1,38 @@
 //! The files of a run's output folder: `trajectory.tum` (IMU rate), `keyframes.tum`,
 //! `keyframes_state.csv`, `stats.csv` (a row per keyframe), `frontend.csv` (a row per image,
-//! image front end only) and `summary.json`.
+//! image front end only) and `summary.json`. Each row is formatted in one place, used both by
+//! [`OutputFiles`] (what `povins run` streams while the run goes) and by [`write_outputs`] (a
+//! collected run through the same writer).
 
 use super::Summary;
-use crate::frontend_stats::write_frames_csv;
-use crate::runner::{Frontend, RunOutput};
+use crate::frontend_stats::{write_frame_row, FRAMES_HEADER};
+use crate::runner::{FrameLog, Frontend, RunOutput, RunSink};
 use anyhow::{Context, Result};
+use povins_core::estimator::{DepthEvent, KeyframeReport};
 use povins_core::inertial::NavState;
-use povins_platform::trajectory::{write_tum, StampedPose};
-use std::io::Write;
-use std::path::Path;
+use povins_platform::trajectory::{write_tum_header, write_tum_row, StampedPose};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
 
-/// Writes whole navigation states in the EuRoC ground-truth column layout (so the files of a run
-/// and the dataset's `state_groundtruth_estimate0/data.csv` compare column by column).
-fn write_states_csv(path: &Path, states: &[NavState]) -> Result<()> {
-    let mut f = std::io::BufWriter::new(
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?,
-    );
-    writeln!(
-        f,
-        "#timestamp [ns],p_wb_x [m],p_wb_y [m],p_wb_z [m],q_wb_w [],q_wb_x [],q_wb_y [],q_wb_z [],v_wb_x [m s^-1],v_wb_y [m s^-1],v_wb_z [m s^-1],bg_x [rad s^-1],bg_y [rad s^-1],bg_z [rad s^-1],ba_x [m s^-2],ba_y [m s^-2],ba_z [m s^-2]"
-    )?;
-    for s in states {
-        let q = s.q_wb.quaternion();
-        write!(f, "{}", s.t_ns)?;
-        for v in [s.p_wb.x, s.p_wb.y, s.p_wb.z, q.w, q.i, q.j, q.k]
-            .into_iter()
-            .chain(s.v_wb.iter().copied())
-            .chain(s.bg.iter().copied())
-            .chain(s.ba.iter().copied())
-        {
-            write!(f, ",{v:.9}")?;
-        }
-        writeln!(f)?;
+/// The header of `keyframes_state.csv`: whole navigation states in the EuRoC ground-truth column
+/// layout (so the files of a run and the dataset's `state_groundtruth_estimate0/data.csv`
+/// compare column by column).
+const STATES_HEADER: &str = "#timestamp [ns],p_wb_x [m],p_wb_y [m],p_wb_z [m],q_wb_w [],q_wb_x [],q_wb_y [],q_wb_z [],v_wb_x [m s^-1],v_wb_y [m s^-1],v_wb_z [m s^-1],bg_x [rad s^-1],bg_y [rad s^-1],bg_z [rad s^-1],ba_x [m s^-2],ba_y [m s^-2],ba_z [m s^-2]";
+
+/// One row of `keyframes_state.csv` (columns in [`STATES_HEADER`]).
+fn write_state_row(f: &mut impl Write, s: &NavState) -> std::io::Result<()> {
+    let q = s.q_wb.quaternion();
+    write!(f, "{}", s.t_ns)?;
+    for v in [s.p_wb.x, s.p_wb.y, s.p_wb.z, q.w, q.i, q.j, q.k]
+        .into_iter()
+        .chain(s.v_wb.iter().copied())
+        .chain(s.bg.iter().copied())
+        .chain(s.ba.iter().copied())
+    {
+        write!(f, ",{v:.9}")?;
     }
-    f.flush()
-        .with_context(|| format!("cannot write {}", path.display()))
+    writeln!(f)
 }
 
 /// The LiDAR columns appended to `stats.csv` (one row per keyframe).
@@ -46,77 +43,267 @@ pub const STATS_LIDAR_COLUMNS: &str =
 pub const STATS_ADMISSION_COLUMNS: &str =
     "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted,imu_noise_scale,prior_pos_std_m,prior_yaw_std_rad,window_correction_m,at_rest";
 
-/// Writes the run's files into `dir`.
-pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let traj: Vec<StampedPose> = out.imu_rate.iter().map(StampedPose::from).collect();
-    write_tum(&dir.join("trajectory.tum"), &traj)?;
-    write_tum(&dir.join("keyframes.tum"), &out.keyframes)?;
-    write_states_csv(&dir.join("keyframes_state.csv"), &out.keyframe_states)?;
-    let path = dir.join("stats.csv");
-    let mut f = std::io::BufWriter::new(
-        std::fs::File::create(&path).with_context(|| format!("cannot write {}", path.display()))?,
-    );
+/// The header of `stats.csv` (a row per keyframe).
+fn stats_header() -> String {
+    format!(
+        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS},{STATS_ADMISSION_COLUMNS}"
+    )
+}
+
+/// One row of `stats.csv` (columns in [`stats_header`]).
+fn write_stats_row(f: &mut impl Write, r: &KeyframeReport) -> std::io::Result<()> {
     writeln!(
         f,
-        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS},{STATS_ADMISSION_COLUMNS}"
-    )?;
-    for r in &out.reports {
-        writeln!(
-            f,
-            "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{}",
-            povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
-            r.backend_ns() as f64 * 1e-6,
-            r.solve_ns as f64 * 1e-6,
-            r.marginalization_ns as f64 * 1e-6,
-            r.window_len,
-            r.landmarks_total,
-            r.landmarks_used,
-            r.observations_used,
-            r.residual_rms_px,
-            r.iterations,
-            r.culled_chi2,
-            r.culled_observations,
-            r.culled_landmarks,
-            r.disabled_landmarks,
-            r.marginalized_rank_deficiency,
-            r.prior_rank_deficiency,
-            r.cost.0,
-            r.cost.1,
-            r.decision,
-            r.termination
-                .map_or("none".to_string(), |t| format!("{t:?}")),
-            r.lidar_points,
-            r.depths_associated,
-            r.depths_rejected,
-            r.ldm_count,
-            r.association_ns as f64 * 1e-6,
-            r.rejection_ns as f64 * 1e-6,
-            r.depth_opt_ns as f64 * 1e-6,
-            r.admission.admitted,
-            r.admission.single_view,
-            r.admission.low_parallax,
-            r.admission.bad_depth,
-            r.admission.uncertain_depth,
-            r.td_s * 1e3,
-            r.multi_view_tracks,
-            r.multi_view_observations,
-            r.landmarks_promoted,
-            r.landmarks_evicted,
-            r.imu_noise_scale,
-            r.prior_gauge_std.0,
-            r.prior_gauge_std.1,
-            r.window_correction_m,
-            u8::from(r.at_rest),
-        )?;
+        "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{}",
+        povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
+        r.backend_ns() as f64 * 1e-6,
+        r.solve_ns as f64 * 1e-6,
+        r.marginalization_ns as f64 * 1e-6,
+        r.window_len,
+        r.landmarks_total,
+        r.landmarks_used,
+        r.observations_used,
+        r.residual_rms_px,
+        r.iterations,
+        r.culled_chi2,
+        r.culled_observations,
+        r.culled_landmarks,
+        r.disabled_landmarks,
+        r.marginalized_rank_deficiency,
+        r.prior_rank_deficiency,
+        r.cost.0,
+        r.cost.1,
+        r.decision,
+        r.termination
+            .map_or("none".to_string(), |t| format!("{t:?}")),
+        r.lidar_points,
+        r.depths_associated,
+        r.depths_rejected,
+        r.ldm_count,
+        r.association_ns as f64 * 1e-6,
+        r.rejection_ns as f64 * 1e-6,
+        r.depth_opt_ns as f64 * 1e-6,
+        r.admission.admitted,
+        r.admission.single_view,
+        r.admission.low_parallax,
+        r.admission.bad_depth,
+        r.admission.uncertain_depth,
+        r.td_s * 1e3,
+        r.multi_view_tracks,
+        r.multi_view_observations,
+        r.landmarks_promoted,
+        r.landmarks_evicted,
+        r.imu_noise_scale,
+        r.prior_gauge_std.0,
+        r.prior_gauge_std.1,
+        r.window_correction_m,
+        u8::from(r.at_rest),
+    )
+}
+
+/// Writes the files of a collected run into `dir`: [`OutputFiles`] fed with `out`.
+pub fn write_outputs(dir: &Path, out: &RunOutput, summary: &Summary) -> Result<()> {
+    let mut files = OutputFiles::create(dir, out.frontend)?;
+    out.replay_into(&mut files);
+    files.finish(summary)
+}
+
+/// One output file being written: `NAME.partial` in the folder until the run has ended.
+struct OutputFile {
+    path: PathBuf,
+    partial: PathBuf,
+    w: BufWriter<File>,
+}
+
+impl OutputFile {
+    fn create(dir: &Path, name: &str) -> Result<Self> {
+        let path = dir.join(name);
+        let partial = dir.join(format!("{name}{PARTIAL}"));
+        let f = File::create(&partial)
+            .with_context(|| format!("cannot write {}", partial.display()))?;
+        Ok(OutputFile {
+            path,
+            partial,
+            w: BufWriter::new(f),
+        })
     }
-    f.flush()?;
-    if out.frontend == Frontend::Images {
-        write_frames_csv(&dir.join("frontend.csv"), &out.frames)?;
+}
+
+/// The suffix of the files of a run still going (or that failed).
+pub const PARTIAL: &str = ".partial";
+
+/// The files of a run's output folder, written row by row while the run goes (a [`RunSink`]):
+/// each into `NAME.partial` until [`OutputFiles::finish`] writes `summary.json` and renames them
+/// all to their names; a run that fails leaves the `.partial` files with the rows up to the
+/// failure ([`OutputFiles::abandon`]), and any earlier run's complete files untouched. The
+/// first write error stops the writing and is returned by `finish`.
+pub struct OutputFiles {
+    dir: PathBuf,
+    trajectory: OutputFile,
+    keyframes: OutputFile,
+    states: OutputFile,
+    stats: OutputFile,
+    frontend: Option<OutputFile>,
+    error: Option<anyhow::Error>,
+    /// Rows written (headers aside).
+    rows: u64,
+}
+
+impl OutputFiles {
+    /// Creates `dir` (if missing) and the files with their headers (`frontend.csv` for the
+    /// image front end only).
+    pub fn create(dir: &Path, frontend: Frontend) -> Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let mut files = OutputFiles {
+            dir: dir.to_path_buf(),
+            trajectory: OutputFile::create(dir, "trajectory.tum")?,
+            keyframes: OutputFile::create(dir, "keyframes.tum")?,
+            states: OutputFile::create(dir, "keyframes_state.csv")?,
+            stats: OutputFile::create(dir, "stats.csv")?,
+            frontend: match frontend {
+                Frontend::Images => Some(OutputFile::create(dir, "frontend.csv")?),
+                Frontend::Tracks => None,
+            },
+            error: None,
+            rows: 0,
+        };
+        files.write(|f| Some(&mut f.trajectory), write_tum_header);
+        files.write(|f| Some(&mut f.keyframes), write_tum_header);
+        files.write(|f| Some(&mut f.states), |w| writeln!(w, "{STATES_HEADER}"));
+        files.write(
+            |f| Some(&mut f.stats),
+            |w| writeln!(w, "{}", stats_header()),
+        );
+        files.write(|f| f.frontend.as_mut(), |w| writeln!(w, "{FRAMES_HEADER}"));
+        files.rows = 0;
+        match files.error.take() {
+            Some(e) => Err(e),
+            None => Ok(files),
+        }
     }
-    std::fs::write(
-        dir.join("summary.json"),
-        serde_json::to_string_pretty(summary)? + "\n",
-    )?;
-    Ok(())
+
+    /// The files.
+    fn all(&mut self) -> impl Iterator<Item = &mut OutputFile> {
+        [
+            Some(&mut self.trajectory),
+            Some(&mut self.keyframes),
+            Some(&mut self.states),
+            Some(&mut self.stats),
+            self.frontend.as_mut(),
+        ]
+        .into_iter()
+        .flatten()
+    }
+
+    /// Writes `row` into the file `which` picks (if any) unless a write failed before; keeps
+    /// the error, naming the file, otherwise.
+    fn write(
+        &mut self,
+        which: impl FnOnce(&mut Self) -> Option<&mut OutputFile>,
+        row: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
+    ) {
+        self.rows += 1;
+        if self.error.is_some() {
+            return;
+        }
+        let Some(f) = which(self) else {
+            return;
+        };
+        let failed = row(&mut f.w).err().map(|e| {
+            anyhow::Error::new(e).context(format!("cannot write {}", f.partial.display()))
+        });
+        self.error = failed;
+    }
+
+    /// Flushes every file.
+    fn flush(&mut self) -> Result<()> {
+        let mut first: Option<anyhow::Error> = self.error.take();
+        for f in self.all() {
+            if let Err(e) = f.w.flush() {
+                let e =
+                    anyhow::Error::new(e).context(format!("cannot write {}", f.partial.display()));
+                first.get_or_insert(e);
+            }
+        }
+        first.map_or(Ok(()), Err)
+    }
+
+    /// The run ended: writes `summary` and gives every file its name.
+    pub fn finish(mut self, summary: &Summary) -> Result<()> {
+        if let Err(e) = self.flush() {
+            return Err(self.abandon(e));
+        }
+        let json = serde_json::to_string_pretty(summary)? + "\n";
+        let mut summary_json = OutputFile::create(&self.dir, "summary.json")?;
+        summary_json
+            .w
+            .write_all(json.as_bytes())
+            .and_then(|()| summary_json.w.flush())
+            .with_context(|| format!("cannot write {}", summary_json.partial.display()))?;
+        let mut files: Vec<&mut OutputFile> = self.all().collect();
+        files.push(&mut summary_json);
+        for f in files {
+            std::fs::rename(&f.partial, &f.path).with_context(|| {
+                format!(
+                    "cannot rename {} to {}",
+                    f.partial.display(),
+                    f.path.display()
+                )
+            })?;
+        }
+        Ok(())
+    }
+
+    /// The run failed with `e`: flushes what was written and adds where it is (the `.partial`
+    /// files) to `e`, or removes the files when the run failed before its first output.
+    pub fn abandon(mut self, e: anyhow::Error) -> anyhow::Error {
+        let flushed = self.flush();
+        if self.rows == 0 {
+            for f in self.all() {
+                // Header only: nothing of the run is lost with it.
+                let _ = std::fs::remove_file(&f.partial);
+            }
+            return e;
+        }
+        let names: Vec<String> = self
+            .all()
+            .map(|f| {
+                f.partial
+                    .file_name()
+                    .map_or(String::new(), |n| n.to_string_lossy().into_owned())
+            })
+            .collect();
+        let mut note = format!(
+            "the outputs up to the failure are in {} ({}; incomplete, no summary.json)",
+            self.dir.display(),
+            names.join(", ")
+        );
+        if let Err(w) = flushed {
+            note += &format!("; writing them failed too: {w:#}");
+        }
+        e.context(note)
+    }
+}
+
+impl RunSink for OutputFiles {
+    fn nav(&mut self, s: &NavState) {
+        let p = StampedPose::from(s);
+        self.write(|f| Some(&mut f.trajectory), |w| write_tum_row(w, &p));
+    }
+
+    fn report(&mut self, r: &KeyframeReport, _lidar_events: &[DepthEvent]) {
+        self.write(|f| Some(&mut f.stats), |w| write_stats_row(w, r));
+    }
+
+    fn keyframe(&mut self, s: &NavState) {
+        let p = StampedPose::from(s);
+        self.write(|f| Some(&mut f.keyframes), |w| write_tum_row(w, &p));
+        self.write(|f| Some(&mut f.states), |w| write_state_row(w, s));
+    }
+
+    fn frame(&mut self, fr: &FrameLog) {
+        self.write(|f| f.frontend.as_mut(), |w| write_frame_row(w, fr));
+    }
+
+    fn prediction_errors(&mut self, _e_px: &[f32]) {}
 }

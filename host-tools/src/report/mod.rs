@@ -3,21 +3,22 @@
 //! ([`files`]) and the lines `povins run` prints ([`text`]). `povins run`, `demo`, `ablation` and
 //! the tests all report through here.
 
+mod digest;
 pub mod files;
 pub mod text;
 mod window_use;
 
-pub use files::{write_outputs, STATS_ADMISSION_COLUMNS, STATS_LIDAR_COLUMNS};
+pub use digest::RunDigest;
+pub use files::{write_outputs, OutputFiles, STATS_ADMISSION_COLUMNS, STATS_LIDAR_COLUMNS};
 pub use text::{lidar_lines, print_summary};
 pub use window_use::WindowUse;
 
 use crate::config::ldm_name;
 use crate::eval::lidar_assoc::{self, AssocQuality};
 use crate::eval::{evaluate, Alignment, EvalOptions};
-use crate::frontend_stats::{summarize_frames, FrontendSummary};
-use crate::runner::{percentile, sorted_ms, Frontend, InitMode, RunOutput};
+use crate::frontend_stats::FrontendSummary;
+use crate::runner::{percentile, Frontend, InitMode, RunOutput, RunTotals};
 use anyhow::Result;
-use povins_core::estimator::KeyframeReport;
 use povins_platform::recording::Recording;
 use povins_platform::trajectory::StampedPose;
 
@@ -136,48 +137,64 @@ impl From<&AssocQuality> for AssocSummary {
     }
 }
 
-/// Mean per keyframe of a report count.
-fn per_kf(reports: &[KeyframeReport], f: impl Fn(&KeyframeReport) -> u32) -> f64 {
-    if reports.is_empty() {
-        return 0.0;
-    }
-    reports.iter().map(|r| f64::from(f(r))).sum::<f64>() / reports.len() as f64
-}
-
-/// Computes the summary of a run (and its evaluation when ground truth exists).
+/// Computes the summary of a run collected in memory (and its evaluation when ground truth
+/// exists): [`summarize_digest`] of the run's [`RunDigest`].
 pub fn summarize(
     rec: &dyn Recording,
     mode: &str,
     init: InitMode,
     out: &RunOutput,
 ) -> Result<Summary> {
+    let mut digest = RunDigest::keeping_all();
+    out.replay_into(&mut digest);
+    summarize_digest(rec, mode, init, digest, &out.totals())
+}
+
+/// Computes the summary of a run from its digest and totals (and its evaluation when ground
+/// truth exists and the digest kept the poses).
+pub fn summarize_digest(
+    rec: &dyn Recording,
+    mode: &str,
+    init: InitMode,
+    mut d: RunDigest,
+    t: &RunTotals,
+) -> Result<Summary> {
     let ground_truth = rec.ground_truth()?;
-    let ms = sorted_ms(&out.reports, |r| r.backend_ns());
-    let association_ms = sorted_ms(&out.reports, |r| r.association_ns);
-    let rejection_ms = sorted_ms(&out.reports, |r| r.rejection_ns);
-    let depth_opt_ms = sorted_ms(&out.reports, |r| r.depth_opt_ns);
-    let mut used: Vec<f64> = out
-        .reports
-        .iter()
-        .map(|r| f64::from(r.landmarks_used))
-        .collect();
-    used.sort_by(f64::total_cmp);
-    let mut pred: Vec<f64> = out
-        .prediction_err_px
-        .iter()
-        .map(|&e| f64::from(e))
-        .collect();
-    pred.sort_by(f64::total_cmp);
-    let pred_pct = |p: f64| (!pred.is_empty()).then(|| percentile(&pred, p));
+    // Unstable sorts: no scratch buffer (the prediction errors are 4 bytes per tracked feature
+    // of the run), and under `total_cmp` equal elements are the same bits, so the order is the
+    // stable sort's.
+    let sorted = |v: &mut Vec<f64>| v.sort_unstable_by(f64::total_cmp);
+    let (mut ms, mut association_ms) = (d.backend_ms, d.association_ms);
+    let (mut rejection_ms, mut depth_opt_ms) = (d.rejection_ms, d.depth_opt_ms);
+    for v in [
+        &mut ms,
+        &mut association_ms,
+        &mut rejection_ms,
+        &mut depth_opt_ms,
+    ] {
+        sorted(v);
+    }
+    d.landmarks_used.sort_unstable();
+    let pred = &mut d.prediction_err_px;
+    pred.sort_unstable_by(f32::total_cmp);
+    let pred_pct = |p: f64| (!pred.is_empty()).then(|| percentile(pred, p));
     // `sum` of no f64 is -0.0; start from +0.0 so an empty run prints 0.000.
     let total_ms: f64 = 0.0 + ms.iter().sum::<f64>();
-    let frames = out.camera_frames.max(1) as f64;
+    let frames = t.camera_frames.max(1) as f64;
+    let keyframes = ms.len();
+    let per_kf = |sum: f64| {
+        if keyframes == 0 {
+            0.0
+        } else {
+            sum / keyframes as f64
+        }
+    };
     let mut s = Summary {
         dataset: rec.name().to_string(),
         mode: mode.to_string(),
         init,
-        keyframes: out.reports.len(),
-        camera_frames: out.camera_frames,
+        keyframes,
+        camera_frames: t.camera_frames,
         backend_ms_median: percentile(&ms, 50.0),
         backend_ms_p99: percentile(&ms, 99.0),
         backend_ms_max: ms.last().copied().unwrap_or(0.0),
@@ -187,11 +204,11 @@ pub fn summarize(
             total_ms / ms.len() as f64
         },
         backend_ms_per_camera_frame: total_ms / frames,
-        estimator_ms_per_camera_frame: out.estimator_wall_s * 1e3 / frames,
-        landmarks_used_median: percentile(&used, 50.0),
-        window_use: WindowUse::of(&out.reports),
-        td_end_ms: out.reports.last().map_or(0.0, |r| r.td_s * 1e3),
-        imu_noise_scale_end: out.reports.last().map_or(1.0, |r| r.imu_noise_scale),
+        estimator_ms_per_camera_frame: t.estimator_wall_s * 1e3 / frames,
+        landmarks_used_median: percentile(&d.landmarks_used, 50.0),
+        window_use: d.window_use.figures(),
+        td_end_ms: d.last.map_or(0.0, |(td_s, _)| td_s * 1e3),
+        imu_noise_scale_end: d.last.map_or(1.0, |(_, scale)| scale),
         predictions: pred.len(),
         prediction_px_median: pred_pct(50.0),
         prediction_px_p90: pred_pct(90.0),
@@ -199,47 +216,47 @@ pub fn summarize(
         ate_rot_rmse_deg: None,
         keyframe_ate_pos_rmse_m: None,
         matched_poses: None,
-        lidar: out.lidar.enabled && out.lidar_scans > 0,
-        ldm: ldm_name(out.lidar.ldm).to_string(),
-        depth_outlier_rejection: out.lidar.depth_outlier_rejection,
-        depth_only_opt: out.lidar.depth_only_opt,
-        lidar_scans: out.lidar_scans,
-        depths_associated_per_kf: per_kf(&out.reports, |r| r.depths_associated),
-        depths_rejected_per_kf: per_kf(&out.reports, |r| r.depths_rejected),
-        ldm_per_kf: per_kf(&out.reports, |r| r.ldm_count),
+        lidar: t.lidar.enabled && t.lidar_scans > 0,
+        ldm: ldm_name(t.lidar.ldm).to_string(),
+        depth_outlier_rejection: t.lidar.depth_outlier_rejection,
+        depth_only_opt: t.lidar.depth_only_opt,
+        lidar_scans: t.lidar_scans,
+        depths_associated_per_kf: per_kf(d.depth_sums[0]),
+        depths_rejected_per_kf: per_kf(d.depth_sums[1]),
+        ldm_per_kf: per_kf(d.depth_sums[2]),
         association_ms_median: percentile(&association_ms, 50.0),
         rejection_ms_median: percentile(&rejection_ms, 50.0),
         rejection_ms_max: rejection_ms.last().copied().unwrap_or(0.0),
         depth_opt_ms_median: percentile(&depth_opt_ms, 50.0),
         depth_opt_ms_max: depth_opt_ms.last().copied().unwrap_or(0.0),
-        assoc: rec
-            .sim_truth()
-            .filter(|_| !ground_truth.is_empty())
-            .map(|truth| {
+        assoc: match (rec.sim_truth(), &d.lidar_events) {
+            (Some(truth), Some(events)) if !ground_truth.is_empty() => {
                 let c = rec.calibration();
                 let q = lidar_assoc::assess_with(
                     &truth,
                     &ground_truth,
                     &c.t_bc,
                     c.td_s,
-                    &out.lidar_events,
-                    out.lidar.sigma_dr_m,
+                    events,
+                    t.lidar.sigma_dr_m,
                 );
-                AssocSummary::from(&q)
-            }),
-        frontend: out.frontend,
-        image_frontend: summarize_frames(&out.frames),
-        image_failures: out.image_failures,
-        counters: serde_json::to_value(format!("{:?} {:?}", out.counters, out.vio_counters))?,
+                Some(AssocSummary::from(&q))
+            }
+            _ => None,
+        },
+        frontend: t.frontend,
+        image_frontend: d.frames.summary(),
+        image_failures: t.image_failures,
+        counters: serde_json::to_value(format!("{:?} {:?}", t.counters, t.vio_counters))?,
     };
-    if !ground_truth.is_empty() && !out.imu_rate.is_empty() {
+    let est = d.trajectory.as_deref().unwrap_or_default();
+    if !ground_truth.is_empty() && !est.is_empty() {
         let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
-        let est: Vec<StampedPose> = out.imu_rate.iter().map(StampedPose::from).collect();
         let opts = EvalOptions {
             alignment: Alignment::PosYaw,
             ..Default::default()
         };
-        match evaluate(&gt, &est, &opts) {
+        match evaluate(&gt, est, &opts) {
             Ok(r) => {
                 s.ate_pos_rmse_m = Some(r.ate_pos_m.rmse);
                 s.ate_rot_rmse_deg = Some(r.ate_rot_deg.rmse);
@@ -247,7 +264,8 @@ pub fn summarize(
             }
             Err(e) => eprintln!("warning: evaluation failed: {e:#}"),
         }
-        if let Ok(r) = evaluate(&gt, &out.keyframes, &opts) {
+        let kfs = d.keyframes.as_deref().unwrap_or_default();
+        if let Ok(r) = evaluate(&gt, kfs, &opts) {
             s.keyframe_ate_pos_rmse_m = Some(r.ate_pos_m.rmse);
         }
     }

@@ -28,26 +28,11 @@ pub struct WindowUse {
 impl WindowUse {
     /// The figures of a run's keyframe reports.
     pub fn of(reports: &[KeyframeReport]) -> Self {
-        let counted: Vec<&KeyframeReport> = reports.iter().filter(|r| r.window_len >= 2).collect();
-        let median_of = |f: &dyn Fn(&KeyframeReport) -> u32| {
-            let mut v: Vec<f64> = counted.iter().map(|r| f64::from(f(r))).collect();
-            v.sort_by(f64::total_cmp);
-            percentile(&v, 50.0)
-        };
-        let used = |r: &KeyframeReport| r.observations_used + r.landmarks_used;
-        let offered: u64 = counted
-            .iter()
-            .map(|r| u64::from(r.multi_view_observations))
-            .sum();
-        let used_sum: u64 = counted.iter().map(|r| u64::from(used(r))).sum();
-        WindowUse {
-            keyframes: counted.len(),
-            offered_tracks_median: median_of(&|r| r.multi_view_tracks),
-            offered_observations_median: median_of(&|r| r.multi_view_observations),
-            used_landmarks_median: median_of(&|r| r.landmarks_used),
-            used_observations_median: median_of(&used),
-            observation_share: (offered > 0).then(|| used_sum as f64 / offered as f64),
+        let mut d = WindowUseDigest::default();
+        for r in reports {
+            d.push(r);
         }
+        d.figures()
     }
 
     /// The `window` line of `povins run`'s summary (`None` before the window held two keyframes).
@@ -62,6 +47,53 @@ impl WindowUse {
             self.offered_observations_median,
             100.0 * share
         ))
+    }
+}
+
+/// What [`WindowUse`] needs of the keyframe reports, accumulated one report at a time (four
+/// counts per keyframe for the medians, and two sums).
+#[derive(Debug, Clone, Default)]
+pub struct WindowUseDigest {
+    tracks: Vec<u32>,
+    observations: Vec<u32>,
+    landmarks: Vec<u32>,
+    used: Vec<u32>,
+    offered_sum: u64,
+    used_sum: u64,
+}
+
+impl WindowUseDigest {
+    /// Adds a keyframe's report (counted when its window holds at least two keyframes).
+    pub fn push(&mut self, r: &KeyframeReport) {
+        if r.window_len < 2 {
+            return;
+        }
+        // A landmark's observations are its residuals plus its anchor observation.
+        let used = r.observations_used + r.landmarks_used;
+        self.tracks.push(r.multi_view_tracks);
+        self.observations.push(r.multi_view_observations);
+        self.landmarks.push(r.landmarks_used);
+        self.used.push(used);
+        self.offered_sum += u64::from(r.multi_view_observations);
+        self.used_sum += u64::from(used);
+    }
+
+    /// The figures of the reports added.
+    pub fn figures(&self) -> WindowUse {
+        let median_of = |v: &[u32]| {
+            let mut v = v.to_vec();
+            v.sort_unstable();
+            percentile(&v, 50.0)
+        };
+        WindowUse {
+            keyframes: self.tracks.len(),
+            offered_tracks_median: median_of(&self.tracks),
+            offered_observations_median: median_of(&self.observations),
+            used_landmarks_median: median_of(&self.landmarks),
+            used_observations_median: median_of(&self.used),
+            observation_share: (self.offered_sum > 0)
+                .then(|| self.used_sum as f64 / self.offered_sum as f64),
+        }
     }
 }
 
