@@ -48,6 +48,28 @@ pub enum Format {
     McapRos1,
 }
 
+/// How images are stored in a ROS recording (`--image-encoding raw|jpeg[=QUALITY]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ImageEncoding {
+    /// `sensor_msgs/Image`, mono8.
+    Raw,
+    /// `sensor_msgs/CompressedImage`, format `jpeg`, gray JPEG of this quality (1-100).
+    Jpeg(u8),
+}
+
+/// Parses `raw`, `jpeg` (quality 90) or `jpeg=QUALITY`.
+fn parse_image_encoding(s: &str) -> Result<ImageEncoding, String> {
+    match s.split_once('=') {
+        None if s == "raw" => Ok(ImageEncoding::Raw),
+        None if s == "jpeg" => Ok(ImageEncoding::Jpeg(90)),
+        Some(("jpeg", q)) => match q.parse::<u8>() {
+            Ok(q) if (1..=100).contains(&q) => Ok(ImageEncoding::Jpeg(q)),
+            _ => Err(format!("JPEG quality {q:?} is not an integer in 1..=100")),
+        },
+        _ => Err(format!("{s:?}: expected raw, jpeg or jpeg=QUALITY")),
+    }
+}
+
 /// Chunk compression of a ROS 1 bag.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum BagCompression {
@@ -87,6 +109,11 @@ pub struct Args {
     /// Output format.
     #[arg(long, value_enum, default_value = "mcap")]
     pub format: Format,
+    /// Images of a ROS recording (`rosbag1`, `rosbag2-*`, `mcap-ros1`): `raw` (mono8
+    /// `sensor_msgs/Image`) or `jpeg[=QUALITY]` (`sensor_msgs/CompressedImage` on
+    /// `<image topic>/compressed`, quality 90 by default). Needs --images.
+    #[arg(long, value_parser = parse_image_encoding, default_value = "raw")]
+    pub image_encoding: ImageEncoding,
     /// Chunk compression of `--format rosbag1` (default none).
     #[arg(long, value_enum)]
     pub compression: Option<BagCompression>,
@@ -240,6 +267,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.compression.is_none() || args.format == Format::Rosbag1,
         "--compression applies to --format rosbag1 only"
     );
+    if args.image_encoding != ImageEncoding::Raw {
+        anyhow::ensure!(
+            args.images && !matches!(args.format, Format::Mcap | Format::Euroc),
+            "--image-encoding jpeg needs --images and a ROS recording (rosbag1, rosbag2-sqlite3, \
+             rosbag2-mcap, mcap-ros1)"
+        );
+    }
 
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = ProgressBar::new(1);
@@ -299,6 +333,29 @@ fn write_ros_recording(
     args: &Args,
 ) -> anyhow::Result<()> {
     let topics = DatasetTopics::realsense();
+    let jpeg = |q: u8| {
+        move |w: u32, h: u32, px: &[u8]| -> Result<Vec<u8>, String> {
+            let (w, h) = (u16::try_from(w), u16::try_from(h));
+            let (Ok(w), Ok(h)) = (w, h) else {
+                return Err("a JPEG image is at most 65535 pixels a side".into());
+            };
+            let mut buf = Vec::new();
+            jpeg_encoder::Encoder::new(&mut buf, q)
+                .encode(px, w, h, jpeg_encoder::ColorType::Luma)
+                .map_err(|e| format!("JPEG encoding: {e}"))?;
+            Ok(buf)
+        }
+    };
+    let encode = match args.image_encoding {
+        ImageEncoding::Raw => None,
+        ImageEncoding::Jpeg(q) => Some(jpeg(q)),
+    };
+    let compress = encode.as_ref().map(|f| roswrite::ImageCompressor {
+        format: "jpeg".into(),
+        encode: f,
+    });
+    let compress = compress.as_ref();
+    let image_topic = topics.image_topic(compress.is_some());
     let (what, n) = match format {
         Format::Rosbag1 => {
             let c: Compression = args.compression.unwrap_or(BagCompression::None).into();
@@ -306,7 +363,15 @@ fn write_ros_recording(
             let what = format!("ROS 1 bag, chunks: {}", c.name());
             (
                 what,
-                store(w, out, ds, &topics, Encoding::Ros1, BagWriter::finish)?,
+                store(
+                    w,
+                    out,
+                    ds,
+                    &topics,
+                    Encoding::Ros1,
+                    compress,
+                    BagWriter::finish,
+                )?,
             )
         }
         Format::Rosbag2Sqlite3 | Format::Rosbag2Mcap => {
@@ -318,7 +383,15 @@ fn write_ros_recording(
             let what = format!("ROS 2 bag, {} storage", storage.identifier());
             (
                 what,
-                store(w, out, ds, &topics, Encoding::Cdr, Rosbag2Writer::finish)?,
+                store(
+                    w,
+                    out,
+                    ds,
+                    &topics,
+                    Encoding::Cdr,
+                    compress,
+                    Rosbag2Writer::finish,
+                )?,
             )
         }
         _ => {
@@ -326,16 +399,24 @@ fn write_ros_recording(
             let what = "MCAP, ROS 1 messages".to_string();
             (
                 what,
-                store(w, out, ds, &topics, Encoding::Ros1, McapWriter::finish)?,
+                store(
+                    w,
+                    out,
+                    ds,
+                    &topics,
+                    Encoding::Ros1,
+                    compress,
+                    McapWriter::finish,
+                )?,
             )
         }
     };
     eprintln!(
         "recording       {what}: {} IMU on {}, {} images on {}, {} point clouds on {}",
-        n.imu, topics.imu.0, n.images, topics.image.0, n.sweeps, topics.lidar.0,
+        n.imu, topics.imu.0, n.images, image_topic, n.sweeps, topics.lidar.0,
     );
     let calib_dir = bag_calibration_dir(out);
-    write_bag_calibration(&ds.calib, &calib_dir)?;
+    write_bag_calibration(&ds.calib, &calib_dir, &image_topic)?;
     eprintln!("calibration     {}", calib_dir.display());
     Ok(())
 }
@@ -347,9 +428,10 @@ fn store<W: ContainerWriter>(
     ds: &Dataset,
     topics: &DatasetTopics,
     encoding: Encoding,
+    compress: Option<&roswrite::ImageCompressor<'_>>,
     finish: impl FnOnce(W) -> Result<(), IoError>,
 ) -> Result<roswrite::DatasetCounts, IoError> {
-    let n = roswrite::write_dataset(&mut w, out, ds, topics, encoding, None)?;
+    let n = roswrite::write_dataset(&mut w, out, ds, topics, encoding, compress)?;
     finish(w)?;
     Ok(n)
 }
@@ -367,7 +449,11 @@ pub fn bag_calibration_dir(out: &Path) -> PathBuf {
 /// `imu.yaml` with the bag's topics (`povins run BAG --calib DIR/camchain-imucam.yaml
 /// --imu-calib DIR/imu.yaml`), and the same as the EuRoC `sensor.yaml` files of `imu0` and
 /// `cam0` with an `imu0/data.csv` of no samples (`povins run BAG --calib DIR`).
-pub fn write_bag_calibration(calib: &Calibration, dir: &Path) -> anyhow::Result<()> {
+pub fn write_bag_calibration(
+    calib: &Calibration,
+    dir: &Path,
+    image_topic: &str,
+) -> anyhow::Result<()> {
     let topics = DatasetTopics::realsense();
     povins_platform::euroc::EurocWriter::create(dir, calib)
         .and_then(|w| w.finish())
@@ -375,7 +461,7 @@ pub fn write_bag_calibration(calib: &Calibration, dir: &Path) -> anyhow::Result<
             povins_platform::kalibr::write_camchain(
                 &dir.join("camchain-imucam.yaml"),
                 calib,
-                Some(&topics.image.0),
+                Some(image_topic),
             )
         })
         .and_then(|_| {
