@@ -13,10 +13,13 @@
 //! fails part-way (a recording that cannot be read, a write error) exits non-zero, says so, and
 //! leaves the `.partial` files with the rows up to the failure (the keyframes still in the window
 //! are not in them) and no `summary.json`; the complete files of an earlier run into the same
-//! folder are left as they were.
+//! folder are left as they were. A camera recording on which the estimator never started (no
+//! keyframe: no static period for `--init static`) writes its files and `summary.json` (the
+//! counters, the front end's figures) but exits non-zero: there is no estimate.
 
 use crate::progress::Progress;
 use crate::report::{print_summary, summarize_digest, OutputFiles, RunDigest};
+use crate::runner::InitMode;
 use crate::setup::{RunArgs, RunSetup};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -71,5 +74,20 @@ pub fn run(args: Args) -> Result<()> {
     std::fs::write(&path, setup.effective_toml()?)
         .with_context(|| format!("cannot write {}", path.display()))?;
     print_summary(&summary, &args.out);
+    // A camera recording that never gave a keyframe gave no estimate: the run failed (the files
+    // are written, with their headers, for the counters and the front end's figures).
+    if summary.keyframes == 0 && summary.camera_frames > 0 {
+        anyhow::bail!(
+            "no estimate: the estimator never started over {} camera frames ({}; the files in {} \
+             hold no poses)",
+            summary.camera_frames,
+            match summary.init {
+                InitMode::Static => "no static period met the static-init thresholds",
+                InitMode::Groundtruth =>
+                    "started from the ground truth, no camera frame became a keyframe",
+            },
+            args.out.display()
+        );
+    }
     Ok(())
 }
