@@ -135,7 +135,7 @@ fn an_euroc_folder_is_still_a_calibration_and_info_prints_it() {
         "{out}"
     );
     // An EuRoC folder (a directory) with a bag: accepted as before (the images do not match its
-    // 752x480 camera, so the run keeps the IMU and reports the images).
+    // 752x480 camera: the run reports the images, writes its files and fails: no estimate).
     let o = dir.path().join("e");
     let (ok, _, err) = povins(&[
         "run",
@@ -147,6 +147,12 @@ fn an_euroc_folder_is_still_a_calibration_and_info_prints_it() {
         "--out",
         o.to_str().expect("utf-8"),
     ]);
-    assert!(ok, "{err}");
-    assert!(o.join("trajectory.tum").is_file());
+    assert!(!ok, "a run without an estimate exited 0");
+    assert!(
+        err.contains("(64x48) refused")
+            && err.contains("no estimate: the estimator never started")
+            && err.contains("every image was refused"),
+        "{err}"
+    );
+    assert!(o.join("trajectory.tum").is_file() && o.join("summary.json").is_file());
 }

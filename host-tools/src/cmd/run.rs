@@ -82,6 +82,9 @@ pub fn run(args: Args) -> Result<()> {
              hold no poses)",
             summary.camera_frames,
             match summary.init {
+                _ if summary.image_failures >= summary.camera_frames => {
+                    "every image was refused, see the warnings"
+                }
                 InitMode::Static => "no static period met the static-init thresholds",
                 InitMode::Groundtruth =>
                     "started from the ground truth, no camera frame became a keyframe",
