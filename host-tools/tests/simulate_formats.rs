@@ -215,54 +215,32 @@ fn a_ros2_bag_needs_a_new_folder_and_compression_is_for_ros1_bags() {
 }
 
 /// The Python interpreter with `rosbags`, `mcap` and `mcap-ros1-support`:
-/// `POVINS_ROSBAGS_PYTHON`, else the venv `<repo>/target/pyenv-rosbags` (made on first use with
-/// `python3 -m venv`, the packages installed with pip: needs PyPI, without it the test fails
+/// `POVINS_ROSBAGS_PYTHON`, else the venv `<repo>/target/pyenv-rosbags` (made on first use by
+/// `scripts/pyenv.sh`, the packages installed with pip: needs PyPI, without it the test fails
 /// saying so).
 fn python() -> PathBuf {
     if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
         return p.into();
     }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/pyenv-rosbags");
-    let py = venv.join("bin").join("python");
-    let run = |cmd: &mut std::process::Command, what: &str| {
-        let out = cmd
-            .output()
-            .unwrap_or_else(|e| panic!("{what}: could not start: {e} (is python3 installed?)"));
-        assert!(
-            out.status.success(),
-            "{what} failed: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
-    if !py.exists() {
-        run(
-            std::process::Command::new("python3")
-                .args(["-m", "venv"])
-                .arg(&venv),
-            "creating the venv (python3 -m venv)",
-        );
-    }
-    let ready = std::process::Command::new(&py)
-        .args(["-c", "import rosbags, yaml, mcap, mcap_ros1"])
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = std::process::Command::new("bash")
+        .arg(root.join("scripts/pyenv.sh"))
+        .arg(root.join("target/pyenv-rosbags"))
+        .arg("rosbags, yaml, mcap, mcap_ros1")
+        .args([
+            "rosbags==0.11.9",
+            "pyyaml",
+            "mcap==1.6.0",
+            "mcap-ros1-support==0.9.0",
+        ])
         .output()
-        .is_ok_and(|o| o.status.success());
-    if !ready {
-        run(
-            std::process::Command::new(&py).args([
-                "-m",
-                "pip",
-                "install",
-                "--quiet",
-                "--disable-pip-version-check",
-                "rosbags==0.11.9",
-                "pyyaml",
-                "mcap==1.6.0",
-                "mcap-ros1-support==0.9.0",
-            ]),
-            "pip install rosbags mcap mcap-ros1-support",
-        );
-    }
-    py
+        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
+    assert!(
+        out.status.success(),
+        "scripts/pyenv.sh failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
 /// Python's `float.hex` of a finite `v`.

@@ -201,50 +201,26 @@ fn times_a_ros_1_time_cannot_hold_are_refused_with_the_topic() {
     assert!(msgs::encode_imu(&s, 0, "imu").is_err());
 }
 /// The Python interpreter with `rosbags`: `POVINS_ROSBAGS_PYTHON`, else a venv in
-/// `<repo>/target/pyenv-rosbags` made on first use (`python3 -m venv`, `pip install rosbags`:
-/// needs PyPI; without it the test fails saying so).
+/// `<repo>/target/pyenv-rosbags` made on first use by `scripts/pyenv.sh` (`python3 -m venv`,
+/// `pip install rosbags`: needs PyPI; without it the test fails saying so).
 fn rosbags_python() -> PathBuf {
     if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
         return p.into();
     }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/pyenv-rosbags");
-    let py = venv.join("bin").join("python");
-    let run = |cmd: &mut std::process::Command, what: &str| {
-        let out = cmd
-            .output()
-            .unwrap_or_else(|e| panic!("{what}: could not start: {e} (is python3 installed?)"));
-        assert!(
-            out.status.success(),
-            "{what} failed: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
-    if !py.exists() {
-        run(
-            std::process::Command::new("python3")
-                .args(["-m", "venv"])
-                .arg(&venv),
-            "creating the venv (python3 -m venv)",
-        );
-    }
-    let ready = std::process::Command::new(&py)
-        .args(["-c", "import rosbags"])
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = std::process::Command::new("bash")
+        .arg(root.join("scripts/pyenv.sh"))
+        .arg(root.join("target/pyenv-rosbags"))
+        .arg("rosbags")
+        .args(["rosbags==0.11.9"])
         .output()
-        .is_ok_and(|o| o.status.success());
-    if !ready {
-        run(
-            std::process::Command::new(&py).args([
-                "-m",
-                "pip",
-                "install",
-                "--quiet",
-                "--disable-pip-version-check",
-                "rosbags==0.11.9",
-            ]),
-            "pip install rosbags",
-        );
-    }
-    py
+        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
+    assert!(
+        out.status.success(),
+        "scripts/pyenv.sh failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
 #[test]
