@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::povins;
+use common::{povins, simulate_handheld};
 use povins_platform::recording::Recording;
 use std::path::Path;
 
@@ -124,25 +124,9 @@ fn a_converted_euroc_folder_gives_back_its_streams() {
 fn a_simulated_bag_replays_to_the_euroc_folders_trajectory() {
     let dir = tempfile::tempdir().unwrap();
     let sim = |format: &str, out: &Path, extra: &[&str]| {
-        let mut args = vec![
-            "simulate",
-            "--scenario",
-            "handheld",
-            "--seed",
-            "3",
-            "--duration",
-            "4",
-            "--lidar",
-            "none",
-            "--images",
-            "--format",
-            format,
-            "--out",
-            s(out),
-        ];
+        let mut args = vec!["--lidar", "none"];
         args.extend_from_slice(extra);
-        let (ok, _, err) = povins(&args);
-        assert!(ok, "simulate {format} failed: {err}");
+        simulate_handheld(format, out, "4", &args);
     };
     let euroc = dir.path().join("euroc");
     sim("euroc", &euroc, &[]);

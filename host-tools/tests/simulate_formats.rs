@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::povins;
+use common::{povins, simulate_handheld};
 use std::path::{Path, PathBuf};
 
 /// The new formats, and the name of the recording each writes.
@@ -22,27 +22,10 @@ fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
-/// `povins simulate` of a 4 s hand-held sequence with images (and LiDAR when `lidar`).
+/// `povins simulate` of the hand-held sequence with images (and LiDAR when `lidar`).
 fn simulate(format: &str, out: &Path, seconds: &str, lidar: bool) {
-    let mut args = vec![
-        "simulate",
-        "--scenario",
-        "handheld",
-        "--seed",
-        "3",
-        "--duration",
-        seconds,
-        "--images",
-        "--format",
-        format,
-        "--out",
-        s(out),
-    ];
-    if !lidar {
-        args.extend_from_slice(&["--lidar", "none"]);
-    }
-    let (ok, _, err) = povins(&args);
-    assert!(ok, "simulate {format} failed: {err}");
+    let extra: &[&str] = if lidar { &[] } else { &["--lidar", "none"] };
+    simulate_handheld(format, out, seconds, extra);
 }
 
 /// `povins run RECORDING...` -> (trajectory.tum, keyframes_state.csv).
@@ -124,27 +107,14 @@ fn jpeg_images_in_a_bag_are_decoded_and_tracked() {
         } else {
             rec.with_extension("")
         };
-        let (ok, out, err) = povins(&[
-            "simulate",
-            "--scenario",
-            "handheld",
-            "--seed",
-            "3",
-            "--duration",
-            "4",
-            "--images",
-            "--lidar",
-            "none",
-            "--format",
+        let err = simulate_handheld(
             format,
-            "--image-encoding",
-            "jpeg=90",
-            "--out",
-            s(&rec),
-        ]);
-        assert!(ok, "simulate jpeg {format}: {err}");
+            &rec,
+            "4",
+            &["--lidar", "none", "--image-encoding", "jpeg=90"],
+        );
         assert!(
-            format!("{out}{err}").contains("/camera/infra1/image_rect_raw/compressed"),
+            err.contains("/camera/infra1/image_rect_raw/compressed"),
             "{format}: no compressed topic named: {err}"
         );
         let calib = calib_dir(&rec);

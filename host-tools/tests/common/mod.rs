@@ -28,3 +28,34 @@ pub fn povins(args: &[&str]) -> (bool, String, String) {
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
 }
+
+/// `povins simulate` of the hand-held scenario (seed 3) with images, `seconds` long, written as
+/// `format` to `out`, with `extra` arguments (e.g. `--lidar none`, `--compression lz4`);
+/// panics with simulate's error when it fails, else returns its stderr.
+#[allow(dead_code)] // Not every test binary that includes this module simulates.
+pub fn simulate_handheld(
+    format: &str,
+    out: &std::path::Path,
+    seconds: &str,
+    extra: &[&str],
+) -> String {
+    let out = out.to_str().expect("utf-8 path");
+    let mut args = vec![
+        "simulate",
+        "--scenario",
+        "handheld",
+        "--seed",
+        "3",
+        "--duration",
+        seconds,
+        "--images",
+        "--format",
+        format,
+        "--out",
+        out,
+    ];
+    args.extend_from_slice(extra);
+    let (ok, _, err) = povins(&args);
+    assert!(ok, "simulate {format} failed: {err}");
+    err
+}
