@@ -17,7 +17,7 @@ Checks, exit status 1 with a message on stderr when one fails:
 
 The JSON: {"container", "topics": {topic: {"type", "count", "messages": [message...]}}}, with
 per message {"t" (log time), "stamp"} and per type:
-- Imu: "gyro", "accel" (`float.hex`, exact), "frame_id", "ocov0"
+- Imu: "gyro", "accel" (IEEE 754 bits as integers, exact), "frame_id", "ocov0"
 - Image: "width", "height", "encoding", "step", "sum" (sum of the data bytes)
 - CompressedImage: "format", "bytes" (payload length)
 - PointCloud2: "points" (width x height)
@@ -25,6 +25,7 @@ per message {"t" (log time), "stamp"} and per type:
 """
 
 import json
+import struct
 import sys
 from pathlib import Path
 
@@ -36,8 +37,9 @@ def fail(msg: str) -> None:
     sys.exit(1)
 
 
-def fx(v: float) -> str:
-    return float(v).hex()
+def fx(v: float) -> int:
+    """The IEEE 754 bits of a double (compared exactly with Rust's `f64::to_bits`)."""
+    return struct.unpack("<Q", struct.pack("<d", float(v)))[0]
 
 
 def describe(ty: str, t: int, m) -> dict:

@@ -11,7 +11,7 @@ holds as JSON, after checking each connection against what `rosbags` itself writ
     /work/venv-rosbags/bin/python scripts/check_rosbag1.py BAG > out.json
 
 The JSON: {"connections": [{"topic", "type", "md5sum"}], "messages": {topic: [message...]}}
-with floats as `float.hex` (exact) and byte arrays as hex. Messages per type:
+with floats as their IEEE 754 bits (integers, exact) and byte arrays as hex. Messages per type:
 - sensor_msgs/Imu: {"t", "stamp", "seq", "frame_id", "gyro", "accel", "orientation", "ocov0"}
 - sensor_msgs/Image: {"t", "stamp", "width", "height", "encoding", "step", "data"}
 - sensor_msgs/CompressedImage: {"t", "stamp", "format", "data"}
@@ -39,8 +39,9 @@ def stamp_ns(h) -> int:
     return h.stamp.sec * 10**9 + h.stamp.nanosec
 
 
-def fx(v: float) -> str:
-    return float(v).hex()
+def fx(v: float) -> int:
+    """The IEEE 754 bits of a double (compared exactly with Rust's `f64::to_bits`)."""
+    return struct.unpack("<Q", struct.pack("<d", float(v)))[0]
 
 
 def check_connection(ts, conn) -> None:

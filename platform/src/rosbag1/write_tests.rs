@@ -252,7 +252,7 @@ fn python_rosbags_reads_our_bags() {
             assert_eq!(g["t"].as_i64(), Some(s.t_ns));
             assert_eq!(g["stamp"].as_i64(), Some(s.t_ns));
             assert_eq!(g["seq"].as_u64(), Some(k as u64));
-            let hex = |v: f64| serde_json::Value::from(hexf(v));
+            let hex = |v: f64| serde_json::Value::from(v.to_bits());
             for i in 0..3 {
                 assert_eq!(g["gyro"][i], hex(s.gyro_rps[i]), "{k}");
                 assert_eq!(g["accel"][i], hex(s.accel_mps2[i]), "{k}");
@@ -291,33 +291,13 @@ fn python_rosbags_reads_our_bags() {
         for (i, p) in s.points.iter().enumerate() {
             let g = &pts[3]["points"][i];
             for j in 0..3 {
-                assert_eq!(g[j], serde_json::Value::from(hexf(f64::from(p.p_l[j]))));
+                assert_eq!(g[j], serde_json::Value::from(f64::from(p.p_l[j]).to_bits()));
             }
-            assert_eq!(g[3], serde_json::Value::from(hexf(f64::from(p.intensity))));
+            assert_eq!(
+                g[3],
+                serde_json::Value::from(f64::from(p.intensity).to_bits())
+            );
             assert_eq!(g[4].as_i64(), Some(p.t_ns - s.t_ns));
         }
     }
-}
-
-/// Python's `float.hex` of a finite `v`.
-fn hexf(v: f64) -> String {
-    if v == 0.0 {
-        return if v.is_sign_negative() {
-            "-0x0.0p+0"
-        } else {
-            "0x0.0p+0"
-        }
-        .into();
-    }
-    let bits = v.to_bits();
-    let sign = if v < 0.0 { "-" } else { "" };
-    let exp = ((bits >> 52) & 0x7ff) as i64;
-    let mant = bits & ((1u64 << 52) - 1);
-    let (lead, e) = if exp == 0 {
-        (0, -1022)
-    } else {
-        (1, exp - 1023)
-    };
-    let m = format!("{mant:013x}");
-    format!("{sign}0x{lead}.{m}p{}{e}", if e >= 0 { "+" } else { "" })
 }
