@@ -55,7 +55,52 @@ pub enum Sequence {
         seed: u64,
         /// Length, s.
         duration_s: f64,
+        /// What differs from the standard sequence.
+        variant: Variant,
     },
+}
+
+/// How a simulated sequence of the suite differs from the standard one (8 ms delay not told,
+/// started from the true state). Each variant is its own group in the tables
+/// (`flight/delay-30ms`), with its own stored figures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Variant {
+    /// The standard sequence.
+    Standard,
+    /// A true delay of this many ms, not told (a blind start at 0).
+    Delay(i32),
+    /// The standard delay, stepping by +10 ms at half the sequence.
+    DelayStep,
+}
+
+/// The variant groups `povins regress --variants` can add.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum VariantGroup {
+    /// Blind starts with true delays of -30, -10 and +30 ms (+8 is the standard sequence).
+    Delays,
+    /// The delay steps by +10 ms at half the sequence.
+    DelayStep,
+}
+
+impl VariantGroup {
+    /// The variants of the group.
+    pub fn variants(self) -> &'static [Variant] {
+        match self {
+            VariantGroup::Delays => &[Variant::Delay(-30), Variant::Delay(-10), Variant::Delay(30)],
+            VariantGroup::DelayStep => &[Variant::DelayStep],
+        }
+    }
+}
+
+impl Variant {
+    /// Suffix of the names (empty for the standard sequence).
+    pub fn suffix(self) -> String {
+        match self {
+            Variant::Standard => String::new(),
+            Variant::Delay(ms) => format!("-delay{ms:+}ms"),
+            Variant::DelayStep => "-delaystep+10ms".into(),
+        }
+    }
 }
 
 impl Sequence {
@@ -67,14 +112,33 @@ impl Sequence {
                 scenario,
                 seed,
                 duration_s,
-            } => format!("sim-{}-seed{seed}-{duration_s:.0}s", scenario.name()),
+                variant,
+            } => format!(
+                "sim-{}-seed{seed}-{duration_s:.0}s{}",
+                scenario.name(),
+                variant.suffix()
+            ),
         }
     }
 
-    /// The scenario group (`None` for real sequences).
+    /// The scenario (`None` for real sequences).
     pub fn scenario(&self) -> Option<Scenario> {
         match self {
             Sequence::Sim { scenario, .. } => Some(*scenario),
+            Sequence::Real { .. } => None,
+        }
+    }
+
+    /// The group a simulated run's median is taken over: the scenario, and the variant if any
+    /// (`flight`, `flight/delay-30ms`).
+    pub fn group(&self) -> Option<String> {
+        match self {
+            Sequence::Sim {
+                scenario, variant, ..
+            } => Some(match variant.suffix().strip_prefix('-') {
+                Some(v) => format!("{}/{v}", scenario.name()),
+                None => scenario.name().to_string(),
+            }),
             Sequence::Real { .. } => None,
         }
     }
@@ -92,12 +156,14 @@ pub const QUICK_DURATION_S: f64 = 30.0;
 
 /// The suite's sequences: `quick` is the CI form ([`QUICK_SEEDS`] seeds of 30 s per scenario);
 /// `seeds` overrides the number of seeds per scenario, which start at `first_seed` (1 for the
-/// stored figures; a later one gives fresh seeds, see [`crate::regress_paired`]).
+/// stored figures; a later one gives fresh seeds, see [`crate::regress_paired`]); `groups` adds
+/// variant sequences on the same seeds after the standard ones.
 pub fn sequences(
     data_dir: &Path,
     quick: bool,
     seeds: Option<u64>,
     first_seed: u64,
+    groups: &[VariantGroup],
 ) -> Vec<Sequence> {
     let mut v = vec![
         Sequence::Real {
@@ -117,13 +183,18 @@ pub fn sequences(
         (10, 60.0)
     };
     let seeds: Vec<u64> = (first_seed..first_seed.saturating_add(seeds.unwrap_or(n))).collect();
-    for scenario in SCENARIOS {
-        for &seed in &seeds {
-            v.push(Sequence::Sim {
-                scenario,
-                seed,
-                duration_s,
-            });
+    let variants =
+        std::iter::once(&Variant::Standard).chain(groups.iter().flat_map(|g| g.variants()));
+    for &variant in variants {
+        for scenario in SCENARIOS {
+            for &seed in &seeds {
+                v.push(Sequence::Sim {
+                    scenario,
+                    seed,
+                    duration_s,
+                    variant,
+                });
+            }
         }
     }
     v
@@ -139,13 +210,24 @@ pub const SCENARIOS: [Scenario; 5] = [
 ];
 
 /// The simulator settings of a suite sequence (also what `povins simulate` needs to write the
-/// same files for the peer: `--td-ms 8 --wrong-track-rate 0.03 --lidar none`).
-pub fn sim_config(scenario: Scenario, seed: u64, duration_s: f64) -> SimConfig {
+/// same files for the peer: `--td-ms 8 --wrong-track-rate 0.03 --lidar none`, and the
+/// variant's `--td-ms MS` or `--td-step-ms 10 --td-step-at-s DURATION/2`).
+pub fn sim_config(scenario: Scenario, seed: u64, duration_s: f64, variant: Variant) -> SimConfig {
     let mut c = SimConfig::new(scenario, seed, duration_s);
     c.td_s = 0.008;
     c.wrong_track_rate = Some(0.03);
     c.lidar = Some(sim::LidarKind::None);
     c.threads = 1;
+    match variant {
+        Variant::Standard => {}
+        Variant::Delay(ms) => c.td_s = f64::from(ms) * 1e-3,
+        Variant::DelayStep => {
+            c.td_step = Some(sim::TdStep {
+                step_s: 0.010,
+                at_s: 0.5 * duration_s,
+            })
+        }
+    }
     c
 }
 
@@ -198,8 +280,10 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
             scenario,
             seed,
             duration_s,
+            variant,
         } => {
-            let out = sim::simulate(&sim_config(*scenario, *seed, *duration_s), &|_, _, _| {})?;
+            let c = sim_config(*scenario, *seed, *duration_s, *variant);
+            let out = sim::simulate(&c, &|_, _, _| {})?;
             (out.dataset, InitMode::Groundtruth)
         }
     };
@@ -237,7 +321,7 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
     let diverged =
         coverage < 0.95 || max_err_m > (0.05 * distance_m).max(1.0) || out.counters.resets > 0;
     Ok(RunResult {
-        scenario: seq.scenario().map(|s| s.name().to_string()),
+        scenario: seq.group(),
         ate_m: ev.ate_pos_m.rmse,
         max_err_m,
         distance_m,
@@ -509,7 +593,7 @@ pub(crate) mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../regress/baseline.json");
         let base = Baseline::read(&path).unwrap();
         for quick in [true, false] {
-            let seqs = sequences(Path::new("data"), quick, None, 1);
+            let seqs = sequences(Path::new("data"), quick, None, 1, &[]);
             let sims = seqs.iter().filter(|s| s.scenario().is_some()).count();
             let per = if quick { QUICK_SEEDS } else { 10 };
             assert_eq!(sims as u64, per * SCENARIOS.len() as u64);
@@ -521,9 +605,32 @@ pub(crate) mod tests {
                 );
             }
         }
-        assert!(sequences(Path::new("data"), true, None, 1).iter().all(
+        assert!(sequences(Path::new("data"), true, None, 1, &[]).iter().all(
             |s| !matches!(s, Sequence::Sim { duration_s, .. } if *duration_s != QUICK_DURATION_S)
         ));
+    }
+
+    /// Variants come after the standard sequences on the same seeds, named and grouped apart,
+    /// and simulate what their names say.
+    #[test]
+    fn variants_are_named_grouped_and_simulated_as_said() {
+        let groups = [VariantGroup::Delays, VariantGroup::DelayStep];
+        let seqs = sequences(Path::new("data"), true, Some(2), 1, &groups);
+        let sims: Vec<&Sequence> = seqs.iter().filter(|s| s.scenario().is_some()).collect();
+        assert_eq!(sims.len(), 2 * SCENARIOS.len() * 5);
+        let names: std::collections::BTreeSet<String> = sims.iter().map(|s| s.name()).collect();
+        assert_eq!(names.len(), sims.len(), "names are unique");
+        assert!(names.contains("sim-flight-seed2-30s-delay-30ms"));
+        assert!(names.contains("sim-robot-seed1-30s-delaystep+10ms"));
+        let groups: std::collections::BTreeSet<String> =
+            sims.iter().filter_map(|s| s.group()).collect();
+        assert!(groups.contains("flight") && groups.contains("flight/delay+30ms"));
+        assert_eq!(groups.len(), SCENARIOS.len() * 5);
+        let c = sim_config(Scenario::Flight, 1, 30.0, Variant::Delay(-10));
+        assert_eq!((c.td_s, c.td_step.is_none()), (-0.010, true));
+        let c = sim_config(Scenario::Flight, 1, 30.0, Variant::DelayStep);
+        let st = c.td_step.expect("a step");
+        assert_eq!((c.td_s, st.step_s, st.at_s), (0.008, 0.010, 15.0));
     }
 
     #[test]

@@ -18,6 +18,11 @@ pub struct Args {
     /// only.
     #[arg(long)]
     pub seeds: Option<u64>,
+    /// Add these variant sequences (on the same seeds, each variant its own group; comma
+    /// separated): `delays` (true delays of -30, -10 and +30 ms, not told), `delay-step` (+10 ms
+    /// at half the sequence).
+    #[arg(long, value_delimiter = ',')]
+    pub variants: Vec<crate::regress::VariantGroup>,
     /// Folder of the shared datasets.
     #[arg(long, default_value = "../shared/data")]
     pub data: PathBuf,
@@ -66,7 +71,13 @@ pub fn run(args: Args) -> Result<()> {
     if args.bless && args.first_seed != 1 {
         bail!("--bless stores the figures of seeds from 1: drop --first-seed");
     }
-    let seqs = sequences(&args.data, args.quick, args.seeds, args.first_seed);
+    let seqs = sequences(
+        &args.data,
+        args.quick,
+        args.seeds,
+        args.first_seed,
+        &args.variants,
+    );
     let progress = Progress::new(seqs.len() as u64, "regress");
     let runs = run_all(&seqs, overlay.as_ref(), args.jobs, &progress)?;
     let mut base = if args.baseline.exists() {
