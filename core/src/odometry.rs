@@ -153,6 +153,7 @@ pub struct ImageReport {
 /// Counts of what an image front end ([`crate::vio::Vio`], [`crate::vio::Tracking`]) refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct VioCounters {
     /// Images offered.
     pub images: u64,

@@ -227,6 +227,8 @@ pub struct RunTotals {
     pub image_errors: Vec<(i64, String)>,
     /// The image entry point's counters (images only).
     pub vio_counters: VioCounters,
+    /// Merge time of the first camera frame or image offered, ns.
+    pub first_camera_ns: Option<i64>,
 }
 
 /// Everything a replay produced, collected in memory (the [`RunSink`] of the tests, `demo`,
@@ -267,6 +269,8 @@ pub struct RunOutput {
     pub image_errors: Vec<(i64, String)>,
     /// The image entry point's counters (images only).
     pub vio_counters: VioCounters,
+    /// Merge time of the first camera frame or image offered, ns.
+    pub first_camera_ns: Option<i64>,
 }
 
 impl RunOutput {
@@ -289,6 +293,7 @@ impl RunOutput {
             image_failures: t.image_failures,
             image_errors: t.image_errors,
             vio_counters: t.vio_counters,
+            first_camera_ns: t.first_camera_ns,
         }
     }
 
@@ -304,6 +309,7 @@ impl RunOutput {
             image_failures: self.image_failures,
             image_errors: self.image_errors.clone(),
             vio_counters: self.vio_counters,
+            first_camera_ns: self.first_camera_ns,
         }
     }
 
@@ -468,6 +474,7 @@ pub fn replay_into(
         image_failures,
         image_errors,
         vio_counters: c.images,
+        first_camera_ns: read.first_camera_ns,
     })
 }
 

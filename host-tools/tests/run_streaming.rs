@@ -89,6 +89,19 @@ fn the_streamed_files_equal_the_collected_runs() {
         summary_without_timing(&streamed.join("summary.json")),
         summary_without_timing(&collected.join("summary.json"))
     );
+    // The counters are numbers under their names; coverage is the share of ground truth after
+    // the first camera frame (the static start waits ~1 s at rest).
+    let summary: serde_json::Value =
+        serde_json::from_str(&read(&streamed.join("summary.json"))).unwrap();
+    let c = &summary["counters"];
+    assert_eq!(
+        (c["resets"].as_u64(), c["reinitializations"].as_u64()),
+        (Some(0), Some(0))
+    );
+    assert!(c["keyframes"].as_u64().is_some_and(|k| k > 50), "{c}");
+    assert_eq!(c["front_end"]["images"].as_u64(), Some(0));
+    let coverage = summary["coverage"].as_f64().expect("coverage");
+    assert!((0.85..0.99).contains(&coverage), "coverage {coverage}");
     let leftovers: Vec<_> = std::fs::read_dir(&streamed)
         .unwrap()
         .filter_map(|e| e.ok())

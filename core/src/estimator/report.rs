@@ -164,6 +164,7 @@ pub struct DepthEvent {
 
 /// Running counters of everything the estimator rejected, dropped or reset.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct Counters {
     /// IMU samples accepted.
     pub imu_samples: u64,

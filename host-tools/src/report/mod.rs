@@ -106,8 +106,49 @@ pub struct Summary {
     pub image_frontend: Option<FrontendSummary>,
     /// Images that could not be read or were refused (images only).
     pub image_failures: usize,
-    /// Rejection counters of the core.
+    /// Share of the ground-truth stamps from the first camera frame on with an IMU-rate pose
+    /// within [`COVERAGE_TOLERANCE_NS`] (with ground truth).
+    pub coverage: Option<f64>,
+    /// The estimator's counters (`resets`, `reinitializations`, rejections: see
+    /// `povins_core::estimator::Counters`), and the image front end's under `front_end`.
     pub counters: serde_json::Value,
+}
+
+/// How far an estimate's stamp may be from a ground-truth stamp to cover it, ns.
+pub const COVERAGE_TOLERANCE_NS: i64 = 10_000_000;
+
+/// Share of `gt`'s stamps at or after `from_ns` with a stamp of `est` (sorted) within
+/// [`COVERAGE_TOLERANCE_NS`]; `None` without such ground truth.
+pub fn coverage(gt: &[StampedPose], est: &[StampedPose], from_ns: i64) -> Option<f64> {
+    let after: Vec<i64> = gt
+        .iter()
+        .map(|p| p.t_ns)
+        .filter(|t| *t >= from_ns)
+        .collect();
+    if after.is_empty() {
+        return None;
+    }
+    let covered = after
+        .iter()
+        .filter(|&&t| {
+            let i = est.partition_point(|p| p.t_ns < t);
+            let near = |j: usize| {
+                est.get(j)
+                    .is_some_and(|p| (p.t_ns - t).abs() <= COVERAGE_TOLERANCE_NS)
+            };
+            near(i) || (i > 0 && near(i - 1))
+        })
+        .count();
+    Some(covered as f64 / after.len() as f64)
+}
+
+/// The counters as `summary.json` carries them.
+fn counters_json(t: &RunTotals) -> Result<serde_json::Value> {
+    let mut v = serde_json::to_value(t.counters)?;
+    if let Some(m) = v.as_object_mut() {
+        m.insert("front_end".into(), serde_json::to_value(t.vio_counters)?);
+    }
+    Ok(v)
 }
 
 /// LiDAR association quality in `summary.json` (see [`lidar_assoc`]).
@@ -247,11 +288,15 @@ pub fn summarize_digest(
         frontend: t.frontend,
         image_frontend: d.frames.summary(),
         image_failures: t.image_failures,
-        counters: serde_json::to_value(format!("{:?} {:?}", t.counters, t.vio_counters))?,
+        coverage: None,
+        counters: counters_json(t)?,
     };
     let est = d.trajectory.as_deref().unwrap_or_default();
-    if !ground_truth.is_empty() && !est.is_empty() {
-        let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
+    let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
+    if d.trajectory.is_some() {
+        s.coverage = t.first_camera_ns.and_then(|t0| coverage(&gt, est, t0));
+    }
+    if !gt.is_empty() && !est.is_empty() {
         let opts = EvalOptions {
             alignment: Alignment::PosYaw,
             ..Default::default()
@@ -270,4 +315,29 @@ pub fn summarize_digest(
         }
     }
     Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(t_ms: i64) -> StampedPose {
+        StampedPose {
+            t_ns: t_ms * 1_000_000,
+            p_wb: povins_core::math::Vec3::zeros(),
+            q_wb: povins_core::math::Quat::identity(),
+        }
+    }
+
+    /// Ground truth before the first camera frame does not count; a stamp counts when an
+    /// estimate lies within 10 ms on either side.
+    #[test]
+    fn coverage_counts_ground_truth_with_an_estimate_within_10_ms() {
+        let gt: Vec<StampedPose> = (0..10).map(|k| at(100 * k)).collect();
+        let est = [at(290), at(410), at(611), at(795)];
+        // From 200 ms: 200 300 400 500 600 700 800 900; covered 300 (290), 400 (410), 800 (795).
+        assert_eq!(coverage(&gt, &est, 200_000_000), Some(3.0 / 8.0));
+        assert_eq!(coverage(&gt, &[], 0), Some(0.0));
+        assert_eq!(coverage(&gt, &est, 1_000_000_000), None);
+    }
 }

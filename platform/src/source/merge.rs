@@ -96,6 +96,8 @@ pub struct MergeStats {
     pub camera_read: u64,
     /// LiDAR sweeps read (offered, skipped, or read ahead and never due).
     pub sweeps_read: u64,
+    /// Merge time of the first camera frame or image offered, ns.
+    pub first_camera_ns: Option<i64>,
 }
 
 impl<'a> MergedSource<'a, SystemClock> {
@@ -200,12 +202,13 @@ impl<'a, C: Clock> MergedSource<'a, C> {
                 Some(Err(_)) => return Err(take_err(self.camera.next())),
                 Some(Ok((t, _))) if *t > t_ns => return Ok(None),
                 Some(Ok((t, _))) => {
-                    let before_start = *t < t0;
+                    let t = *t;
                     let next = self.camera.next();
                     self.stats.camera_read += 1;
-                    if before_start {
+                    if t < t0 {
                         continue;
                     }
+                    self.stats.first_camera_ns.get_or_insert(t);
                     return Ok(next.and_then(Result::ok).map(|(_, ev)| ev));
                 }
             }
