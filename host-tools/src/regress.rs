@@ -256,6 +256,8 @@ pub struct RunResult {
     pub resets: u64,
     /// Camera-IMU delay at the end, ms.
     pub td_end_ms: f64,
+    /// Its error against the simulated delay at the end, ms (simulated runs).
+    pub td_err_end_ms: Option<f64>,
     /// See the module docs.
     pub diverged: bool,
 }
@@ -274,8 +276,8 @@ fn load_real(path: &Path) -> Result<Dataset> {
 /// Runs one sequence with the default configuration, or with `overlay`'s keys laid over it
 /// (the simulated runs' delay is still not told to the estimator).
 pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<RunResult> {
-    let (ds, init) = match seq {
-        Sequence::Real { path, init, .. } => (load_real(path)?, *init),
+    let (ds, init, td_true_end_s) = match seq {
+        Sequence::Real { path, init, .. } => (load_real(path)?, *init, None),
         Sequence::Sim {
             scenario,
             seed,
@@ -284,7 +286,8 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
         } => {
             let c = sim_config(*scenario, *seed, *duration_s, *variant);
             let out = sim::simulate(&c, &|_, _, _| {})?;
-            (out.dataset, InitMode::Groundtruth)
+            let td_end_s = c.td_s + c.td_step.map_or(0.0, |st| st.step_s);
+            (out.dataset, InitMode::Groundtruth, Some(td_end_s))
         }
     };
     let mut cfg = config_for(&ds);
@@ -331,6 +334,9 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
         reinitializations: out.counters.reinitializations,
         resets: out.counters.resets,
         td_end_ms: out.reports.last().map_or(0.0, |r| r.td_s * 1e3),
+        td_err_end_ms: td_true_end_s
+            .zip(out.reports.last())
+            .map(|(t, r)| (r.td_s - t) * 1e3),
         diverged,
         name,
     })
@@ -430,6 +436,8 @@ pub struct Row {
     pub diverged: usize,
     /// Health-monitor re-initializations over the runs.
     pub reinitializations: u64,
+    /// Median of the runs' absolute delay error at the end, ms (simulated runs).
+    pub td_err_ms: Option<f64>,
     /// Within the tolerance of the stored figure and no divergence.
     pub pass: bool,
 }
@@ -465,6 +473,7 @@ pub fn compare(runs: &[RunResult], base: &Baseline) -> Vec<Row> {
                     peer_failed: 0,
                     diverged: usize::from(r.diverged),
                     reinitializations: r.reinitializations,
+                    td_err_ms: r.td_err_end_ms.map(f64::abs),
                     pass: !r.diverged && stored.is_none_or(|s| r.ate_m <= TOLERANCE * s),
                 });
             }
@@ -490,6 +499,10 @@ pub fn compare(runs: &[RunResult], base: &Baseline) -> Vec<Row> {
             .filter(|r| matches!(base.peer_ate_m.get(&r.name), Some(None)))
             .count();
         let diverged = rs.iter().filter(|r| r.diverged).count();
+        let mut td_err: Vec<f64> = rs
+            .iter()
+            .filter_map(|r| r.td_err_end_ms.map(f64::abs))
+            .collect();
         rows.push(Row {
             name,
             runs: rs.len(),
@@ -500,6 +513,7 @@ pub fn compare(runs: &[RunResult], base: &Baseline) -> Vec<Row> {
             peer_failed,
             diverged,
             reinitializations: rs.iter().map(|r| r.reinitializations).sum(),
+            td_err_ms: median(&mut td_err),
             pass: diverged == 0 && stored_m.is_none_or(|s| med <= TOLERANCE * s),
         });
     }
@@ -511,7 +525,8 @@ pub fn render(rows: &[Row]) -> String {
     let f = |x: Option<f64>| x.map_or("n/a".to_string(), |v| format!("{v:.4}"));
     let mut s = String::from(
         "| sequence / scenario | runs | ATE (median) [m] | worst [m] | stored [m] | vs stored | \
-         reference smoother [m] | diverged | re-inits | |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
+         reference smoother [m] | diverged | re-inits | delay error [ms] | |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
     );
     for r in rows {
         let ratio = r.stored_m.map_or("new".to_string(), |st| {
@@ -524,7 +539,7 @@ pub fn render(rows: &[Row]) -> String {
             (None, n) => format!("failed ({n})"),
         };
         s.push_str(&format!(
-            "| {} | {} | {:.4} | {:.4} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {:.4} | {:.4} | {} | {} | {} | {} | {} | {} | {} |\n",
             r.name,
             r.runs,
             r.ate_m,
@@ -534,6 +549,7 @@ pub fn render(rows: &[Row]) -> String {
             peer,
             r.diverged,
             r.reinitializations,
+            r.td_err_ms.map_or("n/a".into(), |e| format!("{e:.2}")),
             if r.pass { "ok" } else { "FAIL" }
         ));
     }
@@ -582,6 +598,7 @@ pub(crate) mod tests {
             reinitializations: 0,
             resets: 0,
             td_end_ms: 0.0,
+            td_err_end_ms: None,
             diverged,
         }
     }
