@@ -547,6 +547,17 @@ impl<'p> ReplayProgress<'p> {
         }
     }
 
+    /// Seconds of `t_ns` from the recording's first IMU sample (or of the stamp when the
+    /// recording does not say).
+    pub fn seconds(&self, t_ns: i64) -> f64 {
+        (t_ns - self.t_first_ns.unwrap_or(0)) as f64 * 1e-9
+    }
+
+    /// A line above the bar.
+    pub fn note(&self, line: &str) {
+        self.progress.note(line);
+    }
+
     /// An IMU sample at `t_ns` was read.
     pub fn imu(&mut self, t_ns: i64) {
         self.samples += 1;
@@ -569,6 +580,11 @@ struct RunObserver<'s, 'p, S: RunSink> {
     errors_px: Vec<f32>,
     image_failures: usize,
     image_errors: Vec<(i64, String)>,
+    /// Stamp of the newest IMU-rate estimate, and of the last one before an outage.
+    last_nav_ns: Option<i64>,
+    lost_at_ns: Option<i64>,
+    /// Stamp of the newest IMU sample taken from the source.
+    t_imu_ns: i64,
 }
 
 impl<'s, 'p, S: RunSink> RunObserver<'s, 'p, S> {
@@ -580,6 +596,35 @@ impl<'s, 'p, S: RunSink> RunObserver<'s, 'p, S> {
             errors_px: Vec::new(),
             image_failures: 0,
             image_errors: Vec::new(),
+            last_nav_ns: None,
+            lost_at_ns: None,
+            t_imu_ns: 0,
+        }
+    }
+
+    /// Tells the user when the estimates stop (a full reset: the estimator waits for a new
+    /// initialization) and when they are back, with the time in between.
+    fn watch_outage(&mut self, nav: Option<&NavState>, t_ns: i64) {
+        match (nav, self.lost_at_ns) {
+            (None, None) if self.last_nav_ns.is_some() => {
+                self.lost_at_ns = self.last_nav_ns;
+                let at = self.progress.seconds(t_ns);
+                self.progress.note(&format!(
+                    "estimator reset at {at:.3} s: no estimate until it initializes again"
+                ));
+            }
+            (Some(n), Some(lost)) => {
+                self.lost_at_ns = None;
+                self.progress.note(&format!(
+                    "estimator back at {:.3} s, {:.3} s after its last estimate",
+                    self.progress.seconds(n.t_ns),
+                    (n.t_ns - lost) as f64 * 1e-9
+                ));
+            }
+            _ => {}
+        }
+        if let Some(n) = nav {
+            self.last_nav_ns = Some(n.t_ns);
         }
     }
 
@@ -594,9 +639,11 @@ impl<'s, 'p, S: RunSink> RunObserver<'s, 'p, S> {
 impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
     fn imu(&mut self, t_ns: i64) {
         self.progress.imu(t_ns);
+        self.t_imu_ns = t_ns;
     }
 
     fn output(&mut self, o: &Output<'_>) {
+        self.watch_outage(o.nav.as_ref(), self.t_imu_ns);
         if let Some(k) = &o.keyframe {
             self.sink.report(&k.report, k.lidar_events);
             let sink = &mut *self.sink;

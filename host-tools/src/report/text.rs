@@ -35,6 +35,18 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         ),
         _ => println!("ATE       n/a (no ground truth, or no estimate to compare)"),
     }
+    let n = |k: &str| s.counters[k].as_u64().unwrap_or(0);
+    let coverage = s.coverage.map_or(String::new(), |c| {
+        format!(
+            "{:.1}% of the ground truth after the first camera frame has an estimate; ",
+            100.0 * c
+        )
+    });
+    println!(
+        "coverage  {coverage}{} full resets, {} re-initializations",
+        n("resets"),
+        n("reinitializations")
+    );
     println!(
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
         s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
