@@ -229,6 +229,8 @@ pub struct RunTotals {
     pub vio_counters: VioCounters,
     /// Merge time of the first camera frame or image offered, ns.
     pub first_camera_ns: Option<i64>,
+    /// Stamp of the first IMU-rate estimate, ns.
+    pub first_estimate_ns: Option<i64>,
 }
 
 /// Everything a replay produced, collected in memory (the [`RunSink`] of the tests, `demo`,
@@ -271,6 +273,8 @@ pub struct RunOutput {
     pub vio_counters: VioCounters,
     /// Merge time of the first camera frame or image offered, ns.
     pub first_camera_ns: Option<i64>,
+    /// Stamp of the first IMU-rate estimate, ns.
+    pub first_estimate_ns: Option<i64>,
 }
 
 impl RunOutput {
@@ -294,6 +298,7 @@ impl RunOutput {
             image_errors: t.image_errors,
             vio_counters: t.vio_counters,
             first_camera_ns: t.first_camera_ns,
+            first_estimate_ns: t.first_estimate_ns,
         }
     }
 
@@ -310,6 +315,7 @@ impl RunOutput {
             image_errors: self.image_errors.clone(),
             vio_counters: self.vio_counters,
             first_camera_ns: self.first_camera_ns,
+            first_estimate_ns: self.first_estimate_ns,
         }
     }
 
@@ -462,7 +468,7 @@ pub fn replay_into(
     let stats = ran.with_context(|| format!("reading {}", rec.name()))?;
     progress.finish();
     let read = source.stats();
-    let (image_failures, image_errors) = obs.finish();
+    let (image_failures, image_errors, first_estimate_ns) = obs.finish();
     let c = odo.counters();
     Ok(RunTotals {
         counters: c.estimator,
@@ -475,6 +481,7 @@ pub fn replay_into(
         image_errors,
         vio_counters: c.images,
         first_camera_ns: read.first_camera_ns,
+        first_estimate_ns,
     })
 }
 
@@ -583,6 +590,7 @@ struct RunObserver<'s, 'p, S: RunSink> {
     /// Stamp of the newest IMU-rate estimate, and of the last one before an outage.
     last_nav_ns: Option<i64>,
     lost_at_ns: Option<i64>,
+    first_nav_ns: Option<i64>,
     /// Stamp of the newest IMU sample taken from the source.
     t_imu_ns: i64,
 }
@@ -598,6 +606,7 @@ impl<'s, 'p, S: RunSink> RunObserver<'s, 'p, S> {
             image_errors: Vec::new(),
             last_nav_ns: None,
             lost_at_ns: None,
+            first_nav_ns: None,
             t_imu_ns: 0,
         }
     }
@@ -625,14 +634,16 @@ impl<'s, 'p, S: RunSink> RunObserver<'s, 'p, S> {
         }
         if let Some(n) = nav {
             self.last_nav_ns = Some(n.t_ns);
+            self.first_nav_ns.get_or_insert(n.t_ns);
         }
     }
 
-    /// Hands over the keyframes still in the window; the image failures (count, first ones).
-    fn finish(self) -> (usize, Vec<(i64, String)>) {
+    /// Hands over the keyframes still in the window; the image failures (count, first ones) and
+    /// the first estimate's stamp.
+    fn finish(self) -> (usize, Vec<(i64, String)>, Option<i64>) {
         let sink = self.sink;
         self.window.finish(|s| sink.keyframe(s));
-        (self.image_failures, self.image_errors)
+        (self.image_failures, self.image_errors, self.first_nav_ns)
     }
 }
 

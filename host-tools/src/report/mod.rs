@@ -106,6 +106,9 @@ pub struct Summary {
     pub image_frontend: Option<FrontendSummary>,
     /// Images that could not be read or were refused (images only).
     pub image_failures: usize,
+    /// Time from the first camera frame to the first IMU-rate estimate, s (negative: the
+    /// estimator started before the camera, e.g. from ground truth or at rest).
+    pub start_after_camera_s: Option<f64>,
     /// Share of the ground-truth stamps from the first camera frame on with an IMU-rate pose
     /// within [`COVERAGE_TOLERANCE_NS`] (with ground truth).
     pub coverage: Option<f64>,
@@ -288,6 +291,10 @@ pub fn summarize_digest(
         frontend: t.frontend,
         image_frontend: d.frames.summary(),
         image_failures: t.image_failures,
+        start_after_camera_s: t
+            .first_camera_ns
+            .zip(t.first_estimate_ns)
+            .map(|(c, e)| (e - c) as f64 * 1e-9),
         coverage: None,
         counters: counters_json(t)?,
     };

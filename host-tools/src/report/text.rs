@@ -38,12 +38,15 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
     let n = |k: &str| s.counters[k].as_u64().unwrap_or(0);
     let coverage = s.coverage.map_or(String::new(), |c| {
         format!(
-            "{:.1}% of the ground truth after the first camera frame has an estimate; ",
+            "{:.1}% of the ground truth after it has an estimate; ",
             100.0 * c
         )
     });
+    let start = s.start_after_camera_s.map_or(String::new(), |t| {
+        format!("started {t:.3} s after the first camera frame; ")
+    });
     println!(
-        "coverage  {coverage}{} full resets, {} re-initializations",
+        "coverage  {start}{coverage}{} full resets, {} re-initializations",
         n("resets"),
         n("reinitializations")
     );
