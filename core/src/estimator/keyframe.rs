@@ -68,6 +68,7 @@ impl<
         self.restart_ins(&nav, &sample)?;
         report.window_len = self.window.len() as u32;
         report.td_s = self.current_td();
+        report.extrinsic = Some(self.ext);
         report.imu_noise_scale = self.imu_scale.density_scale();
         report.landmarks_total = self.lms.len() as u32;
         report.total_ns = now(self.clock).saturating_sub(t0);
