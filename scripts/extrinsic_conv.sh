@@ -11,11 +11,13 @@
 # Usage: scripts/extrinsic_conv.sh BIN OUTDIR
 #   env: SCENS (default "robot handheld flight fast vehicle"), SEEDS (default "1 2 3"),
 #        DUR (default 60), VARIANTS (default "perturbed_est exact_est exact_fixed"),
-#        EXTRA (more TOML lines for every configuration, e.g. $'[foo]\nbar = 1')
+#        EXTRA_TOP (top-level TOML keys for every configuration, e.g. 'extrinsic_prior = [0.1, 0.1]'),
+#        EXTRA_TABLES (TOML tables for every configuration, e.g. $'[td]\nestimate = false')
 set -euo pipefail
 BIN=${1:?povins binary}; OUT=${2:?output folder}
 SCENS=${SCENS:-"robot handheld flight fast vehicle"}; SEEDS=${SEEDS:-"1 2 3"}; DUR=${DUR:-60}
-VARIANTS=${VARIANTS:-"perturbed_est exact_est exact_fixed"}; EXTRA=${EXTRA:-}
+VARIANTS=${VARIANTS:-"perturbed_est exact_est exact_fixed"}
+EXTRA_TOP=${EXTRA_TOP:-}; EXTRA_TABLES=${EXTRA_TABLES:-}
 mkdir -p "$OUT/data" "$OUT/cfg" "$OUT/runs"
 # Pure-Python helpers shared by the two Python steps below: the true T_bc of a sensor.yaml and
 # quaternion algebra (w, x, y, z).
@@ -67,23 +69,20 @@ for scen in $SCENS; do for seed in $SEEDS; do
     python3 -c "$PYLIB
 $(cat <<'PY'
 import sys
-yaml, v, extra = sys.argv[1:4]
+yaml, v, top, tables = sys.argv[1:5]
 p, q = true_extrinsic(yaml)
 if v.startswith("perturbed"):
     # 2 cm along (1, -1, 1)/sqrt(3) and 2 deg about (1, 2, -1)/sqrt(6), both in the body frame.
     p = [x + 0.02 * d / math.sqrt(3.0) for x, d in zip(p, (1.0, -1.0, 1.0))]
     q = qmul(exp_q([math.radians(2.0) * d / math.sqrt(6.0) for d in (1.0, 2.0, -1.0)]), q)
-# EXTRA's top-level keys go before the first table, its tables after [extrinsic].
-top, _, tables = extra.partition("[")
 print(f"estimate_extrinsic = {'true' if v.endswith('_est') else 'false'}")
 print(top)
 print("[extrinsic]")
 print("p_bc = [" + ", ".join(repr(x) for x in p) + "]")
 print("q_bc = [" + ", ".join(repr(x) for x in q[1:] + q[:1]) + "]")  # x y z w
-if tables:
-    print("[" + tables)
+print(tables)
 PY
-)" "$d/mav0/cam0/sensor.yaml" "$v" "$EXTRA" > "$c"
+)" "$d/mav0/cam0/sensor.yaml" "$v" "$EXTRA_TOP" "$EXTRA_TABLES" > "$c"
     r="$OUT/runs/$scen-s$seed-$v"
     [ -f "$r/stats.csv" ] || "$BIN" run "$d" --frontend tracks --config "$c" --out "$r" \
         >"$r.log" 2>&1 || echo "FAILED $r (see $r.log)"
