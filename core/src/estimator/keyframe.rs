@@ -134,7 +134,7 @@ impl<
         if self.window.len() == 1 {
             self.prior.clear();
             self.initial = Some(self.initial_priors(nav, td));
-            self.reinit_td = None;
+            self.reinit = None;
         }
         self.open.restart_with(
             self.imu_scale.apply(self.cfg.imu_noise),
@@ -179,7 +179,7 @@ impl<
     }
 
     fn initial_priors(&self, kf0: &NavState, td: f64) -> InitialPriors {
-        let p = match self.reinit_td {
+        let p = match self.reinit {
             Some(_) => &self.cfg.health.reinit_prior,
             None => &self.cfg.first_prior,
         };
@@ -187,8 +187,10 @@ impl<
             kf0: *kf0,
             kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
             td0: (td, self.cfg.td.prior_s),
+            // The configured extrinsic, or the broken window's estimate after a
+            // re-initialization (`Reinit`).
             ext: (
-                self.cfg.extrinsic,
+                self.ext,
                 self.cfg.extrinsic_prior.0,
                 self.cfg.extrinsic_prior.1,
             ),
