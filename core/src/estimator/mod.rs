@@ -427,7 +427,8 @@ impl<
         Self::check(&cfg)?;
         let selector = KeyframeSelector::new(cfg.keyframe)?;
         // The last check: nothing has changed when it fails.
-        self.static_init.reset_to_new(cfg.static_init)?;
+        self.static_init
+            .reset_with_noise(cfg.static_init, &cfg.imu_noise)?;
         self.cfg = cfg;
         self.selector = selector;
         self.status = Status::WaitingForInit;
@@ -568,6 +569,8 @@ impl<
         self.status = Status::WaitingForInit;
         self.counters.resets += 1;
         // A fresh detector: the samples before the reset must not count as static time.
-        let _ = self.static_init.reset_to_new(self.cfg.static_init);
+        let _ = self
+            .static_init
+            .reset_with_noise(self.cfg.static_init, &self.cfg.imu_noise);
     }
 }
