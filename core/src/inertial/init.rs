@@ -368,6 +368,61 @@ mod tests {
         assert_eq!(init.push(&nan), Err(Error::NonFinite));
     }
 
+    /// A hand-held consumer IMU's tremor (per axis +-0.008 rad/s, +-0.09 m/s^2 at 200 Hz):
+    /// above the absolute limits, within one white-noise deviation of DM-VIO's configured
+    /// densities (1e-3 rad/s/sqrt(Hz), 1e-2 m/s^2/sqrt(Hz): 0.0141, 0.141); a sine of 0.3 rad/s
+    /// is refused either way.
+    #[test]
+    fn limits_scale_with_the_configured_white_noise() {
+        let noise = ImuNoise {
+            gyro_noise_density: 1e-3,
+            accel_noise_density: 1e-2,
+            gyro_bias_rw: 1e-5,
+            accel_bias_rw: 1e-3,
+        };
+        let run = |init: &mut StaticInitializer<200>, moving: bool| {
+            let mut out = None;
+            for k in 0..200i64 {
+                let d = if k % 2 == 0 { 1.0 } else { -1.0 };
+                let turn = if moving {
+                    0.3 * libm::sin(k as f64 * 0.1)
+                } else {
+                    0.0
+                };
+                let s = ImuSample {
+                    t_ns: k * 5_000_000,
+                    gyro_rps: Vec3::new(8e-3 * d, 0.0, turn),
+                    accel_mps2: Vec3::new(0.0, 0.09 * d, 9.81),
+                };
+                if let Some(st) = init.push(&s).unwrap() {
+                    out = Some(st);
+                    break;
+                }
+            }
+            out
+        };
+        let mut init = StaticInitializer::<200>::new(cfg()).unwrap();
+        assert_eq!(run(&mut init, false), None, "absolute limits only");
+        init.reset_with_noise(cfg(), &noise).unwrap();
+        assert_eq!(run(&mut init, false).map(|s| s.t_ns), Some(500_000_000));
+        init.reset_with_noise(cfg(), &noise).unwrap();
+        assert_eq!(run(&mut init, true), None, "motion");
+        init.reset_to_new(cfg()).unwrap();
+        assert_eq!(
+            run(&mut init, false),
+            None,
+            "reset_to_new drops the densities"
+        );
+        let bad = ImuNoise {
+            gyro_noise_density: f64::NAN,
+            ..noise
+        };
+        assert_eq!(
+            init.reset_with_noise(cfg(), &bad),
+            Err(Error::InvalidConfig)
+        );
+    }
+
     #[test]
     fn too_small_window_reports_capacity() {
         let mut init = StaticInitializer::<10>::new(cfg()).unwrap();
