@@ -379,6 +379,7 @@ mod tests {
             accel_noise_density: 1e-2,
             gyro_bias_rw: 1e-5,
             accel_bias_rw: 1e-3,
+            bias_corr_time_s: None,
         };
         let run = |init: &mut StaticInitializer<200>, moving: bool| {
             let mut out = None;
