@@ -19,13 +19,9 @@ fn last_extrinsic(stats: &Path) -> (Vec3, Quat) {
     let names = [
         "p_bc_x_m", "p_bc_y_m", "p_bc_z_m", "q_bc_w", "q_bc_x", "q_bc_y", "q_bc_z",
     ];
-    let cols: Vec<usize> = names.iter().map(|n| col(n)).collect();
+    let cols: Vec<usize> = names.iter().copied().map(col).collect();
     let last = lines
-        .filter(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            !f[cols[0]].is_empty()
-        })
-        .last()
+        .rfind(|l| l.split(',').nth(cols[0]).is_some_and(|v| !v.is_empty()))
         .expect("a keyframe with an extrinsic");
     let f: Vec<f64> = {
         let fields: Vec<&str> = last.split(',').collect();
