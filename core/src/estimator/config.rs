@@ -388,6 +388,7 @@ impl EstimatorConfig {
                 vibration_accel_std_max_mps2: 0.0,
                 vibration_gyro_std_max_rps: 0.0,
                 min_static_s: 0.0,
+                noise_std_factor: 0.0,
                 max_dt_s: 0.0,
             },
             rest: RestConfig {

@@ -90,7 +90,10 @@ impl<
     /// newest keyframe); the next keyframe starts a new window with the wide prior. A
     /// non-finite INS state resets the estimator instead.
     pub(super) fn reinitialize_from(&mut self, predicted: NavState) {
-        let td = self.current_td();
+        let keep = super::Reinit {
+            td_s: self.current_td(),
+            ext: self.ext,
+        };
         self.reset_window();
         self.bad_keyframes = 0;
         self.counters.reinitializations += 1;
@@ -102,6 +105,7 @@ impl<
             self.reset();
             return;
         }
-        self.reinit_td = Some(td);
+        self.ext = keep.ext;
+        self.reinit = Some(keep);
     }
 }

@@ -45,7 +45,7 @@ impl<
     pub(super) fn current_td(&self) -> f64 {
         self.window
             .last()
-            .map_or(self.reinit_td.unwrap_or(self.cfg.td_s), |k| k.td_s)
+            .map_or(self.reinit.map_or(self.cfg.td_s, |r| r.td_s), |k| k.td_s)
     }
 
     /// One sample before initialization: frames feed the track velocities and the rest

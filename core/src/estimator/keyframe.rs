@@ -68,6 +68,7 @@ impl<
         self.restart_ins(&nav, &sample)?;
         report.window_len = self.window.len() as u32;
         report.td_s = self.current_td();
+        report.extrinsic = Some(self.ext);
         report.imu_noise_scale = self.imu_scale.density_scale();
         report.landmarks_total = self.lms.len() as u32;
         report.total_ns = now(self.clock).saturating_sub(t0);
@@ -133,7 +134,7 @@ impl<
         if self.window.len() == 1 {
             self.prior.clear();
             self.initial = Some(self.initial_priors(nav, td));
-            self.reinit_td = None;
+            self.reinit = None;
         }
         self.open.restart_with(
             self.imu_scale.apply(self.cfg.imu_noise),
@@ -178,7 +179,7 @@ impl<
     }
 
     fn initial_priors(&self, kf0: &NavState, td: f64) -> InitialPriors {
-        let p = match self.reinit_td {
+        let p = match self.reinit {
             Some(_) => &self.cfg.health.reinit_prior,
             None => &self.cfg.first_prior,
         };
@@ -186,8 +187,10 @@ impl<
             kf0: *kf0,
             kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
             td0: (td, self.cfg.td.prior_s),
+            // The configured extrinsic, or the broken window's estimate after a
+            // re-initialization (`Reinit`).
             ext: (
-                self.cfg.extrinsic,
+                self.ext,
                 self.cfg.extrinsic_prior.0,
                 self.cfg.extrinsic_prior.1,
             ),

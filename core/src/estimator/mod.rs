@@ -224,9 +224,9 @@ pub struct Estimator<
     td_hold: bool,
     /// Consecutive keyframes with large residuals (health monitor).
     bad_keyframes: u32,
-    /// Set by a re-initialization: the delay to start the new window with (and its first
+    /// Set by a re-initialization: the calibration the new window starts from (and its first
     /// keyframe takes the wide re-initialization prior).
-    reinit_td: Option<f64>,
+    reinit: Option<Reinit>,
     /// Online scale of the IMU white-noise densities.
     imu_scale: imu_noise::ImuNoiseScale,
     /// The INS epoch ([`Held::epoch`]) a fast path following [`ImuOutput::ins`] holds.
@@ -236,6 +236,17 @@ pub struct Estimator<
     /// Monotonic clock of the timing statistics, ns ([`Estimator::set_clock`]; none: every
     /// timing is zero).
     clock: Option<fn() -> u64>,
+}
+
+/// What a re-initialization ([`health`]) keeps of the broken window: the online calibration,
+/// which the next window starts from and takes as its prior's mean (the keyframe states are
+/// dropped). Without online estimation they are the configured values.
+#[derive(Debug, Clone, Copy)]
+struct Reinit {
+    /// The camera-IMU delay, s.
+    td_s: f64,
+    /// The camera-IMU extrinsic.
+    ext: CameraExtrinsic,
 }
 
 /// An optional value kept beside a flag rather than in an `Option`, so that "none" is all zero
@@ -385,7 +396,7 @@ impl<
             events: HVec::new(),
             td_hold: false,
             bad_keyframes: 0,
-            reinit_td: None,
+            reinit: None,
             imu_scale: imu_noise::ImuNoiseScale::new(),
             ins_synced: 0,
             out: output::OutputBuffers::new(),
@@ -416,7 +427,8 @@ impl<
         Self::check(&cfg)?;
         let selector = KeyframeSelector::new(cfg.keyframe)?;
         // The last check: nothing has changed when it fails.
-        self.static_init.reset_to_new(cfg.static_init)?;
+        self.static_init
+            .reset_with_noise(cfg.static_init, &cfg.imu_noise)?;
         self.cfg = cfg;
         self.selector = selector;
         self.status = Status::WaitingForInit;
@@ -452,7 +464,7 @@ impl<
         self.events.clear();
         self.td_hold = false;
         self.bad_keyframes = 0;
-        self.reinit_td = None;
+        self.reinit = None;
         self.imu_scale = imu_noise::ImuNoiseScale::new();
         self.out.clear();
         Ok(())
@@ -557,6 +569,8 @@ impl<
         self.status = Status::WaitingForInit;
         self.counters.resets += 1;
         // A fresh detector: the samples before the reset must not count as static time.
-        let _ = self.static_init.reset_to_new(self.cfg.static_init);
+        let _ = self
+            .static_init
+            .reset_with_noise(self.cfg.static_init, &self.cfg.imu_noise);
     }
 }

@@ -1,5 +1,6 @@
 //! What the estimator tells its user: per-keyframe reports and running counters.
 
+use crate::camera::CameraExtrinsic;
 use crate::frontend::KeyframeDecision;
 use crate::solver::Termination;
 
@@ -81,6 +82,10 @@ pub struct KeyframeReport {
     pub admission: Admission,
     /// Camera-IMU time delay of the newest keyframe after the solve, s (`t_imu = t_cam + td`).
     pub td_s: f64,
+    /// Camera-IMU extrinsic `T_bc` after the solve: the estimate when
+    /// [`super::EstimatorConfig::estimate_extrinsic`], else the configured one. `None` when the
+    /// step did not finish (the window broke down).
+    pub extrinsic: Option<CameraExtrinsic>,
     /// Factor on the IMU white-noise densities after this keyframe (`estimator::imu_noise`; 1
     /// until the window has measured the IMU against the camera).
     pub imu_noise_scale: f64,

@@ -4,7 +4,10 @@
 //! Static detection over a sliding window of samples: the platform is static when
 //! `| mean |f| - g | <= accel_norm_tol`, every axis of the specific force has a standard
 //! deviation `<= accel_std_max` and every gyro axis `<= gyro_std_max`, and the window spans at
-//! least `min_static_s`. When the images say the platform has been at rest over the whole window
+//! least `min_static_s`. The two strict limits are raised to `noise_std_factor` times what a
+//! still IMU of the configured white noise shows (`density * sqrt(rate)`, the rate measured over
+//! the window) when that is larger ([`StaticInitializer::reset_with_noise`]): a consumer IMU held
+//! still is noisier than the absolute limits, which suit tactical and good MEMS IMUs. When the images say the platform has been at rest over the whole window
 //! ([`crate::frontend::RestDetector`]), the spread may reach the vibration limits instead
 //! (`vibration_accel_std_max`, `vibration_gyro_std_max`): rotors idling on the ground shake an
 //! IMU far more than the strict limits allow, yet the mean is still gravity and the gyro bias.
@@ -15,7 +18,7 @@
 //! mean gyro (Earth rotation, < 7.3e-5 rad/s, is absorbed into it). The accelerometer bias is not
 //! separable from the tilt at rest and is set to zero; position and velocity are zero.
 
-use super::imu::{check_sample, ImuSample};
+use super::imu::{check_sample, ImuNoise, ImuSample};
 use super::state::NavState;
 use crate::math::{quat_exp, Vec3};
 use crate::Error;
@@ -45,6 +48,12 @@ pub struct StaticInitConfig {
     pub vibration_gyro_std_max_rps: f64,
     /// Shortest static span, s.
     pub min_static_s: f64,
+    /// The strict limits are at least this many times the white-noise standard deviation of a
+    /// still IMU, `density * sqrt(rate)` of the configured `[imu_noise]` (per axis). 1 by
+    /// default: the configured densities are those of the moving platform (inflated over a
+    /// still IMU's), and a larger factor accepts the first second of a smoothly moving robot
+    /// with a consumer IMU's densities (BENCHMARKS.md, issue 31 item 3).
+    pub noise_std_factor: f64,
     /// Larger sample spacings restart the detection, s.
     pub max_dt_s: f64,
 }
@@ -59,6 +68,7 @@ impl StaticInitConfig {
         vibration_accel_std_max_mps2: 2.5,
         vibration_gyro_std_max_rps: 0.2,
         min_static_s: 1.0,
+        noise_std_factor: 1.0,
         max_dt_s: 0.05,
     };
 
@@ -72,6 +82,7 @@ impl StaticInitConfig {
             self.vibration_accel_std_max_mps2,
             self.vibration_gyro_std_max_rps,
             self.min_static_s,
+            self.noise_std_factor,
             self.max_dt_s,
         ]
         .iter()
@@ -84,6 +95,9 @@ impl StaticInitConfig {
 #[derive(Debug, Clone)]
 pub struct StaticInitializer<const M: usize> {
     cfg: StaticInitConfig,
+    /// White-noise densities `(gyro rad/s/sqrt(Hz), accel m/s^2/sqrt(Hz))` the strict limits
+    /// scale with (0: the absolute limits only).
+    densities: (f64, f64),
     window: Deque<ImuSample, M>,
     gaps: u32,
 }
@@ -111,6 +125,7 @@ impl<const M: usize> StaticInitializer<M> {
         }
         Ok(StaticInitializer {
             cfg,
+            densities: (0.0, 0.0),
             window: Deque::new(),
             gaps: 0,
         })
@@ -122,6 +137,7 @@ impl<const M: usize> StaticInitializer<M> {
     pub const fn new_unchecked(cfg: StaticInitConfig) -> Self {
         StaticInitializer {
             cfg,
+            densities: (0.0, 0.0),
             window: Deque::new(),
             gaps: 0,
         }
@@ -134,9 +150,27 @@ impl<const M: usize> StaticInitializer<M> {
             return Err(Error::InvalidConfig);
         }
         self.cfg = cfg;
+        self.densities = (0.0, 0.0);
         self.window.clear();
         self.gaps = 0;
         Ok(())
+    }
+
+    /// [`Self::reset_to_new`], the strict limits raised to `noise_std_factor` times the white
+    /// noise of `noise` when that is larger (module docs).
+    pub fn reset_with_noise(
+        &mut self,
+        cfg: StaticInitConfig,
+        noise: &ImuNoise,
+    ) -> Result<(), Error> {
+        self.reset_to_new(cfg)?;
+        let d = (noise.gyro_noise_density, noise.accel_noise_density);
+        if d.0.is_finite() && d.1.is_finite() && d.0 >= 0.0 && d.1 >= 0.0 {
+            self.densities = d;
+            Ok(())
+        } else {
+            Err(Error::InvalidConfig)
+        }
     }
 
     /// How many time gaps restarted the detection.
@@ -227,7 +261,13 @@ impl<const M: usize> StaticInitializer<M> {
         let (a_max, g_max) = if images_at_rest {
             (c.vibration_accel_std_max_mps2, c.vibration_gyro_std_max_rps)
         } else {
-            (c.accel_std_max_mps2, c.gyro_std_max_rps)
+            // A still IMU's per-axis spread: density * sqrt(rate), the rate over the window.
+            let sqrt_rate = libm::sqrt((self.window.len() as f64 - 1.0) / span_s);
+            let k = c.noise_std_factor * sqrt_rate;
+            (
+                c.accel_std_max_mps2.max(k * self.densities.1),
+                c.gyro_std_max_rps.max(k * self.densities.0),
+            )
         };
         let is_static = libm::fabs(st.accel_norm_mean - c.gravity_mps2) <= c.accel_norm_tol_mps2
             && st.accel_std.max() <= a_max
@@ -326,6 +366,62 @@ mod tests {
             ..s
         };
         assert_eq!(init.push(&nan), Err(Error::NonFinite));
+    }
+
+    /// A hand-held consumer IMU's tremor (per axis +-0.008 rad/s, +-0.09 m/s^2 at 200 Hz):
+    /// above the absolute limits, within one white-noise deviation of DM-VIO's configured
+    /// densities (1e-3 rad/s/sqrt(Hz), 1e-2 m/s^2/sqrt(Hz): 0.0141, 0.141); a sine of 0.3 rad/s
+    /// is refused either way.
+    #[test]
+    fn limits_scale_with_the_configured_white_noise() {
+        let noise = ImuNoise {
+            gyro_noise_density: 1e-3,
+            accel_noise_density: 1e-2,
+            gyro_bias_rw: 1e-5,
+            accel_bias_rw: 1e-3,
+            bias_corr_time_s: None,
+        };
+        let run = |init: &mut StaticInitializer<200>, moving: bool| {
+            let mut out = None;
+            for k in 0..200i64 {
+                let d = if k % 2 == 0 { 1.0 } else { -1.0 };
+                let turn = if moving {
+                    0.3 * libm::sin(k as f64 * 0.1)
+                } else {
+                    0.0
+                };
+                let s = ImuSample {
+                    t_ns: k * 5_000_000,
+                    gyro_rps: Vec3::new(8e-3 * d, 0.0, turn),
+                    accel_mps2: Vec3::new(0.0, 0.09 * d, 9.81),
+                };
+                if let Some(st) = init.push(&s).unwrap() {
+                    out = Some(st);
+                    break;
+                }
+            }
+            out
+        };
+        let mut init = StaticInitializer::<200>::new(cfg()).unwrap();
+        assert_eq!(run(&mut init, false), None, "absolute limits only");
+        init.reset_with_noise(cfg(), &noise).unwrap();
+        assert_eq!(run(&mut init, false).map(|s| s.t_ns), Some(500_000_000));
+        init.reset_with_noise(cfg(), &noise).unwrap();
+        assert_eq!(run(&mut init, true), None, "motion");
+        init.reset_to_new(cfg()).unwrap();
+        assert_eq!(
+            run(&mut init, false),
+            None,
+            "reset_to_new drops the densities"
+        );
+        let bad = ImuNoise {
+            gyro_noise_density: f64::NAN,
+            ..noise
+        };
+        assert_eq!(
+            init.reset_with_noise(cfg(), &bad),
+            Err(Error::InvalidConfig)
+        );
     }
 
     #[test]

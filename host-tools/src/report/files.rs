@@ -43,16 +43,21 @@ pub const STATS_LIDAR_COLUMNS: &str =
 pub const STATS_ADMISSION_COLUMNS: &str =
     "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted,imu_noise_scale,prior_pos_std_m,prior_yaw_std_rad,window_correction_m,at_rest";
 
+/// The camera-IMU extrinsic columns appended to `stats.csv`: `T_bc` after the keyframe's solve
+/// (the estimate with `estimate_extrinsic`, else the configured one; empty when the window broke
+/// down at that keyframe).
+pub const STATS_EXTRINSIC_COLUMNS: &str = "p_bc_x_m,p_bc_y_m,p_bc_z_m,q_bc_w,q_bc_x,q_bc_y,q_bc_z";
+
 /// The header of `stats.csv` (a row per keyframe).
 fn stats_header() -> String {
     format!(
-        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS},{STATS_ADMISSION_COLUMNS}"
+        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS},{STATS_ADMISSION_COLUMNS},{STATS_EXTRINSIC_COLUMNS}"
     )
 }
 
 /// One row of `stats.csv` (columns in [`stats_header`]).
 fn write_stats_row(f: &mut impl Write, r: &KeyframeReport) -> std::io::Result<()> {
-    writeln!(
+    write!(
         f,
         "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{}",
         povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
@@ -98,7 +103,17 @@ fn write_stats_row(f: &mut impl Write, r: &KeyframeReport) -> std::io::Result<()
         r.prior_gauge_std.1,
         r.window_correction_m,
         u8::from(r.at_rest),
-    )
+    )?;
+    match &r.extrinsic {
+        Some(e) => {
+            let q = e.q_bc.quaternion();
+            for v in [e.p_bc.x, e.p_bc.y, e.p_bc.z, q.w, q.i, q.j, q.k] {
+                write!(f, ",{v:.9}")?;
+            }
+            writeln!(f)
+        }
+        None => writeln!(f, ",,,,,,,"),
+    }
 }
 
 /// Writes the files of a collected run into `dir`: [`OutputFiles`] fed with `out`.

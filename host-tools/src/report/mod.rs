@@ -9,7 +9,10 @@ pub mod text;
 mod window_use;
 
 pub use digest::RunDigest;
-pub use files::{write_outputs, OutputFiles, STATS_ADMISSION_COLUMNS, STATS_LIDAR_COLUMNS};
+pub use files::{
+    write_outputs, OutputFiles, STATS_ADMISSION_COLUMNS, STATS_EXTRINSIC_COLUMNS,
+    STATS_LIDAR_COLUMNS,
+};
 pub use text::{lidar_lines, print_summary};
 pub use window_use::WindowUse;
 
