@@ -81,8 +81,10 @@ impl MotionInitConfig {
         max_velocity_std_mps: 0.1,
         max_gravity_std_rad: 0.03,
         max_gravity_norm_error: 0.1,
-        max_residual_sigmas: 3.0,
-        min_inlier_ratio: 0.7,
+        // The unestimated gyro bias bends the bearings over the span: on the simulator's
+        // EuRoC-like IMU about half the views are within 3 sigmas.
+        max_residual_sigmas: 2.5,
+        min_inlier_ratio: 0.3,
     };
 
     /// Whether every threshold is in its range.
