@@ -479,6 +479,7 @@ impl EstimatorConfig {
                     min_parallax_rad: 0.0,
                     sigma_rad: 0.0,
                     max_velocity_std_mps: 0.0,
+                    max_velocity_rel_std: 0.0,
                     max_gravity_std_rad: 0.0,
                     max_gravity_norm_error: 0.0,
                     max_residual_sigmas: 0.0,

@@ -74,8 +74,8 @@ use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::TimedObs;
 use crate::frontend::{KeyframeSelector, NormalizedObs, RestDetector, TrackTable};
 use crate::inertial::init::StaticInitializer;
-use crate::inertial::motion_init::MotionInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
+use crate::inertial::motion_init::MotionInitializer;
 use crate::inertial::window::InsWindow;
 use crate::inertial::{ImuSample, InsUpdate, NavState};
 #[cfg(feature = "lidar")]

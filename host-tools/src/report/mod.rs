@@ -31,6 +31,9 @@ pub struct Summary {
     pub mode: String,
     /// Initialization.
     pub init: InitMode,
+    /// Which initializer started the run: `static`, `motion` (both, joined by `+`, after a
+    /// reset), `groundtruth`, or none.
+    pub started_by: Option<String>,
     /// Keyframes processed.
     pub keyframes: usize,
     /// Camera frames in the dataset.
@@ -193,6 +196,7 @@ pub fn summarize_digest(
         dataset: rec.name().to_string(),
         mode: mode.to_string(),
         init,
+        started_by: None,
         keyframes,
         camera_frames: t.camera_frames,
         backend_ms_median: percentile(&ms, 50.0),
@@ -249,6 +253,7 @@ pub fn summarize_digest(
         image_failures: t.image_failures,
         counters: serde_json::to_value(format!("{:?} {:?}", t.counters, t.vio_counters))?,
     };
+    s.started_by = started_by(init, &t.counters);
     let est = d.trajectory.as_deref().unwrap_or_default();
     if !ground_truth.is_empty() && !est.is_empty() {
         let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
@@ -270,4 +275,17 @@ pub fn summarize_digest(
         }
     }
     Ok(s)
+}
+
+/// Which initializer started the run, from the estimator's counters.
+fn started_by(init: InitMode, c: &povins_core::estimator::Counters) -> Option<String> {
+    if init == InitMode::Groundtruth {
+        return Some("groundtruth".into());
+    }
+    match (c.static_inits > 0, c.motion_inits > 0) {
+        (true, true) => Some("static+motion".into()),
+        (true, false) => Some("static".into()),
+        (false, true) => Some("motion".into()),
+        (false, false) => None,
+    }
 }

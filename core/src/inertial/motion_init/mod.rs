@@ -59,6 +59,9 @@ pub struct MotionInitConfig {
     pub sigma_rad: f64,
     /// Largest posterior standard deviation of the velocity (each axis), m/s.
     pub max_velocity_std_mps: f64,
+    /// Largest posterior standard deviation of the velocity along itself, relative to the
+    /// speed (the scale).
+    pub max_velocity_rel_std: f64,
     /// Largest posterior standard deviation of the gravity direction, rad.
     pub max_gravity_std_rad: f64,
     /// Largest relative difference of the unconstrained gravity norm to the configured one.
@@ -79,6 +82,7 @@ impl MotionInitConfig {
         min_parallax_rad: 0.02,
         sigma_rad: 0.004,
         max_velocity_std_mps: 0.1,
+        max_velocity_rel_std: 0.05,
         max_gravity_std_rad: 0.03,
         max_gravity_norm_error: 0.1,
         // The unestimated gyro bias bends the bearings over the span: on the simulator's
@@ -99,6 +103,7 @@ impl MotionInitConfig {
             && self.min_parallax_rad >= 0.0
             && pos(self.sigma_rad)
             && pos(self.max_velocity_std_mps)
+            && pos(self.max_velocity_rel_std)
             && pos(self.max_gravity_std_rad)
             && pos(self.max_gravity_norm_error)
             && pos(self.max_residual_sigmas)
@@ -312,8 +317,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         let Some(last) = self.imu.back().copied() else {
             return Ok(None);
         };
-        if (self.len as u32) < self.cfg.min_frames || t_new > last.t_ns || t_new == self.solved_ns
-        {
+        if (self.len as u32) < self.cfg.min_frames || t_new > last.t_ns || t_new == self.solved_ns {
             return Ok(None);
         }
         self.solved_ns = t_new;
@@ -336,7 +340,11 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             bg: *bg,
             ba: Vec3::zeros(),
         };
-        let finite = state.v_wb.iter().chain(q_wb.coords.iter()).all(|x| x.is_finite());
+        let finite = state
+            .v_wb
+            .iter()
+            .chain(q_wb.coords.iter())
+            .all(|x| x.is_finite());
         if !finite {
             return Err(Refusal::NonFinite);
         }

@@ -169,7 +169,20 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         let cov5 = h5.cholesky().ok_or(Refusal::IllConditioned)?.inverse();
         let std_v = libm::sqrt((0..3).map(|k| cov5[(k, k)]).fold(0.0, f64::max));
         let std_g = libm::sqrt((3..5).map(|k| cov5[(k, k)]).fold(0.0, f64::max)) / gravity;
-        if !(std_v <= cfg.max_velocity_std_mps && std_g <= cfg.max_gravity_std_rad) {
+        // The scale: the velocity's standard deviation along itself, relative to its norm (a
+        // constant velocity leaves it unobservable, and a scale shrunk towards zero shrinks
+        // the absolute standard deviations with it).
+        let speed = v0.norm();
+        let cov_v = cov5.fixed_view::<3, 3>(0, 0);
+        let rel_v = if speed > 0.0 {
+            libm::sqrt((v0.transpose() * cov_v * v0)[0].max(0.0)) / (speed * speed)
+        } else {
+            0.0
+        };
+        if !(std_v <= cfg.max_velocity_std_mps
+            && std_g <= cfg.max_gravity_std_rad
+            && rel_v <= cfg.max_velocity_rel_std)
+        {
             return Err(Refusal::IllConditioned);
         }
         let inlier_ratio = st.inliers as f64 / (st.views.max(1)) as f64;

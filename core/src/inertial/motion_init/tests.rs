@@ -105,10 +105,14 @@ fn run(case: &Case) -> Result<Option<(NavState, Solution)>, Refusal> {
             let p_b = case.v0 * p.t_s + g_true() * (0.5 * p.t_s * p.t_s) + p.dp;
             let c = p_b + p.r * ext.p_bc;
             let r_b0c = p.r * r_bc;
-            let obs = pts.iter().take(case.landmarks).enumerate().filter_map(|(j, x)| {
-                let u = r_b0c.transpose() * (x - c);
-                (u.z > 0.2).then_some((j as u64 * 3 + 1, [u.x / u.z, u.y / u.z]))
-            });
+            let obs = pts
+                .iter()
+                .take(case.landmarks)
+                .enumerate()
+                .filter_map(|(j, x)| {
+                    let u = r_b0c.transpose() * (x - c);
+                    (u.z > 0.2).then_some((j as u64 * 3 + 1, [u.x / u.z, u.y / u.z]))
+                });
             init.push_frame(t, obs);
         }
         init.push_imu(&s);
@@ -211,14 +215,26 @@ fn garbage_never_panics() {
         ..MotionInitConfig::DEFAULT
     });
     let mut rng = 3u64;
-    let bad = [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e300, -1e300, 0.0, 1e-300];
+    let bad = [
+        f64::NAN,
+        f64::INFINITY,
+        -f64::INFINITY,
+        1e300,
+        -1e300,
+        0.0,
+        1e-300,
+    ];
     for k in 0..400i64 {
         let t = k * DT_NS;
         if k % 20 == 0 {
             let obs = (0..100u64).map(|j| {
                 let a = lcg(&mut rng);
                 let pick = |v: f64| bad[((v.abs() * 1e6) as usize) % bad.len()];
-                let x = if a > 0.5 { [pick(a), a] } else { [a * 3.0, lcg(&mut rng)] };
+                let x = if a > 0.5 {
+                    [pick(a), a]
+                } else {
+                    [a * 3.0, lcg(&mut rng)]
+                };
                 (j % 40, x)
             });
             init.push_frame(t, obs);
