@@ -136,12 +136,13 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         let x = x.ok_or(Refusal::IllConditioned)?;
         let cov = h.cholesky().ok_or(Refusal::IllConditioned)?.inverse();
         let std_v_lin = (0..3).map(|k| cov[(k, k)]).fold(0.0, f64::max);
-        if !(libm::sqrt(std_v_lin) <= cfg.max_velocity_std_mps) {
+        if libm::sqrt(std_v_lin).is_nan() || libm::sqrt(std_v_lin) > cfg.max_velocity_std_mps {
             return Err(Refusal::IllConditioned);
         }
         let g_free = Vec3::new(x[3], x[4], x[5]);
         let g_norm = g_free.norm();
-        if !(libm::fabs(g_norm - gravity) <= cfg.max_gravity_norm_error * gravity) {
+        let g_err = libm::fabs(g_norm - gravity);
+        if g_err.is_nan() || g_err > cfg.max_gravity_norm_error * gravity {
             return Err(Refusal::GravityNorm);
         }
         // The gravity on the sphere |g| = gravity: two tangent unknowns (and v0).
@@ -277,7 +278,7 @@ fn gather<const K: usize, const F: usize>(
                     (best, par) = (i, p);
                 }
             }
-            if !(par >= min_parallax) || best == 0 {
+            if par.is_nan() || par < min_parallax || best == 0 {
                 continue;
             }
             t.r = best as u8;
@@ -313,7 +314,7 @@ fn accumulate<const K: usize>(
         };
         let cr = m_r.cross(&m_l);
         let s2 = cr.norm_squared();
-        if !(s2 > 0.0) {
+        if s2.is_nan() || s2 <= 0.0 {
             continue;
         }
         let a = cr.cross(&m_r) / s2;
