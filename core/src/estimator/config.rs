@@ -478,6 +478,7 @@ impl EstimatorConfig {
                     min_tracks: 0,
                     min_parallax_rad: 0.0,
                     sigma_rad: 0.0,
+                    min_accel_excitation_mps2: 0.0,
                     max_velocity_std_mps: 0.0,
                     max_velocity_rel_std: 0.0,
                     max_gravity_std_rad: 0.0,

@@ -100,8 +100,8 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         if !(gravity.is_finite() && gravity > 0.0) {
             return Err(Refusal::NonFinite);
         }
-        let r_bc = ext.q_bc.to_rotation_matrix().into_inner();
         let cfg = self.cfg;
+        let r_bc = ext.q_bc.to_rotation_matrix().into_inner();
         let (seen, used) = gather(
             &self.frames,
             self.head,
@@ -116,6 +116,12 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         }
         if used < cfg.min_tracks {
             return Err(Refusal::LowParallax);
+        }
+        // Excitation (OpenVINS' "no accel jerk"): the spread of the frame-to-frame mean
+        // specific force in b0. Without it an acceleration is a tilt of the gravity and the
+        // scale of v0 is free (a vehicle cruising or in a steady turn).
+        if excitation(&pre[..self.len.min(K)]) < cfg.min_accel_excitation_mps2 {
+            return Err(Refusal::IllConditioned);
         }
         let tracks = &self.scratch.tracks;
         let p_bc = ext.p_bc;
@@ -203,6 +209,27 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             end,
         })
     }
+}
+
+/// RMS deviation from their mean of the mean specific forces (in `b0`) of the intervals
+/// between consecutive init frames, m/s^2 (0 below two intervals).
+fn excitation(pre: &[Pre]) -> f64 {
+    let mut acc: HVec<Vec3, 64> = HVec::new();
+    for w in pre.windows(2) {
+        if let [a, b] = w {
+            let dt = b.t_s - a.t_s;
+            if dt > 0.0 {
+                let _ = acc.push((b.dv - a.dv) / dt);
+            }
+        }
+    }
+    if acc.len() < 2 {
+        return 0.0;
+    }
+    let n = acc.len() as f64;
+    let mean = acc.iter().fold(Vec3::zeros(), |s, a| s + a) / n;
+    let var = acc.iter().map(|a| (a - mean).norm_squared()).sum::<f64>() / n;
+    libm::sqrt(var)
 }
 
 /// `x = x0 + T y` with `y = (v0, w)`: the velocity kept, the gravity moved in the tangent plane
