@@ -345,7 +345,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             p_wb: Vec3::zeros(),
             q_wb,
             v_wb: r_wb0 * v_b0,
-            bg: *bg,
+            bg: sol.bg,
             ba: Vec3::zeros(),
         };
         let finite = state

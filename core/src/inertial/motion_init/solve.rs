@@ -21,6 +21,12 @@ const HUBER: f64 = 2.0;
 const INLIER_SIGMAS: f64 = 3.0;
 /// Reweighted linear solves.
 const IRLS_ITERATIONS: usize = 5;
+/// Gauss-Newton steps on `(v0, g, bg)`.
+const BIAS_ITERATIONS: usize = 5;
+/// Step halvings of one of them.
+const STEP_HALVINGS: usize = 5;
+/// Largest change of the gyro bias from the given one, rad/s (larger: kept as given).
+const MAX_BIAS_STEP_RPS: f64 = 0.2;
 /// Gauss-Newton steps on the gravity sphere.
 const SPHERE_ITERATIONS: usize = 4;
 
@@ -43,11 +49,14 @@ pub struct Solution {
     pub inlier_ratio: f64,
     /// Tracks used.
     pub tracks: u32,
+    /// Gyro bias estimated with `(v0, g)`, rad/s.
+    pub bg: Vec3,
     /// The IMU integrated from `b0` to the newest sample.
     pub(crate) end: Pre,
 }
 
-/// One track's views: the init frame and its bearing in `b0`; `r` the view of largest parallax.
+/// One track's views: the init frame and its unit bearing in the camera; `r` the view of largest
+/// parallax.
 #[derive(Debug, Clone)]
 pub(crate) struct Track<const K: usize> {
     views: HVec<(u8, Vec3), K>,
@@ -96,7 +105,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         bg: &Vec3,
     ) -> Result<Solution, Refusal> {
         let mut pre = [Pre::ZERO; K];
-        let end = self.integrate(bg, &mut pre).ok_or(Refusal::TooFewTracks)?;
+        let mut end = self.integrate(bg, &mut pre).ok_or(Refusal::TooFewTracks)?;
         if !(gravity.is_finite() && gravity > 0.0) {
             return Err(Refusal::NonFinite);
         }
@@ -126,20 +135,20 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         let tracks = &self.scratch.tracks;
         let p_bc = ext.p_bc;
         let sigma = cfg.sigma_rad;
-        // Reweighted linear solves (the first in metres: no distances yet).
-        let mut x: Option<Vec6> = None;
-        let mut h = Mat6::zeros();
-        for _ in 0..IRLS_ITERATIONS {
-            let (hh, b, _) = accumulate(tracks, &pre, &p_bc, x.as_ref(), sigma);
-            let chol = hh.cholesky().ok_or(Refusal::IllConditioned)?;
-            let sol = -chol.solve(&b);
-            if !sol.iter().all(|v| v.is_finite()) {
-                return Err(Refusal::NonFinite);
+        // Reweighted linear solves (the first in metres: no distances yet), then the gyro bias
+        // with them, then the linear solves again at that bias.
+        let (x, _) = irls(tracks, &pre, &r_bc, &p_bc, None, sigma, IRLS_ITERATIONS)?;
+        let mut bg_used = *bg;
+        if let Some((xb, bgb)) = refine_bias(self, tracks, &r_bc, &p_bc, x, *bg, sigma) {
+            if (bgb - bg).norm() <= MAX_BIAS_STEP_RPS {
+                if let Some(e) = self.integrate(&bgb, &mut pre) {
+                    end = e;
+                    bg_used = bgb;
+                    let _ = xb;
+                }
             }
-            x = Some(sol);
-            h = hh;
         }
-        let x = x.ok_or(Refusal::IllConditioned)?;
+        let (x, h) = irls(tracks, &pre, &r_bc, &p_bc, Some(x), sigma, 2)?;
         let cov = h.cholesky().ok_or(Refusal::IllConditioned)?.inverse();
         let std_v_lin = (0..3).map(|k| cov[(k, k)]).fold(0.0, f64::max);
         if libm::sqrt(std_v_lin).is_nan() || libm::sqrt(std_v_lin) > cfg.max_velocity_std_mps {
@@ -156,7 +165,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         let mut v0 = Vec3::new(x[0], x[1], x[2]);
         for _ in 0..SPHERE_ITERATIONS {
             let xg = Vec6::new(v0.x, v0.y, v0.z, g.x, g.y, g.z);
-            let (hh, b, _) = accumulate(tracks, &pre, &p_bc, Some(&xg), sigma);
+            let (hh, b, _) = accumulate(tracks, &pre, &r_bc, &p_bc, Some(&xg), sigma);
             let t = tangent(&g);
             let x0 = Vec6::new(0.0, 0.0, 0.0, g.x, g.y, g.z);
             let h5: Mat5 = t.transpose() * hh * t;
@@ -170,7 +179,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             }
         }
         let xg = Vec6::new(v0.x, v0.y, v0.z, g.x, g.y, g.z);
-        let (hh, _, st) = accumulate(tracks, &pre, &p_bc, Some(&xg), sigma);
+        let (hh, _, st) = accumulate(tracks, &pre, &r_bc, &p_bc, Some(&xg), sigma);
         let t = tangent(&g);
         let h5: Mat5 = t.transpose() * hh * t;
         let cov5 = h5.cholesky().ok_or(Refusal::IllConditioned)?.inverse();
@@ -206,6 +215,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             rms_sigmas: rms,
             inlier_ratio,
             tracks: used,
+            bg: bg_used,
             end,
         })
     }
@@ -230,6 +240,30 @@ fn excitation(pre: &[Pre]) -> f64 {
     let mean = acc.iter().fold(Vec3::zeros(), |s, a| s + a) / n;
     let var = acc.iter().map(|a| (a - mean).norm_squared()).sum::<f64>() / n;
     libm::sqrt(var)
+}
+
+/// `iterations` reweighted linear solves from `x` (none: the first unweighted); the solution
+/// and the normal matrix of the last.
+fn irls<const K: usize>(
+    tracks: &[Track<K>],
+    pre: &[Pre; K],
+    r_bc: &Mat3,
+    p_bc: &Vec3,
+    mut x: Option<Vec6>,
+    sigma: f64,
+    iterations: usize,
+) -> Result<(Vec6, Mat6), Refusal> {
+    let mut h = Mat6::zeros();
+    for _ in 0..iterations {
+        let (hh, b, _) = accumulate(tracks, pre, r_bc, p_bc, x.as_ref(), sigma);
+        let sol = -hh.cholesky().ok_or(Refusal::IllConditioned)?.solve(&b);
+        if !sol.iter().all(|v| v.is_finite()) {
+            return Err(Refusal::NonFinite);
+        }
+        x = Some(sol);
+        h = hh;
+    }
+    Ok((x.ok_or(Refusal::IllConditioned)?, h))
 }
 
 /// `x = x0 + T y` with `y = (v0, w)`: the velocity kept, the gravity moved in the tangent plane
@@ -288,19 +322,22 @@ fn gather<const K: usize, const F: usize>(
                     continue;
                 };
                 if let Some(u) = find(f, *id) {
-                    let _ = t.views.push((j as u8, p.r * (r_bc * u)));
+                    let _ = p;
+                    let _ = t.views.push((j as u8, u));
                 }
             }
             if t.views.len() < 3 {
                 continue;
             }
             seen += 1;
-            let Some(&(_, m_l)) = t.views.first() else {
+            let bearing = |&(j, u): &(u8, Vec3)| pre.get(j as usize).map(|p| p.r * (r_bc * u));
+            let Some(m_l) = t.views.first().and_then(bearing) else {
                 continue;
             };
             let (mut best, mut par) = (0usize, 0.0);
-            for (i, (_, m)) in t.views.iter().enumerate().skip(1) {
-                let p = m_l.cross(m).norm();
+            for (i, v) in t.views.iter().enumerate().skip(1) {
+                let Some(m) = bearing(v) else { continue };
+                let p = m_l.cross(&m).norm();
                 if p > par {
                     (best, par) = (i, p);
                 }
@@ -317,12 +354,59 @@ fn gather<const K: usize, const F: usize>(
     (seen, used)
 }
 
+/// One view's linear pieces under the integration `pre`: `X - c_i = D x + f` (the landmark
+/// from the anchors `l`, `r` minus the view's camera centre, in `b0`) and the view's bearing
+/// `m_i`; the residual is `[m_i]x (D x + f)`.
+fn terms<const K: usize>(
+    t: &Track<K>,
+    view: usize,
+    pre: &[Pre; K],
+    r_bc: &Mat3,
+    p_bc: &Vec3,
+) -> Option<(Mat36, Vec3, Vec3)> {
+    let at = |v: &(u8, Vec3)| -> Option<(Mat36, Vec3, Vec3)> {
+        let p = pre.get(v.0 as usize)?;
+        Some((a_of(p.t_s), p.dp + p.r * p_bc, p.r * (r_bc * v.1)))
+    };
+    let (al, bl, m_l) = at(t.views.first()?)?;
+    let (ar, br, m_r) = at(t.views.get(t.r as usize)?)?;
+    let (ai, bi, m_i) = at(t.views.get(view)?)?;
+    let cr = m_r.cross(&m_l);
+    let s2 = cr.norm_squared();
+    if s2.is_nan() || s2 <= 0.0 {
+        return None;
+    }
+    // d_l = a^T (c_r - c_l) = a^T (A_r - A_l) x + a^T (b_r - b_l)
+    let a = cr.cross(&m_r) / s2;
+    let d_a = a.transpose() * (ar - al);
+    let d_b = a.dot(&(br - bl));
+    Some((al - ai + m_l * d_a, bl - bi + m_l * d_b, m_i))
+}
+
+/// The weight of a view with `X - c_i = dvec` and residual `res` at the current `x`: the
+/// whitening by the bearing noise times the distance, Huber; with the statistics.
+fn weight(dvec: &Vec3, res: &Vec3, sigma: f64, st: &mut Stats) -> Option<f64> {
+    let s = sigma * dvec.norm().max(1e-3);
+    let z = res.norm() / s;
+    if !z.is_finite() {
+        return None;
+    }
+    st.views += 1;
+    if z <= INLIER_SIGMAS {
+        st.inliers += 1;
+        st.sq_inliers += z * z;
+    }
+    let hub = if z <= HUBER { 1.0 } else { HUBER / z };
+    Some(hub / (s * s))
+}
+
 /// The normal equations `H x = -b` of every view's `[m_i]x ((c_l - c_i) + m_l d_l)`; with a
 /// current `x`, whitened by the bearing noise times the distance and Huber-reweighted (with
 /// the residual statistics), else unweighted (metres).
 fn accumulate<const K: usize>(
     tracks: &[Track<K>],
     pre: &[Pre; K],
+    r_bc: &Mat3,
     p_bc: &Vec3,
     x: Option<&Vec6>,
     sigma: f64,
@@ -330,55 +414,131 @@ fn accumulate<const K: usize>(
     let mut h = Mat6::zeros();
     let mut b = Vec6::zeros();
     let mut st = Stats::default();
-    let coef = |i: u8| -> Option<(Mat36, Vec3)> {
-        let p = pre.get(i as usize)?;
-        Some((a_of(p.t_s), p.dp + p.r * p_bc))
-    };
     for t in tracks {
-        let (Some(&(fl, m_l)), Some(&(fr, m_r))) = (t.views.first(), t.views.get(t.r as usize))
-        else {
-            continue;
-        };
-        let cr = m_r.cross(&m_l);
-        let s2 = cr.norm_squared();
-        if s2.is_nan() || s2 <= 0.0 {
-            continue;
-        }
-        let a = cr.cross(&m_r) / s2;
-        let (Some((al, bl)), Some((ar, br))) = (coef(fl), coef(fr)) else {
-            continue;
-        };
-        // d_l = a^T (c_r - c_l) = a^T (A_r - A_l) x + a^T (b_r - b_l)
-        let d_a = a.transpose() * (ar - al);
-        let d_b = a.dot(&(br - bl));
-        for &(fi, m_i) in t.views.iter().skip(1) {
-            let Some((ai, bi)) = coef(fi) else { continue };
+        for view in 1..t.views.len() {
+            let Some((d, f, m_i)) = terms(t, view, pre, r_bc, p_bc) else {
+                continue;
+            };
             let sk = skew(&m_i);
-            let jac: Mat36 = sk * (al - ai + m_l * d_a);
-            let e: Vec3 = sk * (bl - bi + m_l * d_b);
+            let jac: Mat36 = sk * d;
+            let e: Vec3 = sk * f;
             let w = match x {
                 None => 1.0,
-                Some(x) => {
-                    let res = jac * x + e;
-                    let d_l = (d_a * x)[0] + d_b;
-                    let dist = ((al - ai) * x + bl - bi + m_l * d_l).norm().max(1e-3);
-                    let s = sigma * dist;
-                    let z = res.norm() / s;
-                    if !z.is_finite() {
-                        continue;
-                    }
-                    st.views += 1;
-                    if z <= INLIER_SIGMAS {
-                        st.inliers += 1;
-                        st.sq_inliers += z * z;
-                    }
-                    let hub = if z <= HUBER { 1.0 } else { HUBER / z };
-                    hub / (s * s)
-                }
+                Some(x) => match weight(&(d * x + f), &(jac * x + e), sigma, &mut st) {
+                    Some(w) => w,
+                    None => continue,
+                },
             };
             h += jac.transpose() * jac * w;
             b += jac.transpose() * e * w;
         }
     }
     (h, b, st)
+}
+
+/// The Huber cost of the whitened residuals at `x` under `pre`.
+fn robust_cost<const K: usize>(
+    tracks: &[Track<K>],
+    pre: &[Pre; K],
+    r_bc: &Mat3,
+    p_bc: &Vec3,
+    x: &Vec6,
+    sigma: f64,
+) -> f64 {
+    let mut c = 0.0;
+    for t in tracks {
+        for view in 1..t.views.len() {
+            let Some((d, f, m_i)) = terms(t, view, pre, r_bc, p_bc) else {
+                continue;
+            };
+            let dvec = d * x + f;
+            let z = m_i.cross(&dvec).norm() / (sigma * dvec.norm().max(1e-3));
+            if z.is_finite() {
+                c += if z <= HUBER {
+                    z * z
+                } else {
+                    2.0 * HUBER * z - HUBER * HUBER
+                };
+            }
+        }
+    }
+    c
+}
+
+/// Gauss-Newton steps on `(x, bg)` (the gyro bias's derivatives numeric, by re-integrating),
+/// with the weights at the current values. Returns the refined `(x, bg)`; `None` when a step
+/// fails (then the caller keeps its values).
+#[allow(clippy::too_many_arguments)]
+fn refine_bias<const K: usize, const F: usize, const M: usize>(
+    init: &MotionInitializer<K, F, M>,
+    tracks: &[Track<K>],
+    r_bc: &Mat3,
+    p_bc: &Vec3,
+    mut x: Vec6,
+    mut bg: Vec3,
+    sigma: f64,
+) -> Option<(Vec6, Vec3)> {
+    const H: f64 = 1e-4;
+    for _ in 0..BIAS_ITERATIONS {
+        let mut pres = [[Pre::ZERO; K]; 4];
+        for (k, p) in pres.iter_mut().enumerate() {
+            let mut b = bg;
+            if k > 0 {
+                b[k - 1] += H;
+            }
+            init.integrate(&b, p)?;
+        }
+        let [p0, p1, p2, p3] = &pres;
+        let mut h9 = SMatrix::<f64, 9, 9>::zeros();
+        let mut b9 = SVector::<f64, 9>::zeros();
+        let mut st = Stats::default();
+        for t in tracks {
+            for view in 1..t.views.len() {
+                let Some((d, f, m_i)) = terms(t, view, p0, r_bc, p_bc) else {
+                    continue;
+                };
+                let dvec = d * x + f;
+                let r0 = m_i.cross(&dvec);
+                let Some(w) = weight(&dvec, &r0, sigma, &mut st) else {
+                    continue;
+                };
+                let mut jac = SMatrix::<f64, 3, 9>::zeros();
+                jac.fixed_view_mut::<3, 6>(0, 0)
+                    .copy_from(&(skew(&m_i) * d));
+                for (k, p) in [p1, p2, p3].into_iter().enumerate() {
+                    let Some((dk, fk, mk)) = terms(t, view, p, r_bc, p_bc) else {
+                        continue;
+                    };
+                    let rk = mk.cross(&(dk * x + fk));
+                    jac.set_column(6 + k, &((rk - r0) / H));
+                }
+                h9 += jac.transpose() * jac * w;
+                b9 += jac.transpose() * r0 * w;
+            }
+        }
+        let dz = -h9.cholesky()?.solve(&b9);
+        if !dz.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        // Step halving on the robust cost (the residuals at a wrong bias are large: a full
+        // Gauss-Newton step overshoots).
+        let c0 = robust_cost(tracks, p0, r_bc, p_bc, &x, sigma);
+        let mut accepted = false;
+        let mut alpha = 1.0;
+        for _ in 0..STEP_HALVINGS {
+            let xa = x + dz.fixed_rows::<6>(0) * alpha;
+            let ba = bg + dz.fixed_rows::<3>(6) * alpha;
+            let mut pa = [Pre::ZERO; K];
+            init.integrate(&ba, &mut pa)?;
+            if robust_cost(tracks, &pa, r_bc, p_bc, &xa, sigma) < c0 {
+                (x, bg, accepted) = (xa, ba, true);
+                break;
+            }
+            alpha *= 0.5;
+        }
+        if !accepted {
+            break;
+        }
+    }
+    Some((x, bg))
 }
