@@ -81,6 +81,9 @@ impl<
             RestVerdict::Rest { since_ns } => Some(since_ns.saturating_add(td_ns)),
             _ => None,
         };
+        if rest_since.is_some() {
+            self.last_rest_ns = Some(s.t_ns);
+        }
         let state = match self.cfg.init.mode {
             InitMode::Motion => None,
             _ => match self.static_init.push_with_rest(s, rest_since) {
@@ -94,7 +97,15 @@ impl<
                 self.counters.static_inits += 1;
                 Some(st)
             }
-            None => self.try_motion_init(s, rest_since.is_some()),
+            None => {
+                // Auto: after a rest the static initializer keeps the start for the span of
+                // the init frames (a gentle take-off must still start static).
+                let span_ns = (self.cfg.init.motion.max_span_s * 1e9) as i64;
+                let rest_recent = self
+                    .last_rest_ns
+                    .is_some_and(|t| s.t_ns.saturating_sub(t) <= span_ns);
+                self.try_motion_init(s, rest_recent)
+            }
         };
         if let Some(state) = state {
             let ins = Ins::new(self.ins_config(), state)?;

@@ -193,6 +193,8 @@ pub struct Estimator<
     motion_init: MotionInitializer<MOTION_INIT_FRAMES, MAX_FEATURES, INIT_SAMPLES>,
     /// Set by an in-motion start: the first keyframe takes `cfg.init.motion_prior`.
     motion_started: bool,
+    /// IMU time of the newest sample at which the images showed a rest while waiting.
+    last_rest_ns: Option<i64>,
     ins: Held<Ins>,
     last_imu: Option<ImuSample>,
     tracks: TrackTable<MAX_FEATURES>,
@@ -361,6 +363,7 @@ impl<
             static_init: StaticInitializer::new_unchecked(EstimatorConfig::PLACEHOLDER.static_init),
             motion_init: MotionInitializer::new(EstimatorConfig::PLACEHOLDER.init.motion),
             motion_started: false,
+            last_rest_ns: None,
             ins: Held::empty(Ins::blank()),
             last_imu: None,
             tracks: TrackTable::new(0.0),
@@ -428,6 +431,7 @@ impl<
         self.cfg = cfg;
         self.motion_init.reset(cfg.init.motion);
         self.motion_started = false;
+        self.last_rest_ns = None;
         self.selector = selector;
         self.status = Status::WaitingForInit;
         self.ins.clear();
@@ -552,6 +556,7 @@ impl<
         self.rest.clear();
         self.motion_init.reset(self.cfg.init.motion);
         self.motion_started = false;
+        self.last_rest_ns = None;
         self.ext = self.cfg.extrinsic;
         // Buffered INS states and points belong to the INS run that ends here.
         self.ins_window.clear();
