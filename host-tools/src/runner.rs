@@ -30,8 +30,14 @@ use std::time::Instant;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum InitMode {
+    /// The static initializer while the images show a rest, the in-motion one otherwise (the
+    /// estimator's `[init] mode = "auto"`).
+    Auto,
     /// Wait for a static period, level with gravity, take the gyro bias from the mean.
     Static,
+    /// Only the in-motion initializer (gravity and velocity from the first frames' tracks and
+    /// the IMU).
+    Motion,
     /// Start from the ground-truth state (velocity and biases included) at the first IMU
     /// sample covered by ground truth, as peers do in evaluation.
     Groundtruth,
@@ -498,7 +504,14 @@ pub fn start_state(
     let Some(first) = imu.next().transpose()? else {
         bail!("{name}: the dataset has no IMU samples");
     };
-    if init == InitMode::Static {
+    let core_mode = match init {
+        InitMode::Auto => povins_core::estimator::InitMode::Auto,
+        InitMode::Static => povins_core::estimator::InitMode::Static,
+        InitMode::Motion => povins_core::estimator::InitMode::Motion,
+        InitMode::Groundtruth => cfg.init.mode,
+    };
+    if init != InitMode::Groundtruth {
+        cfg.init.mode = core_mode;
         return Ok((first.t_ns, None));
     }
     let gt = rec.ground_truth()?;

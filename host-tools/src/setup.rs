@@ -66,7 +66,7 @@ pub struct RunArgs {
     #[command(flatten)]
     pub recording: RecordingArgs,
     /// How to initialize.
-    #[arg(long, value_enum, default_value = "static")]
+    #[arg(long, value_enum, default_value = "auto")]
     pub init: InitMode,
     /// TOML file of estimator and front-end settings (docs/formats.md).
     #[arg(long)]

@@ -4,6 +4,7 @@
 use crate::camera::{CameraExtrinsic, PinholeCamera};
 use crate::frontend::{KeyframeConfig, RestConfig};
 use crate::inertial::init::StaticInitConfig;
+use crate::inertial::motion_init::MotionInitConfig;
 use crate::inertial::preintegration::PreintConfig;
 use crate::inertial::ImuNoise;
 use crate::lidar::LidarConfig;
@@ -131,6 +132,64 @@ impl Default for HealthConfig {
     }
 }
 
+/// Which initializer may start the estimator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields, rename_all = "kebab-case")
+)]
+pub enum InitMode {
+    /// The static initializer while the images show the platform at rest (it wins when both
+    /// could start), the in-motion one otherwise.
+    Auto,
+    /// Only the static initializer (a rest period is needed).
+    Static,
+    /// Only the in-motion initializer.
+    Motion,
+}
+
+/// Initialization (`[init]`): the choice of initializer, the in-motion initializer's
+/// thresholds and the prior of the first keyframe after an in-motion start.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
+pub struct InitConfig {
+    /// Which initializer may start the estimator.
+    pub mode: InitMode,
+    /// Thresholds of the in-motion initializer (`[init.motion]`).
+    pub motion: MotionInitConfig,
+    /// Prior of the first keyframe after an in-motion start (its velocity and attitude are
+    /// known less well than at rest).
+    pub motion_prior: FirstStatePrior,
+}
+
+impl InitConfig {
+    /// The defaults (what [`Default`] gives).
+    pub const DEFAULT: InitConfig = InitConfig {
+        mode: InitMode::Auto,
+        motion: MotionInitConfig::DEFAULT,
+        motion_prior: FirstStatePrior {
+            p_m: 1e-3,
+            theta_rad: 0.05,
+            v_mps: 0.3,
+            bg_rps: 0.01,
+            ba_mps2: 0.3,
+        },
+    };
+}
+
+impl Default for InitConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
 /// Everything the estimator needs to know before the first sample.
 #[derive(Debug, Clone, Copy)]
 #[cfg_attr(
@@ -180,6 +239,8 @@ pub struct EstimatorConfig {
     pub preint: PreintConfig,
     /// Prior of the first keyframe.
     pub first_prior: FirstStatePrior,
+    /// Initialization (`[init]`).
+    pub init: InitConfig,
     /// Feature noise, px (paper: 1.5).
     pub sigma_px: f64,
     /// Huber threshold on the whitened visual residual norm.
@@ -287,6 +348,7 @@ impl EstimatorConfig {
                 bg_rps: 5e-3,
                 ba_mps2: 0.1,
             },
+            init: InitConfig::DEFAULT,
             sigma_px: 1.5,
             huber_delta: 1.0,
             min_parallax: 0.002,
@@ -408,6 +470,25 @@ impl EstimatorConfig {
                 reint_ba_mps2: 0.0,
             },
             first_prior: PRIOR,
+            init: InitConfig {
+                mode: InitMode::Auto,
+                motion: MotionInitConfig {
+                    min_spacing_s: 0.0,
+                    max_span_s: 0.0,
+                    min_frames: 0,
+                    min_tracks: 0,
+                    min_parallax_rad: 0.0,
+                    sigma_rad: 0.0,
+                    min_accel_excitation_mps2: 0.0,
+                    max_velocity_std_mps: 0.0,
+                    max_velocity_rel_std: 0.0,
+                    max_gravity_std_rad: 0.0,
+                    max_gravity_norm_error: 0.0,
+                    max_residual_sigmas: 0.0,
+                    min_inlier_ratio: 0.0,
+                },
+                motion_prior: PRIOR,
+            },
             sigma_px: 0.0,
             huber_delta: 0.0,
             min_parallax: 0.0,
@@ -485,6 +566,7 @@ impl EstimatorConfig {
     pub fn validate(&self) -> Result<(), Error> {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         let p = &self.first_prior;
+        let mp = &self.init.motion_prior;
         let ok = pos(self.gravity_mps2)
             && pos(self.max_imu_dt_s)
             && pos(self.max_gyro_rps)
@@ -506,6 +588,10 @@ impl EstimatorConfig {
             && [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2]
                 .iter()
                 .all(|v| pos(*v))
+            && [mp.p_m, mp.theta_rad, mp.v_mps, mp.bg_rps, mp.ba_mps2]
+                .iter()
+                .all(|v| pos(*v))
+            && self.init.motion.is_valid()
             && self.td_s.is_finite()
             && self.imu_noise.is_valid()
             && self.imu_noise_adapt.is_valid()

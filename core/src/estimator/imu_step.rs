@@ -6,10 +6,12 @@
 //! interval to a late frame's time.
 
 use super::window::Preint;
-use super::{Estimator, ImuOutput, Status, LATE_SAMPLES};
+use super::{Estimator, ImuOutput, InitMode, Status, LATE_SAMPLES};
 use crate::frontend::{CameraMotion, RestVerdict};
 use crate::inertial::ins::Ins;
-use crate::inertial::ImuSample;
+use crate::inertial::motion_init::Refusal;
+use crate::inertial::{ImuSample, NavState};
+use crate::math::Vec3;
 use crate::Error;
 use heapless::Vec as HVec;
 
@@ -48,9 +50,11 @@ impl<
             .map_or(self.reinit.map_or(self.cfg.td_s, |r| r.td_s), |k| k.td_s)
     }
 
-    /// One sample before initialization: frames feed the track velocities and the rest
-    /// detector; the static initializer may start the INS.
+    /// One sample before initialization: frames feed the track velocities, the rest
+    /// detector and the in-motion initializer; the static initializer may start the INS, and
+    /// (`init.mode` auto while the images do not show a rest, or motion) the in-motion one.
     pub(super) fn imu_waiting_for_init(&mut self, s: &ImuSample) -> Result<(), Error> {
+        let td_ns = (self.cfg.td_s * 1e9) as i64;
         while self.next_frame() {
             self.counters.frames_before_init += 1;
             let t_cam_ns = self.frame.t_cam_ns;
@@ -66,27 +70,89 @@ impl<
                 .is_ok()
             {
                 self.rest.push(t_cam_ns, &self.frame_obs, self.focal_px());
+                if self.cfg.init.mode != InitMode::Static {
+                    let obs = self.frame_obs.iter().map(|o| (o.id, o.x_n));
+                    self.motion_init
+                        .push_frame(t_cam_ns.saturating_add(td_ns), obs);
+                }
             }
         }
-        let td_ns = (self.cfg.td_s * 1e9) as i64;
         let rest_since = match self.rest.verdict() {
             RestVerdict::Rest { since_ns } => Some(since_ns.saturating_add(td_ns)),
             _ => None,
         };
-        match self.static_init.push_with_rest(s, rest_since) {
-            Ok(Some(state)) => {
-                let ins = Ins::new(self.ins_config(), state)?;
-                self.ins.set(ins);
-                if let Some(ins) = self.ins.as_mut() {
-                    let st = *ins.propagate(s)?;
-                    self.record_ins(&st);
-                }
-                self.status = Status::Running;
-                Ok(())
+        if rest_since.is_some() {
+            self.last_rest_ns = Some(s.t_ns);
+        }
+        let state = match self.cfg.init.mode {
+            InitMode::Motion => None,
+            _ => match self.static_init.push_with_rest(s, rest_since) {
+                Ok(st) => st,
+                Err(Error::CapacityExceeded) => return Err(Error::InvalidConfig),
+                Err(e) => return Err(e),
+            },
+        };
+        let state = match state {
+            Some(st) => {
+                self.counters.static_inits += 1;
+                Some(st)
             }
-            Ok(None) => Ok(()),
-            Err(Error::CapacityExceeded) => Err(Error::InvalidConfig),
-            Err(e) => Err(e),
+            None => {
+                // Auto: after a rest the static initializer keeps the start for the span of
+                // the init frames (a gentle take-off must still start static).
+                let span_ns = (self.cfg.init.motion.max_span_s * 1e9) as i64;
+                let rest_recent = self
+                    .last_rest_ns
+                    .is_some_and(|t| s.t_ns.saturating_sub(t) <= span_ns);
+                self.try_motion_init(s, rest_recent)
+            }
+        };
+        if let Some(state) = state {
+            let ins = Ins::new(self.ins_config(), state)?;
+            self.ins.set(ins);
+            if let Some(ins) = self.ins.as_mut() {
+                let st = *ins.propagate(s)?;
+                self.record_ins(&st);
+            }
+            self.status = Status::Running;
+        }
+        Ok(())
+    }
+
+    /// The in-motion initializer at sample `s` (not in static mode, nor in auto mode while
+    /// the images show a rest): the state to start from, refusals counted by reason.
+    fn try_motion_init(&mut self, s: &ImuSample, at_rest: bool) -> Option<NavState> {
+        let mode = self.cfg.init.mode;
+        if mode == InitMode::Static {
+            return None;
+        }
+        self.motion_init.push_imu(s);
+        if mode == InitMode::Auto && at_rest {
+            return None;
+        }
+        let c = &mut self.counters;
+        match self
+            .motion_init
+            .try_solve(&self.ext, self.cfg.gravity_mps2, &Vec3::zeros())
+        {
+            Ok(Some((state, _))) => {
+                c.motion_inits += 1;
+                self.motion_started = true;
+                Some(state)
+            }
+            Ok(None) => None,
+            Err(r) => {
+                match r {
+                    Refusal::TooFewTracks => c.motion_init_refused_tracks += 1,
+                    Refusal::LowParallax => c.motion_init_refused_parallax += 1,
+                    Refusal::IllConditioned | Refusal::NonFinite => {
+                        c.motion_init_refused_conditioning += 1
+                    }
+                    Refusal::GravityNorm => c.motion_init_refused_gravity += 1,
+                    Refusal::Residual => c.motion_init_refused_residual += 1,
+                }
+                None
+            }
         }
     }
 

@@ -135,6 +135,7 @@ impl<
             self.prior.clear();
             self.initial = Some(self.initial_priors(nav, td));
             self.reinit = None;
+            self.motion_started = false;
         }
         self.open.restart_with(
             self.imu_scale.apply(self.cfg.imu_noise),
@@ -181,6 +182,7 @@ impl<
     fn initial_priors(&self, kf0: &NavState, td: f64) -> InitialPriors {
         let p = match self.reinit {
             Some(_) => &self.cfg.health.reinit_prior,
+            None if self.motion_started => &self.cfg.init.motion_prior,
             None => &self.cfg.first_prior,
         };
         InitialPriors {

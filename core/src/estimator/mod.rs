@@ -62,8 +62,8 @@ pub mod timing;
 pub mod window;
 
 pub use config::{
-    CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, TdConfig, VisualDepth, VisualMode,
-    ZuptConfig,
+    CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, InitConfig, InitMode, TdConfig,
+    VisualDepth, VisualMode, ZuptConfig,
 };
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
@@ -75,6 +75,7 @@ use crate::factors::TimedObs;
 use crate::frontend::{KeyframeSelector, NormalizedObs, RestDetector, TrackTable};
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
+use crate::inertial::motion_init::MotionInitializer;
 use crate::inertial::window::InsWindow;
 use crate::inertial::{ImuSample, InsUpdate, NavState};
 #[cfg(feature = "lidar")]
@@ -94,6 +95,8 @@ use window::{Keyframe, Preint, Window};
 pub const MAX_FEATURES: usize = 512;
 /// IMU samples the static initializer can hold (must cover `min_static_s` at the IMU rate).
 pub const INIT_SAMPLES: usize = 1024;
+/// Init frames the in-motion initializer keeps.
+pub const MOTION_INIT_FRAMES: usize = 10;
 /// INS states kept for LiDAR de-skewing (2.5 s at 200 Hz; a sweep must end within it).
 pub const INS_WINDOW: usize = 512;
 /// LiDAR-depth events one keyframe step can report.
@@ -187,6 +190,11 @@ pub struct Estimator<
     selector: KeyframeSelector,
     status: Status,
     static_init: StaticInitializer<INIT_SAMPLES>,
+    motion_init: MotionInitializer<MOTION_INIT_FRAMES, MAX_FEATURES, INIT_SAMPLES>,
+    /// Set by an in-motion start: the first keyframe takes `cfg.init.motion_prior`.
+    motion_started: bool,
+    /// IMU time of the newest sample at which the images showed a rest while waiting.
+    last_rest_ns: Option<i64>,
     ins: Held<Ins>,
     last_imu: Option<ImuSample>,
     tracks: TrackTable<MAX_FEATURES>,
@@ -364,6 +372,9 @@ impl<
             },
             status: Status::Unconfigured,
             static_init: StaticInitializer::new_unchecked(EstimatorConfig::PLACEHOLDER.static_init),
+            motion_init: MotionInitializer::new(EstimatorConfig::PLACEHOLDER.init.motion),
+            motion_started: false,
+            last_rest_ns: None,
             ins: Held::empty(Ins::blank()),
             last_imu: None,
             tracks: TrackTable::new(0.0),
@@ -430,6 +441,9 @@ impl<
         self.static_init
             .reset_with_noise(cfg.static_init, &cfg.imu_noise)?;
         self.cfg = cfg;
+        self.motion_init.reset(cfg.init.motion);
+        self.motion_started = false;
+        self.last_rest_ns = None;
         self.selector = selector;
         self.status = Status::WaitingForInit;
         self.ins.clear();
@@ -552,6 +566,9 @@ impl<
         self.pending.clear();
         self.tracks.clear();
         self.rest.clear();
+        self.motion_init.reset(self.cfg.init.motion);
+        self.motion_started = false;
+        self.last_rest_ns = None;
         self.ext = self.cfg.extrinsic;
         // Buffered INS states and points belong to the INS run that ends here.
         self.ins_window.clear();

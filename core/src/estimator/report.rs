@@ -210,6 +210,20 @@ pub struct Counters {
     pub divergence_resets: u64,
     /// Windows dropped by the health monitor, the INS continuing alone (`estimator::health`).
     pub reinitializations: u64,
+    /// Starts by the static initializer.
+    pub static_inits: u64,
+    /// Starts by the in-motion initializer.
+    pub motion_inits: u64,
+    /// In-motion solves refused: too few tracks seen in 3 init frames.
+    pub motion_init_refused_tracks: u64,
+    /// ... too little parallax (pure rotation, rest).
+    pub motion_init_refused_parallax: u64,
+    /// ... ill-conditioned (constant velocity, too little motion) or non-finite.
+    pub motion_init_refused_conditioning: u64,
+    /// ... unconstrained gravity norm far from the configured one.
+    pub motion_init_refused_gravity: u64,
+    /// ... residuals too large or too few inliers.
+    pub motion_init_refused_residual: u64,
     /// LiDAR sweeps offered.
     pub lidar_scans: u64,
     /// LiDAR sweeps refused whole (LiDAR disabled, not initialized, or larger than the buffer
@@ -249,6 +263,13 @@ impl Counters {
         resets: 0,
         divergence_resets: 0,
         reinitializations: 0,
+        static_inits: 0,
+        motion_inits: 0,
+        motion_init_refused_tracks: 0,
+        motion_init_refused_parallax: 0,
+        motion_init_refused_conditioning: 0,
+        motion_init_refused_gravity: 0,
+        motion_init_refused_residual: 0,
         lidar_scans: 0,
         lidar_scans_refused: 0,
         lidar_scans_dropped_queue_full: 0,

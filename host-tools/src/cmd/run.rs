@@ -86,6 +86,9 @@ pub fn run(args: Args) -> Result<()> {
                     "every image was refused, see the warnings"
                 }
                 InitMode::Static => "no static period met the static-init thresholds",
+                InitMode::Auto | InitMode::Motion =>
+                    "no static period met the static-init thresholds and every in-motion start \
+                     was refused (summary.json counters: motion_init_refused_*)",
                 InitMode::Groundtruth =>
                     "started from the ground truth, no camera frame became a keyframe",
             },

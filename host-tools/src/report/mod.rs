@@ -34,6 +34,9 @@ pub struct Summary {
     pub mode: String,
     /// Initialization.
     pub init: InitMode,
+    /// Which initializer started the run: `static`, `motion` (both, joined by `+`, after a
+    /// reset), `groundtruth`, or none.
+    pub started_by: Option<String>,
     /// Keyframes processed.
     pub keyframes: usize,
     /// Camera frames in the dataset.
@@ -240,6 +243,7 @@ pub fn summarize_digest(
         dataset: rec.name().to_string(),
         mode: mode.to_string(),
         init,
+        started_by: None,
         keyframes,
         camera_frames: t.camera_frames,
         backend_ms_median: percentile(&ms, 50.0),
@@ -301,6 +305,7 @@ pub fn summarize_digest(
         coverage: None,
         counters: counters_json(t)?,
     };
+    s.started_by = started_by(init, &t.counters);
     let est = d.trajectory.as_deref().unwrap_or_default();
     let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
     if d.trajectory.is_some() {
@@ -325,6 +330,19 @@ pub fn summarize_digest(
         }
     }
     Ok(s)
+}
+
+/// Which initializer started the run, from the estimator's counters.
+fn started_by(init: InitMode, c: &povins_core::estimator::Counters) -> Option<String> {
+    if init == InitMode::Groundtruth {
+        return Some("groundtruth".into());
+    }
+    match (c.static_inits > 0, c.motion_inits > 0) {
+        (true, true) => Some("static+motion".into()),
+        (true, false) => Some("static".into()),
+        (false, true) => Some("motion".into()),
+        (false, false) => None,
+    }
 }
 
 #[cfg(test)]

@@ -21,7 +21,10 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "keyframes {} of {} camera frames",
         s.keyframes, s.camera_frames
     );
-    if s.keyframes == 0 && s.init == InitMode::Static {
+    if let Some(by) = &s.started_by {
+        println!("started   by the {by} initializer");
+    }
+    if s.keyframes == 0 && s.init != InitMode::Groundtruth {
         eprintln!(
             "warning: the estimator never initialized: no static period met the static-init \
              thresholds (a vibrating platform needs looser ones, see [static_init] in \
