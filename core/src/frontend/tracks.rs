@@ -262,7 +262,11 @@ impl<const F: usize> TrackTable<F> {
             .prev_t_ns
             .map_or(0.0, |t1| t_ns.saturating_sub(t1) as f64 * 1e-9);
         let forget = libm::exp(-dt_s / INVERSE_DEPTH_TAU_S);
-        let rho_new_track = if prev_ok { self.scene_inverse_depth() } else { 0.0 };
+        let rho_new_track = if prev_ok {
+            self.scene_inverse_depth()
+        } else {
+            0.0
+        };
         self.cur.clear();
         for o in out.iter_mut() {
             let p1 = if prev_ok {
@@ -331,7 +335,11 @@ impl<const F: usize> TrackTable<F> {
     /// the truth (`velocity_of_young_tracks_has_the_translational_flow`).
     fn scene_inverse_depth(&self) -> f64 {
         let mut rho: Vec<f64, F> = Vec::new();
-        for p in self.prev.iter().filter(|p| p.w > INVERSE_DEPTH_PRIOR_WEIGHT) {
+        for p in self
+            .prev
+            .iter()
+            .filter(|p| p.w > INVERSE_DEPTH_PRIOR_WEIGHT)
+        {
             // Same capacity as `prev`: cannot fail.
             let _ = rho.push(p.rho);
         }
@@ -705,7 +713,11 @@ mod tests {
                 .enumerate()
                 .map(|(i, x)| {
                     let id = (i + 100 * ((k + 3 * i) / 8)) as u64;
-                    o(id, c.cx + c.fx * x[0] + noise(), c.cy + c.fy * x[1] + noise())
+                    o(
+                        id,
+                        c.cx + c.fx * x[0] + noise(),
+                        c.cy + c.fy * x[1] + noise(),
+                    )
                 })
                 .collect();
             let mut out = Vec::new();
