@@ -262,11 +262,6 @@ impl<const F: usize> TrackTable<F> {
             .prev_t_ns
             .map_or(0.0, |t1| t_ns.saturating_sub(t1) as f64 * 1e-9);
         let forget = libm::exp(-dt_s / INVERSE_DEPTH_TAU_S);
-        let rho_new_track = if prev_ok {
-            self.scene_inverse_depth()
-        } else {
-            0.0
-        };
         self.cur.clear();
         for o in out.iter_mut() {
             let p1 = if prev_ok {
@@ -294,7 +289,7 @@ impl<const F: usize> TrackTable<F> {
                         w * forget,
                     )
                 }
-                None => (rho_new_track, INVERSE_DEPTH_PRIOR_WEIGHT),
+                None => (0.0, INVERSE_DEPTH_PRIOR_WEIGHT),
             };
             // The flows are evaluated where the previous frame predicts the point, not at the
             // current observation: a slow camera's features move so little that even the flows'
@@ -323,32 +318,6 @@ impl<const F: usize> TrackTable<F> {
         core::mem::swap(&mut self.prev, &mut self.cur);
         self.prev_t_ns = Some(t_ns);
         self.prev_motion = motion;
-    }
-}
-
-impl<const F: usize> TrackTable<F> {
-    /// The prior inverse depth of a new track: the median of the previous frame's fitted tracks
-    /// (those whose fit weighs more than the prior), 0 without any. A new track has no finite
-    /// difference of its own for two frames; with `rho = 0` its velocity lacked the translational
-    /// flow (about 60% of a calm flight's feature velocity), and the delay's regressor of those
-    /// observations was that much too small: the delay, estimated from them alone, 1.65 times
-    /// the truth (`velocity_of_young_tracks_has_the_translational_flow`).
-    fn scene_inverse_depth(&self) -> f64 {
-        let mut rho: Vec<f64, F> = Vec::new();
-        for p in self
-            .prev
-            .iter()
-            .filter(|p| p.w > INVERSE_DEPTH_PRIOR_WEIGHT)
-        {
-            // Same capacity as `prev`: cannot fail.
-            let _ = rho.push(p.rho);
-        }
-        let mid = rho.len() / 2;
-        if rho.is_empty() {
-            return 0.0;
-        }
-        let (_, m, _) = rho.select_nth_unstable_by(mid, f64::total_cmp);
-        *m
     }
 }
 
@@ -687,63 +656,6 @@ mod tests {
             // 2 px of error in the current observation does not move its velocity at all.
             assert_eq!(a.vel, b.vel, "track {}", a.id);
             assert_ne!(a.x_n, b.x_n);
-        }
-    }
-
-    /// The delay's regressor of a calm flight (~1 m/s, turning at 0.3 rad/s, points 2-8 m away,
-    /// 1 px noise at 20 Hz) by track age: `[sum v.v_true, sum v.v, sum v_true.v_true]` over ages
-    /// 0, 1, 2 and later, tracks restarting every 8 frames at staggered times.
-    fn regressor_by_age() -> [[f64; 3]; 3] {
-        let (w, v) = ([0.0, 0.3, 0.05], [0.8, 0.0, 0.6]);
-        let pts: Vec<[f64; 3], 12> = (0..12)
-            .map(|i| {
-                let (a, z) = (i as f64 * 0.55, 2.0 + 0.5 * i as f64);
-                [0.3 * z * libm::cos(a), 0.2 * z * libm::sin(a), z]
-            })
-            .collect();
-        let mut noise = lcg_noise(777);
-        let c = cam();
-        let mut t: TrackTable<16> = TrackTable::new(0.5);
-        let mut acc = [[0.0f64; 3]; 3];
-        for k in 0..60usize {
-            let (x, d, v_c) = view(&pts, w, v, k as f64 * 0.05);
-            let age = |i: usize| (k + 3 * i) % 8;
-            let obs: Vec<FeatureObs, 16> = x
-                .iter()
-                .enumerate()
-                .map(|(i, x)| {
-                    let id = (i + 100 * ((k + 3 * i) / 8)) as u64;
-                    o(
-                        id,
-                        c.cx + c.fx * x[0] + noise(),
-                        c.cy + c.fy * x[1] + noise(),
-                    )
-                })
-                .collect();
-            let mut out = Vec::new();
-            t.process(k as i64 * 50_000_000, &obs, &c, motion(w, v_c), &mut out)
-                .unwrap();
-            for o in out.iter().filter(|_| k >= 16) {
-                let i = (o.id % 100) as usize;
-                let (d, a) = (d[i], &mut acc[age(i).min(2)]);
-                a[0] += o.vel[0] * d[0] + o.vel[1] * d[1];
-                a[1] += o.vel[0] * o.vel[0] + o.vel[1] * o.vel[1];
-                a[2] += d[0] * d[0] + d[1] * d[1];
-            }
-        }
-        acc
-    }
-
-    #[test]
-    fn velocity_of_young_tracks_has_the_translational_flow() {
-        // The factor by which a delay estimated from these observations alone would miss the
-        // truth, sum v.v_true / sum v.v: 1.65 for tracks of one or two frames while they started
-        // at rho = 0 (their velocity was 60% of the truth).
-        for (age, a) in regressor_by_age().iter().enumerate() {
-            let (factor, ratio) = (a[0] / a[1], libm::sqrt(a[1] / a[2]));
-            extern crate std;
-            std::println!("age {age}: factor {factor:.3} |v|/|v_true| {ratio:.3}");
-            assert!((factor - 1.0).abs() < 0.1, "age {age}: factor {factor:.3}");
         }
     }
 }
