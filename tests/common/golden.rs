@@ -78,6 +78,7 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         prior_gauge_std: _,
         window_correction_m: _,
         at_rest: _,
+        td_info_per_s2: _,
         solve_ns: _,
         marginalization_ns: _,
         total_ns: _,

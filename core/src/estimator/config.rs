@@ -511,7 +511,7 @@ impl EstimatorConfig {
                 estimate: false,
                 rw_s_per_sqrt_s: 0.0,
                 prior_s: 0.0,
-                min_landmarks: 0,
+                min_info_per_s2: 0.0,
             },
             estimate_extrinsic: false,
             extrinsic_prior: (0.0, 0.0),

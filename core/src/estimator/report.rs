@@ -53,6 +53,10 @@ pub struct KeyframeReport {
     /// the images showed rest since the previous keyframe and the INS speed agreed
     /// ([`super::ZuptConfig::max_speed_mps`]).
     pub at_rest: bool,
+    /// The delay's information from the admitted observations of this solve,
+    /// `sum |v * f| ^ 2 / sigma_px ^ 2` over their feature velocities `v` (1/s), focal lengths
+    /// `f` and pixel noise, 1/s^2 ([`super::TdConfig::min_info_per_s2`] gates the delay on it).
+    pub td_info_per_s2: f64,
     /// Largest position change the solve gave a keyframe that earlier solves had already
     /// estimated (every keyframe but the newest), m. A healthy window moves them by millimetres
     /// to centimetres; metres mean it broke down ([`super::HealthConfig`]).

@@ -105,7 +105,8 @@ impl<
         report.depths_rejected = rej;
         report.rejection_ns = rej_ns;
         report.admission = adm;
-        self.td_hold = adm.admitted < self.cfg.td.min_landmarks;
+        report.td_info_per_s2 = self.td_information();
+        self.td_hold = report.td_info_per_s2 < self.cfg.td.min_info_per_s2;
         let first = self.cfg.lm_first;
         if !self.run_lm(&first, report) {
             return;
@@ -197,5 +198,22 @@ impl<
             worst = libm::fmax(worst, err);
         }
         Ok(worst)
+    }
+
+    /// The delay's information from the admitted landmarks' observations in the window
+    /// ([`KeyframeReport::td_info_per_s2`]): the sum of their whitened delay Jacobians' squares,
+    /// `|v * f| ^ 2 / sigma_px ^ 2`.
+    fn td_information(&self) -> f64 {
+        let count = self.window.len();
+        let (fx, fy) = (self.cfg.camera.fx, self.cfg.camera.fy);
+        let var_px = self.cfg.sigma_px * self.cfg.sigma_px;
+        let mut info = 0.0;
+        for lm in self.lms.landmarks().iter().filter(|lm| lm.usable) {
+            for o in lm.obs.iter().take(count).flatten() {
+                let (u, v) = (o.vel[0] * fx, o.vel[1] * fy);
+                info += (u * u + v * v) / var_px;
+            }
+        }
+        info
     }
 }

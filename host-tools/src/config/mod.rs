@@ -89,7 +89,6 @@ pub const MOVED: &[(&str, &str, &[&str])] = &[
     ("estimate_td", "td", &["estimate"]),
     ("td_rw_s_per_sqrt_s", "td", &["rw_s_per_sqrt_s"]),
     ("td_prior_s", "td", &["prior_s"]),
-    ("td_min_landmarks", "td", &["min_landmarks"]),
     ("chi2_threshold", "cull", &["chi2_threshold"]),
     (
         "second_pass_min_culled_frac",
@@ -100,6 +99,47 @@ pub const MOVED: &[(&str, &str, &[&str])] = &[
     ("cull_obs_px", "cull", &["obs_px"]),
     ("cull_whole_tracks", "cull", &["whole_tracks"]),
 ];
+
+/// Keys replaced by a key of other meaning: `(table or "" for the top level, old key, new key in
+/// the same table, what changed)`. A file giving an old key is refused with an error naming the
+/// new one.
+pub const REPLACED: &[(&str, &str, &str, &str)] = &[
+    (
+        "td",
+        "min_landmarks",
+        "min_info_per_s2",
+        "the delay is held while the observations carry too little information on it (1/s^2), \
+         not while there are too few landmarks",
+    ),
+    (
+        "",
+        "td_min_landmarks",
+        "[td] min_info_per_s2",
+        "the delay is held while the observations carry too little information on it (1/s^2), \
+         not while there are too few landmarks",
+    ),
+];
+
+/// The error for the first key of `user` that was replaced ([`REPLACED`]).
+fn replaced_key(user: &Table) -> Option<anyhow::Error> {
+    REPLACED.iter().find_map(|&(table, old, new, why)| {
+        let (place, scope) = if table.is_empty() {
+            (format!("`{old}`"), Some(user))
+        } else {
+            (
+                format!("`[{table}] {old}`"),
+                user.get(table).and_then(Value::as_table),
+            )
+        };
+        scope?.get(old)?;
+        let new = if table.is_empty() {
+            format!("`{new}`")
+        } else {
+            format!("`[{table}] {new}`")
+        };
+        Some(anyhow!("{place} was replaced by {new}: {why}"))
+    })
+}
 
 /// The error for the first key of `user`'s top level that moved into a table ([`MOVED`]).
 fn moved_key(user: &Table) -> Option<anyhow::Error> {
@@ -159,7 +199,7 @@ impl RunConfigFile {
         user.remove(FRONTEND);
         user.remove(AIDING);
         user.remove(INPUT);
-        if let Some(e) = moved_key(&user) {
+        if let Some(e) = moved_key(&user).or_else(|| replaced_key(&user)) {
             return Err(self.error(e));
         }
         let merged: EstimatorConfig = overlay(cfg, &user).map_err(|e| self.error(e))?;

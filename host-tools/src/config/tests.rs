@@ -177,6 +177,24 @@ fn unknown_keys_are_errors_naming_the_key_path() {
 }
 
 #[test]
+fn each_replaced_key_is_an_error_naming_its_replacement() {
+    for &(table, old, new, _) in REPLACED {
+        let text = if table.is_empty() {
+            format!("{old} = 20\n")
+        } else {
+            format!("[{table}]\n{old} = 20\n")
+        };
+        let msg = err(&text);
+        assert!(
+            msg.contains(&format!("was replaced by `{new}`"))
+                || msg.contains(&format!("was replaced by `[{table}] {new}`")),
+            "{old}: {msg}"
+        );
+        assert!(msg.contains("invalid config <text>"), "{msg}");
+    }
+}
+
+#[test]
 fn each_moved_key_is_an_error_naming_its_new_place() {
     let defaults = Table::try_from(base()).expect("serializes");
     for &(old, table, new) in MOVED {
@@ -212,7 +230,9 @@ fn each_moved_key_is_an_error_naming_its_new_place() {
             let listed = MOVED
                 .iter()
                 .any(|&(_, t, new)| t == table && new.contains(&key.as_str()));
-            assert!(listed, "[{table}] {key} is not in MOVED");
+            let replacement = format!("[{table}] {key}");
+            let new_key = REPLACED.iter().any(|&(_, _, new, _)| new == replacement);
+            assert!(listed || new_key, "[{table}] {key} is not in MOVED");
         }
     }
     // The new table named like the old switch is not taken for the old key.

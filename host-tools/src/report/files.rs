@@ -41,7 +41,7 @@ pub const STATS_LIDAR_COLUMNS: &str =
 
 /// The landmark-admission columns appended to `stats.csv` (see `core::estimator::Admission`).
 pub const STATS_ADMISSION_COLUMNS: &str =
-    "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted,imu_noise_scale,prior_pos_std_m,prior_yaw_std_rad,window_correction_m,at_rest";
+    "adm_admitted,adm_single_view,adm_low_parallax,adm_bad_depth,adm_uncertain_depth,td_ms,multi_view_tracks,multi_view_observations,landmarks_promoted,landmarks_evicted,imu_noise_scale,prior_pos_std_m,prior_yaw_std_rad,window_correction_m,at_rest,td_info_per_s2";
 
 /// The camera-IMU extrinsic columns appended to `stats.csv`: `T_bc` after the keyframe's solve
 /// (the estimate with `estimate_extrinsic`, else the configured one; empty when the window broke
@@ -59,7 +59,7 @@ fn stats_header() -> String {
 fn write_stats_row(f: &mut impl Write, r: &KeyframeReport) -> std::io::Result<()> {
     write!(
         f,
-        "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{}",
+        "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{},{:.4e}",
         povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
         r.backend_ns() as f64 * 1e-6,
         r.solve_ns as f64 * 1e-6,
@@ -103,6 +103,7 @@ fn write_stats_row(f: &mut impl Write, r: &KeyframeReport) -> std::io::Result<()
         r.prior_gauge_std.1,
         r.window_correction_m,
         u8::from(r.at_rest),
+        r.td_info_per_s2,
     )?;
     match &r.extrinsic {
         Some(e) => {

@@ -76,25 +76,39 @@ pub struct TdConfig {
     pub estimate: bool,
     /// Random-walk density of the time delay, s/sqrt(s).
     pub rw_s_per_sqrt_s: f64,
-    /// Prior standard deviation of the first time delay, s.
+    /// Prior standard deviation of the first time delay, s. Wide: a blind start (td = 0) must
+    /// reach a true delay of tens of ms; the 5 ms used before 2026-12-02 lived on in the
+    /// marginalization prior and held a true -25 ms 3-4 ms off at 20 s (BENCHMARKS.md, issue 31).
     pub prior_s: f64,
-    /// Fewest landmarks in a solve for the delay to be estimated (with fewer it is held: a few
-    /// landmarks cannot separate the delay from the motion).
-    pub min_landmarks: u32,
+    /// The delay is held (not estimated) in a solve whose admitted observations carry less
+    /// information on it than this, `sum |v * f| ^ 2 / sigma_px ^ 2` over their feature velocities
+    /// `v` (1/s), focal lengths `f` (px) and pixel noise (px), 1/s^2: the features of a slow
+    /// start (a ramp from rest) move too little to separate the delay from the motion, and what
+    /// the velocity model gets wrong then decides the estimate. Replaces the landmark count
+    /// (`min_landmarks`) of the hold before 2026-12-02.
+    pub min_info_per_s2: f64,
 }
+
+/// Default of [`TdConfig::min_info_per_s2`], 1/s^2: a delay standard deviation of 1 ms from the
+/// observations alone (measured on the simulated calm flight: reached 1-2 s into its ramp
+/// from rest).
+pub const MIN_INFO_PER_S2: f64 = 1e6;
 
 impl TdConfig {
     /// The defaults (what [`Default`] gives); `const` for static configurations.
     pub const DEFAULT: TdConfig = TdConfig {
         estimate: true,
         rw_s_per_sqrt_s: 1e-4,
-        prior_s: 5e-3,
-        min_landmarks: 20,
+        prior_s: 5e-2,
+        min_info_per_s2: MIN_INFO_PER_S2,
     };
 
-    /// Checks ranges: a positive random-walk density and prior.
+    /// Checks ranges: a positive random-walk density and prior, a non-negative information.
     pub fn validate(&self) -> Result<(), Error> {
-        let ok = pos(self.rw_s_per_sqrt_s) && pos(self.prior_s);
+        let ok = pos(self.rw_s_per_sqrt_s)
+            && pos(self.prior_s)
+            && self.min_info_per_s2 >= 0.0
+            && self.min_info_per_s2.is_finite();
         ok.then_some(()).ok_or(Error::InvalidConfig)
     }
 }

@@ -166,8 +166,8 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     pub saved: &'a mut Saved<N, L>,
     /// Counts of the last assembly.
     pub counts: AssemblyCounts,
-    /// Hold every keyframe's delay at these values (a tight factor): too few landmarks to
-    /// estimate it ([`super::TdConfig::min_landmarks`]).
+    /// Hold every keyframe's delay at these values (a tight factor): too little information to
+    /// estimate it ([`super::TdConfig::min_info_per_s2`]).
     pub td_hold: Option<[f64; N]>,
     /// The state has not changed since the last successful cost evaluation: its eliminated
     /// landmarks' `tau*` (in [`Saved`]) are the ones a linearization would compute (same state,
