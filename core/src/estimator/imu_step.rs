@@ -11,7 +11,7 @@ use crate::frontend::{CameraMotion, RestVerdict};
 use crate::inertial::ins::Ins;
 use crate::inertial::motion_init::Refusal;
 use crate::inertial::{ImuSample, NavState};
-use crate::math::Vec3;
+use crate::math::{Quat, Vec3};
 use crate::Error;
 use heapless::Vec as HVec;
 
@@ -108,6 +108,7 @@ impl<
             }
         };
         if let Some(state) = state {
+            let state = self.continued(state);
             let ins = Ins::new(self.ins_config(), state)?;
             self.ins.set(ins);
             if let Some(ins) = self.ins.as_mut() {
@@ -117,6 +118,21 @@ impl<
             self.status = Status::Running;
         }
         Ok(())
+    }
+
+    /// A start after a full reset continues from where the consumer last saw the platform
+    /// ([`Estimator::reset`]): the new start's leveled attitude turned about the vertical to the
+    /// old yaw, its velocity turned with it, and the old position. What is published does not
+    /// jump; the motion during the outage is not recovered.
+    fn continued(&mut self, mut st: NavState) -> NavState {
+        let Some(old) = self.resume.take() else {
+            return st;
+        };
+        let r = Quat::from_axis_angle(&Vec3::z_axis(), yaw(&old.q_wb) - yaw(&st.q_wb));
+        st.q_wb = r * st.q_wb;
+        st.v_wb = r * st.v_wb;
+        st.p_wb = old.p_wb;
+        st
     }
 
     /// The in-motion initializer at sample `s` (not in static mode, nor in auto mode while
@@ -285,4 +301,10 @@ fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
         gyro_rps: a.gyro_rps + (b.gyro_rps - a.gyro_rps) * w,
         accel_mps2: a.accel_mps2 + (b.accel_mps2 - a.accel_mps2) * w,
     }
+}
+
+/// Yaw of `q` (rotation about the world's vertical z of the ZYX Euler angles), rad.
+fn yaw(q: &Quat) -> f64 {
+    let (w, x, y, z) = (q.w, q.i, q.j, q.k);
+    libm::atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 }

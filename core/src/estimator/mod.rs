@@ -195,6 +195,10 @@ pub struct Estimator<
     motion_started: bool,
     /// IMU time of the newest sample at which the images showed a rest while waiting.
     last_rest_ns: Option<i64>,
+    /// After a full reset: where the consumer last saw the platform (the INS state, or the
+    /// newest keyframe's when the INS is not finite); the next start continues from its
+    /// position and yaw ([`Self::continued`]).
+    resume: Option<NavState>,
     ins: Held<Ins>,
     last_imu: Option<ImuSample>,
     tracks: TrackTable<MAX_FEATURES>,
@@ -375,6 +379,7 @@ impl<
             motion_init: MotionInitializer::new(EstimatorConfig::PLACEHOLDER.init.motion),
             motion_started: false,
             last_rest_ns: None,
+            resume: None,
             ins: Held::empty(Ins::blank()),
             last_imu: None,
             tracks: TrackTable::new(0.0),
@@ -444,6 +449,7 @@ impl<
         self.motion_init.reset(cfg.init.motion);
         self.motion_started = false;
         self.last_rest_ns = None;
+        self.resume = None;
         self.selector = selector;
         self.status = Status::WaitingForInit;
         self.ins.clear();
@@ -545,6 +551,7 @@ impl<
         let cfg = self.ins_config();
         let ins = Ins::new(cfg, state)?;
         self.reset_window();
+        self.resume = None;
         self.ins.set(ins);
         self.status = Status::Running;
         Ok(())
@@ -581,6 +588,18 @@ impl<
         if self.status == Status::Unconfigured {
             return;
         }
+        let finite = |s: &NavState| {
+            s.p_wb.iter().chain(s.v_wb.iter()).all(|x| x.is_finite())
+                && s.q_wb.coords.iter().all(|x| x.is_finite())
+        };
+        let newest_kf = self.window.last().map(|k| k.state);
+        self.resume = self
+            .ins
+            .as_ref()
+            .map(|i| *i.state())
+            .filter(finite)
+            .or(newest_kf)
+            .or(self.resume);
         self.reset_window();
         self.ins.clear();
         self.status = Status::WaitingForInit;
