@@ -65,7 +65,7 @@ fn the_streamed_files_equal_the_collected_runs() {
         .stack_size(256 << 20)
         .spawn(move || {
             let rec = povins_platform::open_recording(Path::new(EUROC)).unwrap();
-            let setup = RunSetup::defaults(&*rec, InitMode::Static);
+            let setup = RunSetup::defaults(&*rec, InitMode::Auto);
             let progress = Progress::with_visibility(1, "test", false);
             let out = setup.replay(&*rec, &progress).unwrap();
             let summary = summarize(&*rec, &setup.mode_name(), setup.init, &out).unwrap();
