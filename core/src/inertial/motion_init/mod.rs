@@ -68,6 +68,11 @@ pub struct MotionInitConfig {
     /// Largest posterior standard deviation of the gravity direction, rad.
     pub max_gravity_std_rad: f64,
     /// Largest relative difference of the unconstrained gravity norm to the configured one.
+    /// A start that mistakes a steady acceleration for gravity (a car in a steady turn: the
+    /// solutions `(lambda v0, g + (1 - lambda) a)` fit the images alike) tilts and lengthens
+    /// gravity: 2.8% on the simulated vehicle's turn, 16.6 m/s and 2.3 m/s^2 sideways, which
+    /// started at 0.7 m/s with 10% here; correct starts of the flight, hand-held and fast
+    /// scenarios stay within 1% (BENCHMARKS.md, "In-motion initialization").
     pub max_gravity_norm_error: f64,
     /// Largest RMS of the whitened residuals of the inliers, in sigmas.
     pub max_residual_sigmas: f64,
@@ -90,7 +95,7 @@ impl MotionInitConfig {
         max_velocity_std_mps: 0.1,
         max_velocity_rel_std: 0.05,
         max_gravity_std_rad: 0.03,
-        max_gravity_norm_error: 0.1,
+        max_gravity_norm_error: 0.01,
         // The unestimated gyro bias bends the bearings over the span: on the simulator's
         // EuRoC-like IMU about half the views are within 3 sigmas.
         max_residual_sigmas: 2.5,
