@@ -354,23 +354,37 @@ fn gather<const K: usize, const F: usize>(
     (seen, used)
 }
 
-/// One view's linear pieces under the integration `pre`: `X - c_i = D x + f` (the landmark
-/// from the anchors `l`, `r` minus the view's camera centre, in `b0`) and the view's bearing
-/// `m_i`; the residual is `[m_i]x (D x + f)`.
-fn terms<const K: usize>(
-    t: &Track<K>,
-    view: usize,
+/// A view's pieces under the integration `pre`: `A(t_i)`, the camera centre's known part
+/// `Dp_i + R_i p_bc`, and the bearing `m_i = R_i R_bc u_i` (all in `b0`).
+fn view_at<const K: usize>(
+    v: &(u8, Vec3),
     pre: &[Pre; K],
     r_bc: &Mat3,
     p_bc: &Vec3,
 ) -> Option<(Mat36, Vec3, Vec3)> {
-    let at = |v: &(u8, Vec3)| -> Option<(Mat36, Vec3, Vec3)> {
-        let p = pre.get(v.0 as usize)?;
-        Some((a_of(p.t_s), p.dp + p.r * p_bc, p.r * (r_bc * v.1)))
-    };
-    let (al, bl, m_l) = at(t.views.first()?)?;
-    let (ar, br, m_r) = at(t.views.get(t.r as usize)?)?;
-    let (ai, bi, m_i) = at(t.views.get(view)?)?;
+    let p = pre.get(v.0 as usize)?;
+    Some((a_of(p.t_s), p.dp + p.r * p_bc, p.r * (r_bc * v.1)))
+}
+
+/// A track's anchor pieces under the integration `pre`, shared by its views: the first view
+/// `l` (`A_l`, `b_l`, `m_l`) and the depth `d_l = d_a x + d_b` from the anchors `l`, `r`.
+/// `None` when the anchors' bearings are parallel (or not finite).
+struct Anchor {
+    al: Mat36,
+    bl: Vec3,
+    m_l: Vec3,
+    d_a: SMatrix<f64, 1, 6>,
+    d_b: f64,
+}
+
+fn anchor<const K: usize>(
+    t: &Track<K>,
+    pre: &[Pre; K],
+    r_bc: &Mat3,
+    p_bc: &Vec3,
+) -> Option<Anchor> {
+    let (al, bl, m_l) = view_at(t.views.first()?, pre, r_bc, p_bc)?;
+    let (ar, br, m_r) = view_at(t.views.get(t.r as usize)?, pre, r_bc, p_bc)?;
     let cr = m_r.cross(&m_l);
     let s2 = cr.norm_squared();
     if s2.is_nan() || s2 <= 0.0 {
@@ -378,9 +392,33 @@ fn terms<const K: usize>(
     }
     // d_l = a^T (c_r - c_l) = a^T (A_r - A_l) x + a^T (b_r - b_l)
     let a = cr.cross(&m_r) / s2;
-    let d_a = a.transpose() * (ar - al);
-    let d_b = a.dot(&(br - bl));
-    Some((al - ai + m_l * d_a, bl - bi + m_l * d_b, m_i))
+    Some(Anchor {
+        al,
+        bl,
+        m_l,
+        d_a: a.transpose() * (ar - al),
+        d_b: a.dot(&(br - bl)),
+    })
+}
+
+/// One view's linear pieces under the integration `pre` (with its track's [`anchor`] under
+/// the same `pre`): `X - c_i = D x + f` (the landmark from the anchors `l`, `r` minus the
+/// view's camera centre, in `b0`) and the view's bearing `m_i`; the residual is
+/// `[m_i]x (D x + f)`.
+fn terms<const K: usize>(
+    anc: &Anchor,
+    t: &Track<K>,
+    view: usize,
+    pre: &[Pre; K],
+    r_bc: &Mat3,
+    p_bc: &Vec3,
+) -> Option<(Mat36, Vec3, Vec3)> {
+    let (ai, bi, m_i) = view_at(t.views.get(view)?, pre, r_bc, p_bc)?;
+    Some((
+        anc.al - ai + anc.m_l * anc.d_a,
+        anc.bl - bi + anc.m_l * anc.d_b,
+        m_i,
+    ))
 }
 
 /// The weight of a view with `X - c_i = dvec` and residual `res` at the current `x`: the
@@ -415,8 +453,11 @@ fn accumulate<const K: usize>(
     let mut b = Vec6::zeros();
     let mut st = Stats::default();
     for t in tracks {
+        let Some(anc) = anchor(t, pre, r_bc, p_bc) else {
+            continue;
+        };
         for view in 1..t.views.len() {
-            let Some((d, f, m_i)) = terms(t, view, pre, r_bc, p_bc) else {
+            let Some((d, f, m_i)) = terms(&anc, t, view, pre, r_bc, p_bc) else {
                 continue;
             };
             let sk = skew(&m_i);
@@ -447,8 +488,11 @@ fn robust_cost<const K: usize>(
 ) -> f64 {
     let mut c = 0.0;
     for t in tracks {
+        let Some(anc) = anchor(t, pre, r_bc, p_bc) else {
+            continue;
+        };
         for view in 1..t.views.len() {
-            let Some((d, f, m_i)) = terms(t, view, pre, r_bc, p_bc) else {
+            let Some((d, f, m_i)) = terms(&anc, t, view, pre, r_bc, p_bc) else {
                 continue;
             };
             let dvec = d * x + f;
@@ -493,8 +537,12 @@ fn refine_bias<const K: usize, const F: usize, const M: usize>(
         let mut b9 = SVector::<f64, 9>::zeros();
         let mut st = Stats::default();
         for t in tracks {
+            let Some(anc0) = anchor(t, p0, r_bc, p_bc) else {
+                continue;
+            };
+            let ancs = [p1, p2, p3].map(|p| anchor(t, p, r_bc, p_bc));
             for view in 1..t.views.len() {
-                let Some((d, f, m_i)) = terms(t, view, p0, r_bc, p_bc) else {
+                let Some((d, f, m_i)) = terms(&anc0, t, view, p0, r_bc, p_bc) else {
                     continue;
                 };
                 let dvec = d * x + f;
@@ -505,8 +553,11 @@ fn refine_bias<const K: usize, const F: usize, const M: usize>(
                 let mut jac = SMatrix::<f64, 3, 9>::zeros();
                 jac.fixed_view_mut::<3, 6>(0, 0)
                     .copy_from(&(skew(&m_i) * d));
-                for (k, p) in [p1, p2, p3].into_iter().enumerate() {
-                    let Some((dk, fk, mk)) = terms(t, view, p, r_bc, p_bc) else {
+                for (k, (p, anc)) in [p1, p2, p3].into_iter().zip(&ancs).enumerate() {
+                    let Some((dk, fk, mk)) = anc
+                        .as_ref()
+                        .and_then(|anc| terms(anc, t, view, p, r_bc, p_bc))
+                    else {
                         continue;
                     };
                     let rk = mk.cross(&(dk * x + fk));
