@@ -19,7 +19,6 @@
 
 use crate::progress::Progress;
 use crate::report::{print_summary, summarize_digest, OutputFiles, RunDigest};
-use crate::runner::InitMode;
 use crate::setup::{RunArgs, RunSetup};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -81,17 +80,7 @@ pub fn run(args: Args) -> Result<()> {
             "no estimate: the estimator never started over {} camera frames ({}; the files in {} \
              hold no poses)",
             summary.camera_frames,
-            match summary.init {
-                _ if summary.image_failures >= summary.camera_frames => {
-                    "every image was refused, see the warnings"
-                }
-                InitMode::Static => "no static period met the static-init thresholds",
-                InitMode::Auto | InitMode::Motion =>
-                    "no static period met the static-init thresholds and every in-motion start \
-                     was refused (summary.json counters: motion_init_refused_*)",
-                InitMode::Groundtruth =>
-                    "started from the ground truth, no camera frame became a keyframe",
-            },
+            summary.never_started_reason(),
             args.out.display()
         );
     }

@@ -151,6 +151,67 @@ pub fn coverage(gt: &[StampedPose], est: &[StampedPose], from_ns: i64) -> Option
     Some(covered as f64 / after.len() as f64)
 }
 
+impl Summary {
+    /// Why a run with camera frames gave no keyframe (see [`never_started_reason`]).
+    pub fn never_started_reason(&self) -> String {
+        never_started_reason(
+            self.init,
+            self.camera_frames,
+            self.image_failures,
+            &self.counters,
+        )
+    }
+}
+
+/// Why a run with camera frames gave no keyframe (the one place this is decided): every image
+/// refused, or the initializers' refusals with their counts (`counters` as `summary.json` has
+/// them).
+pub fn never_started_reason(
+    init: InitMode,
+    camera_frames: usize,
+    image_failures: usize,
+    counters: &serde_json::Value,
+) -> String {
+    let n = |k: &str| counters[k].as_u64().unwrap_or(0);
+    let motion = || {
+        let kinds = [
+            ("tracks", "too few tracks"),
+            ("parallax", "too little parallax"),
+            ("conditioning", "no excitation or ill-conditioned"),
+            ("gravity", "gravity norm off"),
+            ("residual", "large residuals"),
+        ];
+        let parts: Vec<String> = kinds
+            .iter()
+            .filter_map(|(k, what)| {
+                let c = n(&format!("motion_init_refused_{k}"));
+                (c > 0).then(|| format!("{what} {c}"))
+            })
+            .collect();
+        if parts.is_empty() {
+            "no in-motion start was tried (too few init frames with tracks)".to_string()
+        } else {
+            format!(
+                "every in-motion start was refused: {} (summary.json counters \
+                     motion_init_refused_*)",
+                parts.join(", ")
+            )
+        }
+    };
+    let rest = "no static period met the static-init thresholds";
+    match init {
+        _ if image_failures >= camera_frames && camera_frames > 0 => {
+            "every image was refused, see the warnings".to_string()
+        }
+        InitMode::Static => rest.to_string(),
+        InitMode::Motion => motion(),
+        InitMode::Auto => format!("{rest}, and {}", motion()),
+        InitMode::Groundtruth => {
+            "started from the ground truth, no camera frame became a keyframe".to_string()
+        }
+    }
+}
+
 /// The counters as `summary.json` carries them.
 fn counters_json(t: &RunTotals) -> Result<serde_json::Value> {
     let mut v = serde_json::to_value(t.counters)?;
@@ -367,5 +428,29 @@ mod tests {
         assert_eq!(coverage(&gt, &est, 200_000_000), Some(3.0 / 8.0));
         assert_eq!(coverage(&gt, &[], 0), Some(0.0));
         assert_eq!(coverage(&gt, &est, 1_000_000_000), None);
+    }
+
+    /// The reason names each refusal kind that occurred with its count, and only those.
+    #[test]
+    fn never_started_reason_counts_the_refusals_by_kind() {
+        let c = serde_json::json!({
+            "motion_init_refused_conditioning": 213,
+            "motion_init_refused_gravity": 0,
+            "motion_init_refused_residual": 7,
+        });
+        let r = never_started_reason(InitMode::Auto, 541, 0, &c);
+        assert!(r.starts_with("no static period met the static-init thresholds, and every"));
+        assert!(
+            r.contains("no excitation or ill-conditioned 213, large residuals 7 ("),
+            "{r}"
+        );
+        assert!(!r.contains("gravity"), "{r}");
+        let none = never_started_reason(InitMode::Motion, 541, 0, &serde_json::json!({}));
+        assert!(none.starts_with("no in-motion start was tried"), "{none}");
+        assert_eq!(
+            never_started_reason(InitMode::Static, 10, 0, &c),
+            "no static period met the static-init thresholds"
+        );
+        assert!(never_started_reason(InitMode::Auto, 10, 10, &c).starts_with("every image"));
     }
 }

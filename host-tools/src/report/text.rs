@@ -2,7 +2,7 @@
 
 use super::Summary;
 use crate::frontend_stats::summary_lines;
-use crate::runner::{Frontend, InitMode};
+use crate::runner::Frontend;
 use std::path::Path;
 
 /// Prints the human-readable result lines.
@@ -23,13 +23,6 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
     );
     if let Some(by) = &s.started_by {
         println!("started   by the {by} initializer");
-    }
-    if s.keyframes == 0 && s.init != InitMode::Groundtruth {
-        eprintln!(
-            "warning: the estimator never initialized: no static period met the static-init \
-             thresholds (a vibrating platform needs looser ones, see [static_init] in \
-             configs/euroc.toml), or start from the true state with --init groundtruth"
-        );
     }
     match (s.ate_pos_rmse_m, s.ate_rot_rmse_deg) {
         (Some(p), Some(r)) => println!(
