@@ -6,14 +6,15 @@
 #     `lidar` storage) are type-checked, which is where a missing std/alloc shows;
 #  2. runs on aarch64-unknown-linux-gnu under qemu what proves bit-identity with x86-64, with
 #     povins-core alone (building the host tools for aarch64 took 22 of this script's minutes):
-#     the whole estimator on real EuRoC data (core/tests/estimator_golden.rs: default window and
-#     online extrinsic, each run twice, every IMU-rate state and keyframe report hashed), the
+#     the whole estimator on real EuRoC data (core/tests/estimator_golden.rs: default window,
+#     online extrinsic, and with synthetic LiDAR sweeps; each run twice, every IMU-rate state and
+#     keyframe report hashed), the
 #     preintegration over the real EuRoC IMU log (core/tests/inertial_golden.rs) and the image
 #     front end over real EuRoC and DM-VIO frames (core/tests/frontend_image.rs, an #[ignore]d
 #     test run explicitly): bit-identical or red; and the README's footprint table
 #     (core/tests/footprint.rs: size_of on aarch64). The facade's golden replays through the host
-#     tools' runner (tests/estimator_determinism.rs, with LiDAR) and the rest of the suite run on
-#     x86-64 in CI, and on aarch64 with --all;
+#     tools' runner (tests/estimator_determinism.rs) and the rest of the suite run on x86-64 in
+#     CI, and on aarch64 with --all;
 #  3. each hash is asserted against the constant in its test (the same constants the x86-64
 #     `cargo test` of CI asserts); this script checks that all were printed on aarch64.
 # Usage: scripts/cross-check.sh [--all]   (run scripts/setup-cross.sh once first)
@@ -65,7 +66,7 @@ grep -E "^test result|POVINS_|FAILED|panicked" "$log_arm" || true
 
 hashes=$(grep -oE "POVINS_[A-Z_]+=[0-9a-f]+" "$log_arm" | sort)
 echo "aarch64: $(echo $hashes)"
-for h in POVINS_PREINT_HASH POVINS_FRONTEND_HASH POVINS_ESTIMATOR_HASH_DEFAULT POVINS_ESTIMATOR_HASH_EXTRINSIC; do
+for h in POVINS_PREINT_HASH POVINS_FRONTEND_HASH POVINS_ESTIMATOR_HASH_DEFAULT POVINS_ESTIMATOR_HASH_EXTRINSIC POVINS_ESTIMATOR_HASH_LIDAR; do
   echo "$hashes" | grep -q "^$h=" || { echo "cross-check: $h was not printed on aarch64 (test skipped?)" >&2; exit 1; }
 done
 echo "cross-check: OK (bare-metal builds, aarch64 tests pass, the estimator, preintegration and front-end hashes bit-identical)"

@@ -1,7 +1,13 @@
 //! The whole estimator, core alone, on real data: EuRoC V1_01's first 30 s (IMU and a real front
 //! end's tracks, `tests/data`), started at rest by the estimator's own initializer, fed through the
-//! public push/update interface. Two configurations: the default pose-only window, and the same
-//! with the camera-IMU extrinsic estimated online (the delay is estimated in both).
+//! public push/update interface. Three configurations: the default pose-only window, the same
+//! with the camera-IMU extrinsic estimated online (the delay is estimated in all), and the same
+//! with LiDAR: 10 Hz sweeps of a forward-looking LiDAR (a Livox-like 90 x 90 degree field along
+//! the camera's axis, body +z) ray-cast from the ground-truth pose into a box around the flight
+//! (walls, floor, ceiling; directions on a grid of the cube's face, so that only `+ - * / sqrt`
+//! make the points: the input is the same bits on every target), which exercises the de-skew,
+//! the depth association, the rejection test and the LiDAR depth factors. The box is not the real room: the
+//! run checks arithmetic, not the LiDAR's accuracy.
 //!
 //! Each run is made twice in the process and must agree bit for bit; then one FNV-1a 64 hash of
 //! every IMU-rate state's bit patterns and every keyframe report (its `Debug` form, which prints
@@ -20,11 +26,13 @@ use nalgebra::Vector3;
 use povins_core::camera::{FeatureObs, PinholeCamera};
 use povins_core::estimator::{EstimatorConfig, KeyframeReport, PoVins};
 use povins_core::inertial::{ImuNoise, ImuSample, NavState};
+use povins_core::lidar::{sweep_due_ns, LidarPoint};
 use vision_common::{data_dir, euroc_extrinsic};
 
 /// Blessed on x86-64 (see the module docs).
 const GOLDEN_DEFAULT: u64 = 0x041a_bf47_033a_ef63;
 const GOLDEN_EXTRINSIC: u64 = 0xd3af_391e_2f47_8925;
+const GOLDEN_LIDAR: u64 = 0xe462_7c79_8940_7391;
 
 struct Fnv(u64);
 
@@ -82,9 +90,57 @@ struct Input {
     imu: Vec<ImuSample>,
     /// (camera stamp, the frame's observations), in time order.
     frames: Vec<(i64, Vec<FeatureObs>)>,
+    /// (when due, the sweep's points), in time order; empty without LiDAR.
+    sweeps: Vec<(i64, Vec<LidarPoint>)>,
 }
 
-fn load() -> Input {
+/// The walls, floor and ceiling the synthetic LiDAR sees (world frame, m): around the ground
+/// truth's 30 s (x 0.2-2.2, y -0.6-2.5, z 0.9-1.6).
+const BOX_MIN: [f64; 3] = [-2.5, -3.5, 0.0];
+const BOX_MAX: [f64; 3] = [5.0, 5.5, 3.5];
+/// Grid steps per half side of the field (81 x 81 = 6561 rays per sweep, 0.7 degree apart at
+/// the centre).
+const RAYS_HALF: i32 = 40;
+
+/// A sweep from the ground-truth pose row `g` (t, p, q wxyz): every ray of the field from the
+/// body origin (the LiDAR frame is the body frame) to the box, in the body frame, stamped at `t`.
+fn sweep_from(g: &[f64]) -> (i64, Vec<LidarPoint>) {
+    let t_ns = g[0] as i64;
+    let p = Vector3::new(g[1], g[2], g[3]);
+    let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        g[4], g[5], g[6], g[7],
+    ));
+    let mut pts = Vec::new();
+    for i in -RAYS_HALF..=RAYS_HALF {
+        for j in -RAYS_HALF..=RAYS_HALF {
+            let d = Vector3::new(
+                f64::from(i) / f64::from(RAYS_HALF),
+                f64::from(j) / f64::from(RAYS_HALF),
+                1.0,
+            )
+            .normalize();
+            // The ray in the world, then the nearest wall it meets.
+            let d_w = q * d;
+            let t = (0..3)
+                .filter(|&k| d_w[k] != 0.0)
+                .map(|k| {
+                    let wall = if d_w[k] > 0.0 { BOX_MAX[k] } else { BOX_MIN[k] };
+                    (wall - p[k]) / d_w[k]
+                })
+                .fold(f64::INFINITY, f64::min);
+            let x_b = d * t;
+            pts.push(LidarPoint {
+                t_ns,
+                p_l: [x_b.x as f32, x_b.y as f32, x_b.z as f32],
+                intensity: 1.0,
+            });
+        }
+    }
+    let due = sweep_due_ns(&pts, 0.0).unwrap_or(t_ns);
+    (due, pts)
+}
+
+fn load(lidar: bool) -> Input {
     let dir = data_dir().join("euroc-v101-30s-features/mav0");
     let imu = csv_rows(&dir.join("imu0/data.csv"))
         .iter()
@@ -107,7 +163,20 @@ fn load() -> Input {
             _ => frames.push((t, vec![obs])),
         }
     }
-    Input { imu, frames }
+    let sweeps = if lidar {
+        csv_rows(&dir.join("state_groundtruth_estimate0/data.csv"))
+            .iter()
+            .step_by(2)
+            .map(|f| sweep_from(&f[..8].iter().map(|x| num::<f64>(x)).collect::<Vec<_>>()))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    Input {
+        imu,
+        frames,
+        sweeps,
+    }
 }
 
 struct Run {
@@ -124,21 +193,26 @@ impl Run {
     }
 }
 
-/// Every frame whose stamp the IMU has reached is pushed before the sample, then the sample;
-/// the queue is drained after each sample (as the host tools' runner does).
+/// Every frame whose stamp the IMU has reached is pushed before the sample, then the sample,
+/// then every sweep now due; the queue is drained after each sample (as the host tools' runner
+/// does).
 fn replay(input: &Input, cfg: EstimatorConfig) -> Run {
     let mut est = PoVins::new(cfg).expect("a valid configuration");
     let mut run = Run {
         states: Vec::new(),
         reports: Vec::new(),
     };
-    let mut fi = 0;
+    let (mut fi, mut li) = (0, 0);
     for s in &input.imu {
         while let Some((t, obs)) = input.frames.get(fi).filter(|f| f.0 <= s.t_ns) {
             let _ = est.push_frame(*t, obs);
             fi += 1;
         }
         let _ = est.push_imu(s);
+        while let Some((_, pts)) = input.sweeps.get(li).filter(|w| w.0 <= s.t_ns) {
+            let _ = est.push_lidar(pts);
+            li += 1;
+        }
         loop {
             match est.update() {
                 Ok(Some(o)) => {
@@ -168,7 +242,7 @@ fn check(name: &str, cfg: EstimatorConfig, golden: u64) {
     std::thread::Builder::new()
         .stack_size(256 << 20)
         .spawn(move || {
-            let input = load();
+            let input = load(cfg.lidar.enabled);
             let a = replay(&input, cfg);
             let b = replay(&input, cfg);
             assert_eq!(
@@ -198,6 +272,13 @@ fn check(name: &str, cfg: EstimatorConfig, golden: u64) {
                 a.reports.len(),
                 a.states.len()
             );
+            if cfg.lidar.enabled {
+                let depths: u32 = a.reports.iter().map(|r| r.depths_associated).sum();
+                assert!(
+                    depths > 100,
+                    "{name}: only {depths} LiDAR depths associated"
+                );
+            }
             let last = a.states.last().expect("states");
             assert!(
                 last.p_wb.iter().all(|x| x.is_finite()),
@@ -206,9 +287,10 @@ fn check(name: &str, cfg: EstimatorConfig, golden: u64) {
             let h = a.hash();
             println!("POVINS_ESTIMATOR_HASH_{name}={h:016x}");
             println!(
-                "{name}: {} keyframes, {} states, last p_wb {:?}, td {:.4} ms",
+                "{name}: {} keyframes, {} states, {} LiDAR depths, last p_wb {:?}, td {:.4} ms",
                 a.reports.len(),
                 a.states.len(),
+                a.reports.iter().map(|r| r.depths_associated).sum::<u32>(),
                 last.p_wb,
                 a.reports.last().map_or(0.0, |r| r.td_s * 1e3)
             );
@@ -235,4 +317,11 @@ fn euroc_online_extrinsic_is_deterministic_and_golden() {
     let mut cfg = euroc_config();
     cfg.estimate_extrinsic = true;
     check("EXTRINSIC", cfg, GOLDEN_EXTRINSIC);
+}
+
+#[test]
+fn euroc_with_lidar_is_deterministic_and_golden() {
+    let mut cfg = euroc_config();
+    cfg.lidar.enabled = true;
+    check("LIDAR", cfg, GOLDEN_LIDAR);
 }
