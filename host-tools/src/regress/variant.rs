@@ -405,4 +405,65 @@ mod tests {
         );
         assert!(!t.contains("| flight |"), "{t}");
     }
+
+    fn short(scenario: Scenario, variant: Variant) -> Sequence {
+        Sequence::Sim {
+            scenario,
+            seed: 1,
+            duration_s: 12.0,
+            variant,
+        }
+    }
+
+    /// A short flight started in motion starts from the automatic initializer within 3 s of the
+    /// first camera frame and covers the rest; with the in-motion start made impossible (an
+    /// overlay asking for more excitation than any motion has) it never starts, and the run is
+    /// a divergence with an infinite ATE, not an error or a dropped run.
+    #[test]
+    fn a_short_flight_started_in_motion_starts_and_a_refused_start_diverges() {
+        let seq = short(Scenario::Flight, Variant::MotionStart);
+        let r = super::super::run_sequence(&seq, None).expect("the run");
+        let v = r.variant.clone().expect("motion figures");
+        let start = v.start_after_camera_s.expect("a start");
+        assert!(v.started && (0.0..3.0).contains(&start), "{r:?}");
+        assert!(v.camera_coverage.is_some_and(|c| c > 0.8), "{r:?}");
+        assert!(
+            r.ate_m.is_finite() && r.ate_m < 1.0 && r.keyframes > 10,
+            "{r:?}"
+        );
+        assert_eq!(r.scenario.as_deref(), Some("flight/motion"));
+
+        let never =
+            crate::config::RunConfigFile::parse("[init.motion]\nmin_accel_excitation_mps2 = 1e9\n")
+                .expect("toml");
+        let r = super::super::run_sequence(&seq, Some(&never)).expect("a refused run");
+        let v = r.variant.clone().expect("motion figures");
+        assert!(!v.started && v.start_after_camera_s.is_none(), "{r:?}");
+        assert!(
+            r.diverged && r.ate_m == f64::INFINITY && r.keyframes == 0,
+            "{r:?}"
+        );
+        let t = render_variant_figures(&[r]).expect("a table");
+        assert!(t.contains("| flight/motion | 1 | 1 | n/a | 0.000 |"), "{t}");
+    }
+
+    /// A short hand-held run started 2 cm / 2 deg off estimates the extrinsic: its error at the
+    /// end against the simulator's truth is not zero (the run without the variant's settings
+    /// would report the exact extrinsic it was given) and well below the start's (the variant's
+    /// start held fixed would report exactly 2 cm / 2 deg).
+    #[test]
+    fn a_short_hand_held_run_with_a_perturbed_extrinsic_estimates_it() {
+        let seq = short(Scenario::Handheld, Variant::Extrinsic);
+        let r = super::super::run_sequence(&seq, None).expect("the run");
+        let v = r.variant.clone().expect("extrinsic figures");
+        let (cm, deg) = (
+            v.extrinsic_err_end_cm.expect("cm"),
+            v.extrinsic_err_end_deg.expect("deg"),
+        );
+        assert!(v.started && r.ate_m.is_finite() && !r.diverged, "{r:?}");
+        assert!((1e-6..1.0).contains(&deg), "{cm} cm, {deg} deg");
+        assert!((1e-6..2.5).contains(&cm), "{cm} cm, {deg} deg");
+        eprintln!("hand-held 12 s, extrinsic error at the end: {cm:.3} cm, {deg:.3} deg");
+        assert_eq!(r.scenario.as_deref(), Some("handheld/extrinsic"));
+    }
 }
