@@ -6,8 +6,10 @@
 //! Simulated sequences are those of the bar: 8 ms camera-IMU delay that the estimator is
 //! *not* told (it starts from zero and estimates it, as it must on a real rig), 3% wrong tracks,
 //! 1 px pixel noise, no LiDAR, initialization from the true state (as the peers are run).
+//! `--variants` adds sequences that differ from them in one respect (see [`Variant`]).
 //!
-//! A run **diverged** when its output stops early (less than 95% of the ground truth after the
+//! A run **diverged** when it never gave an estimate (its ATE is then infinite), when its output
+//! stops early (less than 95% of the ground truth after the
 //! start is covered), when the position error exceeds `max(1 m, 5% of the distance travelled)`
 //! anywhere after the fit, or when the estimator had to wait for a static initialization again
 //! (a full reset). Re-initializations by the health monitor (the INS carried on alone) are
@@ -22,7 +24,7 @@ use crate::config::RunConfigFile;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::progress::Progress;
 use crate::runner::{config_for, percentile, replay, sorted_ms, InitMode};
-use crate::sim::{self, Scenario, SimConfig};
+use crate::sim::{self, Scenario};
 use anyhow::{anyhow, bail, Context, Result};
 use povins_platform::trajectory::StampedPose;
 use povins_platform::Dataset;
@@ -31,6 +33,12 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
+
+mod variant;
+pub use variant::{
+    extrinsic_error, perturbed_extrinsic, render_variant_figures, sim_config, Variant,
+    VariantFigures, VariantGroup, EXTRINSIC_PERTURBATION_DEG, EXTRINSIC_PERTURBATION_M,
+};
 
 /// Allowed worsening before the suite fails.
 pub const TOLERANCE: f64 = 1.10;
@@ -60,49 +68,6 @@ pub enum Sequence {
     },
 }
 
-/// How a simulated sequence of the suite differs from the standard one (8 ms delay not told,
-/// started from the true state). Each variant is its own group in the tables
-/// (`flight/delay-30ms`), with its own stored figures.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Variant {
-    /// The standard sequence.
-    Standard,
-    /// A true delay of this many ms, not told (a blind start at 0).
-    Delay(i32),
-    /// The standard delay, stepping by +10 ms at half the sequence.
-    DelayStep,
-}
-
-/// The variant groups `povins regress --variants` can add.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum VariantGroup {
-    /// Blind starts with true delays of -30, -10 and +30 ms (+8 is the standard sequence).
-    Delays,
-    /// The delay steps by +10 ms at half the sequence.
-    DelayStep,
-}
-
-impl VariantGroup {
-    /// The variants of the group.
-    pub fn variants(self) -> &'static [Variant] {
-        match self {
-            VariantGroup::Delays => &[Variant::Delay(-30), Variant::Delay(-10), Variant::Delay(30)],
-            VariantGroup::DelayStep => &[Variant::DelayStep],
-        }
-    }
-}
-
-impl Variant {
-    /// Suffix of the names (empty for the standard sequence).
-    pub fn suffix(self) -> String {
-        match self {
-            Variant::Standard => String::new(),
-            Variant::Delay(ms) => format!("-delay{ms:+}ms"),
-            Variant::DelayStep => "-delaystep+10ms".into(),
-        }
-    }
-}
-
 impl Sequence {
     /// Name in the tables and the baseline file.
     pub fn name(&self) -> String {
@@ -126,6 +91,14 @@ impl Sequence {
         match self {
             Sequence::Sim { scenario, .. } => Some(*scenario),
             Sequence::Real { .. } => None,
+        }
+    }
+
+    /// What differs from the standard sequence ([`Variant::Standard`] for real sequences).
+    pub fn variant(&self) -> Variant {
+        match self {
+            Sequence::Sim { variant, .. } => *variant,
+            Sequence::Real { .. } => Variant::Standard,
         }
     }
 
@@ -209,28 +182,6 @@ pub const SCENARIOS: [Scenario; 5] = [
     Scenario::Fast,
 ];
 
-/// The simulator settings of a suite sequence (also what `povins simulate` needs to write the
-/// same files for the peer: `--td-ms 8 --wrong-track-rate 0.03 --lidar none`, and the
-/// variant's `--td-ms MS` or `--td-step-ms 10 --td-step-at-s DURATION/2`).
-pub fn sim_config(scenario: Scenario, seed: u64, duration_s: f64, variant: Variant) -> SimConfig {
-    let mut c = SimConfig::new(scenario, seed, duration_s);
-    c.td_s = 0.008;
-    c.wrong_track_rate = Some(0.03);
-    c.lidar = Some(sim::LidarKind::None);
-    c.threads = 1;
-    match variant {
-        Variant::Standard => {}
-        Variant::Delay(ms) => c.td_s = f64::from(ms) * 1e-3,
-        Variant::DelayStep => {
-            c.td_step = Some(sim::TdStep {
-                step_s: 0.010,
-                at_s: 0.5 * duration_s,
-            })
-        }
-    }
-    c
-}
-
 /// What one run gave.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunResult {
@@ -260,6 +211,9 @@ pub struct RunResult {
     pub td_err_end_ms: Option<f64>,
     /// See the module docs.
     pub diverged: bool,
+    /// The in-motion start's and the extrinsic's figures (those variants only).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub variant: Option<VariantFigures>,
 }
 
 fn load_real(path: &Path) -> Result<Dataset> {
@@ -274,23 +228,26 @@ fn load_real(path: &Path) -> Result<Dataset> {
 }
 
 /// Runs one sequence with the default configuration, or with `overlay`'s keys laid over it
-/// (the simulated runs' delay is still not told to the estimator).
+/// (the simulated runs' delay is still not told to the estimator), then its variant's settings
+/// ([`Variant::configure`]). A run that never gives an estimate diverged, with an infinite ATE.
 pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<RunResult> {
+    let variant = seq.variant();
     let (ds, init, td_true_end_s) = match seq {
         Sequence::Real { path, init, .. } => (load_real(path)?, *init, None),
         Sequence::Sim {
             scenario,
             seed,
             duration_s,
-            variant,
+            ..
         } => {
-            let c = sim_config(*scenario, *seed, *duration_s, *variant);
+            let c = sim_config(*scenario, *seed, *duration_s, variant);
             let out = sim::simulate(&c, &|_, _, _| {})?;
             let td_end_s = c.td_s + c.td_step.map_or(0.0, |st| st.step_s);
-            (out.dataset, InitMode::Groundtruth, Some(td_end_s))
+            (out.dataset, variant.init(), Some(td_end_s))
         }
     };
     let mut cfg = config_for(&ds);
+    let true_extrinsic = cfg.extrinsic;
     if let Some(f) = overlay {
         f.apply(&mut cfg)?;
     }
@@ -298,16 +255,22 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
         // The estimator is not told the simulated delay.
         cfg.td_s = 0.0;
     }
+    variant.configure(&mut cfg);
     let quiet = Progress::with_visibility(0, "", false);
     let out = replay(&ds, cfg, init, &quiet)?;
     let gt: Vec<StampedPose> = ds.ground_truth.iter().map(StampedPose::from).collect();
     let est: Vec<StampedPose> = out.imu_rate.iter().map(StampedPose::from).collect();
-    let opts = EvalOptions {
-        alignment: Alignment::Se3,
-        ..Default::default()
-    };
     let name = seq.name();
-    let ev = evaluate(&gt, &est, &opts).with_context(|| format!("{name}: evaluation"))?;
+    let (ate_m, max_err_m) = if est.is_empty() {
+        (f64::INFINITY, f64::INFINITY)
+    } else {
+        let opts = EvalOptions {
+            alignment: Alignment::Se3,
+            ..Default::default()
+        };
+        let ev = evaluate(&gt, &est, &opts).with_context(|| format!("{name}: evaluation"))?;
+        (ev.ate_pos_m.rmse, ev.ate_pos_m.max)
+    };
     let distance_m: f64 = gt.windows(2).map(|w| (w[1].p_wb - w[0].p_wb).norm()).sum();
     // Share of the ground truth after the output began that the output spans.
     let t0 = est.first().map_or(0, |p| p.t_ns);
@@ -320,12 +283,13 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
     } else {
         0.0
     };
-    let max_err_m = ev.ate_pos_m.max;
-    let diverged =
-        coverage < 0.95 || max_err_m > (0.05 * distance_m).max(1.0) || out.counters.resets > 0;
+    let diverged = est.is_empty()
+        || coverage < 0.95
+        || max_err_m > (0.05 * distance_m).max(1.0)
+        || out.counters.resets > 0;
     Ok(RunResult {
         scenario: seq.group(),
-        ate_m: ev.ate_pos_m.rmse,
+        ate_m,
         max_err_m,
         distance_m,
         coverage,
@@ -338,6 +302,7 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
             .zip(out.reports.last())
             .map(|(t, r)| (r.td_s - t) * 1e3),
         diverged,
+        variant: variant.figures(&out, &gt, &est, &true_extrinsic),
         name,
     })
 }
@@ -600,6 +565,7 @@ pub(crate) mod tests {
             td_end_ms: 0.0,
             td_err_end_ms: None,
             diverged,
+            variant: None,
         }
     }
 

@@ -22,11 +22,17 @@ pub struct OldRun {
     /// Scenario (simulated runs), `None` for the real sequences.
     #[serde(default)]
     pub scenario: Option<String>,
-    /// Position ATE, m.
+    /// Position ATE, m (`null` in the file: the run never started, infinite).
+    #[serde(deserialize_with = "ate_or_infinite")]
     pub ate_m: f64,
     /// Diverged (see `regress`).
     #[serde(default)]
     pub diverged: bool,
+}
+
+/// An ATE, or infinity for the `null` JSON writes for a run that never started.
+fn ate_or_infinite<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
 }
 
 /// Reads a `--json` file of an earlier run.
@@ -166,6 +172,19 @@ mod tests {
         assert_eq!(robot.diverged, (1, 1));
         let text = render_paired(&rows, "old.json");
         assert!(text.contains("| robot | 3 | 0.2000 | 0.2000 | +0.0% | 1.000 | 2 of 3 | 1 -> 1 |"));
+    }
+
+    /// A run that never started is written with an infinite ATE, which JSON writes as `null`:
+    /// it reads back as infinite (a missing ATE is still refused).
+    #[test]
+    fn a_run_that_never_started_reads_back_infinite() {
+        let mut r = new_run("m", Some("flight/motion"), f64::INFINITY, true);
+        r.keyframes = 0;
+        let text = serde_json::to_string(&[r]).expect("json");
+        assert!(text.contains(r#""ate_m":null"#), "{text}");
+        let old: Vec<OldRun> = serde_json::from_str(&text).expect("read back");
+        assert_eq!((old[0].ate_m, old[0].diverged), (f64::INFINITY, true));
+        assert!(serde_json::from_str::<Vec<OldRun>>(r#"[{"name": "m"}]"#).is_err());
     }
 
     #[test]

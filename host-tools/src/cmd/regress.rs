@@ -2,7 +2,7 @@
 
 use crate::config::RunConfigFile;
 use crate::progress::Progress;
-use crate::regress::{compare, render, run_all, sequences, Baseline};
+use crate::regress::{compare, render, render_variant_figures, run_all, sequences, Baseline};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 
@@ -20,7 +20,8 @@ pub struct Args {
     pub seeds: Option<u64>,
     /// Add these variant sequences (on the same seeds, each variant its own group; comma
     /// separated): `delays` (true delays of -30, -10 and +30 ms, not told), `delay-step` (+10 ms
-    /// at half the sequence).
+    /// at half the sequence), `motion-start` (the rest and ramp cut away, `--init auto`),
+    /// `extrinsic` (the extrinsic started 2 cm and 2 degrees off, estimated).
     #[arg(long, value_delimiter = ',')]
     pub variants: Vec<crate::regress::VariantGroup>,
     /// Folder of the shared datasets.
@@ -92,6 +93,9 @@ pub fn run(args: Args) -> Result<()> {
     };
     let rows = compare(&runs, &base);
     println!("{}", render(&rows));
+    if let Some(t) = render_variant_figures(&runs) {
+        println!("{t}");
+    }
     if let (Some(old), Some(p)) = (&old, &args.compare) {
         let paired = crate::regress_paired::paired(old, &runs);
         let name = p.display().to_string();
@@ -102,7 +106,8 @@ pub fn run(args: Args) -> Result<()> {
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if args.bless {
-        for r in &runs {
+        // A run that never started has no figure to store (JSON has no infinity).
+        for r in runs.iter().filter(|r| r.ate_m.is_finite()) {
             base.ate_m.insert(r.name.clone(), r.ate_m);
         }
         let text = serde_json::to_string_pretty(&base)? + "\n";
