@@ -66,6 +66,7 @@ fn load(mav0: &Path, count: usize) -> Vec<Frame> {
 }
 
 const DMVIO_CAM: PinholeCamera = PinholeCamera {
+    readout_s: 0.0,
     width: 640,
     height: 360,
     fx: 453.129_882_812_5,

@@ -132,6 +132,7 @@ fn an_estimator_without_lidar_storage_refuses_a_lidar_configuration() {
     use povins_core::inertial::ImuNoise;
     use povins_core::Error;
     let camera = PinholeCamera {
+        readout_s: 0.0,
         width: 752,
         height: 480,
         fx: 458.0,

@@ -18,6 +18,7 @@ fn euroc_cam0() -> PinholeCamera {
 /// TUM-VI cam0 (512x512, Kalibr equidistant): a real fisheye calibration.
 fn tumvi_cam0() -> PinholeCamera {
     PinholeCamera {
+        readout_s: 0.0,
         width: 512,
         height: 512,
         fx: 190.97847715128717,
@@ -121,6 +122,7 @@ fn normalized_to_pixel_to_normalized_round_trip() {
 fn distortion_jacobian_matches_numerical() {
     let mut rng = Rng::new(11);
     let undistorted = PinholeCamera {
+        readout_s: 0.0,
         distortion: Distortion::None,
         ..euroc_cam0()
     };
@@ -194,4 +196,32 @@ fn euroc_real_tracks_undistort() {
     }
     assert_eq!(n, 13316);
     assert!(worst < 1e-6);
+}
+
+#[test]
+fn a_rolling_shutters_row_times_span_the_readout_around_the_middle_row() {
+    let mut cam = euroc_cam0();
+    assert_eq!(cam.row_time_s(0.0), 0.0, "a global shutter");
+    cam.readout_s = 0.03;
+    // Row centres at integer v: the frame spans v in [-0.5, height - 0.5].
+    assert!((cam.row_time_s(-0.5) + 0.015).abs() < 1e-15);
+    assert!(cam.row_time_s(239.5).abs() < 1e-15);
+    assert!((cam.row_time_s(479.5) - 0.015).abs() < 1e-15);
+    // The estimator's configuration accepts 0 to MAX_READOUT_S.
+    let ext = povins_core::camera::CameraExtrinsic {
+        p_bc: Vec3::zeros(),
+        q_bc: nalgebra::UnitQuaternion::identity(),
+    };
+    let imu = povins_core::inertial::ImuNoise::EUROC_ADIS16448;
+    let mut cfg = povins_core::estimator::EstimatorConfig::new(euroc_cam0(), ext, imu);
+    assert_eq!(cfg.validate(), Ok(()));
+    for (readout_s, ok) in [
+        (0.03, true),
+        (-1e-3, false),
+        (0.21, false),
+        (f64::NAN, false),
+    ] {
+        cfg.camera.readout_s = readout_s;
+        assert_eq!(cfg.validate().is_ok(), ok, "readout {readout_s} s");
+    }
 }

@@ -256,6 +256,7 @@ mod tests {
             .expect_err("256 features at most");
         assert!(format!("{e:#}").contains("invalid"), "{e:#}");
         let huge = PinholeCamera {
+            readout_s: 0.0,
             width: 1921,
             height: 1200,
             ..euroc

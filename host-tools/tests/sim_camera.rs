@@ -94,6 +94,47 @@ fn observations_reproject_wrong_tracks_are_off_and_nothing_occluded_is_seen() {
 }
 
 #[test]
+fn a_rolling_shutter_sees_each_feature_at_its_rows_time() {
+    // Hand-held (fast rotations), 30 ms readout, no pixel noise: every observation is the
+    // projection with the pose at its own row's time (to the simulator's fixed-point steps),
+    // and not the middle row's pose.
+    let mut cfg = SimConfig::new(Scenario::Handheld, 2, 8.0);
+    cfg.lidar = Some(LidarKind::None);
+    cfg.wrong_track_rate = Some(0.0);
+    cfg.pixel_noise_px = 0.0;
+    cfg.td_s = 5e-3;
+    cfg.readout_s = 0.03;
+    let out = simulate(&cfg, &|_, _, _| {}).expect("simulate");
+    let ds = &out.dataset;
+    let cam = &ds.calib.camera;
+    assert_eq!(cam.readout_s, 0.03, "the calibration carries the readout");
+    let truth = ds.sim_truth.as_ref().expect("sim truth");
+    let lm: BTreeMap<u64, Vec3> = truth.landmarks_w.iter().copied().collect();
+    let (mut n, mut worst_rs, mut worst_gs) = (0usize, 0.0f64, 0.0f64);
+    for f in &ds.features {
+        let t_s = (f.t_ns + (ds.calib.td_s * 1e9).round() as i64 - T0_NS) as f64 * 1e-9;
+        let mid = out.trajectory.eval(t_s);
+        for o in &f.obs {
+            let row = out.trajectory.eval(t_s + cam.row_time_s(o.v_px));
+            let off = |k: &povins_host_tools::sim::trajectory::Kinematics| {
+                pixel(cam, &ds.calib.t_bc, k.p_wb, k.q_wb, &lm[&o.id])
+                    .map_or(f64::INFINITY, |uv| (o.u_px - uv[0]).hypot(o.v_px - uv[1]))
+            };
+            n += 1;
+            worst_rs = worst_rs.max(off(&row));
+            worst_gs = worst_gs.max(off(&mid));
+        }
+    }
+    assert!(n > 10_000, "{n} observations");
+    // Three fixed-point steps: within 0.02 px (0.014 px measured).
+    assert!(worst_rs < 0.02, "off its row's projection by {worst_rs} px");
+    assert!(
+        worst_gs > 3.0,
+        "the middle row's pose explains every row to {worst_gs} px: no rolling shutter"
+    );
+}
+
+#[test]
 fn landmark_hidden_behind_a_box_is_never_observed() {
     // Camera at rest at the origin looking along +x (body x), a box in front hides part of a wall.
     let world = World::new(
@@ -166,7 +207,7 @@ fn landmark_hidden_behind_a_box_is_never_observed() {
         p_ab: Vec3::zeros(),
     };
     let mut cam = CameraSim::new(&world, &lms, euroc_camera(), &t_bc, params, Rng::new(1));
-    let frame = cam.step(&traj.eval(0.0), 0);
+    let frame = cam.step(&traj.eval(0.0), 0, &|dt| traj.eval(dt));
     let truth = cam.finish();
     let seen: Vec<Vec3> = frame
         .obs

@@ -125,6 +125,7 @@ mod tests {
 
     fn config() -> EstimatorConfig {
         let camera = PinholeCamera {
+            readout_s: 0.0,
             width: 752,
             height: 480,
             fx: 458.0,

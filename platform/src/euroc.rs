@@ -9,7 +9,8 @@
 //! - `cam0/sensor.yaml`: `T_BS` (4x4 row-major, body-from-camera), `rate_hz`, `resolution`,
 //!   `intrinsics` `[fu, fv, cu, cv]`, `distortion_model` (`radial-tangential` | `equidistant` |
 //!   `none`), `distortion_coefficients`, optional Kalibr `timeshift_cam_imu` (s,
-//!   `t_imu = t_cam + shift`, default 0). `cam0/data.csv` (`#timestamp [ns],filename`) lists
+//!   `t_imu = t_cam + shift`, default 0), optional povins `readout_s` (a rolling shutter's readout
+//!   time, s, default 0: [`PinholeCamera::readout_s`]; written only when not 0). `cam0/data.csv` (`#timestamp [ns],filename`) lists
 //!   images in `cam0/data/`; they are decoded only by [`read_images`].
 //! - `features0/data.csv` (`#timestamp [ns],feature_id,u [px],v [px]`): rows of one frame are
 //!   consecutive and share the stamp; frames increase in time; ids are unique within a frame.
@@ -40,7 +41,7 @@ use crate::error::IoError;
 use crate::recording::{Contents, Recording, Stream};
 use crate::trajectory::read_euroc_groundtruth;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
-use povins_core::camera::{Distortion, PinholeCamera};
+use povins_core::camera::{Distortion, PinholeCamera, MAX_READOUT_S};
 use povins_core::inertial::{ImuNoise, ImuSample, NavState};
 use povins_core::math::Vec3;
 use std::path::{Path, PathBuf};
@@ -131,6 +132,7 @@ impl EurocFolder {
             // No camera at all: a placeholder the estimator cannot mistake for a real one.
             None => (
                 PinholeCamera {
+                    readout_s: 0.0,
                     width: 0,
                     height: 0,
                     fx: 1.0,
@@ -401,7 +403,15 @@ fn read_camera(d: &Doc) -> Result<(PinholeCamera, Extrinsic, f64, f64), IoError>
             ));
         }
     };
+    let readout_s = d.opt_f64(r, "readout_s")?.unwrap_or(0.0);
+    if !(0.0..=MAX_READOUT_S).contains(&readout_s) {
+        return Err(d.error(
+            d.line_of(r, "readout_s"),
+            format!("readout_s {readout_s} s is outside [0, {MAX_READOUT_S}] s"),
+        ));
+    }
     let camera = PinholeCamera {
+        readout_s,
         width: dim(res[0])?,
         height: dim(res[1])?,
         fx: k[0],

@@ -275,6 +275,7 @@ fn camera_of(path: &Path, cam: &str, raw: RawCam) -> Result<KalibrCamera, IoErro
     }
     Ok(KalibrCamera {
         camera: PinholeCamera {
+            readout_s: 0.0,
             width,
             height,
             fx,

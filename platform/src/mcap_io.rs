@@ -20,7 +20,8 @@
 //! sensor origin in the body and the rotation sensor -> body; `T_bl` absent without LiDAR),
 //! `td_s` (`t_imu = t_cam + td_s`), `imu_rate_hz`, `gyroscope_noise_density`,
 //! `gyroscope_random_walk`, `accelerometer_noise_density`, `accelerometer_random_walk`,
-//! `bias_correlation_time_s` (`none` for a random walk), `gravity_mps2`, `name`. A simulator's
+//! `bias_correlation_time_s` (`none` for a random walk), `gravity_mps2`, `name`, and `readout_s`
+//! (a rolling shutter's readout time, s; only when not 0). A simulator's
 //! [`SimTruth`] is the JSON attachment [`SIM_TRUTH_ATTACHMENT`].
 //!
 //! Reading ignores topics it does not know, orders each topic by header stamp and rejects
@@ -37,7 +38,7 @@ use crate::error::IoError;
 use crate::euroc::read_png_mono8;
 use crate::ros2;
 use crate::ros2::convert::{self, quat_from_xyzw, quat_to_xyzw};
-use povins_core::camera::{Distortion, PinholeCamera};
+use povins_core::camera::{Distortion, PinholeCamera, MAX_READOUT_S};
 use povins_core::inertial::ImuNoise;
 use povins_core::math::Vec3;
 use std::borrow::Cow;
@@ -126,6 +127,9 @@ fn calibration_metadata(ds: &Dataset) -> BTreeMap<String, String> {
     put("intrinsics", nums(&[cam.fx, cam.fy, cam.cx, cam.cy]));
     put("distortion_model", model.into());
     put("distortion_coefficients", nums(&k));
+    if cam.readout_s != 0.0 {
+        put("readout_s", num(cam.readout_s));
+    }
     put("camera_rate_hz", num(c.camera_rate_hz));
     put("T_bc", extrinsic_str(&c.t_bc));
     put("td_s", num(c.td_s));
@@ -208,8 +212,20 @@ fn calibration_from_metadata(
             _ => Some(one("bias_correlation_time_s")?),
         },
     };
+    // Optional (written only for a rolling shutter).
+    let readout_s = match m.get("readout_s") {
+        None => 0.0,
+        Some(_) => one("readout_s")?,
+    };
+    if !(0.0..=MAX_READOUT_S).contains(&readout_s) {
+        return Err(bad(
+            "readout_s",
+            &format!("is outside [0, {MAX_READOUT_S}] s"),
+        ));
+    }
     let calib = Calibration {
         camera: PinholeCamera {
+            readout_s,
             width: res[0],
             height: res[1],
             fx: k[0],

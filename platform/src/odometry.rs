@@ -211,6 +211,7 @@ mod tests {
 
     fn config(width: u32, height: u32) -> EstimatorConfig {
         let camera = PinholeCamera {
+            readout_s: 0.0,
             width,
             height,
             fx: 0.6 * f64::from(width),

@@ -124,6 +124,29 @@ fn synthetic_dataset_round_trips_through_a_folder() {
     read_images(&mut back).unwrap();
     assert_same(&ds, &back, 1e-15, 0.0);
 
+    // A rolling shutter's readout travels in `cam0/sensor.yaml` (absent for a global shutter);
+    // one out of range is an error naming the file's line.
+    let yaml = |r: &std::path::Path| std::fs::read_to_string(r.join("mav0/cam0/sensor.yaml"));
+    assert!(!yaml(&root).unwrap().contains("readout_s"));
+    let mut rs = synthetic("rs");
+    rs.sim_truth = None;
+    rs.calib.camera.readout_s = 0.025;
+    let rs_root = dir.path().join("rs");
+    write_dataset(&rs_root, &rs).unwrap();
+    assert_eq!(
+        read_dataset(&rs_root).unwrap().calib.camera.readout_s,
+        0.025
+    );
+    let bad = yaml(&rs_root)
+        .unwrap()
+        .replace("readout_s: 0.025", "readout_s: 25.0");
+    std::fs::write(rs_root.join("mav0/cam0/sensor.yaml"), bad).unwrap();
+    let e = read_dataset(&rs_root).unwrap_err().to_string();
+    assert!(
+        e.contains("sensor.yaml") && e.contains("readout_s 25"),
+        "{e}"
+    );
+
     // Writing what was read (images referenced by path only) copies the PNGs.
     let mut listed = read_dataset(&root).unwrap();
     let copy = dir.path().join("copy").join("synthetic-seq");

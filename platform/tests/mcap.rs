@@ -23,6 +23,12 @@ fn synthetic_dataset_round_trips_exactly() {
         assert_eq!(a.q_wb, b.q_wb);
     }
     assert_eq!(ds.calib, back.calib);
+    // A rolling shutter's readout travels in the calibration record.
+    let mut rs = synthetic("rs");
+    rs.calib.camera.readout_s = 0.025;
+    let rs_path = dir.path().join("rs.mcap");
+    write_dataset(&rs_path, &rs).unwrap();
+    assert_eq!(read_dataset(&rs_path).unwrap().calib, rs.calib);
 }
 
 /// Raw messages per topic, with their schema name and encoding.

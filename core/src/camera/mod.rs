@@ -83,4 +83,16 @@ pub struct PinholeCamera {
     pub cy: f64,
     /// Distortion model.
     pub distortion: Distortion,
+    /// Rolling-shutter readout time, s: the rows are read out from the top (row 0) to the bottom
+    /// over this time; 0 for a global shutter. The frame's stamp is the time of its **middle**
+    /// row, so a row at pixel `v` is captured [`Self::row_time_s`]`(v)` = `readout_s ((v + 0.5) /
+    /// height - 0.5)` after the stamp (a camera that stamps its first row shifts the delay `td`
+    /// by `readout_s / 2`, which the online delay absorbs). From Kalibr's rolling-shutter model:
+    /// `line_delay * height`. Optional in a configuration file (default 0).
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub readout_s: f64,
 }
+
+/// Largest accepted [`PinholeCamera::readout_s`], s (a frame's readout longer than 0.2 s is not a
+/// rolling shutter but a wrong unit).
+pub const MAX_READOUT_S: f64 = 0.2;

@@ -13,6 +13,7 @@ const MIN_Z: f64 = 1e-9;
 impl PinholeCamera {
     /// EuRoC MAV cam0 (MT9M034, `mav0/cam0/sensor.yaml`): 752x480, radial-tangential.
     pub const EUROC_CAM0: PinholeCamera = PinholeCamera {
+        readout_s: 0.0,
         width: 752,
         height: 480,
         fx: 458.654,
@@ -26,6 +27,17 @@ impl PinholeCamera {
             p2: 1.76187114e-05,
         },
     };
+
+    /// Capture time of the row at pixel `v_px` relative to the frame's stamp (its middle row), s:
+    /// `readout_s ((v + 0.5) / height - 0.5)`; 0 for a global shutter (`readout_s = 0`) or a
+    /// camera without rows.
+    #[inline]
+    pub fn row_time_s(&self, v_px: f64) -> f64 {
+        if self.readout_s == 0.0 || self.height == 0 {
+            return 0.0;
+        }
+        self.readout_s * ((v_px + 0.5) / self.height as f64 - 0.5)
+    }
 
     /// Focal lengths `(fx, fy)`, px.
     #[inline]

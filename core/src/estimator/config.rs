@@ -403,6 +403,7 @@ impl EstimatorConfig {
             crate::math::Quat::new_unchecked(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0));
         EstimatorConfig {
             camera: PinholeCamera {
+                readout_s: 0.0,
                 width: 0,
                 height: 0,
                 fx: 0.0,
@@ -596,7 +597,8 @@ impl EstimatorConfig {
             && self.imu_noise.is_valid()
             && self.imu_noise_adapt.is_valid()
             && pos(self.camera.fx)
-            && pos(self.camera.fy);
+            && pos(self.camera.fy)
+            && (0.0..=crate::camera::MAX_READOUT_S).contains(&self.camera.readout_s);
         if !ok {
             return Err(Error::InvalidConfig);
         }

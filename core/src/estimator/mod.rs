@@ -110,6 +110,10 @@ pub const PENDING_FRAMES: usize = 4;
 
 /// Largest frame gap over which feature velocities are kept, s.
 const TRACK_MAX_GAP_S: f64 = 0.5;
+/// Gyro readings kept for a rolling shutter's angular acceleration (8: 35 ms at 200 Hz).
+const GYRO_RECENT: usize = 8;
+/// The span of gyro readings the angular acceleration is fitted over, ns (before the frame).
+const ANGULAR_ACCEL_SPAN_NS: i64 = 25_000_000;
 
 /// The PO-VINS configuration of the paper: 10 keyframes, 200 landmarks.
 pub type PoVins = Estimator<10, 200, 166>;
@@ -230,6 +234,9 @@ pub struct Estimator<
     sweeps_in: PendingSweeps<Q, PENDING_SWEEPS>,
     /// IMU samples waiting for [`Estimator::update`] ([`timing`]).
     imu_in: heapless::Deque<ImuSample, IMU_QUEUE>,
+    /// The newest gyro readings `(t_ns, rad/s)`, for the angular acceleration a rolling
+    /// shutter's rows need ([`frame_step`]).
+    gyro_recent: heapless::Deque<(i64, Vec3), GYRO_RECENT>,
     grid: SphereGrid<GW, GH>,
     events: HVec<DepthEvent, MAX_EVENTS>,
     /// The delay is held in the current solve (too few landmarks to estimate it).
@@ -408,6 +415,7 @@ impl<
             points: PointBuffer::new(),
             sweeps_in: PendingSweeps::new(),
             imu_in: heapless::Deque::new(),
+            gyro_recent: heapless::Deque::new(),
             grid: SphereGrid::new(),
             events: HVec::new(),
             td_hold: false,
@@ -454,6 +462,7 @@ impl<
         self.status = Status::WaitingForInit;
         self.ins.clear();
         self.last_imu = None;
+        self.gyro_recent.clear();
         self.tracks.reset_to_new(TRACK_MAX_GAP_S);
         self.rest.reset_to_new(cfg.rest);
         self.frame_obs.clear();

@@ -15,6 +15,10 @@
 //! mode landmark its estimated inverse depth; a pose-only landmark the pose-only depth of its
 //! anchors `(s, e)` (paper eq. 19) for the current poses, only when the last solve admitted it
 //! (parallax and depth-uncertainty gates). Landmarks without a depth are not predicted.
+//!
+//! A rolling shutter ([`crate::camera::PinholeCamera::readout_s`]) sees each row at its own time:
+//! the prediction projects again with the pose at the time of the row the first projection fell
+//! in.
 
 use super::{corrected_obs, Estimator};
 use crate::camera::CameraPose;
@@ -122,7 +126,8 @@ impl<const N: usize, const L: usize> Predictor<'_, N, L> {
         out: &mut [FeaturePrediction],
     ) -> Result<usize, Error> {
         let td_ns = libm::round(self.td_s * 1e9) as i64;
-        let (p_wb, q_wb) = self.body_pose_at(t_cam_ns.saturating_add(td_ns))?;
+        let t_ns = t_cam_ns.saturating_add(td_ns);
+        let (p_wb, q_wb) = self.body_pose_at(t_ns)?;
         let cam_t = self.ext.camera_pose(&p_wb, &q_wb);
         let q_cw = cam_t.q_wc.inverse();
         let cams = self.window_cameras();
@@ -136,6 +141,10 @@ impl<const N: usize, const L: usize> Predictor<'_, N, L> {
             let Some(uv) = self.cfg.camera.project(&p_c) else {
                 continue;
             };
+            let (p_c, uv) = match self.rolling_shutter_projection(t_ns, &p_w, uv.y) {
+                Some(rs) => rs,
+                None => (p_c, uv),
+            };
             *slot = FeaturePrediction {
                 id: lm.id,
                 uv_px: [uv.x, uv.y],
@@ -145,6 +154,27 @@ impl<const N: usize, const L: usize> Predictor<'_, N, L> {
             n += 1;
         }
         Ok(n)
+    }
+
+    /// A rolling shutter's projection of `p_w` (camera frame and pixel): seen first at the
+    /// stamp's pose (IMU time `t_ns`) in the row `v_px`, it is projected again with the pose at
+    /// that row's time (one fixed-point step: the row moves by a fraction of a pixel per ms of
+    /// readout). `None` for a global shutter, or when that pose or projection does not exist.
+    fn rolling_shutter_projection(
+        &self,
+        t_ns: i64,
+        p_w: &Vec3,
+        v_px: f64,
+    ) -> Option<(Vec3, crate::camera::Vec2)> {
+        let row_s = self.cfg.camera.row_time_s(v_px);
+        if row_s == 0.0 {
+            return None;
+        }
+        let t_row_ns = t_ns.saturating_add(libm::round(row_s * 1e9) as i64);
+        let (p_wb, q_wb) = self.body_pose_at(t_row_ns).ok()?;
+        let cam = self.ext.camera_pose(&p_wb, &q_wb);
+        let p_c = cam.q_wc.inverse() * (p_w - cam.p_wc);
+        Some((p_c, self.cfg.camera.project(&p_c)?))
     }
 
     /// The camera pose of every window keyframe.

@@ -202,6 +202,13 @@ impl<
             }
         }
         self.counters.imu_samples += 1;
+        if self.cfg.camera.readout_s > 0.0 {
+            if self.gyro_recent.is_full() {
+                let _ = self.gyro_recent.pop_front();
+            }
+            // Not full (made room above): cannot fail.
+            let _ = self.gyro_recent.push_back((s.t_ns, s.gyro_rps));
+        }
         let mut out = ImuOutput {
             nav: None,
             keyframe: None,

@@ -147,6 +147,7 @@ mod tests {
                 id,
                 x_n: [0.01 * id as f64 + shift, 0.0],
                 vel: [0.0; 2],
+                row_dt_s: 0.0,
             })
             .collect()
     }

@@ -34,7 +34,14 @@
 //! frame, uses its own observation). Even the flows' coefficients matter: a slowly moving camera's
 //! features move so little that their dependence on `x` biased a robot's delay by +5 ms. A track
 //! after a time jump starts again.
+//!
+//! **Rolling shutter** ([`PinholeCamera::readout_s`]): a row is read out
+//! [`PinholeCamera::row_time_s`] after the frame's stamp. Each observation is moved at ingestion
+//! to where the camera at the stamp sees it ([`super::rolling_shutter`]), with the track's
+//! inverse depth (a new track: the mean of the fitted ones), so everything downstream
+//! (velocities, the delay's correction, the factors) sees a global-shutter frame.
 
+use super::rolling_shutter::transfer_to_stamp;
 use crate::camera::{FeatureObs, PinholeCamera};
 use crate::Error;
 use heapless::Vec;
@@ -57,6 +64,9 @@ pub struct CameraMotion {
     pub w_c_rps: [f64; 3],
     /// Velocity of the camera's origin relative to the world, in `c`, m/s.
     pub v_c_mps: [f64; 3],
+    /// Angular acceleration of the camera, in `c`, rad/s^2 (for a rolling shutter's rows; zero
+    /// when unknown).
+    pub dw_c_rps2: [f64; 3],
 }
 
 impl CameraMotion {
@@ -64,6 +74,7 @@ impl CameraMotion {
     pub const ZERO: CameraMotion = CameraMotion {
         w_c_rps: [0.0; 3],
         v_c_mps: [0.0; 3],
+        dw_c_rps2: [0.0; 3],
     };
 }
 
@@ -94,6 +105,10 @@ pub struct NormalizedObs {
     pub x_n: [f64; 2],
     /// Velocity of `x_n`, 1/s (zero for a new track).
     pub vel: [f64; 2],
+    /// Capture time of the observation's image row relative to the frame's stamp, s
+    /// ([`PinholeCamera::row_time_s`]: 0 for a global shutter). `x_n` is already moved to the
+    /// stamp's time ([`super::rolling_shutter::transfer_to_stamp`]); this says from how far.
+    pub row_dt_s: f64,
 }
 
 /// What happened to the observations of one frame (rejections are counted, never silent).
@@ -213,6 +228,7 @@ impl<const F: usize> TrackTable<F> {
                 id: o.id,
                 x_n: [x.x, x.y],
                 vel: [0.0; 2],
+                row_dt_s: camera.row_time_s(o.v_px),
             };
             if out.push(n).is_err() {
                 st.rejected_capacity += 1;
@@ -253,6 +269,7 @@ impl<const F: usize> TrackTable<F> {
                 let mid = CameraMotion {
                     w_c_rps: core::array::from_fn(|i| 0.5 * (m1.w_c_rps[i] + m2.w_c_rps[i])),
                     v_c_mps: core::array::from_fn(|i| 0.5 * (m1.v_c_mps[i] + m2.v_c_mps[i])),
+                    dw_c_rps2: [0.0; 3],
                 };
                 Some((dt_s, mid))
             }
@@ -262,6 +279,26 @@ impl<const F: usize> TrackTable<F> {
             .prev_t_ns
             .map_or(0.0, |t1| t_ns.saturating_sub(t1) as f64 * 1e-9);
         let forget = libm::exp(-dt_s / INVERSE_DEPTH_TAU_S);
+        // A new track's inverse depth for a rolling shutter's transfer: the mean of the fitted
+        // tracks' (its own fit starts at 0, "far", which would leave the translation's shift out).
+        let rho_new = if out.iter().any(|o| o.row_dt_s != 0.0) {
+            let (mut n, mut sum) = (0.0, 0.0);
+            for p in self
+                .prev
+                .iter()
+                .filter(|p| p.w > INVERSE_DEPTH_PRIOR_WEIGHT)
+            {
+                n += 1.0;
+                sum += p.rho;
+            }
+            if n > 0.0 {
+                sum / n
+            } else {
+                0.0
+            }
+        } else {
+            0.0
+        };
         self.cur.clear();
         for o in out.iter_mut() {
             let p1 = if prev_ok {
@@ -291,6 +328,12 @@ impl<const F: usize> TrackTable<F> {
                 }
                 None => (0.0, INVERSE_DEPTH_PRIOR_WEIGHT),
             };
+            if o.row_dt_s != 0.0 {
+                let rho_t = if p1.is_some() { rho } else { rho_new };
+                let m = &motion;
+                o.x_n =
+                    transfer_to_stamp(o.x_n, o.row_dt_s, rho_t, m.w_c_rps, m.dw_c_rps2, m.v_c_mps);
+            }
             // The flows are evaluated where the previous frame predicts the point, not at the
             // current observation: a slow camera's features move so little that even the flows'
             // dependence on `x` correlates the regressor with the observation's noise enough to
@@ -390,6 +433,7 @@ mod tests {
 
     fn cam() -> PinholeCamera {
         PinholeCamera {
+            readout_s: 0.0,
             width: 640,
             height: 480,
             fx: 400.0,
@@ -567,6 +611,7 @@ mod tests {
         CameraMotion {
             w_c_rps: w,
             v_c_mps: v_c,
+            dw_c_rps2: [0.0; 3],
         }
     }
 

@@ -196,6 +196,7 @@ mod tests {
                 id,
                 x_n: [id as f64, 0.0],
                 vel: [0.0; 2],
+                row_dt_s: 0.0,
             })
             .collect()
     }

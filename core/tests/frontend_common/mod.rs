@@ -29,6 +29,7 @@ pub fn dmvio_dir() -> PathBuf {
 
 /// The DM-VIO RealSense camera (640x360, no distortion; `cam0/sensor.yaml`).
 pub const DMVIO_CAM: PinholeCamera = PinholeCamera {
+    readout_s: 0.0,
     width: 640,
     height: 360,
     fx: 453.129_882_812_5,

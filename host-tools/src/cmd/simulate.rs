@@ -131,6 +131,13 @@ pub struct Args {
     /// --start-s not subtracted).
     #[arg(long, requires = "td_step_ms")]
     pub td_step_at_s: Option<f64>,
+    /// Rolling-shutter readout time of the camera, ms (0: global shutter): rows are read out top
+    /// to bottom, the stamp is the middle row's time, and each feature (and each rendered row)
+    /// is seen at its row's time. The calibration carries it (`readout_s` in `cam0/sensor.yaml`
+    /// and the MCAP calibration), so `povins run` models it unless the configuration sets
+    /// `[camera] readout_s = 0.0`.
+    #[arg(long, default_value_t = 0.0)]
+    pub readout_ms: f64,
     /// Drop the first T seconds of every stream (IMU, ground truth, camera frames and images by
     /// exposure instant, LiDAR sweeps by their start), stamps unchanged: a sequence that starts
     /// in motion. `motion`: the scenario's rest plus its ramp to full motion (3 s; vehicle 9 s,
@@ -239,6 +246,7 @@ impl Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mut cfg = SimConfig::new(args.scenario, args.seed, args.duration);
     cfg.td_s = args.td_ms * 1e-3;
+    cfg.readout_s = args.readout_ms * 1e-3;
     if let (Some(d), Some(at)) = (args.td_step_ms, args.td_step_at_s) {
         cfg.td_step = Some(sim::TdStep {
             step_s: d * 1e-3,

@@ -212,6 +212,7 @@ mod tests {
     #[test]
     fn true_steps_pass_and_displaced_steps_fail() {
         let cam = PinholeCamera {
+            readout_s: 0.0,
             width: 640,
             height: 480,
             fx: 400.0,

@@ -262,8 +262,43 @@ impl<'a> CameraSim<'a> {
         false
     }
 
-    /// Simulates one image taken at the true time of `kin`, stamped `stamp_ns` (camera clock).
-    pub fn step(&mut self, kin: &Kinematics, stamp_ns: i64) -> FeatureFrame {
+    /// Where a rolling shutter sees landmark `lm`, first seen at `uv` by the stamp's view: the
+    /// row time moves the pose, which moves the row; three fixed-point steps (each shrinks the
+    /// row's error by the image motion per row times the readout per row, 0.06 on the hand-held
+    /// rig at 30 ms) end within 0.02 px of the fixed point. `uv` itself for a global shutter or
+    /// when a step leaves the image.
+    fn rolling_shutter_uv(
+        &self,
+        lm: usize,
+        uv: [f64; 2],
+        at_row: &dyn Fn(f64) -> Kinematics,
+    ) -> [f64; 2] {
+        if self.cam.readout_s == 0.0 {
+            return uv;
+        }
+        let mut cur = uv;
+        for _ in 0..3 {
+            let kin = at_row(self.cam.row_time_s(cur[1]));
+            let r_wc = kin.r_wb * self.r_bc;
+            let o_w = kin.p_wb + kin.r_wb * self.p_bc;
+            match project(&self.cam, &(r_wc.transpose() * (self.lms.p_w[lm] - o_w))) {
+                Some(next) => cur = next,
+                None => return uv,
+            }
+        }
+        cur
+    }
+
+    /// Simulates one image whose middle row is taken at the true time of `kin`, stamped
+    /// `stamp_ns` (camera clock); `at_row(dt)` is the body's state `dt` s after that time (a
+    /// rolling shutter's rows, [`PinholeCamera::row_time_s`]). Which tracks live and where new
+    /// ones start is decided at the middle row's pose; the reported pixels are the rows' own.
+    pub fn step(
+        &mut self,
+        kin: &Kinematics,
+        stamp_ns: i64,
+        at_row: &dyn Fn(f64) -> Kinematics,
+    ) -> FeatureFrame {
         let r_wc = kin.r_wb * self.r_bc;
         let view = View {
             o_w: kin.p_wb + kin.r_wb * self.p_bc,
@@ -385,6 +420,7 @@ impl<'a> CameraSim<'a> {
                 self.edge_flag[slot] = true;
                 self.truth.edge_features.push(id);
             }
+            let uv = self.rolling_shutter_uv(lm, uv, at_row);
             let s = self.params.pixel_noise_px;
             obs.push(FeatureObs {
                 id,
@@ -413,6 +449,7 @@ mod tests {
     #[test]
     fn radtan_projection_matches_hand_computation() {
         let cam = PinholeCamera {
+            readout_s: 0.0,
             width: 752,
             height: 480,
             fx: 450.0,

@@ -62,6 +62,10 @@ pub struct SimConfig {
     pub td_s: f64,
     /// A step of `td` during the run (`None`: constant).
     pub td_step: Option<TdStep>,
+    /// Rolling-shutter readout time of the camera, s (0: global shutter): each feature is seen
+    /// at the time of its row ([`povins_core::camera::PinholeCamera::row_time_s`]), and the
+    /// dataset's camera carries the value.
+    pub readout_s: f64,
     /// Time dropped at the start, s (seconds from the first IMU sample; 0: the whole sequence,
     /// from the rest). See [`window`].
     pub start_s: f64,
@@ -97,6 +101,7 @@ impl SimConfig {
             static_s: 1.0,
             td_s: 0.0,
             td_step: None,
+            readout_s: 0.0,
             start_s: 0.0,
             lidar: None,
             lidar_points: None,
@@ -258,7 +263,14 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             "the delay step's time must be >= 0"
         );
     }
+    anyhow::ensure!(
+        (0.0..=povins_core::camera::MAX_READOUT_S).contains(&cfg.readout_s),
+        "the readout time ({} s) must be within [0, {} s]",
+        cfg.readout_s,
+        povins_core::camera::MAX_READOUT_S
+    );
     let mut pre = scenario::preset(cfg.scenario, cfg.static_s);
+    pre.camera.readout_s = cfg.readout_s;
     anyhow::ensure!(
         (0.0..=1.0).contains(&cfg.foliage_porosity),
         "foliage porosity must be in [0, 1], got {}",
@@ -367,9 +379,11 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             let mut frames: Vec<FeatureFrame> = Vec::with_capacity(n_frames);
             for k in 0..n_frames {
                 let t_rel_ns = k as i64 * cam_dt_ns;
-                let kin = traj.eval(t_rel_ns as f64 * 1e-9);
+                let t_s = t_rel_ns as f64 * 1e-9;
+                let kin = traj.eval(t_s);
                 let td_k_ns = window::frame_td_ns(td_ns, cfg.td_step.as_ref(), t_rel_ns);
-                frames.push(cam.step(&kin, T0_NS + t_rel_ns - td_k_ns));
+                let at_row = |row_s: f64| traj.eval(t_s + row_s);
+                frames.push(cam.step(&kin, T0_NS + t_rel_ns - td_k_ns, &at_row));
                 progress("camera", k + 1, n_frames);
             }
             (frames, cam.finish())

@@ -277,6 +277,13 @@ fn camera_yaml(c: &Calibration) -> String {
         coeffs[0], coeffs[1], coeffs[2], coeffs[3]
     );
     let _ = writeln!(y, "timeshift_cam_imu: {:?} # t_imu = t_cam + shift", c.td_s);
+    if cam.readout_s != 0.0 {
+        let _ = writeln!(
+            y,
+            "readout_s: {:?} # rolling shutter: rows top to bottom, stamp = middle row",
+            cam.readout_s
+        );
+    }
     y
 }
 

@@ -179,6 +179,7 @@ impl CameraInfo {
             ));
         }
         Ok(PinholeCamera {
+            readout_s: 0.0,
             width: self.width,
             height: self.height,
             fx,

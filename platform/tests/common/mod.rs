@@ -96,6 +96,7 @@ pub fn synthetic(name: &str) -> Dataset {
         name: name.into(),
         calib: Calibration {
             camera: PinholeCamera {
+                readout_s: 0.0,
                 width: 16,
                 height: 12,
                 fx: 458.654,

@@ -73,6 +73,7 @@ pub const TEST_H: usize = 240;
 /// The unit tests' pinhole camera: `TEST_W x TEST_H`, focal 300 px, centred, no distortion.
 pub fn test_camera() -> crate::camera::PinholeCamera {
     crate::camera::PinholeCamera {
+        readout_s: 0.0,
         width: TEST_W as u32,
         height: TEST_H as u32,
         fx: 300.0,

@@ -245,6 +245,7 @@ fn odd_images_and_bad_input_never_panic() {
         );
         // A size change with a matching camera resets the tracks.
         let c2 = PinholeCamera {
+            readout_s: 0.0,
             width: 100,
             height: 100,
             ..cam()
@@ -254,6 +255,7 @@ fn odd_images_and_bad_input_never_panic() {
         assert_eq!((st.previous, st.total), (0, 0));
         // Bad camera and non-finite rotation.
         let bad = PinholeCamera {
+            readout_s: 0.0,
             fx: f64::NAN,
             ..cam()
         };
@@ -275,6 +277,7 @@ fn odd_images_and_bad_input_never_panic() {
         let big = std::vec![0u8; 640 * 480];
         let vb = ImageView::new(&big, 640, 480, 640).unwrap();
         let c3 = PinholeCamera {
+            readout_s: 0.0,
             width: 640,
             height: 480,
             ..cam()

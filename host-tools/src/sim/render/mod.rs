@@ -103,6 +103,9 @@ impl RenderOptions {
     }
 }
 
+/// Rows that share one culling in a rolling-shutter image ([`Renderer::radiance_rolling`]).
+pub const ROLLING_SHUTTER_BAND_ROWS: usize = 16;
+
 /// Random stream of the pixel noise (per frame) and the exposure curve.
 const STREAM_IMAGE_NOISE: u64 = 7;
 const STREAM_EXPOSURE: u64 = 8;
@@ -359,14 +362,53 @@ impl<'w> Renderer<'w> {
 
     /// Linear radiance image (row-major, nominally in `[0, 1]`; 0 where a pixel has no ray).
     pub fn radiance(&self, view: &View, opts: &RenderOptions) -> Vec<f32> {
-        let (w, h) = (self.rays.width, self.rays.height);
         let vis = Visible::new(self.world, &self.bounds, &self.rays, view);
+        self.radiance_with(&|_| (&vis, view), opts)
+    }
+
+    /// [`Self::radiance`] of a rolling shutter whose middle row is seen at trajectory time
+    /// `t_s`: row `r` from the pose at `t_s + row_time_s(r)`
+    /// ([`PinholeCamera::row_time_s`]), each row's rays cast from its own view; the culling is
+    /// shared by bands of [`ROLLING_SHUTTER_BAND_ROWS`] rows and widened to cover their views.
+    pub fn radiance_rolling(&self, traj: &Trajectory, t_s: f64, opts: &RenderOptions) -> Vec<f32> {
+        let h = self.rays.height;
+        let views: Vec<View> = (0..h)
+            .map(|r| self.view(&traj.eval(t_s + self.cam.row_time_s(r as f64))))
+            .collect();
+        let band = ROLLING_SHUTTER_BAND_ROWS;
+        let culls: Vec<Visible> = (0..h)
+            .step_by(band)
+            .map(|r0| {
+                let rows = &views[r0..(r0 + band).min(h)];
+                let mid = &rows[rows.len() / 2];
+                let (mut dth, mut dp) = (0.0f64, 0.0f64);
+                for v in rows {
+                    let c = ((mid.r_wc.transpose() * v.r_wc).trace() - 1.0) * 0.5;
+                    dth = dth.max(c.clamp(-1.0, 1.0).acos());
+                    dp = dp.max((v.o_w - mid.o_w).norm());
+                }
+                // acos loses precision near 0: a margin of 1e-6 rad and 1e-6 m on top.
+                let (dth, dp) = (dth + 1e-6, dp + 1e-6);
+                Visible::with_margin(self.world, &self.bounds, &self.rays, mid, dth, dp)
+            })
+            .collect();
+        self.radiance_with(&|row| (&culls[row / band], &views[row]), opts)
+    }
+
+    /// The radiance image with the culling and the view of each row from `row_view`.
+    fn radiance_with<'v>(
+        &self,
+        row_view: &dyn Fn(usize) -> (&'v Visible, &'v View),
+        opts: &RenderOptions,
+    ) -> Vec<f32> {
+        let (w, h) = (self.rays.width, self.rays.height);
         let s = opts.supersample.max(1);
         let mut img = vec![0.0f32; w * h];
         let mut keys = vec![u32::MAX; w * h];
         for row in 0..h {
+            let (vis, view) = row_view(row);
             for col in 0..w {
-                if let Some((l, k)) = self.pixel(&vis, view, col, row, s) {
+                if let Some((l, k)) = self.pixel(vis, view, col, row, s) {
                     img[row * w + col] = l as f32;
                     keys[row * w + col] = k;
                 }
@@ -375,6 +417,7 @@ impl<'w> Renderer<'w> {
         let e = opts.edge_samples;
         if e > s {
             for row in 0..h {
+                let (vis, view) = row_view(row);
                 for col in 0..w {
                     let k = keys[row * w + col];
                     let edge = (col > 0 && keys[row * w + col - 1] != k)
@@ -382,7 +425,7 @@ impl<'w> Renderer<'w> {
                         || (row > 0 && keys[(row - 1) * w + col] != k)
                         || (row + 1 < h && keys[(row + 1) * w + col] != k);
                     if edge {
-                        if let Some(l) = self.edge_pixel(&vis, view, col, row, e) {
+                        if let Some(l) = self.edge_pixel(vis, view, col, row, e) {
                             img[row * w + col] = l as f32;
                         }
                     }
@@ -418,7 +461,18 @@ impl<'w> Renderer<'w> {
         out
     }
 
-    /// Renders the 8-bit image of a frame at trajectory time `t_s` (mid-exposure), the
+    /// The radiance image whose middle row is seen at trajectory time `t_s`: one view for a
+    /// global shutter, one per row for a rolling shutter.
+    fn radiance_at(&self, traj: &Trajectory, t_s: f64, opts: &RenderOptions) -> Vec<f32> {
+        if self.cam.readout_s > 0.0 {
+            self.radiance_rolling(traj, t_s, opts)
+        } else {
+            self.radiance(&self.view(&traj.eval(t_s)), opts)
+        }
+    }
+
+    /// Renders the 8-bit image of a frame at trajectory time `t_s` (mid-exposure of its middle
+    /// row), the
     /// `index`-th of the sequence (selects its noise stream).
     pub fn render_frame(
         &self,
@@ -433,7 +487,7 @@ impl<'w> Renderer<'w> {
             let mut acc = vec![0.0f32; self.rays.width * self.rays.height];
             for k in 0..n {
                 let tk = t_s + opts.motion_blur_s * ((k as f64 + 0.5) / n as f64 - 0.5);
-                let img = self.radiance(&self.view(&traj.eval(tk)), opts);
+                let img = self.radiance_at(traj, tk, opts);
                 for (a, v) in acc.iter_mut().zip(img) {
                     *a += v;
                 }
@@ -442,7 +496,7 @@ impl<'w> Renderer<'w> {
             acc.iter_mut().for_each(|a| *a *= inv);
             acc
         } else {
-            self.radiance(&self.view(&traj.eval(t_s)), opts)
+            self.radiance_at(traj, t_s, opts)
         };
         let gain = 255.0 * exposure_gain(seed, opts.exposure_var, t_s);
         let mut rng = Rng::stream(seed, STREAM_IMAGE_NOISE, index);

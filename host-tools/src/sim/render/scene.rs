@@ -54,15 +54,30 @@ pub struct Visible {
 impl Visible {
     /// Culls the world's primitives for a view.
     pub fn new(world: &World, bounds: &[(Vec3, f64)], rays: &RayTable, view: &View) -> Self {
+        Self::with_margin(world, bounds, rays, view, 0.0, 0.0)
+    }
+
+    /// Culls for every view within `dtheta_rad` of `view`'s rotation and `dpos_m` of its origin
+    /// (a rolling shutter's rows): each bounding sphere grows by `dtheta dist + dpos`, which
+    /// covers a point seen from such a view (`asin(r / d) + dtheta <= asin((r + dtheta d) / d)`).
+    pub fn with_margin(
+        world: &World,
+        bounds: &[(Vec3, f64)],
+        rays: &RayTable,
+        view: &View,
+        dtheta_rad: f64,
+        dpos_m: f64,
+    ) -> Self {
         let r_cw = view.r_wc.transpose();
         let mut near = vec![f64::INFINITY; bounds.len()];
         let mut cand: Vec<(u32, Vec3, f64, f64)> = Vec::new();
-        for (k, (c, r)) in bounds.iter().enumerate() {
+        for (k, &(c, r)) in bounds.iter().enumerate() {
             let p = r_cw * (c - view.o_w);
             let dist = p.norm();
-            if rays.image_cone.meets_sphere(&p, dist, *r) {
+            let r = r + dtheta_rad * dist + dpos_m;
+            if rays.image_cone.meets_sphere(&p, dist, r) {
                 near[k] = (dist - r).max(0.0);
-                cand.push((k as u32, p, dist, *r));
+                cand.push((k as u32, p, dist, r));
             }
         }
         cand.sort_by(|a, b| {

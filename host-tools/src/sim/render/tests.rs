@@ -430,14 +430,7 @@ fn options_have_their_effect() {
         out.dataset.calib.camera,
         &out.dataset.calib.t_bc,
     );
-    // The frame with the fastest rotation.
-    let k = (0..frames.len())
-        .max_by(|&a, &b| {
-            let w = |i: usize| out.trajectory.eval(frames[i].1).omega_b.norm();
-            w(a).total_cmp(&w(b))
-        })
-        .unwrap();
-    let t = frames[k].1;
+    let (k, t) = fastest_rotation(&out, &frames);
     let render = |o: RenderOptions| r.render_frame(&out.trajectory, t, k as u64, 6, &o);
     let energy = |px: &[u8]| {
         let mut e = 0.0;
@@ -480,6 +473,49 @@ fn options_have_their_effect() {
         .collect();
     let sd = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
     assert!((2.8..3.2).contains(&sd), "noise sd {sd}");
+}
+
+/// The frame with the fastest rotation: its index and trajectory time.
+fn fastest_rotation(out: &SimOutput, frames: &[(i64, f64)]) -> (usize, f64) {
+    let w = |i: usize| out.trajectory.eval(frames[i].1).omega_b.norm();
+    let k = (0..frames.len())
+        .max_by(|&a, &b| w(a).total_cmp(&w(b)))
+        .unwrap();
+    (k, frames[k].1)
+}
+
+#[test]
+fn a_rolling_shutter_renders_each_row_from_its_own_pose() {
+    let out = sim(Scenario::Handheld, 6, 6.0);
+    let frames = camera_frames(&out);
+    let mut cam = out.dataset.calib.camera;
+    cam.readout_s = 0.03;
+    let r = Renderer::new(&out.world, cam, &out.dataset.calib.t_bc);
+    let (_, t) = fastest_rotation(&out, &frames);
+    // No anti-aliasing pass: it compares a pixel with its neighbours, which other rows see.
+    let opts = RenderOptions {
+        supersample: 1,
+        edge_samples: 0,
+        ..RenderOptions::default()
+    };
+    let rolling = r.radiance_rolling(&out.trajectory, t, &opts);
+    let w = cam.width as usize;
+    let row = |img: &[f32], y: usize| img[y * w..(y + 1) * w].to_vec();
+    let global_at = |dt: f64| r.radiance(&r.view(&out.trajectory.eval(t + dt)), &opts);
+    let mid = global_at(0.0);
+    let mut moved = 0;
+    for y in [0usize, 15, 16, 200, 479] {
+        let own = global_at(cam.row_time_s(y as f64));
+        assert!(
+            row(&rolling, y) == row(&own, y),
+            "row {y} is not its own pose's"
+        );
+        moved += usize::from(row(&rolling, y) != row(&mid, y));
+    }
+    assert!(
+        moved >= 3,
+        "only {moved} of 5 rows differ from the middle row's pose"
+    );
 }
 
 /// Bilinear sample of an image (f64 grey levels) at `(x, y)`; `None` outside.
