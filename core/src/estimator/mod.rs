@@ -112,7 +112,8 @@ pub const PENDING_FRAMES: usize = 4;
 const TRACK_MAX_GAP_S: f64 = 0.5;
 /// Gyro readings kept for a rolling shutter's angular acceleration (8: 35 ms at 200 Hz).
 const GYRO_RECENT: usize = 8;
-/// The span of gyro readings the angular acceleration is fitted over, ns (before the frame).
+/// The span of gyro readings the angular acceleration is fitted over, ns: this much before the
+/// frame and half of it after.
 const ANGULAR_ACCEL_SPAN_NS: i64 = 25_000_000;
 
 /// The PO-VINS configuration of the paper: 10 keyframes, 200 landmarks.
