@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::povins;
+use common::{povins, simulate};
 
 const EUROC: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
@@ -213,21 +213,7 @@ fn realtime_replay_from_ground_truth_writes_every_pose_and_an_mcap() {
 fn deterministic_replay_with_images_writes_the_image_runs_trajectory() {
     let dir = tempfile::tempdir().expect("temp dir");
     let sim = dir.path().join("sim");
-    let (ok, _, err) = povins(&[
-        "simulate",
-        "--scenario",
-        "handheld",
-        "--seed",
-        "1",
-        "--duration",
-        "6",
-        "--format",
-        "euroc",
-        "--images",
-        "--out",
-        sim.to_str().expect("utf-8 path"),
-    ]);
-    assert!(ok, "simulate failed: {err}");
+    simulate("handheld", "1", "6", "euroc", &sim, &["--images"]);
     let sim = sim.to_str().expect("utf-8 path");
     let (rt_dir, run_dir) = (dir.path().join("rt"), dir.path().join("run"));
     let (ok, out, err) = povins(&[

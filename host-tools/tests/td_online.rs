@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::povins;
+use common::{povins, simulate};
 
 /// The keyframe delays `(t_s, td_ms)` of a run's `stats.csv`, columns selected by header name.
 fn keyframe_delays(stats: &std::path::Path) -> Vec<(f64, f64)> {
@@ -32,31 +32,26 @@ fn a_blind_delay_converges_on_a_calm_flight() {
     let (data, out) = (dir.path().join("flight"), dir.path().join("run"));
     let cfg = dir.path().join("blind.toml");
     std::fs::write(&cfg, "td_s = 0.0\n").expect("config");
+    simulate(
+        "flight",
+        "3",
+        "60",
+        "euroc",
+        &data,
+        &[
+            "--td-ms",
+            "-30",
+            "--wrong-track-rate",
+            "0.03",
+            "--lidar",
+            "none",
+        ],
+    );
     let (data, out, cfg) = (
         data.to_str().expect("utf-8"),
         out.to_str().expect("utf-8"),
         cfg.to_str().expect("utf-8"),
     );
-    let (ok, _, err) = povins(&[
-        "simulate",
-        "--scenario",
-        "flight",
-        "--seed",
-        "3",
-        "--duration",
-        "60",
-        "--td-ms",
-        "-30",
-        "--wrong-track-rate",
-        "0.03",
-        "--lidar",
-        "none",
-        "--format",
-        "euroc",
-        "--out",
-        data,
-    ]);
-    assert!(ok, "simulate: {err}");
     let (ok, _, err) = povins(&[
         "run",
         data,
@@ -100,24 +95,14 @@ fn a_rolling_shutter_is_modelled() {
     let p = |n: &str| dir.path().join(n);
     let s = |n: &str| p(n).to_str().expect("utf-8").to_string();
     for (name, readout_ms) in [("global", "0"), ("rolling", "30")] {
-        let (ok, _, err) = povins(&[
-            "simulate",
-            "--scenario",
+        simulate(
             "handheld",
-            "--seed",
             "1",
-            "--duration",
             "30",
-            "--readout-ms",
-            readout_ms,
-            "--lidar",
-            "none",
-            "--format",
             "euroc",
-            "--out",
-            &s(name),
-        ]);
-        assert!(ok, "simulate {name}: {err}");
+            &p(name),
+            &["--readout-ms", readout_ms, "--lidar", "none"],
+        );
     }
     std::fs::write(p("no-readout.toml"), "[camera]\nreadout_s = 0.0\n").expect("config");
     let run = |data: &str, out: &str, extra: &[&str]| {

@@ -29,26 +29,27 @@ pub fn povins(args: &[&str]) -> (bool, String, String) {
     )
 }
 
-/// `povins simulate` of the hand-held scenario (seed 3) with images, `seconds` long, written as
-/// `format` to `out`, with `extra` arguments (e.g. `--lidar none`, `--compression lz4`);
-/// panics with simulate's error when it fails, else returns its stderr.
+/// `povins simulate --scenario SCENARIO --seed SEED --duration SECONDS --format FORMAT --out
+/// OUT` with `extra` arguments; panics with simulate's error when it fails, else returns its
+/// stderr.
 #[allow(dead_code)] // Not every test binary that includes this module simulates.
-pub fn simulate_handheld(
+pub fn simulate(
+    scenario: &str,
+    seed: &str,
+    seconds: &str,
     format: &str,
     out: &std::path::Path,
-    seconds: &str,
     extra: &[&str],
 ) -> String {
     let out = out.to_str().expect("utf-8 path");
     let mut args = vec![
         "simulate",
         "--scenario",
-        "handheld",
+        scenario,
         "--seed",
-        "3",
+        seed,
         "--duration",
         seconds,
-        "--images",
         "--format",
         format,
         "--out",
@@ -56,6 +57,23 @@ pub fn simulate_handheld(
     ];
     args.extend_from_slice(extra);
     let (ok, _, err) = povins(&args);
-    assert!(ok, "simulate {format} failed: {err}");
+    assert!(
+        ok,
+        "simulate {scenario} seed {seed} as {format} failed: {err}"
+    );
     err
+}
+
+/// [`simulate`] of the hand-held scenario (seed 3) with images, `seconds` long, written as
+/// `format` to `out`, with `extra` arguments (e.g. `--lidar none`, `--compression lz4`).
+#[allow(dead_code)] // Not every test binary that includes this module simulates.
+pub fn simulate_handheld(
+    format: &str,
+    out: &std::path::Path,
+    seconds: &str,
+    extra: &[&str],
+) -> String {
+    let mut args = vec!["--images"];
+    args.extend_from_slice(extra);
+    simulate("handheld", "3", seconds, format, out, &args)
 }
