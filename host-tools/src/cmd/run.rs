@@ -15,7 +15,11 @@
 //! are not in them) and no `summary.json`; the complete files of an earlier run into the same
 //! folder are left as they were. A camera recording on which the estimator never started (no
 //! keyframe: no static period for `--init static`) writes its files and `summary.json` (the
-//! counters, the front end's figures) but exits non-zero: there is no estimate.
+//! counters, the front end's figures) but exits non-zero: there is no estimate. When no camera
+//! data reached the estimator the error names why (stamps in another unit or clock, no frames,
+//! every image or feature refused: [`crate::report::faults`]). Every run ends with a status
+//! line, and a run whose output covers less than `--min-coverage` of the input exits non-zero
+//! (`--allow-partial`: a warning).
 
 use crate::progress::Progress;
 use crate::report::faults::{camera_never_reached, status_line};
