@@ -483,6 +483,11 @@ fn each_checked_key_out_of_range_is_named_with_its_value_and_range() {
     assert!(keys.len() > 80, "{} keys", keys.len());
     let defaults = Table::try_from(cfg).expect("serializes");
     for key in &keys {
+        // A quaternion is refused on reading when it is not finite: the core's check cannot be
+        // reached from a file.
+        if key.ends_with(".q_bl") {
+            continue;
+        }
         let (path, index) = match key.split_once('[') {
             Some((p, i)) => (p, Some(i.trim_end_matches(']').parse::<usize>().unwrap())),
             None => (*key, None),
