@@ -31,6 +31,7 @@ pub mod landmarks;
 pub mod lidar;
 pub mod math;
 pub mod odometry;
+pub mod ranges;
 pub mod solver;
 pub mod vio;
 

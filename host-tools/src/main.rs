@@ -49,7 +49,26 @@ enum Cmd {
     Timing(cmd::timing::Args),
 }
 
+/// Output piped into a reader that stopped (`povins run ... | head -1`) ends the command quietly
+/// with exit 0, as for other command-line tools, instead of a panic in `println!`.
+fn quiet_on_closed_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.starts_with("failed printing to stdout") && msg.contains("Broken pipe") {
+            std::process::exit(0);
+        }
+        default(info);
+    }));
+}
+
 fn main() -> anyhow::Result<()> {
+    quiet_on_closed_pipe();
     // On the main thread's stack: the estimator and the image front end are built in place on
     // the heap (`povins_platform::boxed`), and processing needs no large stack.
     match Cli::parse().cmd {

@@ -212,6 +212,20 @@ impl<A: RunSink, B: RunSink> RunSink for (A, B) {
     }
 }
 
+/// The stamps a replay read from the recording: what tells a camera that never reached the
+/// estimator for its stamps (another unit, another clock) from one that did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct InputStamps {
+    /// First and last IMU sample replayed, ns.
+    pub imu_span_ns: Option<(i64, i64)>,
+    /// First camera frame or image read (offered or skipped), ns.
+    pub first_camera_read_ns: Option<i64>,
+    /// Camera frames or images read but skipped: stamped before the first IMU sample.
+    pub camera_skipped: u64,
+    /// The first camera frame or image never read: stamped after the last IMU sample, ns.
+    pub camera_pending_ns: Option<i64>,
+}
+
 /// What a replay knows once it has ended (the counts and settings of [`RunOutput`]).
 #[derive(Debug, Clone)]
 pub struct RunTotals {
@@ -237,6 +251,8 @@ pub struct RunTotals {
     pub first_camera_ns: Option<i64>,
     /// Stamp of the first IMU-rate estimate, ns.
     pub first_estimate_ns: Option<i64>,
+    /// The stamps read from the recording.
+    pub input: InputStamps,
 }
 
 /// Everything a replay produced, collected in memory (the [`RunSink`] of the tests, `demo`,
@@ -281,6 +297,8 @@ pub struct RunOutput {
     pub first_camera_ns: Option<i64>,
     /// Stamp of the first IMU-rate estimate, ns.
     pub first_estimate_ns: Option<i64>,
+    /// The stamps read from the recording.
+    pub input: InputStamps,
 }
 
 impl RunOutput {
@@ -305,6 +323,7 @@ impl RunOutput {
             vio_counters: t.vio_counters,
             first_camera_ns: t.first_camera_ns,
             first_estimate_ns: t.first_estimate_ns,
+            input: t.input,
         }
     }
 
@@ -322,6 +341,7 @@ impl RunOutput {
             vio_counters: self.vio_counters,
             first_camera_ns: self.first_camera_ns,
             first_estimate_ns: self.first_estimate_ns,
+            input: self.input,
         }
     }
 
@@ -470,7 +490,7 @@ pub fn replay_into(
     };
     let source = MergedSource::new(rec, &opts)?;
     let mut obs = RunObserver::new(sink, rec, progress);
-    let (ran, source) = Prefetch::run(source, |p| driver::run(&mut *odo, p, &mut obs));
+    let (ran, mut source) = Prefetch::run(source, |p| driver::run(&mut *odo, p, &mut obs));
     let stats = ran.with_context(|| format!("reading {}", rec.name()))?;
     progress.finish();
     let read = source.stats();
@@ -488,6 +508,12 @@ pub fn replay_into(
         vio_counters: c.images,
         first_camera_ns: read.first_camera_ns,
         first_estimate_ns,
+        input: InputStamps {
+            imu_span_ns: read.imu_span_ns,
+            first_camera_read_ns: read.first_camera_read_ns,
+            camera_skipped: read.camera_skipped,
+            camera_pending_ns: source.pending_camera_ns(),
+        },
     })
 }
 

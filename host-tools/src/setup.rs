@@ -139,6 +139,35 @@ impl RunSetup {
             s.estimator.mode = m.into();
         }
         a.lidar.apply(&mut s.estimator.lidar);
+        let from = a
+            .config
+            .as_ref()
+            .map_or("the recording's calibration".to_string(), |p| {
+                format!("config {} or the recording's calibration", p.display())
+            });
+        // The file's values were checked as it was applied: what is left came from the
+        // recording's calibration (Kalibr's `timeshift_cam_imu` as `td_s`, ...).
+        if let Some(bad) = s.estimator.find_invalid() {
+            anyhow::bail!(
+                "{}: the recording's calibration gives {bad}{}",
+                rec.name(),
+                calibration_hint(bad.key)
+            );
+        }
+        // A zero image size is how a recording without a camera says so: with camera data it
+        // would refuse every feature.
+        let has = rec.contents();
+        let cam = s.estimator.camera;
+        if has.frames || has.images {
+            for (key, v) in [("camera.width", cam.width), ("camera.height", cam.height)] {
+                anyhow::ensure!(
+                    v > 0,
+                    "{}: {key} = {v} (from {from}) is out of range for a recording with camera \
+                     data (allowed: >= 1 px)",
+                    rec.name()
+                );
+            }
+        }
         s.check().with_context(|| {
             a.config
                 .as_ref()
@@ -217,6 +246,17 @@ impl RunSetup {
             progress,
             sink,
         )
+    }
+}
+
+/// Where a calibration's out-of-range setting comes from, for the error.
+fn calibration_hint(key: &str) -> &'static str {
+    match key {
+        "td_s" => {
+            " (the camera-IMU delay, `t_imu = t_cam + td`: EuRoC cam0/sensor.yaml or Kalibr \
+             camchain `timeshift_cam_imu`, in seconds; `td_s` in a --config file overrides it)"
+        }
+        _ => " (a --config file can override it)",
     }
 }
 

@@ -8,6 +8,7 @@ use crate::inertial::motion_init::MotionInitConfig;
 use crate::inertial::preintegration::PreintConfig;
 use crate::inertial::ImuNoise;
 use crate::lidar::LidarConfig;
+use crate::ranges::{self, InvalidSetting, Ranges};
 use crate::solver::LmConfig;
 use crate::Error;
 
@@ -562,49 +563,83 @@ impl EstimatorConfig {
         }
     };
 
-    /// Checks ranges: positive noise and thresholds, a valid depth range, and each group's
-    /// ranges ([`ZuptConfig::validate`], [`TdConfig::validate`], [`CullConfig::validate`]).
+    /// Checks ranges: [`EstimatorConfig::find_invalid`] finds nothing (the same checks, one
+    /// list: [`EstimatorConfig::check_ranges`]).
     pub fn validate(&self) -> Result<(), Error> {
-        let pos = |v: f64| v.is_finite() && v > 0.0;
+        ranges::validate(|r| self.check_ranges(r))
+    }
+
+    /// The first setting out of its range, with its TOML key, its value and the allowed range
+    /// (`None` when [`EstimatorConfig::validate`] accepts the configuration).
+    pub fn find_invalid(&self) -> Option<InvalidSetting> {
+        ranges::first_invalid(|r| self.check_ranges(r))
+    }
+
+    /// Largest camera-IMU delay [`EstimatorConfig::td_s`] accepted, s: a delay of a second is
+    /// already far beyond any synchronized camera's; a larger one is a unit or clock mistake
+    /// (it would move every frame outside the IMU's time), not a delay to estimate.
+    pub const MAX_TD_S: f64 = 1.0;
+
+    /// Every range check of the configuration, in the order [`Self::find_invalid`] reports
+    /// them: the top-level settings, then each group's own list (`[zupt]`, `[td]`, `[cull]`,
+    /// `[lidar]`, ...).
+    pub fn check_ranges(&self, r: &mut Ranges<'_>) {
+        let c = &self.camera;
+        r.positive("camera.fx", c.fx);
+        r.positive("camera.fy", c.fy);
+        let readout = c.readout_s;
+        r.within(
+            "camera.readout_s",
+            readout,
+            0.0,
+            crate::camera::MAX_READOUT_S,
+            "0..=0.2",
+        );
+        let td = self.td_s;
+        r.within("td_s", td, -Self::MAX_TD_S, Self::MAX_TD_S, "-1..=1 (s)");
+        r.positive("gravity_mps2", self.gravity_mps2);
+        r.positive("max_imu_dt_s", self.max_imu_dt_s);
+        r.positive("max_gyro_rps", self.max_gyro_rps);
+        r.positive("max_accel_mps2", self.max_accel_mps2);
+        r.positive("max_speed_mps", self.max_speed_mps);
+        r.positive("max_frame_lead_s", self.max_frame_lead_s);
+        let horizon = self.delay_horizon_s;
+        r.within("delay_horizon_s", horizon, 0.0, 1.0, "0..=1");
+        r.positive("sigma_px", self.sigma_px);
+        r.positive("huber_delta", self.huber_delta);
+        r.non_negative("min_parallax", self.min_parallax);
+        r.positive("max_rel_depth_std", self.max_rel_depth_std);
+        r.positive("rest.max_px", self.rest.max_px);
+        r.positive("slot_parallax_ref", self.slot_parallax_ref);
+        let (near, far) = self.depth_range_m;
+        r.positive("depth_range_m[0]", near);
+        r.check("depth_range_m[1]", far, "> depth_range_m[0]", far > near);
+        r.positive("extrinsic_prior[0]", self.extrinsic_prior.0);
+        r.positive("extrinsic_prior[1]", self.extrinsic_prior.1);
         let p = &self.first_prior;
-        let mp = &self.init.motion_prior;
-        let ok = pos(self.gravity_mps2)
-            && pos(self.max_imu_dt_s)
-            && pos(self.max_gyro_rps)
-            && pos(self.max_accel_mps2)
-            && pos(self.max_speed_mps)
-            && pos(self.max_frame_lead_s)
-            && (0.0..=1.0).contains(&self.delay_horizon_s)
-            && pos(self.sigma_px)
-            && pos(self.huber_delta)
-            && self.min_parallax.is_finite()
-            && self.min_parallax >= 0.0
-            && pos(self.max_rel_depth_std)
-            && pos(self.rest.max_px)
-            && pos(self.slot_parallax_ref)
-            && pos(self.depth_range_m.0)
-            && self.depth_range_m.1 > self.depth_range_m.0
-            && pos(self.extrinsic_prior.0)
-            && pos(self.extrinsic_prior.1)
-            && [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2]
-                .iter()
-                .all(|v| pos(*v))
-            && [mp.p_m, mp.theta_rad, mp.v_mps, mp.bg_rps, mp.ba_mps2]
-                .iter()
-                .all(|v| pos(*v))
-            && self.init.motion.is_valid()
-            && self.td_s.is_finite()
-            && self.imu_noise.is_valid()
-            && self.imu_noise_adapt.is_valid()
-            && pos(self.camera.fx)
-            && pos(self.camera.fy)
-            && (0.0..=crate::camera::MAX_READOUT_S).contains(&self.camera.readout_s);
-        if !ok {
-            return Err(Error::InvalidConfig);
-        }
-        self.zupt.validate()?;
-        self.td.validate()?;
-        self.cull.validate()?;
-        self.lidar.validate()
+        r.positive("first_prior.p_m", p.p_m);
+        r.positive("first_prior.theta_rad", p.theta_rad);
+        r.positive("first_prior.v_mps", p.v_mps);
+        r.positive("first_prior.bg_rps", p.bg_rps);
+        r.positive("first_prior.ba_mps2", p.ba_mps2);
+        let p = &self.init.motion_prior;
+        r.positive("init.motion_prior.p_m", p.p_m);
+        r.positive("init.motion_prior.theta_rad", p.theta_rad);
+        r.positive("init.motion_prior.v_mps", p.v_mps);
+        r.positive("init.motion_prior.bg_rps", p.bg_rps);
+        r.positive("init.motion_prior.ba_mps2", p.ba_mps2);
+        self.init.motion.check_ranges(r);
+        self.imu_noise.check_ranges(r);
+        self.imu_noise_adapt.check_ranges(r);
+        self.static_init.check_ranges(r);
+        self.keyframe.check_ranges(r);
+        self.zupt.check_ranges(r);
+        self.td.check_ranges(r);
+        self.cull.check_ranges(r);
+        self.lidar.check_ranges(r);
+        // Each further group adds its list here, e.g. `[imu_gap]`:
+        // `self.imu_gap.check_ranges(r);` (a group with only a `validate()` can report itself
+        // as one check: `r.check("imu_gap", f64::NAN, "see ImuGapConfig::validate",
+        // self.imu_gap.validate().is_ok())`).
     }
 }

@@ -84,15 +84,24 @@ impl Default for ImuNoiseAdapt {
 }
 
 impl ImuNoiseAdapt {
-    pub(super) fn is_valid(&self) -> bool {
-        self.max_density_scale.is_finite()
-            && self.max_density_scale >= 1.0
-            && self.forgetting > 0.0
-            && self.forgetting < 1.0
-            && self.min_redundancy.is_finite()
-            && self.min_redundancy >= 0.0
-            && self.tolerance.is_finite()
-            && self.tolerance > 0.0
+    /// The range checks (`[imu_noise_adapt]`).
+    pub fn check_ranges(&self, r: &mut crate::ranges::Ranges<'_>) {
+        let scale = self.max_density_scale;
+        r.check(
+            "imu_noise_adapt.max_density_scale",
+            scale,
+            ">= 1",
+            scale.is_finite() && scale >= 1.0,
+        );
+        let f = self.forgetting;
+        r.check(
+            "imu_noise_adapt.forgetting",
+            f,
+            "0 < x < 1",
+            f > 0.0 && f < 1.0,
+        );
+        r.non_negative("imu_noise_adapt.min_redundancy", self.min_redundancy);
+        r.positive("imu_noise_adapt.tolerance", self.tolerance);
     }
 }
 

@@ -61,6 +61,7 @@ mod tau_landmark;
 pub mod timing;
 pub mod window;
 
+pub use crate::ranges::InvalidSetting;
 pub use config::{
     CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, InitConfig, InitMode, TdConfig,
     VisualDepth, VisualMode, ZuptConfig,

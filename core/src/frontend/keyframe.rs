@@ -47,6 +47,28 @@ pub struct KeyframeConfig {
 }
 
 impl KeyframeConfig {
+    /// The range checks (`[keyframe]`): finite, non-negative thresholds, `max_interval_s` not
+    /// below `min_interval_s`, a ratio in `0..=1`.
+    pub fn check_ranges(&self, r: &mut crate::ranges::Ranges<'_>) {
+        r.non_negative("keyframe.min_interval_s", self.min_interval_s);
+        r.non_negative("keyframe.min_translation_m", self.min_translation_m);
+        let dt = self.min_translation_interval_s;
+        r.non_negative("keyframe.min_translation_interval_s", dt);
+        r.non_negative("keyframe.max_rotation_rad", self.max_rotation_rad);
+        r.non_negative("keyframe.max_interval_s", self.max_interval_s);
+        if let Some(px) = self.min_parallax_px {
+            r.non_negative("keyframe.min_parallax_px", px);
+        }
+        let ratio = self.min_tracked_ratio;
+        r.within("keyframe.min_tracked_ratio", ratio, 0.0, 1.0, "0..=1");
+        r.check(
+            "keyframe.max_interval_s",
+            self.max_interval_s,
+            ">= keyframe.min_interval_s",
+            self.max_interval_s >= self.min_interval_s,
+        );
+    }
+
     /// The LE-VINS thresholds (what [`Default`] gives); `const` for static configurations.
     pub const DEFAULT: KeyframeConfig = KeyframeConfig {
         min_interval_s: 0.096,
@@ -126,24 +148,10 @@ pub struct KeyframeSelector {
 }
 
 impl KeyframeSelector {
-    /// Checks the thresholds (finite, non-negative, consistent ordering).
+    /// Checks the thresholds (finite, non-negative, consistent ordering:
+    /// [`KeyframeConfig::check_ranges`]).
     pub fn new(config: KeyframeConfig) -> Result<Self, crate::Error> {
-        let c = &config;
-        let vals = [
-            c.min_interval_s,
-            c.min_translation_m,
-            c.min_translation_interval_s,
-            c.max_rotation_rad,
-            c.max_interval_s,
-            c.min_parallax_px.unwrap_or(0.0),
-            c.min_tracked_ratio,
-        ];
-        if vals.iter().any(|v| !v.is_finite() || *v < 0.0)
-            || c.max_interval_s < c.min_interval_s
-            || c.min_tracked_ratio > 1.0
-        {
-            return Err(crate::Error::InvalidConfig);
-        }
+        crate::ranges::validate(|r| config.check_ranges(r))?;
         Ok(KeyframeSelector { config })
     }
 

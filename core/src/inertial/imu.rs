@@ -79,17 +79,20 @@ impl ImuNoise {
         bias_corr_time_s: None,
     };
 
-    /// True when every density is finite and non-negative and the correlation time (if any) positive.
+    /// True when every density is finite and non-negative and the correlation time (if any)
+    /// positive ([`Self::check_ranges`]).
     pub fn is_valid(&self) -> bool {
-        let d = [
-            self.gyro_noise_density,
-            self.accel_noise_density,
-            self.gyro_bias_rw,
-            self.accel_bias_rw,
-        ];
-        d.iter().all(|x| x.is_finite() && *x >= 0.0)
-            && self
-                .bias_corr_time_s
-                .is_none_or(|t| t.is_finite() && t > 0.0)
+        crate::ranges::first_invalid(|r| self.check_ranges(r)).is_none()
+    }
+
+    /// The range checks (`[imu_noise]`).
+    pub fn check_ranges(&self, r: &mut crate::ranges::Ranges<'_>) {
+        r.non_negative("imu_noise.gyro_noise_density", self.gyro_noise_density);
+        r.non_negative("imu_noise.accel_noise_density", self.accel_noise_density);
+        r.non_negative("imu_noise.gyro_bias_rw", self.gyro_bias_rw);
+        r.non_negative("imu_noise.accel_bias_rw", self.accel_bias_rw);
+        if let Some(t) = self.bias_corr_time_s {
+            r.positive("imu_noise.bias_corr_time_s", t);
+        }
     }
 }

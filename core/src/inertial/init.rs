@@ -72,21 +72,26 @@ impl StaticInitConfig {
         max_dt_s: 0.05,
     };
 
-    /// Whether every threshold is in its range.
+    /// Whether every threshold is in its range ([`Self::check_ranges`]).
     pub fn is_valid(&self) -> bool {
-        [
-            self.gravity_mps2,
-            self.accel_norm_tol_mps2,
-            self.accel_std_max_mps2,
-            self.gyro_std_max_rps,
+        crate::ranges::first_invalid(|r| self.check_ranges(r)).is_none()
+    }
+
+    /// The range checks (`[static_init]`): every threshold positive.
+    pub fn check_ranges(&self, r: &mut crate::ranges::Ranges<'_>) {
+        r.positive("static_init.gravity_mps2", self.gravity_mps2);
+        r.positive("static_init.accel_norm_tol_mps2", self.accel_norm_tol_mps2);
+        r.positive("static_init.accel_std_max_mps2", self.accel_std_max_mps2);
+        r.positive("static_init.gyro_std_max_rps", self.gyro_std_max_rps);
+        let (va, vg) = (
             self.vibration_accel_std_max_mps2,
             self.vibration_gyro_std_max_rps,
-            self.min_static_s,
-            self.noise_std_factor,
-            self.max_dt_s,
-        ]
-        .iter()
-        .all(|x| x.is_finite() && *x > 0.0)
+        );
+        r.positive("static_init.vibration_accel_std_max_mps2", va);
+        r.positive("static_init.vibration_gyro_std_max_rps", vg);
+        r.positive("static_init.min_static_s", self.min_static_s);
+        r.positive("static_init.noise_std_factor", self.noise_std_factor);
+        r.positive("static_init.max_dt_s", self.max_dt_s);
     }
 }
 

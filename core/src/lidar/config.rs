@@ -178,32 +178,44 @@ impl LidarConfig {
         libm::sqrt(self.sigma_dr_m * self.sigma_dr_m + rel * rel)
     }
 
-    /// [`Error::InvalidConfig`] for non-positive or non-finite parameters.
+    /// [`Error::InvalidConfig`] for non-positive or non-finite parameters
+    /// ([`Self::check_ranges`]).
     pub fn validate(&self) -> Result<(), Error> {
+        crate::ranges::validate(|r| self.check_ranges(r))
+    }
+
+    /// The range checks (`[lidar]`): positive noise, thresholds and spans, a valid depth range,
+    /// a finite extrinsic and delay.
+    pub fn check_ranges(&self, r: &mut crate::ranges::Ranges<'_>) {
         let a = &self.association;
-        let pos = |x: f64| x > 0.0 && x.is_finite();
-        let ok = pos(self.sigma_dr_m)
-            && self.sigma_dr_rel >= 0.0
-            && self.sigma_dr_rel.is_finite()
-            && pos(self.rejection_sigma_px)
-            && pos(self.rejection_sigmas)
-            && self.td_l_s.is_finite()
-            && self.extrinsic.p_bl.iter().all(|x| x.is_finite())
-            && self.extrinsic.q_bl.coords.iter().all(|x| x.is_finite())
-            && pos(a.cell_rad)
-            && (3..=AssociationConfig::MAX_NEIGHBOURS).contains(&a.neighbours)
-            && pos(a.max_neighbour_rad)
-            && pos(a.max_plane_dist_m)
-            && pos(a.max_range_spread)
-            && a.min_incidence_cos.is_finite()
-            && pos(a.depth_range_m.0)
-            && a.depth_range_m.1 > a.depth_range_m.0
-            && a.depth_range_m.1.is_finite()
-            && pos(a.span_s);
-        if ok {
-            Ok(())
-        } else {
-            Err(Error::InvalidConfig)
-        }
+        r.positive("lidar.sigma_dr_m", self.sigma_dr_m);
+        r.non_negative("lidar.sigma_dr_rel", self.sigma_dr_rel);
+        r.positive("lidar.rejection_sigma_px", self.rejection_sigma_px);
+        r.positive("lidar.rejection_sigmas", self.rejection_sigmas);
+        r.finite("lidar.td_l_s", self.td_l_s);
+        let p = &self.extrinsic.p_bl;
+        r.all_finite("lidar.extrinsic.p_bl", &[p.x, p.y, p.z]);
+        let q = &self.extrinsic.q_bl.coords;
+        r.all_finite("lidar.extrinsic.q_bl", &[q.x, q.y, q.z, q.w]);
+        r.positive("lidar.association.cell_rad", a.cell_rad);
+        r.check(
+            "lidar.association.neighbours",
+            a.neighbours as f64,
+            "3..=8",
+            (3..=AssociationConfig::MAX_NEIGHBOURS).contains(&a.neighbours),
+        );
+        r.positive("lidar.association.max_neighbour_rad", a.max_neighbour_rad);
+        r.positive("lidar.association.max_plane_dist_m", a.max_plane_dist_m);
+        r.positive("lidar.association.max_range_spread", a.max_range_spread);
+        r.finite("lidar.association.min_incidence_cos", a.min_incidence_cos);
+        let (near, far) = a.depth_range_m;
+        r.positive("lidar.association.depth_range_m[0]", near);
+        r.check(
+            "lidar.association.depth_range_m[1]",
+            far,
+            "> depth_range_m[0], finite",
+            far > near && far.is_finite(),
+        );
+        r.positive("lidar.association.span_s", a.span_s);
     }
 }

@@ -203,11 +203,23 @@ impl RunConfigFile {
             return Err(self.error(e));
         }
         let merged: EstimatorConfig = overlay(cfg, &user).map_err(|e| self.error(e))?;
-        if merged.validate().is_err() {
-            return Err(self.error(anyhow!(
-                "a setting is out of range (see EstimatorConfig::validate: positive noise, \
-                 thresholds and tolerances, a valid depth range, ...)"
-            )));
+        // The core's one list of range checks names the key, the value and the range.
+        if let Some(bad) = merged.find_invalid() {
+            let path = bad.key.split('[').next().unwrap_or(bad.key);
+            let mut at = Some(&user);
+            let mut set = false;
+            for (k, part) in path.split('.').enumerate() {
+                let v = at.and_then(|t| t.get(part));
+                set = v.is_some() && k == path.split('.').count() - 1;
+                at = v.and_then(Value::as_table);
+            }
+            let source = if set {
+                ""
+            } else {
+                " (not set in this file: the value it was laid over, from the recording's \
+                 calibration or the defaults)"
+            };
+            return Err(anyhow!("config {}: {bad}{source}", self.source));
         }
         *cfg = merged;
         Ok(())

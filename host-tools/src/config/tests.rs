@@ -463,3 +463,100 @@ fn the_lk_photometric_model_is_set_from_toml() {
         "unknown model rejected"
     );
 }
+
+/// Every key the core's range checks list ([`EstimatorConfig::check_ranges`]) out of range in a
+/// file gives an error naming that key, its value and the allowed range: for each key the first
+/// of a few out-of-range candidates the core refuses must be reported under that key.
+#[test]
+fn each_checked_key_out_of_range_is_named_with_its_value_and_range() {
+    let mut cfg = base();
+    // The optional settings present, so that their checks are listed too.
+    cfg.imu_noise.bias_corr_time_s = Some(100.0);
+    cfg.keyframe.min_parallax_px = Some(10.0);
+    let mut keys: Vec<&'static str> = Vec::new();
+    cfg.check_ranges(&mut povins_core::ranges::Ranges::new(&mut |s, ok| {
+        assert!(ok, "the defaults are in range: {s}");
+        if !keys.contains(&s.key) {
+            keys.push(s.key);
+        }
+    }));
+    assert!(keys.len() > 80, "{} keys", keys.len());
+    let defaults = Table::try_from(cfg).expect("serializes");
+    for key in &keys {
+        // A quaternion is refused on reading when it is not finite: the core's check cannot be
+        // reached from a file.
+        if key.ends_with(".q_bl") {
+            continue;
+        }
+        let (path, index) = match key.split_once('[') {
+            Some((p, i)) => (p, Some(i.trim_end_matches(']').parse::<usize>().unwrap())),
+            None => (*key, None),
+        };
+        let parts: Vec<&str> = path.split('.').collect();
+        let mut current = &defaults[parts[0]];
+        for p in &parts[1..] {
+            current = &current[*p];
+        }
+        let floats = [-1.0, 0.0, 2.0, 0.5, 1e9, f64::INFINITY, f64::NAN];
+        let candidates: Vec<Value> = match (current, index) {
+            (Value::Integer(_), _) => [0, 1, 2, 1000].map(Value::Integer).to_vec(),
+            (Value::Array(a), None) => floats
+                .iter()
+                .map(|&f| {
+                    let mut a = a.clone();
+                    a[0] = Value::Float(f);
+                    Value::Array(a)
+                })
+                .collect(),
+            (Value::Array(a), Some(i)) => floats
+                .iter()
+                .map(|&f| {
+                    let mut a = a.clone();
+                    a[i] = Value::Float(f);
+                    Value::Array(a)
+                })
+                .collect(),
+            _ => floats.map(Value::Float).to_vec(),
+        };
+        let mut named = None;
+        for v in candidates {
+            let mut t = Table::new();
+            t.insert(parts[parts.len() - 1].to_string(), v.clone());
+            for p in parts[..parts.len() - 1].iter().rev() {
+                let mut outer = Table::new();
+                outer.insert(p.to_string(), Value::Table(t));
+                t = outer;
+            }
+            let text = toml::to_string(&t).unwrap();
+            let Err(e) = RunConfigFile::parse(&text).and_then(|f| f.apply(&mut cfg.clone())) else {
+                continue;
+            };
+            let msg = format!("{e:#}");
+            if msg.contains("is out of range (allowed: ") {
+                named = Some(msg);
+                break;
+            }
+        }
+        let msg = named.unwrap_or_else(|| panic!("{key}: no candidate was refused"));
+        assert!(
+            msg.starts_with(&format!("config <text>: {key} = ")),
+            "{key}: {msg}"
+        );
+        assert!(!msg.contains("not set in this file"), "{key}: {msg}");
+    }
+}
+
+/// A setting out of range that the file does not set is reported as coming from under it.
+#[test]
+fn an_out_of_range_value_the_file_does_not_set_is_said_to_come_from_below() {
+    let mut cfg = base();
+    cfg.td_s = 5.0;
+    let e = RunConfigFile::parse("sigma_px = 1.0\n")
+        .and_then(|f| f.apply(&mut cfg))
+        .expect_err("td_s out of range");
+    let msg = format!("{e:#}");
+    assert!(
+        msg.starts_with("config <text>: td_s = 5 is out of range (allowed: -1..=1 (s)) (not set"),
+        "{msg}"
+    );
+}

@@ -43,6 +43,9 @@ pub struct RunDigest {
     pub(super) trajectory: Option<Vec<StampedPose>>,
     /// The keyframe poses (kept with ground truth only).
     pub(super) keyframes: Option<Vec<StampedPose>>,
+    /// The spans of time the IMU-rate poses cover: consecutive poses at most
+    /// [`super::COVERAGE_TOLERANCE_NS`] apart, first and last stamp (one span per outage).
+    pub(super) covered: Vec<(i64, i64)>,
 }
 
 impl RunDigest {
@@ -76,6 +79,12 @@ impl RunDigest {
 
 impl RunSink for RunDigest {
     fn nav(&mut self, s: &NavState) {
+        match self.covered.last_mut() {
+            Some((_, end)) if s.t_ns >= *end && s.t_ns - *end <= super::COVERAGE_TOLERANCE_NS => {
+                *end = s.t_ns;
+            }
+            _ => self.covered.push((s.t_ns, s.t_ns)),
+        }
         if let Some(v) = &mut self.trajectory {
             v.push(StampedPose::from(s));
         }

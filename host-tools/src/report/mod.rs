@@ -4,6 +4,7 @@
 //! the tests all report through here.
 
 mod digest;
+pub mod faults;
 pub mod files;
 pub mod text;
 mod window_use;
@@ -118,6 +119,11 @@ pub struct Summary {
     /// Share of the ground-truth stamps from the first camera frame on with an IMU-rate pose
     /// within [`COVERAGE_TOLERANCE_NS`] (with ground truth).
     pub coverage: Option<f64>,
+    /// Share of the input's time, from the first camera frame (the first IMU sample without a
+    /// camera) to the last IMU sample, covered by IMU-rate poses: poses at most
+    /// [`COVERAGE_TOLERANCE_NS`] apart cover the time between them; a longer gap is uncovered.
+    /// Defined without ground truth too.
+    pub input_coverage: Option<f64>,
     /// The estimator's counters (`resets`, `reinitializations`, rejections: see
     /// `povins_core::estimator::Counters`), and the image front end's under `front_end`.
     pub counters: serde_json::Value,
@@ -151,7 +157,30 @@ pub fn coverage(gt: &[StampedPose], est: &[StampedPose], from_ns: i64) -> Option
     Some(covered as f64 / after.len() as f64)
 }
 
+/// Share of `from_ns..to_ns` inside the `spans` (sorted, disjoint); `None` for an empty input.
+pub fn input_coverage(spans: &[(i64, i64)], from_ns: i64, to_ns: i64) -> Option<f64> {
+    if to_ns <= from_ns {
+        return None;
+    }
+    let inside: i64 = spans
+        .iter()
+        .map(|&(a, b)| (b.min(to_ns) - a.max(from_ns)).max(0))
+        .sum();
+    Some(inside as f64 / (to_ns - from_ns) as f64)
+}
+
 impl Summary {
+    /// The coverage a run is judged by: against the ground truth when the recording has it
+    /// ([`Summary::coverage`]), else of the input's time ([`Summary::input_coverage`]); with
+    /// its name.
+    pub fn judged_coverage(&self) -> Option<(f64, &'static str)> {
+        match (self.coverage, self.input_coverage) {
+            (Some(c), _) => Some((c, "of the ground truth from the first camera frame on")),
+            (None, Some(c)) => Some((c, "of the input's time from the first camera frame on")),
+            _ => None,
+        }
+    }
+
     /// Why a run with camera frames gave no keyframe (see [`never_started_reason`]).
     pub fn never_started_reason(&self) -> String {
         never_started_reason(
@@ -364,6 +393,10 @@ pub fn summarize_digest(
             .zip(t.first_estimate_ns)
             .map(|(c, e)| (e - c) as f64 * 1e-9),
         coverage: None,
+        input_coverage: t
+            .input
+            .imu_span_ns
+            .and_then(|(i0, i1)| input_coverage(&d.covered, t.first_camera_ns.unwrap_or(i0), i1)),
         counters: counters_json(t)?,
     };
     s.started_by = started_by(init, &t.counters);
@@ -409,6 +442,7 @@ fn started_by(init: InitMode, c: &povins_core::estimator::Counters) -> Option<St
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::runner::RunSink;
 
     fn at(t_ms: i64) -> StampedPose {
         StampedPose {
@@ -428,6 +462,24 @@ mod tests {
         assert_eq!(coverage(&gt, &est, 200_000_000), Some(3.0 / 8.0));
         assert_eq!(coverage(&gt, &[], 0), Some(0.0));
         assert_eq!(coverage(&gt, &est, 1_000_000_000), None);
+    }
+
+    /// Poses closer than 10 ms cover the time between them; a longer gap is uncovered; only
+    /// the time from the first camera frame to the last IMU sample counts.
+    #[test]
+    fn input_coverage_counts_the_time_inside_the_covered_spans() {
+        let spans = [(0, 400), (600, 1000)];
+        assert_eq!(input_coverage(&spans, 200, 1000), Some(0.75));
+        assert_eq!(input_coverage(&spans, 0, 1000), Some(0.8));
+        assert_eq!(input_coverage(&[], 0, 1000), Some(0.0));
+        assert_eq!(input_coverage(&spans, 1000, 1000), None);
+        let mut d = RunDigest::default();
+        for t_ms in [0, 5, 10, 30, 35] {
+            let mut s = povins_core::inertial::NavState::ZERO;
+            s.t_ns = t_ms * 1_000_000;
+            RunSink::nav(&mut d, &s);
+        }
+        assert_eq!(d.covered, vec![(0, 10_000_000), (30_000_000, 35_000_000)]);
     }
 
     /// The reason names each refusal kind that occurred with its count, and only those.

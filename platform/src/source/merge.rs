@@ -98,6 +98,13 @@ pub struct MergeStats {
     pub sweeps_read: u64,
     /// Merge time of the first camera frame or image offered, ns.
     pub first_camera_ns: Option<i64>,
+    /// Stamp of the first camera frame or image read, offered or skipped, ns (with
+    /// [`MergedSource::pending_camera_ns`], what tells stamps in another unit or clock).
+    pub first_camera_read_ns: Option<i64>,
+    /// Camera frames or images read but skipped: stamped before the replay's first IMU sample.
+    pub camera_skipped: u64,
+    /// Stamps of the first and last IMU sample offered, ns.
+    pub imu_span_ns: Option<(i64, i64)>,
 }
 
 impl<'a> MergedSource<'a, SystemClock> {
@@ -169,6 +176,15 @@ impl<'a, C: Clock> MergedSource<'a, C> {
         self.stats
     }
 
+    /// The stamp of the next camera frame or image not read yet (at the end of a replay: one
+    /// stamped after the last IMU sample, never due), ns.
+    pub fn pending_camera_ns(&mut self) -> Option<i64> {
+        match self.camera.peek() {
+            Some(Ok((t, _))) => Some(*t),
+            _ => None,
+        }
+    }
+
     /// The clock (tests read what it was asked to sleep).
     pub fn clock(&self) -> &C {
         &self.clock
@@ -205,7 +221,9 @@ impl<'a, C: Clock> MergedSource<'a, C> {
                     let t = *t;
                     let next = self.camera.next();
                     self.stats.camera_read += 1;
+                    self.stats.first_camera_read_ns.get_or_insert(t);
                     if t < t0 {
+                        self.stats.camera_skipped += 1;
                         continue;
                     }
                     self.stats.first_camera_ns.get_or_insert(t);
@@ -275,6 +293,8 @@ impl<C: Clock> Source for MergedSource<'_, C> {
         self.paced = false;
         let _ = self.imu.next();
         self.stats.imu += 1;
+        let first = self.stats.imu_span_ns.map_or(s.t_ns, |(a, _)| a);
+        self.stats.imu_span_ns = Some((first, s.t_ns));
         Ok(Some(SensorEvent::Imu(s)))
     }
 

@@ -1,12 +1,8 @@
 //! The estimator configuration's groups (TOML tables `[zupt]`, `[td]`, `[cull]`): the
 //! zero-velocity updates, the camera-IMU time delay's estimation, and the outlier culls.
 
+use crate::ranges::{self, Ranges};
 use crate::Error;
-
-/// A finite positive number.
-fn pos(v: f64) -> bool {
-    v.is_finite() && v > 0.0
-}
 
 /// Zero-velocity updates: while the images show the platform at rest, keyframes get a
 /// zero-velocity factor and consecutive ones a zero-motion factor.
@@ -46,13 +42,17 @@ impl ZuptConfig {
         motion_sigma_rad: 2e-3,
     };
 
-    /// Checks ranges: positive standard deviations and speed limit.
+    /// Checks ranges ([`Self::check_ranges`]).
     pub fn validate(&self) -> Result<(), Error> {
-        let ok = pos(self.sigma_mps)
-            && pos(self.max_speed_mps)
-            && pos(self.motion_sigma_m)
-            && pos(self.motion_sigma_rad);
-        ok.then_some(()).ok_or(Error::InvalidConfig)
+        ranges::validate(|r| self.check_ranges(r))
+    }
+
+    /// The range checks (`[zupt]`): positive standard deviations and speed limit.
+    pub fn check_ranges(&self, r: &mut Ranges<'_>) {
+        r.positive("zupt.sigma_mps", self.sigma_mps);
+        r.positive("zupt.max_speed_mps", self.max_speed_mps);
+        r.positive("zupt.motion_sigma_m", self.motion_sigma_m);
+        r.positive("zupt.motion_sigma_rad", self.motion_sigma_rad);
     }
 }
 
@@ -103,13 +103,17 @@ impl TdConfig {
         min_info_per_s2: MIN_INFO_PER_S2,
     };
 
-    /// Checks ranges: a positive random-walk density and prior, a non-negative information.
+    /// Checks ranges ([`Self::check_ranges`]).
     pub fn validate(&self) -> Result<(), Error> {
-        let ok = pos(self.rw_s_per_sqrt_s)
-            && pos(self.prior_s)
-            && self.min_info_per_s2 >= 0.0
-            && self.min_info_per_s2.is_finite();
-        ok.then_some(()).ok_or(Error::InvalidConfig)
+        ranges::validate(|r| self.check_ranges(r))
+    }
+
+    /// The range checks (`[td]`): a positive random-walk density and prior, a non-negative
+    /// information.
+    pub fn check_ranges(&self, r: &mut Ranges<'_>) {
+        r.positive("td.rw_s_per_sqrt_s", self.rw_s_per_sqrt_s);
+        r.positive("td.prior_s", self.prior_s);
+        r.non_negative("td.min_info_per_s2", self.min_info_per_s2);
     }
 }
 
@@ -156,13 +160,18 @@ impl CullConfig {
         whole_tracks: false,
     };
 
-    /// Checks ranges: positive thresholds, a fraction in `[0, 1]`.
+    /// Checks ranges ([`Self::check_ranges`]).
     pub fn validate(&self) -> Result<(), Error> {
-        let ok = pos(self.chi2_threshold)
-            && (0.0..=1.0).contains(&self.second_pass_min_culled_frac)
-            && pos(self.mean_px)
-            && pos(self.obs_px);
-        ok.then_some(()).ok_or(Error::InvalidConfig)
+        ranges::validate(|r| self.check_ranges(r))
+    }
+
+    /// The range checks (`[cull]`): positive thresholds, a fraction in `[0, 1]`.
+    pub fn check_ranges(&self, r: &mut Ranges<'_>) {
+        r.positive("cull.chi2_threshold", self.chi2_threshold);
+        let frac = self.second_pass_min_culled_frac;
+        r.within("cull.second_pass_min_culled_frac", frac, 0.0, 1.0, "0..=1");
+        r.positive("cull.mean_px", self.mean_px);
+        r.positive("cull.obs_px", self.obs_px);
     }
 }
 

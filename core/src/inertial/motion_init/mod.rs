@@ -104,25 +104,53 @@ impl MotionInitConfig {
         min_inlier_ratio: 0.3,
     };
 
-    /// Whether every threshold is in its range.
+    /// Whether every threshold is in its range ([`Self::check_ranges`]).
     pub fn is_valid(&self) -> bool {
-        let pos = |v: f64| v.is_finite() && v > 0.0;
-        pos(self.min_spacing_s)
-            && pos(self.max_span_s)
-            && self.max_span_s > self.min_spacing_s
-            && self.min_frames >= 3
-            && self.min_tracks >= 3
-            && self.min_parallax_rad.is_finite()
-            && self.min_parallax_rad >= 0.0
-            && pos(self.sigma_rad)
-            && self.min_accel_excitation_mps2.is_finite()
-            && self.min_accel_excitation_mps2 >= 0.0
-            && pos(self.max_velocity_std_mps)
-            && pos(self.max_velocity_rel_std)
-            && pos(self.max_gravity_std_rad)
-            && pos(self.max_gravity_norm_error)
-            && pos(self.max_residual_sigmas)
-            && (0.0..=1.0).contains(&self.min_inlier_ratio)
+        crate::ranges::first_invalid(|r| self.check_ranges(r)).is_none()
+    }
+
+    /// The range checks (`[init.motion]`).
+    pub fn check_ranges(&self, r: &mut crate::ranges::Ranges<'_>) {
+        r.positive("init.motion.min_spacing_s", self.min_spacing_s);
+        r.positive("init.motion.max_span_s", self.max_span_s);
+        r.check(
+            "init.motion.max_span_s",
+            self.max_span_s,
+            "> init.motion.min_spacing_s",
+            self.max_span_s > self.min_spacing_s,
+        );
+        r.check(
+            "init.motion.min_frames",
+            self.min_frames as f64,
+            ">= 3",
+            self.min_frames >= 3,
+        );
+        r.check(
+            "init.motion.min_tracks",
+            self.min_tracks as f64,
+            ">= 3",
+            self.min_tracks >= 3,
+        );
+        r.non_negative("init.motion.min_parallax_rad", self.min_parallax_rad);
+        r.positive("init.motion.sigma_rad", self.sigma_rad);
+        let excitation = self.min_accel_excitation_mps2;
+        r.non_negative("init.motion.min_accel_excitation_mps2", excitation);
+        r.positive(
+            "init.motion.max_velocity_std_mps",
+            self.max_velocity_std_mps,
+        );
+        r.positive(
+            "init.motion.max_velocity_rel_std",
+            self.max_velocity_rel_std,
+        );
+        r.positive("init.motion.max_gravity_std_rad", self.max_gravity_std_rad);
+        r.positive(
+            "init.motion.max_gravity_norm_error",
+            self.max_gravity_norm_error,
+        );
+        r.positive("init.motion.max_residual_sigmas", self.max_residual_sigmas);
+        let inliers = self.min_inlier_ratio;
+        r.within("init.motion.min_inlier_ratio", inliers, 0.0, 1.0, "0..=1");
     }
 }
 
