@@ -44,6 +44,8 @@ pub struct Output<'a> {
     pub ins: Option<InsUpdate>,
     /// The keyframe processed at this sample, with what it changed.
     pub keyframe: Option<KeyframeOutput<'a>>,
+    /// An IMU gap ending at this sample was bridged: its length, s ([`ImuOutput::gap_bridged_s`]).
+    pub gap_bridged_s: Option<f64>,
 }
 
 impl Output<'_> {
@@ -53,6 +55,7 @@ impl Output<'_> {
             nav: self.nav,
             keyframe: self.keyframe.as_ref().map(|k| k.report),
             ins: self.ins,
+            gap_bridged_s: self.gap_bridged_s,
         }
     }
 }

@@ -694,7 +694,19 @@ impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
 
     fn output(&mut self, o: &Output<'_>) {
         self.watch_outage(o.nav.as_ref(), self.t_imu_ns);
+        if let Some(gap_s) = o.gap_bridged_s {
+            let at = self.progress.seconds(self.t_imu_ns);
+            self.progress.note(&format!(
+                "IMU gap of {gap_s:.3} s ending at {at:.3} s bridged"
+            ));
+        }
         if let Some(k) = &o.keyframe {
+            if let Some(why) = k.report.breakdown {
+                let at = self.progress.seconds(self.t_imu_ns);
+                self.progress.note(&format!(
+                    "window re-initialized at {at:.3} s ({why:?}): the INS continues, a new window starts"
+                ));
+            }
             self.sink.report(&k.report, k.lidar_events);
             let sink = &mut *self.sink;
             self.window.step(k.window, |s| sink.keyframe(s));

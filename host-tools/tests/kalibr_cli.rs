@@ -31,6 +31,8 @@ fn a_bag_runs_with_kalibr_files_and_the_toml_input_table() {
         &cam,
         "--imu-calib",
         &imu,
+        // A 2 s recording, half of it the rest before the start: partial by design.
+        "--allow-partial",
         "--out",
         o,
     ]);
@@ -68,6 +70,7 @@ fn a_bag_runs_with_kalibr_files_and_the_toml_input_table() {
         &bag,
         "--config",
         t,
+        "--allow-partial",
         "--out",
         out2.to_str().expect("utf-8"),
     ]);
@@ -150,7 +153,7 @@ fn an_euroc_folder_is_still_a_calibration_and_info_prints_it() {
     assert!(!ok, "a run without an estimate exited 0");
     assert!(
         err.contains("(64x48) refused")
-            && err.contains("no estimate: the estimator never started")
+            && err.contains("no camera data reached the estimator")
             && err.contains("every image was refused"),
         "{err}"
     );

@@ -41,12 +41,14 @@ fn poses(p: &Path) -> Vec<(f64, [f64; 3], f64)> {
         .collect()
 }
 
-#[test]
-fn an_imu_gap_in_flight_restarts_in_motion_where_the_estimate_was() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("gap");
+/// A copy of the EuRoC sequence with the IMU samples from 15 s to 15 s + `gap_s` removed, and
+/// `povins run` on it: (success, stdout, stderr, summary.json, output folder).
+fn run_with_gap(
+    tmp: &Path,
+    gap_s: f64,
+) -> (bool, String, String, serde_json::Value, std::path::PathBuf) {
+    let data = tmp.join("gap");
     copy_dir(Path::new(EUROC), &data);
-    // 100 ms of IMU removed 15 s in: the estimator resets (gap > max_imu_dt_s) while flying.
     let imu = data.join("mav0/imu0/data.csv");
     let text = std::fs::read_to_string(&imu).unwrap();
     let t0: i64 = text
@@ -55,7 +57,10 @@ fn an_imu_gap_in_flight_restarts_in_motion_where_the_estimate_was() {
         .and_then(|l| l.split(',').next())
         .and_then(|t| t.parse().ok())
         .unwrap();
-    let (a, b) = (t0 + 15_000_000_000, t0 + 15_100_000_000);
+    let (a, b) = (
+        t0 + 15_000_000_000,
+        t0 + 15_000_000_000 + (gap_s * 1e9) as i64,
+    );
     let kept: String = text
         .lines()
         .filter(|l| {
@@ -68,20 +73,58 @@ fn an_imu_gap_in_flight_restarts_in_motion_where_the_estimate_was() {
         .map(|l| format!("{l}\n"))
         .collect();
     std::fs::write(&imu, kept).unwrap();
-
-    let out = tmp.path().join("out");
+    let out = tmp.join("out");
     let (ok, stdout, stderr) = povins(&[
         "run",
         data.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
     ]);
+    let s = std::fs::read_to_string(out.join("summary.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or(serde_json::Value::Null);
+    (ok, stdout, stderr, s, out)
+}
+
+/// Issue 32 item 1: a 100 ms IMU gap in flight is bridged (`imu_gap`): no reset, the gap is
+/// reported on screen and counted in `summary.json`, and the output covers the run.
+#[test]
+fn a_short_imu_gap_in_flight_is_bridged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ok, stdout, stderr, s, _) = run_with_gap(tmp.path(), 0.1);
     assert!(ok, "povins run failed: {stderr}");
-    assert!(stderr.contains("estimator reset at 15.1"), "{stderr}");
+    assert!(stderr.contains("IMU gap of 0.10"), "{stderr}");
+    assert!(stderr.contains("bridged"), "{stderr}");
+    assert!(!stderr.contains("estimator reset at"), "{stderr}");
+    assert!(stdout.contains("1 IMU gaps bridged"), "{stdout}");
+    assert_eq!(s["counters"]["resets"].as_u64(), Some(0), "{stdout}");
+    assert_eq!(
+        s["counters"]["imu_gaps_bridged"].as_u64(),
+        Some(1),
+        "{stdout}"
+    );
+    let coverage = s["coverage"].as_f64().unwrap();
+    assert!(coverage > 0.95, "coverage {coverage}: {stdout}");
+    let ate = s["ate_pos_rmse_m"].as_f64().unwrap();
+    assert!(ate < 0.06, "ATE {ate} m over the whole run");
+}
+
+#[test]
+fn an_imu_gap_in_flight_restarts_in_motion_where_the_estimate_was() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 1 s of IMU removed 15 s in: longer than `imu_gap.bridge_max_s`, the estimator resets
+    // while flying.
+    let (ok, stdout, stderr, s, out) = run_with_gap(tmp.path(), 1.0);
+    assert!(ok, "povins run failed: {stderr}");
+    assert!(stderr.contains("estimator reset at 16.0"), "{stderr}");
     assert!(stderr.contains("estimator back at"), "{stderr}");
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["counters"]["resets"].as_u64(), Some(1), "{stdout}");
+    assert_eq!(
+        s["counters"]["imu_gap_resets"].as_u64(),
+        Some(1),
+        "{stdout}"
+    );
     assert_eq!(s["counters"]["motion_inits"].as_u64(), Some(1), "{stdout}");
     let coverage = s["coverage"].as_f64().unwrap();
     assert!(coverage > 0.75, "coverage {coverage}: {stdout}");

@@ -141,7 +141,12 @@ impl<
                 }
             }
         };
-        if !decision.is_keyframe() {
+        // Inside a bridged IMU gap the state is a guess from interpolated samples: a keyframe
+        // there would hang between two intervals that hardly constrain it.
+        let in_gap = self
+            .gap
+            .is_some_and(|g| nav.t_ns > g.t0_ns && nav.t_ns < g.t1_ns);
+        if !decision.is_keyframe() || in_gap {
             return Ok(None);
         }
         // A late frame (its IMU time already passed, e.g. a negative delay): the keyframe goes

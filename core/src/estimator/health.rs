@@ -54,7 +54,15 @@ impl<
         if st.bg.amax() > h.max_gyro_bias_rps || st.ba.amax() > h.max_accel_bias_mps2 {
             return Some(Breakdown::Bias);
         }
-        if (st.v_wb - predicted.v_wb).norm() > h.max_velocity_correction_mps {
+        // While the window holds a bridged IMU gap, the INS predictions after it start from
+        // states that the gap left uncertain: allow that uncertainty (3 sigma).
+        let gap_var = self
+            .keyframes()
+            .filter_map(|k| k.preint())
+            .map(|p| p.unmeasured_velocity_var())
+            .fold(0.0, f64::max);
+        let allowed = h.max_velocity_correction_mps + 3.0 * libm::sqrt(3.0 * gap_var);
+        if (st.v_wb - predicted.v_wb).norm() > allowed {
             return Some(Breakdown::VelocityJump);
         }
         let limit = h.max_window_correction_m + h.max_window_correction_rel * window_path_m;

@@ -242,8 +242,17 @@ impl<
         if let Some(open) = self.open_mut() {
             match open.push(s) {
                 Ok(()) => {}
+                // No keyframe for as long as an interval holds (a camera dropout): the window
+                // cannot take the interval, the INS can go on alone; the next frame starts a
+                // new window from it (as after a breakdown).
+                Err(Error::CapacityExceeded) => {
+                    if let Some(st) = self.ins.as_ref().map(|i| *i.state()) {
+                        self.counters.interval_overflows += 1;
+                        self.reinitialize_from(st);
+                    }
+                }
                 // The interval cannot be bridged: start over rather than integrate a hole.
-                Err(Error::CapacityExceeded) | Err(Error::TimeGap) => self.reset(),
+                Err(Error::TimeGap) => self.reset(),
                 Err(e) => return Err(e),
             }
         }
@@ -289,7 +298,7 @@ impl<
 }
 
 /// Linear interpolation of an IMU sample at `t_ns` between `a` and `b` (`a.t < t <= b.t`).
-fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
+pub(super) fn interpolate(a: &ImuSample, b: &ImuSample, t_ns: i64) -> ImuSample {
     let span = b.t_ns.saturating_sub(a.t_ns) as f64;
     let w = if span > 0.0 {
         t_ns.saturating_sub(a.t_ns) as f64 / span

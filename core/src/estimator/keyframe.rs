@@ -144,6 +144,10 @@ impl<
             nav.bg,
             nav.ba,
         )?;
+        if let Some(gap) = self.gap.filter(|g| g.t1_ns > sample.t_ns) {
+            // A keyframe inside a bridged gap: the next interval starts in it too.
+            self.open.add_unmeasured(gap)?;
+        }
         self.open_active = true;
         let pos = self.window.len() - 1;
         // The observations were taken at `t_cam + td_true`; the keyframe's state is at its sample

@@ -63,8 +63,8 @@ pub mod window;
 
 pub use crate::ranges::InvalidSetting;
 pub use config::{
-    CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, InitConfig, InitMode, TdConfig,
-    VisualDepth, VisualMode, ZuptConfig,
+    CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, ImuGapConfig, ImuSpikeConfig,
+    InitConfig, InitMode, TdConfig, VisualDepth, VisualMode, ZuptConfig,
 };
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
@@ -77,6 +77,7 @@ use crate::frontend::{KeyframeSelector, NormalizedObs, RestDetector, TrackTable}
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
 use crate::inertial::motion_init::MotionInitializer;
+use crate::inertial::preintegration::UnmeasuredSpan;
 use crate::inertial::window::InsWindow;
 use crate::inertial::{ImuSample, InsUpdate, NavState};
 #[cfg(feature = "lidar")]
@@ -145,6 +146,8 @@ pub struct ImuOutput {
     /// keyframe's optimized state, a frame processed at an interpolated sample, a reset): hand
     /// it to a [`crate::inertial::FastPath`], which then follows `nav` bit for bit.
     pub ins: Option<InsUpdate>,
+    /// Set when an IMU gap ending at this sample was bridged (`imu_gap`): its length, s.
+    pub gap_bridged_s: Option<f64>,
 }
 
 #[derive(Clone)]
@@ -207,6 +210,9 @@ pub struct Estimator<
     resume: Option<NavState>,
     ins: Held<Ins>,
     last_imu: Option<ImuSample>,
+    /// The IMU gap being bridged (`timing`'s `bridge_gap`), declared to every keyframe interval
+    /// that overlaps it.
+    gap: Option<UnmeasuredSpan>,
     tracks: TrackTable<MAX_FEATURES>,
     rest: RestDetector<MAX_FEATURES>,
     frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
@@ -391,6 +397,7 @@ impl<
             resume: None,
             ins: Held::empty(Ins::blank()),
             last_imu: None,
+            gap: None,
             tracks: TrackTable::new(0.0),
             rest: RestDetector::new(EstimatorConfig::PLACEHOLDER.rest),
             frame_obs: HVec::new(),
@@ -464,6 +471,7 @@ impl<
         self.status = Status::WaitingForInit;
         self.ins.clear();
         self.last_imu = None;
+        self.gap = None;
         self.gyro_recent.clear();
         self.tracks.reset_to_new(TRACK_MAX_GAP_S);
         self.rest.reset_to_new(cfg.rest);
@@ -591,6 +599,7 @@ impl<
         // Buffered INS states and points belong to the INS run that ends here.
         self.ins_window.clear();
         self.points.clear();
+        self.gap = None;
     }
 
     /// Drops everything and waits for a new initialization (counted). Does nothing while

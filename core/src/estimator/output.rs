@@ -135,6 +135,7 @@ impl<
             nav: o.nav,
             ins: o.ins,
             keyframe,
+            gap_bridged_s: o.gap_bridged_s,
         }))
     }
 }

@@ -179,7 +179,7 @@ pub struct Counters {
     pub imu_samples: u64,
     /// IMU samples rejected as non-finite.
     pub imu_rejected_nonfinite: u64,
-    /// IMU samples rejected for exceeding the configured sensor range.
+    /// IMU samples rejected at or beyond the configured full scale (clipped).
     pub imu_rejected_range: u64,
     /// IMU samples rejected for non-increasing time.
     pub imu_rejected_time: u64,
@@ -212,6 +212,15 @@ pub struct Counters {
     pub resets: u64,
     /// Of the resets: those caused by a non-finite or implausibly fast INS state.
     pub divergence_resets: u64,
+    /// Of the resets: IMU gaps too long to bridge (`imu_gap.bridge_max_s`).
+    pub imu_gap_resets: u64,
+    /// IMU gaps bridged (`imu_gap`): a sample spacing above `max_imu_dt_s` while running.
+    pub imu_gaps_bridged: u64,
+    /// IMU samples dropped as spikes (`imu_spike`).
+    pub imu_spikes_rejected: u64,
+    /// Windows dropped because no keyframe came for as long as a keyframe interval holds
+    /// samples (a camera dropout): the INS went on alone (also counted in `reinitializations`).
+    pub interval_overflows: u64,
     /// Windows dropped by the health monitor, the INS continuing alone (`estimator::health`).
     pub reinitializations: u64,
     /// Starts by the static initializer.
@@ -266,6 +275,10 @@ impl Counters {
         marginalization_failures: 0,
         resets: 0,
         divergence_resets: 0,
+        imu_gap_resets: 0,
+        imu_gaps_bridged: 0,
+        imu_spikes_rejected: 0,
+        interval_overflows: 0,
         reinitializations: 0,
         static_inits: 0,
         motion_inits: 0,

@@ -1,8 +1,8 @@
 //! Sensor timing: the estimator owns it (PX4 EKF2's model). `push_*` only queue; [`update`]
 //! processes in time order on a delayed horizon.
 //!
-//! - [`Estimator::push_imu`] validates a sample (finite, within the sensor range, later than
-//!   the previous one) and queues it ([`IMU_QUEUE`] samples).
+//! - [`Estimator::push_imu`] validates a sample (finite, below the sensor's full scale, later
+//!   than the previous one) and queues it ([`IMU_QUEUE`] samples).
 //! - [`Estimator::push_frame`] queues a camera frame ([`super::PENDING_FRAMES`]); it is taken at
 //!   the first processed IMU sample at or past `t_cam + td` (interpolated to that time).
 //! - [`Estimator::push_lidar`] queues a whole sweep (up to `Q` points, [`PENDING_SWEEPS`]
@@ -11,6 +11,9 @@
 //! - [`Estimator::update`] processes the oldest queued IMU sample once it is at least
 //!   `delay_horizon_s` older than the newest one pushed (0 by default: at once), with the frames
 //!   and sweeps that are due, and returns what it produced. Call it until it returns `None`.
+//!   A sample that steps far from the last processed one waits for the next, which tells a
+//!   spike (dropped, counted) from a real step ([`super::ImuSpikeConfig`]); a gap before the
+//!   sample is bridged or resets the estimator ([`super::ImuGapConfig`]).
 //!
 //! So a caller pushes each measurement when it arrives, in any interleaving of the sensors, and
 //! drains [`update`]: frames and sweeps that arrive up to the horizon after the IMU samples
@@ -21,13 +24,17 @@
 //!
 //! [`update`]: Estimator::update
 
+use super::imu_step::interpolate;
 use super::{Estimator, ImuOutput, PendingFrame, Status, MAX_FEATURES};
 use crate::camera::FeatureObs;
+use crate::inertial::preintegration::UnmeasuredSpan;
 use crate::inertial::{ImuSample, InsUpdate};
 use crate::lidar::{LidarPoint, Queued};
 use crate::Error;
 use heapless::Vec as HVec;
 
+/// Interpolated samples one bridged IMU gap is integrated with, at most.
+const MAX_BRIDGE_STEPS: i64 = 1024;
 /// IMU samples the estimator queues (2.56 s at 200 Hz): a horizon must stay well below it.
 pub const IMU_QUEUE: usize = 512;
 /// LiDAR sweeps the estimator queues.
@@ -51,8 +58,8 @@ impl<
     > Estimator<N, L, D, P, GW, GH, Q>
 {
     /// Queues one IMU sample (processed by [`Self::update`]). Refused and counted, nothing
-    /// changed: [`Error::NonFinite`], [`Error::OutOfRange`] (beyond `max_gyro_rps` /
-    /// `max_accel_mps2`), [`Error::TimeNotIncreasing`], [`Error::CapacityExceeded`] (the queue
+    /// changed: [`Error::NonFinite`], [`Error::OutOfRange`] (at or beyond the full scale
+    /// `max_gyro_rps` / `max_accel_mps2`: clipped), [`Error::TimeNotIncreasing`], [`Error::CapacityExceeded`] (the queue
     /// is full: call [`Self::update`]). [`Error::NotInitialized`] (nothing counted) while
     /// [`Status::Unconfigured`].
     pub fn push_imu(&mut self, s: &ImuSample) -> Result<(), Error> {
@@ -63,8 +70,9 @@ impl<
             self.counters.imu_rejected_nonfinite += 1;
             return Err(Error::NonFinite);
         }
-        if s.gyro_rps.amax() > self.cfg.max_gyro_rps
-            || s.accel_mps2.amax() > self.cfg.max_accel_mps2
+        // At the full scale a reading is clipped: refused like one beyond it.
+        if s.gyro_rps.amax() >= self.cfg.max_gyro_rps
+            || s.accel_mps2.amax() >= self.cfg.max_accel_mps2
         {
             self.counters.imu_rejected_range += 1;
             return Err(Error::OutOfRange);
@@ -175,30 +183,70 @@ impl<
     /// sweeps it passes are de-skewed. `Ok(None)`: nothing is due. An error ends this sample's
     /// processing (the sample is consumed).
     pub fn update(&mut self) -> Result<Option<ImuOutput>, Error> {
-        let Some(front) = self.imu_in.front().copied() else {
-            return Ok(None);
-        };
-        if self.cfg.delay_horizon_s > 0.0 {
-            let newest = self.imu_in.back().map_or(front.t_ns, |b| b.t_ns);
-            let horizon_ns = (self.cfg.delay_horizon_s * 1e9) as i64;
-            if newest.saturating_sub(front.t_ns) < horizon_ns {
+        let front = loop {
+            let Some(front) = self.imu_in.front().copied() else {
                 return Ok(None);
+            };
+            if self.cfg.delay_horizon_s > 0.0 {
+                let newest = self.imu_in.back().map_or(front.t_ns, |b| b.t_ns);
+                let horizon_ns = (self.cfg.delay_horizon_s * 1e9) as i64;
+                if newest.saturating_sub(front.t_ns) < horizon_ns {
+                    return Ok(None);
+                }
             }
-        }
+            match self.spike_check(&front) {
+                Spike::No => break front,
+                Spike::Wait => return Ok(None),
+                Spike::Yes => {
+                    let _ = self.imu_in.pop_front();
+                    self.counters.imu_spikes_rejected += 1;
+                }
+            }
+        };
         let _ = self.imu_in.pop_front();
         let out = self.process_imu(&front)?;
         self.deskew_due_sweeps(front.t_ns);
         Ok(Some(out))
     }
 
-    /// One validated sample, in time order: a gap above `max_imu_dt_s` resets the estimator;
-    /// then initialization or the running step.
+    /// Whether `front` (the oldest queued sample) is a spike (see
+    /// [`crate::estimator::ImuSpikeConfig`]): it steps from the last processed sample beyond
+    /// the limits and the next queued sample steps as far from it; `Wait` until that next
+    /// sample is pushed.
+    fn spike_check(&self, front: &ImuSample) -> Spike {
+        let c = &self.cfg.imu_spike;
+        let Some(last) = self.last_imu.as_ref() else {
+            return Spike::No;
+        };
+        if !c.enabled || !c.is_step(last, front) {
+            return Spike::No;
+        }
+        match self.imu_in.iter().nth(1) {
+            None => Spike::Wait,
+            Some(next) if c.is_step(front, next) => Spike::Yes,
+            Some(_) => Spike::No,
+        }
+    }
+
+    /// One validated sample, in time order: a gap above `max_imu_dt_s` while running is bridged
+    /// up to `imu_gap.bridge_max_s` and resets the estimator beyond; then initialization or the
+    /// running step.
     fn process_imu(&mut self, s: &ImuSample) -> Result<ImuOutput, Error> {
+        let mut out = ImuOutput {
+            nav: None,
+            keyframe: None,
+            ins: None,
+            gap_bridged_s: None,
+        };
         if let Some(last) = self.last_imu {
-            if s.t_ns.saturating_sub(last.t_ns) as f64 * 1e-9 > self.cfg.max_imu_dt_s
-                && self.status == Status::Running
-            {
-                self.reset();
+            let gap_s = s.t_ns.saturating_sub(last.t_ns) as f64 * 1e-9;
+            if gap_s > self.cfg.max_imu_dt_s && self.status == Status::Running {
+                if gap_s <= self.cfg.imu_gap.bridge_max_s {
+                    self.bridge_gap(&last, s, &mut out)?;
+                } else {
+                    self.counters.imu_gap_resets += 1;
+                    self.reset();
+                }
             }
         }
         self.counters.imu_samples += 1;
@@ -209,11 +257,6 @@ impl<
             // Not full (made room above): cannot fail.
             let _ = self.gyro_recent.push_back((s.t_ns, s.gyro_rps));
         }
-        let mut out = ImuOutput {
-            nav: None,
-            keyframe: None,
-            ins: None,
-        };
         let plain_from = if self.status == Status::WaitingForInit {
             self.imu_waiting_for_init(s)?;
             None
@@ -224,6 +267,53 @@ impl<
         out.nav = self.ins.as_ref().map(|i| *i.state());
         out.ins = self.fast_path_update(plain_from);
         Ok(out)
+    }
+
+    /// Bridges the gap from `last` to `s` (see [`crate::estimator::ImuGapConfig`]): declares it
+    /// unmeasured to the open interval (and, through `self.gap`, to the intervals that keyframes
+    /// inside it open), then runs samples interpolated between `last` and `s`, at most
+    /// `max_imu_dt_s / 2` apart, through the running step: the frames inside the gap are
+    /// processed at their times. A reset on the way (a diverged INS) ends the bridge.
+    fn bridge_gap(
+        &mut self,
+        last: &ImuSample,
+        s: &ImuSample,
+        out: &mut ImuOutput,
+    ) -> Result<(), Error> {
+        let gap_ns = s.t_ns.saturating_sub(last.t_ns);
+        let gap_s = gap_ns as f64 * 1e-9;
+        let g = self.cfg.imu_gap;
+        let span = UnmeasuredSpan {
+            t0_ns: last.t_ns,
+            t1_ns: s.t_ns,
+            accel_var_per_s: g.accel_sigma_mps2 * g.accel_sigma_mps2 * gap_s,
+            gyro_var_per_s: g.gyro_sigma_rps * g.gyro_sigma_rps * gap_s,
+        };
+        if let Some(open) = self.open_mut() {
+            if open.add_unmeasured(span).is_err() {
+                // More gaps in one interval than it holds: start over.
+                self.counters.imu_gap_resets += 1;
+                self.reset();
+                return Ok(());
+            }
+        }
+        self.gap = Some(span);
+        self.counters.imu_gaps_bridged += 1;
+        out.gap_bridged_s = Some(gap_s);
+        // At most MAX_BRIDGE_STEPS steps (bounded time; a step longer than max_imu_dt_s, from
+        // a tiny max_imu_dt_s, makes the INS refuse it: a reset).
+        let step_ns = ((self.cfg.max_imu_dt_s * 0.5 * 1e9) as i64).max(1);
+        let steps = ((gap_ns + step_ns - 1) / step_ns).min(MAX_BRIDGE_STEPS);
+        for k in 1..steps {
+            let t_ns = last.t_ns + (i128::from(gap_ns) * i128::from(k) / i128::from(steps)) as i64;
+            let m = interpolate(last, s, t_ns);
+            self.imu_running(&m, out)?;
+            if self.status != Status::Running {
+                break;
+            }
+            self.last_imu = Some(m);
+        }
+        Ok(())
     }
 
     /// The estimator's current INS as an update for a [`crate::inertial::FastPath`] (`None`
@@ -274,4 +364,14 @@ impl<
             }
         }
     }
+}
+
+/// [`Estimator::update`]'s verdict on the oldest queued sample.
+enum Spike {
+    /// Not a spike: process it.
+    No,
+    /// It steps beyond the limits: the next sample decides.
+    Wait,
+    /// A spike: drop it.
+    Yes,
 }

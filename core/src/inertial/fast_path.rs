@@ -19,7 +19,10 @@
 //! holds *bit for bit* the estimator's state at every sample after the newest update applied
 //! (`tests/fast_path.rs` checks this on real data, with updates applied at once and with them
 //! delayed by up to 40 samples). Applied at once (lockstep), its output is the estimator's
-//! `ImuOutput::nav` exactly.
+//! `ImuOutput::nav` exactly. Except after a spike: the fast path publishes at push time, so it
+//! cannot wait for the next sample to tell a spike from a step as the estimator does
+//! (`estimator::ImuSpikeConfig`); a sample the estimator drops as a spike moves the fast path's
+//! output until the next update (at the latest, the next camera frame's).
 //!
 //! Frames: the states are [`NavState`]s (`q_wb`, `p_wb`, `v_wb` of the IMU body in the world).
 
@@ -144,7 +147,8 @@ impl<const B: usize> FastPath<B> {
             self.counters.samples_rejected_value += 1;
             return Err(Error::NonFinite);
         }
-        if s.gyro_rps.amax() > self.limits.0 || s.accel_mps2.amax() > self.limits.1 {
+        // At the full scale a reading is clipped (as the estimator judges it).
+        if s.gyro_rps.amax() >= self.limits.0 || s.accel_mps2.amax() >= self.limits.1 {
             self.counters.samples_rejected_value += 1;
             return Err(Error::OutOfRange);
         }

@@ -49,6 +49,15 @@
 //! When `M` samples are stored, [`Preintegration::push`] returns [`Error::CapacityExceeded`] and
 //! leaves the preintegration unchanged: the caller must close the keyframe interval there (start
 //! a new keyframe), so re-integration is always available and exact.
+//!
+//! ## Unmeasured spans (bridged IMU gaps)
+//! Across an IMU gap the caller feeds samples interpolated between the samples around it and
+//! declares the span ([`Preintegration::add_unmeasured`]) with the variance rates of the
+//! unmeasured specific force and angular rate about that line. Every step overlapping the span
+//! by `d` seconds adds `q_a d` to `n_v`'s and `q_g d` to `n_th`'s variance; with
+//! `q = sigma^2 T_gap` the whole gap adds `sigma^2 T_gap^2` to the velocity and rotation
+//! variances: the error of a wrong but constant specific force over the gap. The spans are
+//! kept with the samples, so re-integration and truncation give the same covariance.
 
 use super::imu::{check_sample, ImuNoise, ImuSample};
 use super::increment::{span_s, two_sample, two_sample_bias_jacobians, Increment};
@@ -93,6 +102,24 @@ const XT: usize = 3;
 const XV: usize = 6;
 const XBG: usize = 9;
 const XBA: usize = 12;
+
+/// Unmeasured spans one interval holds ([`Preintegration::add_unmeasured`]).
+pub const MAX_UNMEASURED: usize = 4;
+
+/// A span without IMU measurements (a bridged gap), `t0_ns..t1_ns` (IMU time), with the
+/// variance rates its steps add: `accel_var_per_s`, (m/s^2)^2 s per s of overlap, and
+/// `gyro_var_per_s`, (rad/s)^2 s per s (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnmeasuredSpan {
+    /// Start (the last sample before the gap), ns.
+    pub t0_ns: i64,
+    /// End (the first sample after the gap), ns.
+    pub t1_ns: i64,
+    /// Specific-force variance rate, m^2/s^4 (variance density times the gap).
+    pub accel_var_per_s: f64,
+    /// Angular-rate variance rate, rad^2/s^2.
+    pub gyro_var_per_s: f64,
+}
 
 /// Preintegration settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -153,6 +180,8 @@ pub struct Preintegration<const M: usize> {
     tmp: Mat15,
     prev_inc: Option<Increment>,
     samples: HVec<ImuSample, M>,
+    /// Spans without IMU measurements ([`Preintegration::add_unmeasured`]).
+    unmeasured: HVec<UnmeasuredSpan, MAX_UNMEASURED>,
     /// Cholesky factor of `cov`, once [`Preintegration::cache_whitening`] ran since the last
     /// change of the covariance (an estimator evaluates a closed interval many times).
     chol_l: Option<Mat15>,
@@ -199,6 +228,7 @@ impl<const M: usize> Preintegration<M> {
             tmp: Z15,
             prev_inc: None,
             samples: HVec::new(),
+            unmeasured: HVec::new(),
             chol_l: None,
         }
     }
@@ -252,11 +282,54 @@ impl<const M: usize> Preintegration<M> {
             return Err(Error::NonFinite);
         }
         self.samples.clear();
+        self.unmeasured.clear();
         self.samples
             .push(*first)
             .map_err(|_| Error::CapacityExceeded)?;
         self.restart(bg0, ba0);
         Ok(())
+    }
+
+    /// Declares `span` unmeasured (see the module docs): the steps overlapping it, those
+    /// integrated already included (re-integrated here), take its extra noise.
+    /// [`Error::CapacityExceeded`] (nothing changed) when [`MAX_UNMEASURED`] spans are held;
+    /// [`Error::InvalidConfig`] for a negative or non-finite rate or an empty span.
+    pub fn add_unmeasured(&mut self, span: UnmeasuredSpan) -> Result<(), Error> {
+        let rate_ok = |q: f64| q.is_finite() && q >= 0.0;
+        if !(rate_ok(span.accel_var_per_s) && rate_ok(span.gyro_var_per_s))
+            || span.t1_ns <= span.t0_ns
+        {
+            return Err(Error::InvalidConfig);
+        }
+        self.unmeasured
+            .push(span)
+            .map_err(|_| Error::CapacityExceeded)?;
+        if self.samples.last().is_some_and(|s| s.t_ns > span.t0_ns) {
+            let (bg0, ba0) = (self.bg0, self.ba0);
+            self.reintegrate(bg0, ba0)?;
+        }
+        Ok(())
+    }
+
+    /// The unmeasured spans declared since the interval started.
+    pub fn unmeasured(&self) -> &[UnmeasuredSpan] {
+        &self.unmeasured
+    }
+
+    /// Velocity variance the unmeasured spans add over the whole interval, (m/s)^2 per axis.
+    pub fn unmeasured_velocity_var(&self) -> f64 {
+        let t1_ns = self.samples.last().map_or(self.t0_ns, |s| s.t_ns);
+        self.unmeasured_var(self.t0_ns, t1_ns).0
+    }
+
+    /// Extra variances `(accel, gyro)` of the step from `t0_ns` to `t1_ns` from the unmeasured
+    /// spans it overlaps.
+    fn unmeasured_var(&self, t0_ns: i64, t1_ns: i64) -> (f64, f64) {
+        self.unmeasured.iter().fold((0.0, 0.0), |(qa, qg), u| {
+            let d_ns = t1_ns.min(u.t1_ns).saturating_sub(t0_ns.max(u.t0_ns));
+            let d_s = d_ns.max(0) as f64 * 1e-9;
+            (qa + u.accel_var_per_s * d_s, qg + u.gyro_var_per_s * d_s)
+        })
     }
 
     fn restart(&mut self, bg0: Vec3, ba0: Vec3) {
@@ -343,8 +416,9 @@ impl<const M: usize> Preintegration<M> {
         self.tmp.transpose_mut();
         self.cov.gemm(1.0, &self.a, &self.tmp, 0.0);
         // + G Q G^T.
-        let qg = self.noise.gyro_noise_density * self.noise.gyro_noise_density * dt;
-        let qa = self.noise.accel_noise_density * self.noise.accel_noise_density * dt;
+        let (qa_gap, qg_gap) = self.unmeasured_var(prev.t_ns, cur.t_ns);
+        let qg = self.noise.gyro_noise_density * self.noise.gyro_noise_density * dt + qg_gap;
+        let qa = self.noise.accel_noise_density * self.noise.accel_noise_density * dt + qa_gap;
         let jjt = jr * jr.transpose() * qg;
         for i in 0..3 {
             self.cov[(RP + i, RP + i)] += qa * half_dt * half_dt;
@@ -704,6 +778,112 @@ mod tests {
             p.push(&sample(k)).unwrap();
         }
         p
+    }
+
+    /// A span over samples `k0..=k1` of [`sample`] with standard deviations `sa`, `sg` over
+    /// the whole span (rates `sigma^2 T`).
+    fn span(k0: i64, k1: i64, sa: f64, sg: f64) -> UnmeasuredSpan {
+        let (t0_ns, t1_ns) = (sample(k0).t_ns, sample(k1).t_ns);
+        let t = (t1_ns - t0_ns) as f64 * 1e-9;
+        UnmeasuredSpan {
+            t0_ns,
+            t1_ns,
+            accel_var_per_s: sa * sa * t,
+            gyro_var_per_s: sg * sg * t,
+        }
+    }
+
+    /// A span over the whole interval adds `sigma^2 T^2` per axis to the velocity and the
+    /// rotation variances (trace `3 sigma^2 T^2`: the rotations of the steps keep the trace; the
+    /// rotation block within 2%, `Jr` and `Exp(phi)^T` being near identity per step); declared
+    /// after the samples or before them gives the same covariance bit for bit, and so does a
+    /// re-integration or a truncation that keeps the span's samples.
+    #[test]
+    fn unmeasured_span_adds_its_variance_and_survives_reintegration() {
+        let (n, sa, sg) = (40, 1.0, 0.3);
+        let z = Vec3::zeros();
+        let plain = build(n, z, z, NOISE);
+        let t = (sample(n).t_ns - sample(0).t_ns) as f64 * 1e-9;
+        let mut after = build(n, z, z, NOISE);
+        after.add_unmeasured(span(0, n, sa, sg)).unwrap();
+        let mut before =
+            Preintegration::<256>::new(NOISE, PreintConfig::DEFAULT, &sample(0), z, z).unwrap();
+        before.add_unmeasured(span(0, n, sa, sg)).unwrap();
+        for k in 1..=n {
+            before.push(&sample(k)).unwrap();
+        }
+        assert_eq!(after.covariance(), before.covariance());
+        assert_eq!(after.delta_v(), plain.delta_v(), "deltas unchanged");
+        let tr = |p: &Preintegration<256>, r: usize| {
+            (r..r + 3).map(|i| p.covariance()[(i, i)]).sum::<f64>()
+        };
+        // One kind at a time (an attitude error also spreads into the velocity, through g).
+        let mut accel_only = build(n, z, z, NOISE);
+        accel_only.add_unmeasured(span(0, n, sa, 0.0)).unwrap();
+        let dv = tr(&accel_only, RV) - tr(&plain, RV);
+        let expect_v = 3.0 * sa * sa * t * t;
+        assert!((dv - expect_v).abs() < 1e-9, "{dv} vs {expect_v}");
+        assert_eq!(tr(&accel_only, RT), tr(&plain, RT));
+        let mut gyro_only = build(n, z, z, NOISE);
+        gyro_only.add_unmeasured(span(0, n, 0.0, sg)).unwrap();
+        let dth = tr(&gyro_only, RT) - tr(&plain, RT);
+        let expect_th = 3.0 * sg * sg * t * t;
+        assert!((dth / expect_th - 1.0).abs() < 0.02, "{dth} vs {expect_th}");
+        assert!(tr(&after, RV) > tr(&accel_only, RV));
+        assert!(after.unmeasured_velocity_var() > 0.0);
+        assert_eq!(plain.unmeasured_velocity_var(), 0.0);
+
+        // Re-integration at other biases equals a fresh build at those biases with the span.
+        let (bg, ba) = (Vec3::new(0.01, -0.02, 0.005), Vec3::new(0.1, 0.0, -0.1));
+        after.reintegrate(bg, ba).unwrap();
+        let mut fresh =
+            Preintegration::<256>::new(NOISE, PreintConfig::DEFAULT, &sample(0), bg, ba).unwrap();
+        fresh.add_unmeasured(span(0, n, sa, sg)).unwrap();
+        for k in 1..=n {
+            fresh.push(&sample(k)).unwrap();
+        }
+        assert_eq!(after.covariance(), fresh.covariance());
+
+        // A span covering part of the interval adds in proportion to its overlap; outside the
+        // interval, nothing.
+        let mut half = build(n, z, z, NOISE);
+        half.add_unmeasured(span(n / 2, n + 100, sa, 0.0)).unwrap();
+        let full_span_rate = span(n / 2, n + 100, sa, 0.0).accel_var_per_s;
+        let overlap = (sample(n).t_ns - sample(n / 2).t_ns) as f64 * 1e-9;
+        let dv = tr(&half, RV) - tr(&plain, RV);
+        assert!((dv - 3.0 * full_span_rate * overlap).abs() < 1e-9, "{dv}");
+        let mut outside = build(n, z, z, NOISE);
+        outside
+            .add_unmeasured(span(n + 10, n + 20, sa, sg))
+            .unwrap();
+        assert_eq!(outside.covariance(), plain.covariance());
+    }
+
+    /// Bad spans are refused and change nothing; more than [`MAX_UNMEASURED`] do not fit; a
+    /// restart forgets the spans.
+    #[test]
+    fn unmeasured_spans_are_checked_bounded_and_cleared() {
+        let z = Vec3::zeros();
+        let mut p = build(10, z, z, NOISE);
+        let cov = *p.covariance();
+        let mut bad = span(0, 10, 1.0, 0.3);
+        bad.accel_var_per_s = f64::NAN;
+        assert_eq!(p.add_unmeasured(bad), Err(Error::InvalidConfig));
+        let mut empty = span(0, 10, 1.0, 0.3);
+        empty.t1_ns = empty.t0_ns;
+        assert_eq!(p.add_unmeasured(empty), Err(Error::InvalidConfig));
+        assert_eq!(*p.covariance(), cov);
+        for k in 0..MAX_UNMEASURED as i64 {
+            p.add_unmeasured(span(k, k + 1, 1.0, 0.3)).unwrap();
+        }
+        let full = *p.covariance();
+        assert_eq!(
+            p.add_unmeasured(span(5, 6, 1.0, 0.3)),
+            Err(Error::CapacityExceeded)
+        );
+        assert_eq!(*p.covariance(), full);
+        p.reset(&sample(10), z, z).unwrap();
+        assert!(p.unmeasured().is_empty());
     }
 
     fn states() -> (NavState, NavState) {

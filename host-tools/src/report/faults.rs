@@ -119,14 +119,15 @@ pub fn camera_never_reached(
     None
 }
 
-/// The line a run ends with: resets, re-initializations, the IMU samples and camera frames
-/// rejected, and the output's coverage.
+/// The line a run ends with: resets, re-initializations, IMU gaps bridged, the IMU samples and
+/// camera frames rejected, and the output's coverage.
 pub fn status_line(s: &Summary) -> String {
     let n = |k: &str| s.counters[k].as_u64().unwrap_or(0);
     let imu = n("imu_rejected_nonfinite")
         + n("imu_rejected_range")
         + n("imu_rejected_time")
-        + n("imu_dropped_queue_full");
+        + n("imu_dropped_queue_full")
+        + n("imu_spikes_rejected");
     let frames = n("frames_rejected_time") + n("frames_dropped_no_imu");
     let coverage = s
         .judged_coverage()
@@ -134,9 +135,10 @@ pub fn status_line(s: &Summary) -> String {
             format!("coverage {:.1}% {of}", 100.0 * c)
         });
     format!(
-        "status    {} resets, {} re-initializations, {imu} IMU samples rejected, {frames} camera \
-         frames rejected, {coverage}",
+        "status    {} resets, {} re-initializations, {} IMU gaps bridged, {imu} IMU samples \
+         rejected, {frames} camera frames rejected, {coverage}",
         n("resets"),
         n("reinitializations"),
+        n("imu_gaps_bridged"),
     )
 }

@@ -1,0 +1,136 @@
+//! IMU faults: gaps (TOML table `[imu_gap]`: how a sample spacing above
+//! [`super::EstimatorConfig::max_imu_dt_s`] is handled while running) and spikes
+//! (`[imu_spike]`: single samples far off the signal around them).
+
+use crate::ranges::{self, Ranges};
+use crate::Error;
+
+/// Bridging of IMU gaps. A gap up to `bridge_max_s` is bridged: the INS and the open keyframe
+/// interval integrate samples interpolated linearly between the samples around it (at most
+/// `max_imu_dt_s / 2` apart), and the interval's covariance takes the unmeasured motion's
+/// uncertainty (a specific force wrong by `accel_sigma_mps2` and an angular rate wrong by
+/// `gyro_sigma_rps` for the whole gap: velocity and rotation standard deviations of
+/// `sigma * T_gap`, see [`crate::inertial::preintegration`]), so the images carry the window
+/// across it. The frames inside the gap are tracked but never made keyframes: a keyframe there
+/// hangs between two intervals that hardly constrain it, and on the hand-held scenario such
+/// keyframes let the window's velocity drift by 0.4 m/s after a 0.2 s gap (ATE 0.03 -> 0.8 m;
+/// 0.04 m without them, BENCHMARKS.md "Sensor faults"). A longer gap resets the estimator, which starts again (in motion when it must)
+/// and continues from the last estimate ([`super::super::Estimator::reset`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
+pub struct ImuGapConfig {
+    /// Longest gap bridged, s (0: none; at most [`ImuGapConfig::MAX_BRIDGE_S`]).
+    pub bridge_max_s: f64,
+    /// Standard deviation of the specific force during a gap about the line between the samples
+    /// around it, m/s^2.
+    pub accel_sigma_mps2: f64,
+    /// Standard deviation of the angular rate during a gap about that line, rad/s.
+    pub gyro_sigma_rps: f64,
+}
+
+impl ImuGapConfig {
+    /// Longest gap that may be bridged, s: the interpolated samples of one gap are processed in
+    /// one [`super::super::Estimator::update`] call.
+    pub const MAX_BRIDGE_S: f64 = 2.0;
+
+    /// The defaults (what [`Default`] gives): holes up to 0.6 s bridged (a 0.5 s hole in a
+    /// 200 Hz stream is a 0.505 s spacing), with 1 m/s^2 and 0.3 rad/s of unmeasured motion
+    /// about the interpolated line. Measured (BENCHMARKS.md, "IMU gaps"): the line's error over
+    /// 0.2 s of the hand-held scenario is 0.6 m/s^2 and up to 0.35 rad/s RMS per axis; looser
+    /// values (5 m/s^2, 1 rad/s) doubled the hand-held ATE after 0.5 s gaps, and bridging 1 s
+    /// cost the hand-held and fast-rotation scenarios 7-300x (a reset is cheaper there).
+    pub const DEFAULT: ImuGapConfig = ImuGapConfig {
+        bridge_max_s: 0.6,
+        accel_sigma_mps2: 1.0,
+        gyro_sigma_rps: 0.3,
+    };
+
+    /// Checks ranges ([`Self::check_ranges`]).
+    pub fn validate(&self) -> Result<(), Error> {
+        ranges::validate(|r| self.check_ranges(r))
+    }
+
+    /// The range checks (`[imu_gap]`): `bridge_max_s` within `0..=MAX_BRIDGE_S`, positive
+    /// standard deviations.
+    pub fn check_ranges(&self, r: &mut Ranges<'_>) {
+        let b = self.bridge_max_s;
+        r.within(
+            "imu_gap.bridge_max_s",
+            b,
+            0.0,
+            Self::MAX_BRIDGE_S,
+            "0..=2 (s)",
+        );
+        r.positive("imu_gap.accel_sigma_mps2", self.accel_sigma_mps2);
+        r.positive("imu_gap.gyro_sigma_rps", self.gyro_sigma_rps);
+    }
+}
+
+impl Default for ImuGapConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Spikes: a sample whose gyro or accelerometer reading steps from the last processed sample
+/// by more than `max_gyro_step_rps` / `max_accel_step_mps2` (any axis) is held until the next
+/// sample arrives. When the next one steps as far from it, the held sample was a spike (or one
+/// of a burst): it is dropped and counted (`counters.imu_spikes_rejected`), and the dropped
+/// samples leave a gap that is bridged like any other ([`ImuGapConfig`]). When the next one
+/// agrees with it, the step was real and both are processed. A sample is held for at most one
+/// sample period, and only when it steps that far. The defaults are several times the largest
+/// step of real IMUs at 200 Hz (EuRoC's ADIS16448 on a MAV: 10 m/s^2 and 0.3 rad/s;
+/// BENCHMARKS.md, "IMU spikes"); readings at or beyond the sensor's full scale
+/// (`max_gyro_rps`, `max_accel_mps2`) are clipped and refused at push time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
+pub struct ImuSpikeConfig {
+    /// Check for spikes at all.
+    pub enabled: bool,
+    /// Largest accelerometer step between consecutive samples taken without confirmation, m/s^2.
+    pub max_accel_step_mps2: f64,
+    /// Largest gyro step between consecutive samples taken without confirmation, rad/s.
+    pub max_gyro_step_rps: f64,
+}
+
+impl ImuSpikeConfig {
+    /// The defaults (what [`Default`] gives): on, 40 m/s^2 and 5 rad/s.
+    pub const DEFAULT: ImuSpikeConfig = ImuSpikeConfig {
+        enabled: true,
+        max_accel_step_mps2: 40.0,
+        max_gyro_step_rps: 5.0,
+    };
+
+    /// Checks ranges ([`Self::check_ranges`]).
+    pub fn validate(&self) -> Result<(), Error> {
+        ranges::validate(|r| self.check_ranges(r))
+    }
+
+    /// The range checks (`[imu_spike]`): positive steps.
+    pub fn check_ranges(&self, r: &mut Ranges<'_>) {
+        r.positive("imu_spike.max_accel_step_mps2", self.max_accel_step_mps2);
+        r.positive("imu_spike.max_gyro_step_rps", self.max_gyro_step_rps);
+    }
+
+    /// Whether `b` steps from `a` by more than the limits.
+    pub fn is_step(&self, a: &crate::inertial::ImuSample, b: &crate::inertial::ImuSample) -> bool {
+        (b.accel_mps2 - a.accel_mps2).amax() > self.max_accel_step_mps2
+            || (b.gyro_rps - a.gyro_rps).amax() > self.max_gyro_step_rps
+    }
+}
+
+impl Default for ImuSpikeConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
