@@ -251,6 +251,8 @@ fn calibration_from_metadata(
 
 #[cfg(test)]
 mod compressed_tests;
+#[cfg(test)]
+mod corrupt_tests;
 mod read;
 
 use crate::recording::Recording;

@@ -6,7 +6,7 @@ use crate::ros2::msgs::CompressedImage;
 use crate::ros2::Header;
 use povins_core::inertial::ImuSample;
 
-fn dataset() -> Dataset {
+pub(super) fn dataset() -> Dataset {
     Dataset {
         name: "compressed".into(),
         calib: Calibration {

@@ -9,11 +9,10 @@
 //! order, is an error naming the topic and the stamps.
 
 use super::{
-    calibration_from_metadata, check_chunk_sizes, invalid, mcap_err, SimTruthJson,
-    CALIBRATION_METADATA, COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE, MAX_CHUNK_BYTES,
-    ODOMETRY_TYPE, POINT_CLOUD2_TYPE, POINT_CLOUD_TYPE, SIM_TRUTH_ATTACHMENT, TOPIC_FEATURES,
-    TOPIC_GROUND_TRUTH, TOPIC_GROUND_TRUTH_BIAS, TOPIC_IMAGE, TOPIC_IMAGE_COMPRESSED, TOPIC_IMU,
-    TOPIC_LIDAR,
+    calibration_from_metadata, check_chunk_sizes, invalid, SimTruthJson, CALIBRATION_METADATA,
+    COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE, MAX_CHUNK_BYTES, ODOMETRY_TYPE, POINT_CLOUD2_TYPE,
+    POINT_CLOUD_TYPE, SIM_TRUTH_ATTACHMENT, TOPIC_FEATURES, TOPIC_GROUND_TRUTH,
+    TOPIC_GROUND_TRUTH_BIAS, TOPIC_IMAGE, TOPIC_IMAGE_COMPRESSED, TOPIC_IMU, TOPIC_LIDAR,
 };
 use crate::cdr::CdrError;
 use crate::dataset::{Calibration, FeatureFrame, ImageFrame, LidarScan, SimTruth};
@@ -37,6 +36,9 @@ struct RecordCtx {
     schemas: HashMap<u16, String>,
     /// Channel id -> (topic, schema name, message encoding).
     channels: HashMap<u16, (String, String, String)>,
+    /// Attachments read past because they did not parse (a bad CRC): povins reads only the
+    /// evaluation-only simulator truth from attachments, which never blocks a run.
+    skipped: Vec<String>,
 }
 
 /// A pull reader of an MCAP file's records, with the channel table built as it goes.
@@ -44,6 +46,9 @@ struct Records {
     file: std::io::BufReader<std::fs::File>,
     reader: LinearReader,
     ctx: RecordCtx,
+    /// Bytes of the file handed to the reader so far: a record that fails to parse (or a chunk
+    /// whose CRC does not match) ends at or before this offset.
+    read_bytes: u64,
 }
 
 /// What a visitor did with a record.
@@ -59,8 +64,9 @@ impl Records {
         check_chunk_sizes(path)?;
         let f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
         // A record length limit, so a corrupt length inside a chunk fails instead of allocating.
-        let opts =
-            LinearReaderOptions::default().with_record_length_limit(MAX_CHUNK_BYTES as usize);
+        let opts = LinearReaderOptions::default()
+            .with_record_length_limit(MAX_CHUNK_BYTES as usize)
+            .with_validate_chunk_crcs(true);
         Ok(Records {
             file: std::io::BufReader::with_capacity(1 << 16, f),
             reader: LinearReader::new_with_options(opts),
@@ -68,7 +74,9 @@ impl Records {
                 path: path.to_path_buf(),
                 schemas: HashMap::new(),
                 channels: HashMap::new(),
+                skipped: Vec::new(),
             },
+            read_bytes: 0,
         })
     }
 
@@ -80,16 +88,30 @@ impl Records {
     ) -> Result<Option<T>, IoError> {
         let ctx = &mut self.ctx;
         while let Some(event) = self.reader.next_event() {
-            let rec = match event.map_err(|e| mcap_err(&ctx.path, e))? {
+            let at = self.read_bytes;
+            let err = |e| record_err(&ctx.path, e, at);
+            let rec = match event.map_err(err)? {
                 LinearReadEvent::ReadRequest(need) => {
                     let buf = self.reader.insert(need);
                     let n =
                         read_some(&mut self.file, buf).map_err(|e| IoError::io(&ctx.path, e))?;
                     self.reader.notify_read(n);
+                    self.read_bytes += n as u64;
                     continue;
                 }
                 LinearReadEvent::Record { data, opcode } => {
-                    mcap::parse_record(opcode, data).map_err(|e| mcap_err(&ctx.path, e))?
+                    match mcap::parse_record(opcode, data) {
+                        Ok(rec) => rec,
+                        Err(e) if opcode == mcap::records::op::ATTACHMENT => {
+                            let e = err(e);
+                            ctx.skipped.push(format!(
+                                "an attachment was ignored (povins reads only the evaluation-only \
+                             {SIM_TRUTH_ATTACHMENT} from attachments): {e}"
+                            ));
+                            continue;
+                        }
+                        Err(e) => return Err(err(e)),
+                    }
                 }
             };
             match &rec {
@@ -172,6 +194,8 @@ pub struct McapRecording {
     /// Messages per topic povins reads.
     counts: HashMap<&'static str, usize>,
     imu_span_ns: Option<(i64, i64)>,
+    /// What was read past (an unreadable evaluation-only attachment).
+    warnings: Vec<String>,
 }
 
 /// The povins topics, as `&'static str`.
@@ -195,6 +219,7 @@ impl McapRecording {
         let mut topics: Vec<&'static str> = Vec::new();
         let mut counts: HashMap<&'static str, usize> = HashMap::new();
         let mut imu_span: Option<(i64, i64)> = None;
+        let mut warnings = Vec::new();
         r.next_with::<()>(|r, rec| {
             match rec {
                 Record::Message { header, .. } => {
@@ -216,12 +241,19 @@ impl McapRecording {
                     calib = Some(calibration_from_metadata(path, &m.metadata)?);
                 }
                 Record::Attachment { header, data, .. } if header.name == SIM_TRUTH_ATTACHMENT => {
-                    sim_truth = Some(sim_truth_from_json(path, data)?);
+                    // Only the evaluation reads it: unreadable, the run goes on without it.
+                    match sim_truth_from_json(path, data) {
+                        Ok(t) => sim_truth = Some(t),
+                        Err(e) => warnings.push(format!(
+                            "the evaluation-only attachment {SIM_TRUTH_ATTACHMENT} was ignored: {e}"
+                        )),
+                    }
                 }
                 _ => {}
             }
             Ok(Step::Skip)
         })?;
+        warnings.append(&mut r.ctx.skipped);
         let (name, calib) = calib
             .ok_or_else(|| invalid(path, format!("no {CALIBRATION_METADATA} metadata record")))?;
         if !topics.contains(&TOPIC_IMU) {
@@ -238,6 +270,7 @@ impl McapRecording {
             },
             calib,
             sim_truth,
+            warnings,
             topics,
             counts,
             imu_span_ns: imu_span,
@@ -533,7 +566,22 @@ impl Recording for McapRecording {
         Ok(ground_truth)
     }
 
+    fn warnings(&self) -> Vec<String> {
+        self.warnings.clone()
+    }
+
     fn sim_truth(&self) -> Option<SimTruth> {
         self.sim_truth.clone()
+    }
+}
+
+/// A record the reader refused (a chunk CRC that does not match, a record that does not parse),
+/// with the offset it ends at or before (`read_bytes`).
+fn record_err(path: &Path, e: mcap::McapError, read_bytes: u64) -> IoError {
+    IoError::Corrupt {
+        file: path.into(),
+        what: "mcap record".into(),
+        offset: read_bytes,
+        msg: format!("{e} (the record ends at or before this offset)"),
     }
 }
