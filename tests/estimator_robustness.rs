@@ -366,15 +366,13 @@ fn imu_spikes_and_bursts_are_dropped_and_counted() {
         let t25 = secs(&ds, 25.0);
         let mut next_spike = secs(&ds, 17.0);
         let mut spikes = 0;
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut rand = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        // Garbage that alternates in sign from sample to sample, different on every axis.
+        let garbage = |k: u64, scale: f64| {
+            let sign = if k.is_multiple_of(2) { 1.0 } else { -1.0 };
+            Vec3::new(1.0, -0.7, 0.4 + 0.1 * (k % 5) as f64) * (sign * scale)
         };
         let (mut did15, mut did16, mut did25) = (false, false, false);
-        let mut burst = 0;
+        let mut burst = 0u64;
         let imu: Vec<ImuSample> = ds
             .imu
             .iter()
@@ -391,8 +389,8 @@ fn imu_spikes_and_bursts_are_dropped_and_counted() {
                     spikes += 1;
                     next_spike += 500_000_000;
                 } else if s.t_ns >= t24 && s.t_ns < t24 + 100_000_000 {
-                    s.gyro_rps = Vec3::new(rand(), rand(), rand()) * 30.0;
-                    s.accel_mps2 = Vec3::new(rand(), rand(), rand()) * 150.0;
+                    s.gyro_rps = garbage(burst, 30.0);
+                    s.accel_mps2 = garbage(burst + 1, 150.0);
                     burst += 1;
                 } else if !did25 && s.t_ns >= t25 {
                     s.accel_mps2.y = 160.0;

@@ -34,7 +34,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
+mod faults;
 mod variant;
+pub use faults::Fault;
 pub use variant::{
     extrinsic_error, perturbed_extrinsic, render_variant_figures, sim_config, Variant,
     VariantFigures, VariantGroup, EXTRINSIC_PERTURBATION_DEG, EXTRINSIC_PERTURBATION_M,
@@ -241,7 +243,10 @@ pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<R
             ..
         } => {
             let c = sim_config(*scenario, *seed, *duration_s, variant);
-            let out = sim::simulate(&c, &|_, _, _| {})?;
+            let mut out = sim::simulate(&c, &|_, _, _| {})?;
+            if let Variant::Fault(f) = variant {
+                f.inject(&mut out.dataset);
+            }
             let td_end_s = c.td_s + c.td_step.map_or(0.0, |st| st.step_s);
             (out.dataset, variant.init(), Some(td_end_s))
         }

@@ -10,8 +10,10 @@
 //!   [`EXTRINSIC_PERTURBATION_M`] and [`EXTRINSIC_PERTURBATION_DEG`] off, in fixed directions of
 //!   the body frame (those of `scripts/extrinsic_conv.sh`: the same for every scenario and seed),
 //!   with `estimate_extrinsic = true`; judged on the ATE and the extrinsic's error at the end.
+//! - [`Variant::Fault`]: a sensor fault at half the sequence ([`super::faults`]); reports the
+//!   coverage.
 
-use super::RunResult;
+use super::{Fault, RunResult};
 use crate::report::coverage;
 use crate::runner::{InitMode, RunOutput};
 use crate::sim::{self, Scenario, SimConfig};
@@ -37,6 +39,8 @@ pub enum Variant {
     MotionStart,
     /// The extrinsic started 2 cm and 2 degrees off and estimated.
     Extrinsic,
+    /// A sensor fault at half the sequence.
+    Fault(Fault),
 }
 
 /// The variant groups `povins regress --variants` can add.
@@ -50,6 +54,9 @@ pub enum VariantGroup {
     MotionStart,
     /// The camera-IMU extrinsic started 2 cm and 2 degrees off, estimated online.
     Extrinsic,
+    /// Sensor faults at half the sequence: a 0.2 s IMU gap, spikes and a burst, a 3 s camera
+    /// dropout.
+    Faults,
 }
 
 impl VariantGroup {
@@ -60,6 +67,11 @@ impl VariantGroup {
             VariantGroup::DelayStep => &[Variant::DelayStep],
             VariantGroup::MotionStart => &[Variant::MotionStart],
             VariantGroup::Extrinsic => &[Variant::Extrinsic],
+            VariantGroup::Faults => &[
+                Variant::Fault(Fault::ImuGap),
+                Variant::Fault(Fault::Spikes),
+                Variant::Fault(Fault::CameraDropout),
+            ],
         }
     }
 }
@@ -74,6 +86,7 @@ impl Variant {
             Variant::DelayStep => "-delaystep+10ms".into(),
             Variant::MotionStart => "-motion".into(),
             Variant::Extrinsic => "-extrinsic".into(),
+            Variant::Fault(f) => f.suffix().into(),
         }
     }
 
@@ -105,7 +118,7 @@ pub fn sim_config(scenario: Scenario, seed: u64, duration_s: f64, variant: Varia
     c.lidar = Some(sim::LidarKind::None);
     c.threads = 1;
     match variant {
-        Variant::Standard | Variant::Extrinsic => {}
+        Variant::Standard | Variant::Extrinsic | Variant::Fault(_) => {}
         Variant::Delay(ms) => c.td_s = f64::from(ms) * 1e-3,
         Variant::DelayStep => {
             c.td_step = Some(sim::TdStep {
@@ -202,6 +215,11 @@ impl Variant {
                     ..Default::default()
                 })
             }
+            Variant::Fault(_) => Some(VariantFigures {
+                started,
+                camera_coverage: out.first_camera_ns.and_then(|t0| coverage(gt, est, t0)),
+                ..Default::default()
+            }),
             Variant::Standard | Variant::Delay(_) | Variant::DelayStep => None,
         }
     }

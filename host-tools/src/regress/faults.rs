@@ -1,0 +1,82 @@
+//! The fault variants of the suite (`povins regress --variants faults`, issue 32): sensor faults
+//! injected into the simulated sequence at half its duration, each judged like the standard
+//! sequence (median ATE against its stored figures; a reset or an output covering less than 95%
+//! of the run counts as a divergence), with the coverage of the ground truth reported.
+//!
+//! - [`Fault::ImuGap`]: 0.2 s of IMU samples removed (bridged: no reset).
+//! - [`Fault::Spikes`]: one accelerometer sample of 150 m/s^2, one gyro sample of 34 rad/s 1 s
+//!   later and a 0.1 s burst of garbage 2 s later (dropped as spikes, the burst's hole bridged).
+//! - [`Fault::CameraDropout`]: 3 s without camera frames (the window is dropped when the open
+//!   interval is full, the INS goes on alone, the frames after the dropout start a new window).
+
+use povins_core::math::Vec3;
+use povins_platform::dataset::Dataset;
+
+/// A sensor fault injected into a simulated sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Fault {
+    /// 0.2 s of IMU samples removed.
+    ImuGap,
+    /// Spikes and a burst inside the sensor's range.
+    Spikes,
+    /// 3 s without camera frames.
+    CameraDropout,
+}
+
+/// Length of [`Fault::ImuGap`], ns.
+const GAP_NS: i64 = 200_000_000;
+/// Length of [`Fault::CameraDropout`], ns.
+const DROPOUT_NS: i64 = 3_000_000_000;
+
+impl Fault {
+    /// Suffix of the sequence names.
+    pub fn suffix(self) -> &'static str {
+        match self {
+            Fault::ImuGap => "-imugap0.2s",
+            Fault::Spikes => "-spikes",
+            Fault::CameraDropout => "-cameradropout3s",
+        }
+    }
+
+    /// Injects the fault into `ds` at half its IMU time span.
+    pub fn inject(self, ds: &mut Dataset) {
+        let (Some(first), Some(last)) = (ds.imu.first(), ds.imu.last()) else {
+            return;
+        };
+        let at = first.t_ns + (last.t_ns - first.t_ns) / 2;
+        match self {
+            Fault::ImuGap => ds.imu.retain(|s| s.t_ns < at || s.t_ns >= at + GAP_NS),
+            Fault::Spikes => {
+                let burst = at + 2_000_000_000;
+                let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+                let mut rand = move || {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+                };
+                let first_at = |t: i64| ds.imu.iter().position(|s| s.t_ns >= t);
+                let (a, g) = (first_at(at), first_at(at + 1_000_000_000));
+                if let Some(s) = a.and_then(|k| ds.imu.get_mut(k)) {
+                    s.accel_mps2.x = 150.0;
+                }
+                if let Some(s) = g.and_then(|k| ds.imu.get_mut(k)) {
+                    s.gyro_rps.y = 34.0;
+                }
+                for s in ds
+                    .imu
+                    .iter_mut()
+                    .filter(|s| s.t_ns >= burst && s.t_ns < burst + 100_000_000)
+                {
+                    s.gyro_rps = Vec3::new(rand(), rand(), rand()) * 30.0;
+                    s.accel_mps2 = Vec3::new(rand(), rand(), rand()) * 150.0;
+                }
+            }
+            Fault::CameraDropout => {
+                let keep = |t: i64| t < at || t >= at + DROPOUT_NS;
+                ds.features.retain(|f| keep(f.t_ns));
+                ds.images.retain(|f| keep(f.t_ns));
+            }
+        }
+    }
+}
