@@ -6,6 +6,7 @@
 #        scripts/fuzz.sh all [SECONDS]      every target in turn
 #        scripts/fuzz.sh list               the targets
 #        scripts/fuzz.sh build              build them only
+#        scripts/fuzz.sh cmin TARGET|all    minimize the corpus (keeps the inputs that add coverage)
 # Install cargo-fuzz once with the same toolchain:
 #   PATH=/usr/bin:/bin RUSTC=/usr/bin/rustc /usr/bin/cargo install cargo-fuzz
 # (or set CARGO_FUZZ_BIN to a cargo-fuzz binary). No sanitizer (`-s none`): rustc-web ships no
@@ -37,7 +38,11 @@ case "$cmd" in
   list) echo "$targets"; exit 0 ;;
   build) (cd fuzz && "$fuzz" fuzz build -O -s none); exit 0 ;;
   all) run=$targets ;;
-  "") sed -n '2,13p' "$0"; exit 2 ;;
+  cmin) list=$([ "${2:?cmin TARGET|all}" = all ] && echo "$targets" || echo "$2")
+        for t in $list; do (cd fuzz && "$fuzz" fuzz cmin -O -s none "$t" "$root/fuzz/corpus/$t") > "$CARGO_TARGET_DIR/cmin-$t.log" 2>&1
+          echo "$t: corpus $(ls "fuzz/corpus/$t" | wc -l) files, $(du -sb "fuzz/corpus/$t" | cut -f1) bytes"; done
+        exit 0 ;;
+  "") sed -n "2,15p" "$0"; exit 2 ;;
   *) echo "$targets" | grep -qx "$cmd" || { echo "fuzz: no target $cmd (scripts/fuzz.sh list)" >&2; exit 2; }
      run=$cmd ;;
 esac
