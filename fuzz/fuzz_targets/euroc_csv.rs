@@ -1,0 +1,3 @@
+#![no_main]
+//! See `povins_fuzz::euroc_csv`.
+libfuzzer_sys::fuzz_target!(|data: &[u8]| povins_fuzz::euroc_csv(data));
