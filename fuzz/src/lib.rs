@@ -25,8 +25,11 @@ use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+/// A target's "run one input".
+pub type RunOne = fn(&[u8]);
+
 /// Every target: name and "run one input".
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[(&str, RunOne)] = &[
     ("euroc_csv", euroc_csv),
     ("euroc_yaml", euroc_yaml),
     ("kalibr_yaml", kalibr_yaml),
