@@ -97,6 +97,11 @@ fn init_time(r: &Run) -> i64 {
     r.states.first().expect("the run initializes").t_ns
 }
 
+/// ATE of the uncorrupted run, m (the reference of the fault tests).
+fn clean_ate(ds: &Dataset, frames: &Frames) -> f64 {
+    ate_m(ds, &run(ds, &ds.imu, frames).states)
+}
+
 fn secs(ds: &Dataset, s: f64) -> i64 {
     ds.imu[0].t_ns + (s * 1e9) as i64
 }
@@ -291,8 +296,7 @@ fn imu_gap_in_flight_resets_and_restarts_after_initialize() {
 fn imu_gaps_in_flight_are_bridged_without_a_reset() {
     small_stack(|| {
         let (ds, frames) = euroc();
-        let clean = run(&ds, &ds.imu, &frames);
-        let ate_clean = ate_m(&ds, &clean.states);
+        let ate_clean = clean_ate(&ds, &frames);
         for gap_s in [0.06, 0.2, 0.5] {
             let (gap0, gap1) = (secs(&ds, 15.0), secs(&ds, 15.0 + gap_s));
             let imu: Vec<ImuSample> = ds
@@ -360,8 +364,7 @@ fn imu_gaps_in_flight_are_bridged_without_a_reset() {
 fn imu_spikes_and_bursts_are_dropped_and_counted() {
     small_stack(|| {
         let (ds, frames) = euroc();
-        let clean = run(&ds, &ds.imu, &frames);
-        let ate_clean = ate_m(&ds, &clean.states);
+        let ate_clean = clean_ate(&ds, &frames);
         let (t15, t16, t24) = (secs(&ds, 15.0), secs(&ds, 16.0), secs(&ds, 24.0));
         let t25 = secs(&ds, 25.0);
         let mut next_spike = secs(&ds, 17.0);
@@ -423,8 +426,7 @@ fn imu_spikes_and_bursts_are_dropped_and_counted() {
 fn a_camera_dropout_keeps_the_ins_going_and_starts_a_new_window() {
     small_stack(|| {
         let (ds, frames) = euroc();
-        let clean = run(&ds, &ds.imu, &frames);
-        let ate_clean = ate_m(&ds, &clean.states);
+        let ate_clean = clean_ate(&ds, &frames);
         let (d0, d1) = (secs(&ds, 12.0), secs(&ds, 15.0));
         let kept: Frames = frames
             .iter()

@@ -111,14 +111,8 @@ fn drain<T, E>(it: impl Iterator<Item = Result<T, E>>) {
 
 fn camera() -> PinholeCamera {
     PinholeCamera {
-        readout_s: 0.0,
-        width: 752,
-        height: 480,
-        fx: 458.654,
-        fy: 457.296,
-        cx: 367.215,
-        cy: 248.375,
         distortion: Distortion::None,
+        ..PinholeCamera::EUROC_CAM0
     }
 }
 
