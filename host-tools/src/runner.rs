@@ -540,8 +540,8 @@ pub fn start_state(
         cfg.init.mode = core_mode;
         return Ok((first.t_ns, None));
     }
-    let gt = rec.ground_truth()?;
-    let Some(g0) = gt.first() else {
+    let mut gt = rec.ground_truth_stream()?;
+    let Some(g0) = gt.next().transpose()? else {
         bail!("{name}: --init groundtruth needs ground truth in the dataset");
     };
     let mut s0 = Some(first);
@@ -552,7 +552,12 @@ pub fn start_state(
     let Some(s0) = s0 else {
         bail!("{name}: no IMU sample after the first ground-truth state");
     };
-    let gt0 = interpolate_state(&gt, s0.t_ns).unwrap_or(*g0);
+    let mut cursor = GtCursor::new(std::iter::once(Ok(g0)).chain(gt));
+    // After the last state: the last state (as `interpolate_state` clamps).
+    let gt0 = cursor.at(s0.t_ns).or(cursor.last()).unwrap_or(g0);
+    if let Some(e) = cursor.error() {
+        return Err(e.into());
+    }
     // The true state is known: the first keyframe's prior says so (peers do the same).
     cfg.first_prior.theta_rad = 2e-3;
     cfg.first_prior.v_mps = 0.01;
@@ -801,18 +806,87 @@ pub fn interpolate_state(gt: &[NavState], t_ns: i64) -> Option<NavState> {
         gt.get(k.checked_sub(1)?)?,
         gt.get(k).unwrap_or(gt.get(k - 1)?),
     );
+    Some(interpolate_between(a, b, t_ns))
+}
+
+/// The state at `t_ns` between `a` and `b` (`a.t_ns <= t_ns <= b.t_ns`, or `a` itself).
+fn interpolate_between(a: &NavState, b: &NavState, t_ns: i64) -> NavState {
     if b.t_ns == a.t_ns {
-        return Some(NavState { t_ns, ..*a });
+        return NavState { t_ns, ..*a };
     }
     let w = (t_ns - a.t_ns) as f64 / (b.t_ns - a.t_ns) as f64;
-    Some(NavState {
+    NavState {
         t_ns,
         p_wb: a.p_wb.lerp(&b.p_wb, w),
         q_wb: a.q_wb.slerp(&b.q_wb, w),
         v_wb: a.v_wb.lerp(&b.v_wb, w),
         bg: a.bg.lerp(&b.bg, w),
         ba: a.ba.lerp(&b.ba, w),
-    })
+    }
+}
+
+/// [`interpolate_state`] over a ground-truth stream read once, for stamps that do not decrease
+/// (an evaluation that passes over an hour of ground truth without holding it): the same
+/// states, `None` before the first or after the last stamp (and for a stamp earlier than the
+/// previous one asked). The first error of the stream is kept ([`GtCursor::error`]) and ends it.
+pub struct GtCursor<I> {
+    stream: I,
+    /// The last state at or before the stamps asked so far, and the one after it.
+    a: Option<NavState>,
+    b: Option<NavState>,
+    error: Option<povins_platform::error::IoError>,
+}
+
+impl<I: Iterator<Item = Result<NavState, povins_platform::error::IoError>>> GtCursor<I> {
+    /// A cursor at the start of `stream`.
+    pub fn new(mut stream: I) -> Self {
+        let mut error = None;
+        let b = match stream.next() {
+            Some(Ok(s)) => Some(s),
+            Some(Err(e)) => {
+                error = Some(e);
+                None
+            }
+            None => None,
+        };
+        GtCursor {
+            stream,
+            a: None,
+            b,
+            error,
+        }
+    }
+
+    /// The ground-truth state at `t_ns`, within the stream's span.
+    pub fn at(&mut self, t_ns: i64) -> Option<NavState> {
+        while let Some(b) = self.b.filter(|b| b.t_ns <= t_ns) {
+            self.a = Some(b);
+            self.b = match self.stream.next() {
+                Some(Ok(s)) if self.error.is_none() => Some(s),
+                Some(Err(e)) => {
+                    self.error.get_or_insert(e);
+                    None
+                }
+                _ => None,
+            };
+        }
+        let a = self.a.filter(|a| a.t_ns <= t_ns)?;
+        match self.b {
+            Some(b) => Some(interpolate_between(&a, &b, t_ns)),
+            None if a.t_ns == t_ns => Some(a),
+            None => None,
+        }
+    }
+
+    /// The last state, once the stream has ended before the stamps asked.
+    pub fn last(&self) -> Option<NavState> {
+        self.a.filter(|_| self.b.is_none())
+    }
+
+    /// The error that ended the stream, if one did.
+    pub fn error(self) -> Option<povins_platform::error::IoError> {
+        self.error
+    }
 }
 
 /// One of the reports' `_ns` timings per keyframe, in ms, sorted ascending.

@@ -39,7 +39,7 @@ pub use writer::{EurocWriter, Written};
 use crate::dataset::{Calibration, Dataset, Extrinsic, FeatureFrame, ImageFrame, LidarScan};
 use crate::error::IoError;
 use crate::recording::{Contents, Recording, Stream};
-use crate::trajectory::read_euroc_groundtruth;
+use crate::trajectory::GroundTruthRows;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use povins_core::camera::{Distortion, PinholeCamera, MAX_READOUT_S};
 use povins_core::inertial::{ImuNoise, ImuSample, NavState};
@@ -231,11 +231,11 @@ impl Recording for EurocFolder {
         })
     }
 
-    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
-        match &self.ground_truth {
-            Some(p) => read_euroc_groundtruth(p),
-            None => Ok(Vec::new()),
-        }
+    fn ground_truth_stream(&self) -> Result<Stream<'_, NavState>, IoError> {
+        Ok(match &self.ground_truth {
+            Some(p) => Box::new(GroundTruthRows::open(p)?),
+            None => Box::new(std::iter::empty()),
+        })
     }
 }
 

@@ -21,8 +21,9 @@
 //! `td_s` (`t_imu = t_cam + td_s`), `imu_rate_hz`, `gyroscope_noise_density`,
 //! `gyroscope_random_walk`, `accelerometer_noise_density`, `accelerometer_random_walk`,
 //! `bias_correlation_time_s` (`none` for a random walk), `gravity_mps2`, `name`, and `readout_s`
-//! (a rolling shutter's readout time, s; only when not 0). A simulator's
-//! [`SimTruth`] is the JSON attachment [`SIM_TRUTH_ATTACHMENT`].
+//! (a rolling shutter's readout time, s; only when not 0). A simulator's truth for evaluation
+//! ([`crate::dataset::SimTruth`] without its per-point LiDAR edge flags) is the JSON attachment
+//! [`SIM_TRUTH_ATTACHMENT`].
 //!
 //! Reading ignores topics it does not know, orders each topic by header stamp and rejects
 //! repeated stamps. Images come from `/cam0/image_raw` (`sensor_msgs/msg/Image`, or a
@@ -88,12 +89,15 @@ fn mcap_err(path: &Path, e: mcap::McapError) -> IoError {
     }
 }
 
+/// The simulator's truth as the attachment holds it: what the evaluation of a run reads. The
+/// per-point LiDAR edge flags ([`SimTruth::lidar_edge_points`], the simulator's own statistics,
+/// a flag per point: 5 MB a minute) are not written, and skipped unread (as any key povins does
+/// not read) in files that have them.
 #[derive(serde::Serialize, serde::Deserialize)]
 struct SimTruthJson {
     landmarks_w: Vec<(u64, [f64; 3])>,
     wrong_tracks: Vec<u64>,
     edge_features: Vec<u64>,
-    lidar_edge_points: Vec<Vec<bool>>,
 }
 
 fn num(v: f64) -> String {
@@ -454,7 +458,6 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
                 .collect(),
             wrong_tracks: st.wrong_tracks.clone(),
             edge_features: st.edge_features.clone(),
-            lidar_edge_points: st.lidar_edge_points.clone(),
         };
         let data = serde_json::to_vec(&j).map_err(|e| invalid(path, e.to_string()))?;
         let t0 = events_start(ds);
@@ -548,6 +551,6 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
         images,
         lidar,
         ground_truth,
-        sim_truth: r.sim_truth(),
+        sim_truth: r.sim_truth().cloned(),
     })
 }

@@ -54,10 +54,15 @@ pub trait Recording: Send + Sync {
     fn images(&self) -> Result<Stream<'_, ImageFrame>, IoError>;
     /// The LiDAR sweeps in recorded order (empty when it has none).
     fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError>;
-    /// The ground truth (for evaluation and ground-truth starts; empty when it has none).
-    fn ground_truth(&self) -> Result<Vec<NavState>, IoError>;
+    /// The ground truth, increasing in time (for evaluation and ground-truth starts; empty when
+    /// it has none), one state at a time: an evaluation passes over it without holding it.
+    fn ground_truth_stream(&self) -> Result<Stream<'_, NavState>, IoError>;
+    /// The whole ground truth in memory ([`Recording::ground_truth_stream`] collected).
+    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
+        self.ground_truth_stream()?.collect()
+    }
     /// What only a simulator knows (for evaluation), when the recording carries it.
-    fn sim_truth(&self) -> Option<SimTruth> {
+    fn sim_truth(&self) -> Option<&SimTruth> {
         None
     }
     /// What was wrong in the recording but read past (samples dropped for their stamps, parts
@@ -113,11 +118,11 @@ impl Recording for Dataset {
         Ok(slice_stream(&self.lidar))
     }
 
-    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
-        Ok(self.ground_truth.clone())
+    fn ground_truth_stream(&self) -> Result<Stream<'_, NavState>, IoError> {
+        Ok(slice_stream(&self.ground_truth))
     }
 
-    fn sim_truth(&self) -> Option<SimTruth> {
-        self.sim_truth.clone()
+    fn sim_truth(&self) -> Option<&SimTruth> {
+        self.sim_truth.as_ref()
     }
 }

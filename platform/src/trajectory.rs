@@ -216,34 +216,84 @@ pub fn write_tum_row(w: &mut impl Write, p: &StampedPose) -> std::io::Result<()>
 
 /// Reads an EuRoC `state_groundtruth_estimate0/data.csv` (full state).
 pub fn read_euroc_groundtruth(path: &Path) -> Result<Vec<NavState>, IoError> {
-    let mut out: Vec<NavState> = Vec::new();
-    for (i, line) in open(path)?.lines().enumerate() {
-        let line_no = i + 1;
-        let line = line.map_err(|e| IoError::io(path, e))?;
-        let l = line.trim();
-        if l.is_empty() || l.starts_with('#') {
-            continue;
-        }
-        let t_str = l.split(',').next().unwrap_or("").trim();
-        let t_ns: i64 = t_str.parse().map_err(|_| {
-            parse_err(
-                path,
-                line_no,
-                format!("timestamp {t_str:?} is not integer nanoseconds"),
-            )
-        })?;
-        let v = fields(path, line_no, l, 17)?;
-        check_increasing(path, line_no, out.last().map(|s| s.t_ns), t_ns)?;
-        out.push(NavState {
-            t_ns,
-            p_wb: Vec3::new(v[1], v[2], v[3]),
-            q_wb: unit_quat(path, line_no, v[4], v[5], v[6], v[7])?,
-            v_wb: Vec3::new(v[8], v[9], v[10]),
-            bg: Vec3::new(v[11], v[12], v[13]),
-            ba: Vec3::new(v[14], v[15], v[16]),
-        });
+    GroundTruthRows::open(path)?.collect()
+}
+
+/// The rows of an EuRoC `state_groundtruth_estimate0/data.csv` (full state), one at a time
+/// (what [`read_euroc_groundtruth`] collects): an evaluation can pass over an hour of ground
+/// truth without holding it. An error (naming the file and line) ends the stream.
+pub struct GroundTruthRows {
+    path: std::path::PathBuf,
+    lines: std::iter::Enumerate<std::io::Lines<std::io::BufReader<std::fs::File>>>,
+    last: Option<i64>,
+    failed: bool,
+}
+
+impl GroundTruthRows {
+    /// Opens the file.
+    pub fn open(path: &Path) -> Result<Self, IoError> {
+        Ok(GroundTruthRows {
+            path: path.into(),
+            lines: open(path)?.lines().enumerate(),
+            last: None,
+            failed: false,
+        })
     }
-    Ok(out)
+}
+
+/// One data row of an EuRoC ground-truth CSV, after the row stamped `last`.
+fn ground_truth_row(
+    path: &Path,
+    last: &mut Option<i64>,
+    line_no: usize,
+    l: &str,
+) -> Result<NavState, IoError> {
+    let t_str = l.split(',').next().unwrap_or("").trim();
+    let t_ns: i64 = t_str.parse().map_err(|_| {
+        parse_err(
+            path,
+            line_no,
+            format!("timestamp {t_str:?} is not integer nanoseconds"),
+        )
+    })?;
+    let v = fields(path, line_no, l, 17)?;
+    check_increasing(path, line_no, *last, t_ns)?;
+    *last = Some(t_ns);
+    Ok(NavState {
+        t_ns,
+        p_wb: Vec3::new(v[1], v[2], v[3]),
+        q_wb: unit_quat(path, line_no, v[4], v[5], v[6], v[7])?,
+        v_wb: Vec3::new(v[8], v[9], v[10]),
+        bg: Vec3::new(v[11], v[12], v[13]),
+        ba: Vec3::new(v[14], v[15], v[16]),
+    })
+}
+
+impl Iterator for GroundTruthRows {
+    type Item = Result<NavState, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        for (i, line) in self.lines.by_ref() {
+            let r = match line {
+                Err(e) => Err(IoError::io(&self.path, e)),
+                Ok(line) => {
+                    let l = line.trim();
+                    if l.is_empty() || l.starts_with('#') {
+                        continue;
+                    }
+                    ground_truth_row(&self.path, &mut self.last, i + 1, l)
+                }
+            };
+            if r.is_err() {
+                self.failed = true;
+            }
+            return Some(r);
+        }
+        None
+    }
 }
 
 /// Writes an EuRoC ground-truth CSV (exact `f64` formatting, so reading it back is lossless).

@@ -8,8 +8,10 @@
 //! by default (`--no-lidar`, `--ldm`, `--no-depth-outlier-rejection`, `--no-depth-only-opt`
 //! switch parts off); with simulator truth the LiDAR depth association is checked against it.
 //!
-//! The files are written row by row while the run goes (memory does not grow with the
-//! recording's length), each as `NAME.partial` until the run has ended, then renamed. A run that
+//! The files are written row by row while the run goes, each as `NAME.partial` until the run
+//! has ended, then renamed; memory does not grow with the recording's length (the poses the
+//! evaluation passes over afterwards are logged to anonymous temporary files in `$TMPDIR`:
+//! [`crate::report::spill`]). A run that
 //! fails part-way (a recording that cannot be read, a write error) exits non-zero, says so, and
 //! leaves the `.partial` files with the rows up to the failure (the keyframes still in the window
 //! are not in them) and no `summary.json`; the complete files of an earlier run into the same

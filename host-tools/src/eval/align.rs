@@ -80,8 +80,125 @@ impl Sim3 {
     }
 }
 
-fn mean(points: &[Vec3]) -> Vec3 {
-    points.iter().fold(Vec3::zeros(), |a, p| a + p) / points.len() as f64
+/// The means of matched positions, summed one pair at a time (the first pass of an alignment;
+/// [`Moments`] is the second).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Centering {
+    n: usize,
+    sum_v: Vec3,
+    sum_w: Vec3,
+}
+
+impl Centering {
+    /// Adds a matched pair: the estimate's position in `v`, the ground truth's in `w`.
+    pub fn push(&mut self, p_v: &Vec3, p_w: &Vec3) {
+        self.n += 1;
+        self.sum_v += p_v;
+        self.sum_w += p_w;
+    }
+
+    /// The second pass, about these means.
+    pub fn moments(&self) -> Moments {
+        let n = self.n.max(1) as f64;
+        Moments {
+            n: self.n,
+            mu_v: self.sum_v / n,
+            mu_w: self.sum_w / n,
+            h: Mat3::zeros(),
+            sigma_v: 0.0,
+            spread: 0.0,
+        }
+    }
+}
+
+/// The second moments of matched positions about their means (see the module docs), summed one
+/// pair at a time: what every alignment is fitted to.
+#[derive(Debug, Clone, Copy)]
+pub struct Moments {
+    n: usize,
+    mu_v: Vec3,
+    mu_w: Vec3,
+    /// `sum x_i y_i^T`.
+    h: Mat3,
+    /// `sum |x_i|^2`.
+    sigma_v: f64,
+    /// `sum |x_i,xy| |y_i,xy|`, the horizontal scale the yaw's observability is judged by.
+    spread: f64,
+}
+
+impl Moments {
+    /// Adds the pair again, in the order of [`Centering::push`].
+    pub fn push(&mut self, p_v: &Vec3, p_w: &Vec3) {
+        let (x, y) = (p_v - self.mu_v, p_w - self.mu_w);
+        self.h += x * y.transpose();
+        self.sigma_v += x.norm_squared();
+        self.spread += x.xy().norm() * y.xy().norm();
+    }
+
+    /// Fits the transform `method` asks for.
+    pub fn fit(&self, method: Alignment) -> Result<Sim3> {
+        if self.n < 3 {
+            bail!("alignment needs at least 3 matched points, got {}", self.n);
+        }
+        match method {
+            Alignment::PosYaw => self.posyaw(),
+            Alignment::Se3 => self.umeyama(false),
+            Alignment::Sim3 => self.umeyama(true),
+            Alignment::None => Ok(Sim3::identity()),
+        }
+    }
+
+    fn umeyama(&self, with_scale: bool) -> Result<Sim3> {
+        let n = self.n as f64;
+        let cov = self.h.transpose() / n;
+        let sigma_v = self.sigma_v / n;
+        let Some(svd) = cov.try_svd_unordered(true, true, f64::EPSILON, 1000) else {
+            bail!("Umeyama alignment: SVD of the cross-covariance did not converge");
+        };
+        let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+            bail!("Umeyama alignment: SVD returned no singular vectors");
+        };
+        let d = svd.singular_values;
+        if d.iter().filter(|&&x| x > f64::EPSILON).count() < 2 {
+            bail!("degenerate cross-covariance (positions collinear or static): Umeyama alignment is not possible");
+        }
+        // The reflection fix flips the direction of the smallest singular value; nalgebra's
+        // unordered SVD does not promise which slot that is.
+        let mut s_diag = Vec3::repeat(1.0);
+        if u.determinant() * v_t.determinant() < 0.0 {
+            let i_min = d.imin();
+            s_diag[i_min] = -1.0;
+        }
+        let r = u * Mat3::from_diagonal(&s_diag) * v_t;
+        let scale = if with_scale {
+            if sigma_v <= 0.0 {
+                bail!("estimate positions have zero spread: scale is not observable");
+            }
+            d.component_mul(&s_diag).sum() / sigma_v
+        } else {
+            1.0
+        };
+        let q_wv = Quat::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+        let t_wv = self.mu_w - q_wv * (self.mu_v * scale);
+        Ok(Sim3 { q_wv, t_wv, scale })
+    }
+
+    fn posyaw(&self) -> Result<Sim3> {
+        let h = &self.h;
+        let a = h[(0, 1)] - h[(1, 0)];
+        let b = h[(0, 0)] + h[(1, 1)];
+        // Without horizontal motion every yaw fits equally well.
+        if a.hypot(b) <= 1e-12 * self.spread || self.spread == 0.0 {
+            bail!("no horizontal motion in the matched positions: yaw alignment is not observable");
+        }
+        let theta = a.atan2(b);
+        let q_wv = Quat::from_axis_angle(&Vec3::z_axis(), theta);
+        Ok(Sim3 {
+            q_wv,
+            t_wv: self.mu_w - q_wv * self.mu_v,
+            scale: 1.0,
+        })
+    }
 }
 
 fn check_inputs(est_p_v: &[Vec3], gt_p_w: &[Vec3]) -> Result<()> {
@@ -101,90 +218,35 @@ fn check_inputs(est_p_v: &[Vec3], gt_p_w: &[Vec3]) -> Result<()> {
     Ok(())
 }
 
+/// The moments of matched positions held in memory (both passes).
+fn moments(est_p_v: &[Vec3], gt_p_w: &[Vec3]) -> Result<Moments> {
+    check_inputs(est_p_v, gt_p_w)?;
+    let mut c = Centering::default();
+    for (v, w) in est_p_v.iter().zip(gt_p_w) {
+        c.push(v, w);
+    }
+    let mut m = c.moments();
+    for (v, w) in est_p_v.iter().zip(gt_p_w) {
+        m.push(v, w);
+    }
+    Ok(m)
+}
+
 /// Umeyama's least-squares similarity (`with_scale`) or rigid transform taking `est_p_v[i]` to
 /// `gt_p_w[i]`.
 pub fn umeyama(est_p_v: &[Vec3], gt_p_w: &[Vec3], with_scale: bool) -> Result<Sim3> {
-    check_inputs(est_p_v, gt_p_w)?;
-    let n = est_p_v.len() as f64;
-    let (mu_v, mu_w) = (mean(est_p_v), mean(gt_p_w));
-    let mut cov = Mat3::zeros();
-    let mut sigma_v = 0.0;
-    for (x, y) in est_p_v.iter().zip(gt_p_w) {
-        let (x, y) = (x - mu_v, y - mu_w);
-        cov += y * x.transpose();
-        sigma_v += x.norm_squared();
-    }
-    cov /= n;
-    sigma_v /= n;
-    let Some(svd) = cov.try_svd_unordered(true, true, f64::EPSILON, 1000) else {
-        bail!("Umeyama alignment: SVD of the cross-covariance did not converge");
-    };
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
-        bail!("Umeyama alignment: SVD returned no singular vectors");
-    };
-    let d = svd.singular_values;
-    if d.iter().filter(|&&x| x > f64::EPSILON).count() < 2 {
-        bail!("degenerate cross-covariance (positions collinear or static): Umeyama alignment is not possible");
-    }
-    // The reflection fix flips the direction of the smallest singular value; nalgebra's
-    // unordered SVD does not promise which slot that is.
-    let mut s_diag = Vec3::repeat(1.0);
-    if u.determinant() * v_t.determinant() < 0.0 {
-        let i_min = d.imin();
-        s_diag[i_min] = -1.0;
-    }
-    let r = u * Mat3::from_diagonal(&s_diag) * v_t;
-    let scale = if with_scale {
-        if sigma_v <= 0.0 {
-            bail!("estimate positions have zero spread: scale is not observable");
-        }
-        d.component_mul(&s_diag).sum() / sigma_v
-    } else {
-        1.0
-    };
-    let q_wv = Quat::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    let t_wv = mu_w - q_wv * (mu_v * scale);
-    Ok(Sim3 { q_wv, t_wv, scale })
+    moments(est_p_v, gt_p_w)?.umeyama(with_scale)
 }
 
 /// The 4-DoF (position + yaw about the world z axis) transform taking `est_p_v[i]` to
 /// `gt_p_w[i]`, both worlds z up.
 pub fn posyaw(est_p_v: &[Vec3], gt_p_w: &[Vec3]) -> Result<Sim3> {
-    check_inputs(est_p_v, gt_p_w)?;
-    let (mu_v, mu_w) = (mean(est_p_v), mean(gt_p_w));
-    let mut h = Mat3::zeros();
-    let mut spread = 0.0;
-    for (x, y) in est_p_v.iter().zip(gt_p_w) {
-        let (x, y) = (x - mu_v, y - mu_w);
-        h += x * y.transpose();
-        spread += x.xy().norm() * y.xy().norm();
-    }
-    let a = h[(0, 1)] - h[(1, 0)];
-    let b = h[(0, 0)] + h[(1, 1)];
-    // Without horizontal motion every yaw fits equally well.
-    if a.hypot(b) <= 1e-12 * spread || spread == 0.0 {
-        bail!("no horizontal motion in the matched positions: yaw alignment is not observable");
-    }
-    let theta = a.atan2(b);
-    let q_wv = Quat::from_axis_angle(&Vec3::z_axis(), theta);
-    Ok(Sim3 {
-        q_wv,
-        t_wv: mu_w - q_wv * mu_v,
-        scale: 1.0,
-    })
+    moments(est_p_v, gt_p_w)?.posyaw()
 }
 
 /// Fits the transform `method` asks for.
 pub fn align(method: Alignment, est_p_v: &[Vec3], gt_p_w: &[Vec3]) -> Result<Sim3> {
-    match method {
-        Alignment::PosYaw => posyaw(est_p_v, gt_p_w),
-        Alignment::Se3 => umeyama(est_p_v, gt_p_w, false),
-        Alignment::Sim3 => umeyama(est_p_v, gt_p_w, true),
-        Alignment::None => {
-            check_inputs(est_p_v, gt_p_w)?;
-            Ok(Sim3::identity())
-        }
-    }
+    moments(est_p_v, gt_p_w)?.fit(method)
 }
 
 #[cfg(test)]

@@ -29,34 +29,101 @@ fn match_nearest(
     max_diff_ns: i64,
     offset_long_ns: i64,
 ) -> Vec<(usize, usize)> {
-    // i128 so that no stamp + offset + tolerance can overflow.
-    let long_at = |i: usize| long[i] as i128 + offset_long_ns as i128;
-    let max = max_diff_ns as i128;
-    let mut out = Vec::new();
-    let (Some(_), Some(_)) = (long.first(), long.last()) else {
-        return out;
+    let (Some(&first), Some(&last)) = (long.first(), long.last()) else {
+        return Vec::new();
     };
-    let (first, last) = (long_at(0), long_at(long.len() - 1));
-    for (i, &t) in short.iter().enumerate() {
-        let t = t as i128;
-        if t < first - max || t > last + max {
-            continue;
-        }
-        let ub = long.partition_point(|&s| s as i128 + offset_long_ns as i128 <= t);
-        let ub = ub.min(long.len() - 1);
-        let diff_ub = long_at(ub) - t;
-        let diff_lb = if ub > 0 {
-            t - long_at(ub - 1)
-        } else {
-            i128::MAX
-        };
-        if diff_ub <= max && diff_ub < diff_lb {
-            out.push((i, ub));
-        } else if diff_lb <= max && diff_lb <= diff_ub {
-            out.push((i, ub - 1));
+    NearestMatch::new(
+        short.iter().copied().zip(0..),
+        long.iter().copied().zip(0..),
+        (first, last),
+        max_diff_ns,
+        offset_long_ns,
+    )
+    .collect()
+}
+
+/// The rules above over two streams of `(stamp, item)` sorted ascending, one pass over each
+/// (the evaluation of a long run passes over its files rather than hold them): yields
+/// `(short item, long item)` in `short` order. `long_span` is the first and last stamp of `long`
+/// (rule 2 needs them before the stream reaches them).
+pub struct NearestMatch<S, L: Iterator> {
+    short: S,
+    long: L,
+    /// The long item before `prev`, the last with a stamp `<= t`, and the first after it.
+    before: Option<L::Item>,
+    prev: Option<L::Item>,
+    next: Option<L::Item>,
+    /// `long_span` with the offset, and the tolerance, as `i128` (no overflow).
+    span: (i128, i128),
+    max: i128,
+    offset: i128,
+}
+
+impl<A, B: Copy, S: Iterator<Item = (i64, A)>, L: Iterator<Item = (i64, B)>> NearestMatch<S, L> {
+    /// Matches `short` against `long + offset_long_ns` within `max_diff_ns`.
+    pub fn new(
+        short: S,
+        mut long: L,
+        long_span: (i64, i64),
+        max_diff_ns: i64,
+        offset_long_ns: i64,
+    ) -> Self {
+        let offset = i128::from(offset_long_ns);
+        let next = long.next();
+        NearestMatch {
+            short,
+            long,
+            before: None,
+            prev: None,
+            next,
+            span: (
+                i128::from(long_span.0) + offset,
+                i128::from(long_span.1) + offset,
+            ),
+            max: i128::from(max_diff_ns),
+            offset,
         }
     }
-    out
+
+    fn at(&self, item: &(i64, B)) -> i128 {
+        i128::from(item.0) + self.offset
+    }
+}
+
+impl<A, B: Copy, S: Iterator<Item = (i64, A)>, L: Iterator<Item = (i64, B)>> Iterator
+    for NearestMatch<S, L>
+{
+    type Item = (A, B);
+
+    fn next(&mut self) -> Option<(A, B)> {
+        loop {
+            let (t, a) = self.short.next()?;
+            let t = i128::from(t);
+            if t < self.span.0 - self.max || t > self.span.1 + self.max {
+                continue;
+            }
+            while let Some(n) = self.next.filter(|n| self.at(n) <= t) {
+                self.before = self.prev.replace(n);
+                self.next = self.long.next();
+            }
+            // `ub`: the first long stamp after `t`, clamped to the last; `lb` the one before.
+            let (ub, lb) = match self.next {
+                Some(n) => (n, self.prev),
+                None => match self.prev {
+                    Some(p) => (p, self.before),
+                    None => continue,
+                },
+            };
+            let diff_ub = self.at(&ub) - t;
+            let diff_lb = lb.map_or(i128::MAX, |l| t - self.at(&l));
+            if diff_ub <= self.max && diff_ub < diff_lb {
+                return Some((a, ub.1));
+            }
+            if let Some(l) = lb.filter(|_| diff_lb <= self.max && diff_lb <= diff_ub) {
+                return Some((a, l.1));
+            }
+        }
+    }
 }
 
 /// Associates ground-truth and estimate stamps (both sorted ascending, integer ns) by nearest
@@ -136,5 +203,57 @@ mod tests {
             .map(|p| (p.gt, p.est))
             .collect();
         assert_eq!(got, vec![(1, 0), (1, 1), (1, 2)]);
+    }
+
+    /// The streaming matcher against the rules as first written (a binary search per short
+    /// stamp), on random stamps with ties, offsets and stamps outside the long span.
+    #[test]
+    fn one_pass_matches_the_binary_search() {
+        fn reference(short: &[i64], long: &[i64], max: i64, off: i64) -> Vec<(usize, usize)> {
+            let at = |i: usize| long[i] as i128 + off as i128;
+            let max = max as i128;
+            let mut out = Vec::new();
+            if long.is_empty() {
+                return out;
+            }
+            let (first, last) = (at(0), at(long.len() - 1));
+            for (i, &t) in short.iter().enumerate() {
+                let t = t as i128;
+                if t < first - max || t > last + max {
+                    continue;
+                }
+                let ub = long.partition_point(|&s| s as i128 + off as i128 <= t);
+                let ub = ub.min(long.len() - 1);
+                let diff_ub = at(ub) - t;
+                let diff_lb = if ub > 0 { t - at(ub - 1) } else { i128::MAX };
+                if diff_ub <= max && diff_ub < diff_lb {
+                    out.push((i, ub));
+                } else if diff_lb <= max && diff_lb <= diff_ub {
+                    out.push((i, ub - 1));
+                }
+            }
+            out
+        }
+        let mut rng = crate::eval::testutil::Rng::new(7);
+        let mut stamps = |n: usize, step: f64| -> Vec<i64> {
+            let mut t = (rng.next() * 50.0) as i64;
+            (0..n)
+                .map(|_| {
+                    t += 1 + ((rng.next() + 1.0) * step) as i64;
+                    t
+                })
+                .collect()
+        };
+        for case in 0..200 {
+            let short = stamps(1 + case % 37, 10.0);
+            let long = stamps(case % 23, 6.0 + (case % 5) as f64);
+            for (max, off) in [(3, 0), (5, -7), (0, 2), (40, 11), (1, -200)] {
+                assert_eq!(
+                    match_nearest(&short, &long, max, off),
+                    reference(&short, &long, max, off),
+                    "case {case}, max {max}, offset {off}"
+                );
+            }
+        }
     }
 }

@@ -18,12 +18,13 @@
 //! The edge shares are the fraction of checked depths whose feature is one of the simulator's
 //! `edge_features` (landmarks on an occlusion edge, where the LiDAR may hit the background).
 
-use crate::runner::{interpolate_state, KeyframeDepthEvents};
-use povins_core::estimator::DepthEventKind;
+use crate::runner::{interpolate_state, GtCursor, KeyframeDepthEvents};
+use povins_core::estimator::{DepthEvent, DepthEventKind};
 use povins_core::inertial::NavState;
 use povins_core::math::Vec3;
 use povins_platform::dataset::{Dataset, Extrinsic, SimTruth};
-use std::collections::{BTreeMap, BTreeSet};
+use std::borrow::Cow;
+use std::collections::BTreeMap;
 
 /// Counts of the association check; shares via the methods.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
@@ -92,15 +93,28 @@ pub fn true_depth_m(
     t_cam_ns: i64,
     p_w: &Vec3,
 ) -> Option<f64> {
-    let t_imu_ns = t_cam_ns + (td_s * 1e9).round() as i64;
+    let t_imu_ns = imu_time_ns(t_cam_ns, td_s);
     let (first, last) = (gt.first()?, gt.last()?);
     if t_imu_ns < first.t_ns || t_imu_ns > last.t_ns {
         return None;
     }
-    let x = interpolate_state(gt, t_imu_ns)?;
+    Some(depth_in_camera(
+        &interpolate_state(gt, t_imu_ns)?,
+        t_bc,
+        p_w,
+    ))
+}
+
+/// The IMU time of camera time `t_cam_ns` (`t_imu = t_cam + td`).
+fn imu_time_ns(t_cam_ns: i64, td_s: f64) -> i64 {
+    t_cam_ns + (td_s * 1e9).round() as i64
+}
+
+/// z of the world point `p_w` in the camera of the body at `x`.
+fn depth_in_camera(x: &NavState, t_bc: &Extrinsic, p_w: &Vec3) -> f64 {
     let p_b = x.q_wb.inverse_transform_vector(&(p_w - x.p_wb));
     let p_c = t_bc.q_ab.inverse_transform_vector(&(p_b - t_bc.p_ab));
-    Some(p_c.z)
+    p_c.z
 }
 
 /// Checks the association of a run; `None` without simulator truth or ground truth.
@@ -132,35 +146,99 @@ pub fn assess_with(
     steps: &[KeyframeDepthEvents],
     sigma_dr_m: f64,
 ) -> AssocQuality {
-    let landmarks: BTreeMap<u64, Vec3> = truth.landmarks_w.iter().copied().collect();
-    let edges: BTreeSet<u64> = truth.edge_features.iter().copied().collect();
-    // One entry per association: (within 3 sigma, on an edge, rejected later).
-    let mut samples: Vec<(bool, bool, bool)> = Vec::new();
-    // Newest checked association per landmark id, as an index into `samples`.
-    let mut newest: BTreeMap<u64, usize> = BTreeMap::new();
-    let mut q = AssocQuality::default();
+    let mut gt = GtCursor::new(gt.iter().copied().map(Ok));
+    let mut a = Assessor::new(truth, t_bc, td_s, sigma_dr_m);
     for step in steps {
-        for e in &step.events {
+        a.step(step.t_cam_ns, &step.events, |t| gt.at(t));
+    }
+    a.finish()
+}
+
+/// [`assess`] one keyframe at a time, in the order of the run (for a run that does not hold
+/// its events): [`Assessor::step`] per keyframe, then [`Assessor::finish`]. It reads the truth
+/// in place (a copy only when its ids are not sorted).
+pub struct Assessor<'t> {
+    /// `truth.landmarks_w` and `truth.edge_features` sorted by id.
+    landmarks: Cow<'t, [(u64, Vec3)]>,
+    edges: Cow<'t, [u64]>,
+    t_bc: Extrinsic,
+    td_s: f64,
+    sigma_dr_m: f64,
+    /// One entry per checked association: (within 3 sigma, on an edge, rejected later).
+    samples: Vec<(bool, bool, bool)>,
+    /// Newest checked association per landmark id, as an index into `samples`.
+    newest: BTreeMap<u64, usize>,
+    associated: usize,
+}
+
+impl<'t> Assessor<'t> {
+    /// An assessment against `truth`, with the calibration's camera extrinsic and delay.
+    pub fn new(truth: &'t SimTruth, t_bc: &Extrinsic, td_s: f64, sigma_dr_m: f64) -> Self {
+        // A repeated id keeps its last position, as a map built in order would.
+        let mut landmarks = Cow::Borrowed(truth.landmarks_w.as_slice());
+        if !landmarks.windows(2).all(|w| w[0].0 < w[1].0) {
+            let v = landmarks.to_mut();
+            v.reverse();
+            v.sort_by_key(|l| l.0);
+            v.dedup_by_key(|l| l.0);
+        }
+        let mut edges = Cow::Borrowed(truth.edge_features.as_slice());
+        if !edges.windows(2).all(|w| w[0] < w[1]) {
+            let v = edges.to_mut();
+            v.sort_unstable();
+            v.dedup();
+        }
+        Assessor {
+            landmarks,
+            edges,
+            t_bc: *t_bc,
+            td_s,
+            sigma_dr_m,
+            samples: Vec::new(),
+            newest: BTreeMap::new(),
+            associated: 0,
+        }
+    }
+
+    /// The events of the keyframe at camera time `t_cam_ns`; `gt_at` gives the ground truth at
+    /// an IMU time (`None` outside its span), asked with stamps that do not decrease.
+    pub fn step(
+        &mut self,
+        t_cam_ns: i64,
+        events: &[DepthEvent],
+        mut gt_at: impl FnMut(i64) -> Option<NavState>,
+    ) {
+        // The ground truth at the keyframe, asked once (and only when a depth needs it).
+        let mut x: Option<Option<NavState>> = None;
+        for e in events {
             match e.kind {
                 DepthEventKind::Associated => {
-                    q.associated += 1;
-                    let d_true = landmarks
-                        .get(&e.id)
-                        .and_then(|p_w| true_depth_m(gt, t_bc, td_s, step.t_cam_ns, p_w));
+                    self.associated += 1;
+                    let landmark = self.landmarks.binary_search_by_key(&e.id, |l| l.0).ok();
+                    let d_true = landmark.and_then(|k| {
+                        let p_w = &self.landmarks[k].1;
+                        let x = *x.get_or_insert_with(|| gt_at(imu_time_ns(t_cam_ns, self.td_s)));
+                        Some(depth_in_camera(&x?, &self.t_bc, p_w))
+                    });
                     match d_true {
                         Some(d) => {
-                            let within = (e.depth_m - d).abs() <= 3.0 * sigma_dr_m;
-                            newest.insert(e.id, samples.len());
-                            samples.push((within, edges.contains(&e.id), false));
+                            let within = (e.depth_m - d).abs() <= 3.0 * self.sigma_dr_m;
+                            self.newest.insert(e.id, self.samples.len());
+                            let edge = self.edges.binary_search(&e.id).is_ok();
+                            self.samples.push((within, edge, false));
                         }
                         // A later rejection must not hit an older, checked association.
                         None => {
-                            newest.remove(&e.id);
+                            self.newest.remove(&e.id);
                         }
                     }
                 }
                 DepthEventKind::Rejected => {
-                    if let Some(s) = newest.remove(&e.id).and_then(|k| samples.get_mut(k)) {
+                    if let Some(s) = self
+                        .newest
+                        .remove(&e.id)
+                        .and_then(|k| self.samples.get_mut(k))
+                    {
                         s.2 = true;
                     }
                 }
@@ -168,17 +246,25 @@ pub fn assess_with(
             }
         }
     }
-    for &(within, edge, rejected) in &samples {
-        q.checked += 1;
-        q.within_before += usize::from(within);
-        q.edge_before += usize::from(edge);
-        if !rejected {
-            q.kept += 1;
-            q.within_after += usize::from(within);
-            q.edge_after += usize::from(edge);
+
+    /// The counts.
+    pub fn finish(self) -> AssocQuality {
+        let mut q = AssocQuality {
+            associated: self.associated,
+            ..AssocQuality::default()
+        };
+        for &(within, edge, rejected) in &self.samples {
+            q.checked += 1;
+            q.within_before += usize::from(within);
+            q.edge_before += usize::from(edge);
+            if !rejected {
+                q.kept += 1;
+                q.within_after += usize::from(within);
+                q.edge_after += usize::from(edge);
+            }
         }
+        q
     }
-    q
 }
 
 #[cfg(test)]

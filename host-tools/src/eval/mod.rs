@@ -22,6 +22,7 @@ pub mod lidar_assoc;
 pub mod report;
 pub mod rte;
 pub mod stats;
+pub mod streamed;
 pub mod track_anatomy;
 pub mod tracks;
 
@@ -56,77 +57,128 @@ impl Default for EvalOptions {
     }
 }
 
-fn check_sorted(name: &str, poses: &[StampedPose]) -> Result<()> {
-    if poses.is_empty() {
-        bail!("the {name} trajectory has no poses");
+/// Count and first and last stamp of a trajectory whose stamps increase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Extent {
+    pub(crate) n: usize,
+    pub(crate) first: i64,
+    pub(crate) last: i64,
+}
+
+impl Extent {
+    /// Of the stamps `t_ns` of the trajectory `name`; an error when they do not increase or
+    /// there are none.
+    pub(crate) fn of(name: &str, t_ns: impl IntoIterator<Item = Result<i64>>) -> Result<Extent> {
+        let mut e: Option<Extent> = None;
+        for t in t_ns {
+            let t = t?;
+            e = Some(match e {
+                None => Extent {
+                    n: 1,
+                    first: t,
+                    last: t,
+                },
+                Some(e) if t > e.last => Extent {
+                    n: e.n + 1,
+                    last: t,
+                    ..e
+                },
+                Some(e) => bail!(
+                    "the {name} trajectory's stamps do not increase at pose {} ({t} ns after {} \
+                     ns)",
+                    e.n,
+                    e.last
+                ),
+            });
+        }
+        e.ok_or_else(|| anyhow::anyhow!("the {name} trajectory has no poses"))
     }
-    if let Some(k) = poses.windows(2).position(|w| w[1].t_ns <= w[0].t_ns) {
-        bail!(
-            "the {name} trajectory's stamps do not increase at pose {} ({} ns after {} ns)",
-            k + 1,
-            poses[k + 1].t_ns,
-            poses[k].t_ns
-        );
-    }
-    Ok(())
 }
 
 fn secs(t_ns: i64) -> f64 {
     t_ns as f64 * 1e-9
 }
 
+impl EvalOptions {
+    /// An error when an option is out of its range.
+    fn check(&self) -> Result<()> {
+        if !(self.t_max_diff_s.is_finite() && self.t_max_diff_s >= 0.0) {
+            bail!(
+                "t_max_diff must be a finite non-negative number of seconds, got {}",
+                self.t_max_diff_s
+            );
+        }
+        if !self.t_offset_s.is_finite() {
+            bail!("t_offset must be finite, got {}", self.t_offset_s);
+        }
+        if let Some(bad) = self
+            .segments_m
+            .iter()
+            .find(|&&l| !(l.is_finite() && l > 0.0))
+        {
+            bail!("RTE segment lengths must be positive metres, got {bad}");
+        }
+        Ok(())
+    }
+
+    /// The tolerance and the estimate's offset, ns.
+    fn ns(&self) -> (i64, i64) {
+        (
+            seconds_to_ns(self.t_max_diff_s),
+            seconds_to_ns(self.t_offset_s),
+        )
+    }
+
+    /// An error when the trajectories cannot overlap in time.
+    fn check_overlap(&self, gt: Extent, est: Extent) -> Result<()> {
+        let (max_diff_ns, offset_ns) = self.ns();
+        let (est0, est1) = (
+            est.first.saturating_add(offset_ns),
+            est.last.saturating_add(offset_ns),
+        );
+        if est1.saturating_add(max_diff_ns) < gt.first || est0.saturating_sub(max_diff_ns) > gt.last
+        {
+            bail!(
+                "no overlap in time: ground truth covers [{:.3}, {:.3}] s, the estimate (offset {} \
+                 s) covers [{:.3}, {:.3}] s; check the clocks or pass --t-offset",
+                secs(gt.first),
+                secs(gt.last),
+                self.t_offset_s,
+                secs(est0),
+                secs(est1)
+            );
+        }
+        Ok(())
+    }
+
+    /// An error when fewer than 3 poses matched.
+    fn check_matched(&self, matched: usize, gt: Extent, est: Extent) -> Result<()> {
+        if matched < 3 {
+            bail!(
+                "only {} pose(s) of {} estimated / {} ground truth matched within {} s (need at \
+                 least 3); check the time offset or raise --t-max-diff",
+                matched,
+                est.n,
+                gt.n,
+                self.t_max_diff_s
+            );
+        }
+        Ok(())
+    }
+}
+
 /// Evaluates `est` against `gt`. Errors when the options are invalid, the trajectories do not
 /// overlap in time, fewer than 3 poses match, or the alignment is degenerate.
 pub fn evaluate(gt: &[StampedPose], est: &[StampedPose], opts: &EvalOptions) -> Result<EvalReport> {
-    if !(opts.t_max_diff_s.is_finite() && opts.t_max_diff_s >= 0.0) {
-        bail!(
-            "t_max_diff must be a finite non-negative number of seconds, got {}",
-            opts.t_max_diff_s
-        );
-    }
-    if !opts.t_offset_s.is_finite() {
-        bail!("t_offset must be finite, got {}", opts.t_offset_s);
-    }
-    if let Some(bad) = opts
-        .segments_m
-        .iter()
-        .find(|&&l| !(l.is_finite() && l > 0.0))
-    {
-        bail!("RTE segment lengths must be positive metres, got {bad}");
-    }
-    check_sorted("ground-truth", gt)?;
-    check_sorted("estimated", est)?;
-    let max_diff_ns = seconds_to_ns(opts.t_max_diff_s);
-    let offset_ns = seconds_to_ns(opts.t_offset_s);
-    let (gt0, gt1) = (gt[0].t_ns, gt[gt.len() - 1].t_ns);
-    let (est0, est1) = (
-        est[0].t_ns.saturating_add(offset_ns),
-        est[est.len() - 1].t_ns.saturating_add(offset_ns),
-    );
-    if est1.saturating_add(max_diff_ns) < gt0 || est0.saturating_sub(max_diff_ns) > gt1 {
-        bail!(
-            "no overlap in time: ground truth covers [{:.3}, {:.3}] s, the estimate (offset {} s) \
-             covers [{:.3}, {:.3}] s; check the clocks or pass --t-offset",
-            secs(gt0),
-            secs(gt1),
-            opts.t_offset_s,
-            secs(est0),
-            secs(est1)
-        );
-    }
+    opts.check()?;
+    let gt_ext = Extent::of("ground-truth", gt.iter().map(|p| Ok(p.t_ns)))?;
+    let est_ext = Extent::of("estimated", est.iter().map(|p| Ok(p.t_ns)))?;
+    opts.check_overlap(gt_ext, est_ext)?;
+    let (max_diff_ns, offset_ns) = opts.ns();
     let gt_t: Vec<i64> = gt.iter().map(|p| p.t_ns).collect();
     let est_t: Vec<i64> = est.iter().map(|p| p.t_ns).collect();
     let pairs = associate::associate(&gt_t, &est_t, max_diff_ns, offset_ns);
-    if pairs.len() < 3 {
-        bail!(
-            "only {} pose(s) of {} estimated / {} ground truth matched within {} s (need at \
-             least 3); check the time offset or raise --t-max-diff",
-            pairs.len(),
-            est.len(),
-            gt.len(),
-            opts.t_max_diff_s
-        );
-    }
+    opts.check_matched(pairs.len(), gt_ext, est_ext)?;
     let gt_m: Vec<StampedPose> = pairs.iter().map(|p| gt[p.gt]).collect();
     let est_m: Vec<StampedPose> = pairs.iter().map(|p| est[p.est]).collect();
     let est_p: Vec<Vec3> = est_m.iter().map(|p| p.p_wb).collect();

@@ -14,7 +14,7 @@
 //!   coverage.
 
 use super::{Fault, RunResult};
-use crate::report::coverage;
+use crate::report::{coverage, spans_of};
 use crate::runner::{InitMode, RunOutput};
 use crate::sim::{self, Scenario, SimConfig};
 use povins_core::camera::CameraExtrinsic;
@@ -179,6 +179,15 @@ pub struct VariantFigures {
     pub extrinsic_err_end_deg: Option<f64>,
 }
 
+/// [`coverage`] of an estimate in memory.
+fn covers(gt: &[StampedPose], est: &[StampedPose], from_ns: i64) -> Option<f64> {
+    let stamps = gt.iter().map(|p| Ok::<_, std::convert::Infallible>(p.t_ns));
+    match coverage(stamps, &spans_of(est), from_ns) {
+        Ok(c) => c,
+        Err(never) => match never {},
+    }
+}
+
 impl Variant {
     /// The variant's own figures of a run (`None` for the variants without any): `out`'s start,
     /// its coverage of `gt` after the first camera frame, and its last extrinsic against
@@ -198,7 +207,7 @@ impl Variant {
                     .first_camera_ns
                     .zip(out.first_estimate_ns)
                     .map(|(c, e)| (e - c) as f64 * 1e-9),
-                camera_coverage: out.first_camera_ns.and_then(|t0| coverage(gt, est, t0)),
+                camera_coverage: out.first_camera_ns.and_then(|t0| covers(gt, est, t0)),
                 ..Default::default()
             }),
             Variant::Extrinsic => {
@@ -217,7 +226,7 @@ impl Variant {
             }
             Variant::Fault(_) => Some(VariantFigures {
                 started,
-                camera_coverage: out.first_camera_ns.and_then(|t0| coverage(gt, est, t0)),
+                camera_coverage: out.first_camera_ns.and_then(|t0| covers(gt, est, t0)),
                 ..Default::default()
             }),
             Variant::Standard | Variant::Delay(_) | Variant::DelayStep => None,

@@ -1,21 +1,25 @@
 //! [`RunDigest`]: what `summary.json` needs of a run, kept in compact form while the run goes
 //! (the [`RunSink`] `povins run` pairs with its files), so the run's memory does not grow with
-//! the IMU-rate states, the reports or the per-image logs.
+//! the IMU-rate states, the reports or the per-image logs: what grows with the run is a few
+//! figures per keyframe and per image (about 40 and 8 bytes); the poses and LiDAR events the
+//! evaluation reads back are logged to temporary files ([`super::spill`]) and the prediction
+//! errors counted in a histogram.
 
+use super::spill::{EventLog, PoseLog};
 use super::window_use::WindowUseDigest;
 use crate::frontend_stats::FrameDigest;
-use crate::runner::{FrameLog, KeyframeDepthEvents, RunSink};
+use crate::runner::{FrameLog, RunSink};
 use povins_core::estimator::{DepthEvent, KeyframeReport};
 use povins_core::inertial::NavState;
 use povins_platform::recording::Recording;
 use povins_platform::trajectory::StampedPose;
 
 /// What the summary needs of a run: per keyframe its timings (ms, for the medians and
-/// percentiles) and landmarks used, per image two figures ([`FrameDigest`]), every prediction
-/// error (`f32`, for the exact median and 90th percentile), running sums, and, only when the
-/// recording has ground truth, the IMU-rate and keyframe poses ([`StampedPose`], for the ATE:
-/// the alignment needs them all at once) and, with simulator truth, the LiDAR-depth events.
-#[derive(Debug, Clone, Default)]
+/// percentiles) and landmarks used, per image two figures ([`FrameDigest`]), the prediction
+/// errors in a histogram (3 significant digits), running sums, and, only when the recording has
+/// ground truth, the IMU-rate and keyframe poses ([`StampedPose`], logged for the ATE's passes)
+/// and, with simulator truth, the LiDAR-depth events (logged).
+#[derive(Debug, Default)]
 pub struct RunDigest {
     /// Back-end time per keyframe, ms.
     pub(super) backend_ms: Vec<f64>,
@@ -35,14 +39,14 @@ pub struct RunDigest {
     pub(super) depth_sums: [f64; 3],
     /// The image front end's figures.
     pub(super) frames: FrameDigest,
-    /// Every prediction error, px.
-    pub(super) prediction_err_px: Vec<f32>,
+    /// The prediction errors, px.
+    pub(super) prediction_px: PxHistogram,
     /// The LiDAR-depth events per keyframe (kept with simulator truth only).
-    pub(super) lidar_events: Option<Vec<KeyframeDepthEvents>>,
+    pub(super) lidar_events: EventLog,
     /// The IMU-rate poses (kept with ground truth only).
-    pub(super) trajectory: Option<Vec<StampedPose>>,
+    pub(super) trajectory: Option<PoseLog>,
     /// The keyframe poses (kept with ground truth only).
-    pub(super) keyframes: Option<Vec<StampedPose>>,
+    pub(super) keyframes: Option<PoseLog>,
     /// The spans of time the IMU-rate poses cover: consecutive poses at most
     /// [`super::COVERAGE_TOLERANCE_NS`] apart, first and last stamp (one span per outage).
     pub(super) covered: Vec<(i64, i64)>,
@@ -52,9 +56,9 @@ impl RunDigest {
     /// A digest that keeps the poses and LiDAR events too (for a run collected in memory).
     pub fn keeping_all() -> Self {
         RunDigest {
-            lidar_events: Some(Vec::new()),
-            trajectory: Some(Vec::new()),
-            keyframes: Some(Vec::new()),
+            lidar_events: EventLog::new(),
+            trajectory: Some(PoseLog::default()),
+            keyframes: Some(PoseLog::default()),
             ..RunDigest::default()
         }
     }
@@ -64,9 +68,13 @@ impl RunDigest {
     pub fn for_recording(rec: &dyn Recording) -> Self {
         let gt = rec.contents().ground_truth;
         RunDigest {
-            lidar_events: (gt && rec.sim_truth().is_some()).then(Vec::new),
-            trajectory: gt.then(Vec::new),
-            keyframes: gt.then(Vec::new),
+            lidar_events: if gt && rec.sim_truth().is_some() {
+                EventLog::new()
+            } else {
+                EventLog::default()
+            },
+            trajectory: gt.then(PoseLog::default),
+            keyframes: gt.then(PoseLog::default),
             ..RunDigest::default()
         }
     }
@@ -79,14 +87,9 @@ impl RunDigest {
 
 impl RunSink for RunDigest {
     fn nav(&mut self, s: &NavState) {
-        match self.covered.last_mut() {
-            Some((_, end)) if s.t_ns >= *end && s.t_ns - *end <= super::COVERAGE_TOLERANCE_NS => {
-                *end = s.t_ns;
-            }
-            _ => self.covered.push((s.t_ns, s.t_ns)),
-        }
+        super::extend_spans(&mut self.covered, s.t_ns);
         if let Some(v) = &mut self.trajectory {
-            v.push(StampedPose::from(s));
+            v.push(&StampedPose::from(s));
         }
     }
 
@@ -103,17 +106,12 @@ impl RunSink for RunDigest {
         for (sum, n) in self.depth_sums.iter_mut().zip(depths) {
             *sum += f64::from(n);
         }
-        if let Some(v) = &mut self.lidar_events {
-            v.push(KeyframeDepthEvents {
-                t_cam_ns: r.t_cam_ns,
-                events: lidar_events.to_vec(),
-            });
-        }
+        self.lidar_events.push(r.t_cam_ns, lidar_events);
     }
 
     fn keyframe(&mut self, s: &NavState) {
         if let Some(v) = &mut self.keyframes {
-            v.push(StampedPose::from(s));
+            v.push(&StampedPose::from(s));
         }
     }
 
@@ -122,6 +120,47 @@ impl RunSink for RunDigest {
     }
 
     fn prediction_errors(&mut self, e_px: &[f32]) {
-        self.prediction_err_px.extend_from_slice(e_px);
+        for &e in e_px {
+            self.prediction_px.record(e);
+        }
+    }
+}
+
+/// Pixel distances counted in 0.001 px steps to 3 significant digits (`hdrhistogram`): the
+/// median and 90th percentile of millions of prediction errors in a few kilobytes.
+#[derive(Debug)]
+pub(super) struct PxHistogram(hdrhistogram::Histogram<u64>);
+
+/// Steps of [`PxHistogram`] per pixel.
+const PX_STEPS: f64 = 1000.0;
+
+impl Default for PxHistogram {
+    fn default() -> Self {
+        // 1 to 10^9 steps (1 mpx to 1000 km): any distance in an image.
+        let h = hdrhistogram::Histogram::new_with_bounds(1, 1_000_000_000, 3);
+        PxHistogram(h.expect("constant, valid bounds"))
+    }
+}
+
+impl PxHistogram {
+    /// Counts a distance (non-finite ones as the largest).
+    pub(super) fn record(&mut self, e_px: f32) {
+        let steps = (f64::from(e_px) * PX_STEPS).round();
+        let v = if steps.is_finite() {
+            steps as u64
+        } else {
+            u64::MAX
+        };
+        self.0.saturating_record(v.min(self.0.high()));
+    }
+
+    /// Distances counted.
+    pub(super) fn len(&self) -> usize {
+        usize::try_from(self.0.len()).unwrap_or(usize::MAX)
+    }
+
+    /// The distance at percentile `p` (0-100), px; `None` without distances.
+    pub(super) fn percentile(&self, p: f64) -> Option<f64> {
+        (!self.0.is_empty()).then(|| self.0.value_at_quantile(p / 100.0) as f64 / PX_STEPS)
     }
 }

@@ -6,6 +6,7 @@
 mod digest;
 pub mod faults;
 pub mod files;
+pub mod spill;
 pub mod text;
 mod window_use;
 
@@ -19,12 +20,14 @@ pub use window_use::WindowUse;
 
 use crate::config::ldm_name;
 use crate::eval::lidar_assoc::{self, AssocQuality};
-use crate::eval::{evaluate, Alignment, EvalOptions};
+use crate::eval::streamed::{ate_rmse, AteRmse, PoseStream};
+use crate::eval::{Alignment, EvalOptions};
 use crate::frontend_stats::FrontendSummary;
-use crate::runner::{percentile, Frontend, InitMode, RunOutput, RunTotals};
+use crate::runner::{percentile, Frontend, GtCursor, InitMode, RunOutput, RunTotals};
 use anyhow::Result;
 use povins_platform::recording::Recording;
 use povins_platform::trajectory::StampedPose;
+use spill::PoseLog;
 
 /// Accuracy and timing of one run, as written to `summary.json`.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -132,29 +135,55 @@ pub struct Summary {
 /// How far an estimate's stamp may be from a ground-truth stamp to cover it, ns.
 pub const COVERAGE_TOLERANCE_NS: i64 = 10_000_000;
 
-/// Share of `gt`'s stamps at or after `from_ns` with a stamp of `est` (sorted) within
-/// [`COVERAGE_TOLERANCE_NS`]; `None` without such ground truth.
-pub fn coverage(gt: &[StampedPose], est: &[StampedPose], from_ns: i64) -> Option<f64> {
-    let after: Vec<i64> = gt
-        .iter()
-        .map(|p| p.t_ns)
-        .filter(|t| *t >= from_ns)
-        .collect();
-    if after.is_empty() {
-        return None;
+/// Adds an estimate's stamp to the spans of time its poses cover: consecutive poses at most
+/// [`COVERAGE_TOLERANCE_NS`] apart extend a span (first and last stamp); a longer gap, or a stamp
+/// that goes back, starts a new one.
+pub fn extend_spans(spans: &mut Vec<(i64, i64)>, t_ns: i64) {
+    match spans.last_mut() {
+        Some((_, end)) if t_ns >= *end && t_ns - *end <= COVERAGE_TOLERANCE_NS => *end = t_ns,
+        _ => spans.push((t_ns, t_ns)),
     }
-    let covered = after
-        .iter()
-        .filter(|&&t| {
-            let i = est.partition_point(|p| p.t_ns < t);
-            let near = |j: usize| {
-                est.get(j)
-                    .is_some_and(|p| (p.t_ns - t).abs() <= COVERAGE_TOLERANCE_NS)
-            };
-            near(i) || (i > 0 && near(i - 1))
-        })
-        .count();
-    Some(covered as f64 / after.len() as f64)
+}
+
+/// The spans of [`extend_spans`] of a whole estimate.
+pub fn spans_of(est: &[StampedPose]) -> Vec<(i64, i64)> {
+    let mut spans = Vec::new();
+    for p in est {
+        extend_spans(&mut spans, p.t_ns);
+    }
+    spans
+}
+
+/// Share of the ground truth's stamps (increasing) at or after `from_ns` with an estimate
+/// within [`COVERAGE_TOLERANCE_NS`], the estimate given by the spans its poses cover
+/// ([`extend_spans`], increasing): a stamp is covered when it lies within the tolerance of a
+/// span, which is when a pose lies within the tolerance of it. `None` without such ground truth;
+/// the stream's error, if it fails.
+pub fn coverage<E>(
+    gt_t_ns: impl IntoIterator<Item = Result<i64, E>>,
+    spans: &[(i64, i64)],
+    from_ns: i64,
+) -> Result<Option<f64>, E> {
+    let (mut n, mut covered, mut k) = (0usize, 0usize, 0usize);
+    for t in gt_t_ns {
+        let t = t?;
+        if t < from_ns {
+            continue;
+        }
+        n += 1;
+        while spans
+            .get(k)
+            .is_some_and(|s| s.1 + COVERAGE_TOLERANCE_NS < t)
+        {
+            k += 1;
+        }
+        covered += usize::from(
+            spans
+                .get(k)
+                .is_some_and(|s| s.0 - COVERAGE_TOLERANCE_NS <= t),
+        );
+    }
+    Ok((n > 0).then(|| covered as f64 / n as f64))
 }
 
 /// Share of `from_ns..to_ns` inside the `spans` (sorted, disjoint); `None` for an empty input.
@@ -299,13 +328,13 @@ pub fn summarize_digest(
     mut d: RunDigest,
     t: &RunTotals,
 ) -> Result<Summary> {
-    let ground_truth = rec.ground_truth()?;
-    // Unstable sorts: no scratch buffer (the prediction errors are 4 bytes per tracked feature
-    // of the run), and under `total_cmp` equal elements are the same bits, so the order is the
-    // stable sort's.
+    // Unstable sorts: no scratch buffer, and under `total_cmp` equal elements are the same bits,
+    // so the order is the stable sort's.
     let sorted = |v: &mut Vec<f64>| v.sort_unstable_by(f64::total_cmp);
-    let (mut ms, mut association_ms) = (d.backend_ms, d.association_ms);
-    let (mut rejection_ms, mut depth_opt_ms) = (d.rejection_ms, d.depth_opt_ms);
+    let take = std::mem::take::<Vec<f64>>;
+    let (mut ms, mut association_ms) = (take(&mut d.backend_ms), take(&mut d.association_ms));
+    let (mut rejection_ms, mut depth_opt_ms) =
+        (take(&mut d.rejection_ms), take(&mut d.depth_opt_ms));
     for v in [
         &mut ms,
         &mut association_ms,
@@ -315,9 +344,7 @@ pub fn summarize_digest(
         sorted(v);
     }
     d.landmarks_used.sort_unstable();
-    let pred = &mut d.prediction_err_px;
-    pred.sort_unstable_by(f32::total_cmp);
-    let pred_pct = |p: f64| (!pred.is_empty()).then(|| percentile(pred, p));
+    let pred = &d.prediction_px;
     // `sum` of no f64 is -0.0; start from +0.0 so an empty run prints 0.000.
     let total_ms: f64 = 0.0 + ms.iter().sum::<f64>();
     let frames = t.camera_frames.max(1) as f64;
@@ -351,8 +378,8 @@ pub fn summarize_digest(
         td_end_ms: d.last.map_or(0.0, |(td_s, _)| td_s * 1e3),
         imu_noise_scale_end: d.last.map_or(1.0, |(_, scale)| scale),
         predictions: pred.len(),
-        prediction_px_median: pred_pct(50.0),
-        prediction_px_p90: pred_pct(90.0),
+        prediction_px_median: pred.percentile(50.0),
+        prediction_px_p90: pred.percentile(90.0),
         ate_pos_rmse_m: None,
         ate_rot_rmse_deg: None,
         keyframe_ate_pos_rmse_m: None,
@@ -370,21 +397,7 @@ pub fn summarize_digest(
         rejection_ms_max: rejection_ms.last().copied().unwrap_or(0.0),
         depth_opt_ms_median: percentile(&depth_opt_ms, 50.0),
         depth_opt_ms_max: depth_opt_ms.last().copied().unwrap_or(0.0),
-        assoc: match (rec.sim_truth(), &d.lidar_events) {
-            (Some(truth), Some(events)) if !ground_truth.is_empty() => {
-                let c = rec.calibration();
-                let q = lidar_assoc::assess_with(
-                    &truth,
-                    &ground_truth,
-                    &c.t_bc,
-                    c.td_s,
-                    events,
-                    t.lidar.sigma_dr_m,
-                );
-                Some(AssocSummary::from(&q))
-            }
-            _ => None,
-        },
+        assoc: None,
         frontend: t.frontend,
         image_frontend: d.frames.summary(),
         image_failures: t.image_failures,
@@ -400,30 +413,73 @@ pub fn summarize_digest(
         counters: counters_json(t)?,
     };
     s.started_by = started_by(init, &t.counters);
-    let est = d.trajectory.as_deref().unwrap_or_default();
-    let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
-    if d.trajectory.is_some() {
-        s.coverage = t.first_camera_ns.and_then(|t0| coverage(&gt, est, t0));
-    }
-    if !gt.is_empty() && !est.is_empty() {
-        let opts = EvalOptions {
-            alignment: Alignment::PosYaw,
-            ..Default::default()
-        };
-        match evaluate(&gt, est, &opts) {
-            Ok(r) => {
-                s.ate_pos_rmse_m = Some(r.ate_pos_m.rmse);
-                s.ate_rot_rmse_deg = Some(r.ate_rot_deg.rmse);
-                s.matched_poses = Some(r.matched_poses);
-            }
-            Err(e) => eprintln!("warning: evaluation failed: {e:#}"),
-        }
-        let kfs = d.keyframes.as_deref().unwrap_or_default();
-        if let Ok(r) = evaluate(&gt, kfs, &opts) {
-            s.keyframe_ate_pos_rmse_m = Some(r.ate_pos_m.rmse);
-        }
-    }
+    evaluate_against_truth(rec, &mut d, t, &mut s)?;
     Ok(s)
+}
+
+/// The figures of `s` that need the recording's ground truth (coverage, ATE) and simulator
+/// truth (the LiDAR association's quality), in passes over streams: the ground truth is read
+/// from the recording once for the poses (twice with simulator truth), and the run's poses and
+/// events from the digest's logs. Nothing without ground truth.
+fn evaluate_against_truth(
+    rec: &dyn Recording,
+    d: &mut RunDigest,
+    t: &RunTotals,
+    s: &mut Summary,
+) -> Result<()> {
+    if !rec.contents().ground_truth {
+        return Ok(());
+    }
+    if let Some(truth) = rec.sim_truth().filter(|_| d.lidar_events.is_kept()) {
+        let c = rec.calibration();
+        let mut a = lidar_assoc::Assessor::new(truth, &c.t_bc, c.td_s, t.lidar.sigma_dr_m);
+        let mut gt = GtCursor::new(rec.ground_truth_stream()?);
+        d.lidar_events
+            .for_each(|step| a.step(step.t_cam_ns, &step.events, |t| gt.at(t)))?;
+        if let Some(e) = gt.error() {
+            return Err(e.into());
+        }
+        s.assoc = Some(AssocSummary::from(&a.finish()));
+    }
+    // The ground truth's poses, read from the recording once (a pass over an MCAP file reads
+    // every chunk) and logged for the passes below.
+    let mut gt_log = PoseLog::default();
+    for x in rec.ground_truth_stream()? {
+        gt_log.push(&StampedPose::from(&x?));
+    }
+    gt_log.flush();
+    if gt_log.is_empty() {
+        return Ok(());
+    }
+    if let Some(t0) = t.first_camera_ns.filter(|_| d.trajectory.is_some()) {
+        let stamps = gt_log.poses()?.map(|p| p.map(|p| p.t_ns));
+        s.coverage = coverage(stamps, &d.covered, t0)?;
+    }
+    let gt = || -> Result<PoseStream<'_>> { Ok(Box::new(gt_log.poses()?)) };
+    let opts = EvalOptions {
+        alignment: Alignment::PosYaw,
+        ..Default::default()
+    };
+    let ate = |log: &mut Option<PoseLog>| -> Option<Result<AteRmse>> {
+        let log = log.as_mut().filter(|l| !l.is_empty())?;
+        log.flush();
+        let log = &*log;
+        let est = || -> Result<PoseStream<'_>> { Ok(Box::new(log.poses()?)) };
+        Some(ate_rmse(&gt, &est, &opts))
+    };
+    match ate(&mut d.trajectory) {
+        Some(Ok(r)) => {
+            s.ate_pos_rmse_m = Some(r.pos_rmse_m);
+            s.ate_rot_rmse_deg = Some(r.rot_rmse_deg);
+            s.matched_poses = Some(r.matched);
+        }
+        Some(Err(e)) => eprintln!("warning: evaluation failed: {e:#}"),
+        None => {}
+    }
+    if let Some(Ok(r)) = ate(&mut d.keyframes) {
+        s.keyframe_ate_pos_rmse_m = Some(r.pos_rmse_m);
+    }
+    Ok(())
 }
 
 /// Which initializer started the run, from the estimator's counters.
@@ -459,9 +515,19 @@ mod tests {
         let gt: Vec<StampedPose> = (0..10).map(|k| at(100 * k)).collect();
         let est = [at(290), at(410), at(611), at(795)];
         // From 200 ms: 200 300 400 500 600 700 800 900; covered 300 (290), 400 (410), 800 (795).
-        assert_eq!(coverage(&gt, &est, 200_000_000), Some(3.0 / 8.0));
-        assert_eq!(coverage(&gt, &[], 0), Some(0.0));
-        assert_eq!(coverage(&gt, &est, 1_000_000_000), None);
+        let cov = |est: &[StampedPose], from_ns| {
+            let stamps = gt.iter().map(|p| Ok::<_, ()>(p.t_ns));
+            coverage(stamps, &spans_of(est), from_ns).unwrap()
+        };
+        assert_eq!(cov(&est, 200_000_000), Some(3.0 / 8.0));
+        assert_eq!(cov(&[], 0), Some(0.0));
+        assert_eq!(cov(&est, 1_000_000_000), None);
+        // Poses 10 ms apart cover the time between them (and 10 ms beyond): 300 to 600 ms,
+        // and 200 ms from 210 on.
+        let dense: Vec<StampedPose> = (0..=30).map(|k| at(300 + 10 * k)).collect();
+        assert_eq!(cov(&dense, 200_000_000), Some(4.0 / 8.0));
+        let from_210: Vec<StampedPose> = (0..=39).map(|k| at(210 + 10 * k)).collect();
+        assert_eq!(cov(&from_210, 200_000_000), Some(5.0 / 8.0));
     }
 
     /// Poses closer than 10 ms cover the time between them; a longer gap is uncovered; only

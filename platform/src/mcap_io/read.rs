@@ -310,6 +310,7 @@ impl McapRecording {
             stamp,
             held: BTreeMap::new(),
             last: None,
+            unread: self.counts.get(topic).copied().unwrap_or(0),
             done: false,
         }))
     }
@@ -337,12 +338,15 @@ struct TopicStream<T> {
     /// Messages held, by stamp.
     held: BTreeMap<i64, T>,
     last: Option<i64>,
+    /// Messages of the topic not yet read (the count of the pass at open): the stream stops
+    /// at its last message rather than read the rest of the file (an attachment, the summary).
+    unread: usize,
     done: bool,
 }
 
 impl<T> TopicStream<T> {
     fn pull(&mut self) -> Result<Option<T>, IoError> {
-        while !self.done && self.held.len() < REORDER {
+        while !self.done && self.unread > 0 && self.held.len() < REORDER {
             let (topic, decode) = (self.topic, self.decode);
             let msg = self.records.next_with(|r, rec| {
                 let Record::Message { header, data } = rec else {
@@ -364,6 +368,7 @@ impl<T> TopicStream<T> {
                 self.done = true;
                 break;
             };
+            self.unread -= 1;
             let t = (self.stamp)(&msg);
             if self.held.insert(t, msg).is_some() {
                 return Err(self.out_of_order(format!("two messages stamped {t} ns")));
@@ -478,7 +483,7 @@ fn sim_truth_from_json(path: &Path, data: &[u8]) -> Result<SimTruth, IoError> {
             .collect(),
         wrong_tracks: j.wrong_tracks,
         edge_features: j.edge_features,
-        lidar_edge_points: j.lidar_edge_points,
+        lidar_edge_points: Vec::new(),
     })
 }
 
@@ -524,54 +529,100 @@ impl Recording for McapRecording {
         self.topic_stream(TOPIC_LIDAR, decode_sweep, |s| s.t_ns)
     }
 
-    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
-        let path = &self.path;
-        let odoms: Vec<msgs::Odometry> = self
-            .topic_stream(TOPIC_GROUND_TRUTH, decode_odometry, |o| o.header.t_ns)?
-            .collect::<Result<_, _>>()?;
-        let biases: Vec<msgs::Imu> = self
-            .topic_stream(TOPIC_GROUND_TRUTH_BIAS, decode_bias, |b| b.header.t_ns)?
-            .collect::<Result<_, _>>()?;
-        let biases: HashMap<i64, msgs::Imu> =
-            biases.into_iter().map(|b| (b.header.t_ns, b)).collect();
-        if !biases.is_empty() && biases.len() != odoms.len() {
-            return Err(invalid(
-                path,
-                format!(
-                    "{} {TOPIC_GROUND_TRUTH} messages but {} {TOPIC_GROUND_TRUTH_BIAS} messages",
-                    odoms.len(),
-                    biases.len()
-                ),
-            ));
-        }
-        let mut ground_truth = Vec::with_capacity(odoms.len());
-        for o in &odoms {
-            let b = biases.get(&o.header.t_ns);
-            if b.is_none() && !biases.is_empty() {
-                return Err(invalid(
-                    path,
-                    format!(
-                        "{TOPIC_GROUND_TRUTH_BIAS}: no message at {} ns",
-                        o.header.t_ns
-                    ),
-                ));
-            }
-            ground_truth.push(convert::ground_truth_from_msgs(o, b).map_err(|e| {
-                invalid(
-                    path,
-                    format!("{TOPIC_GROUND_TRUTH} at {} ns: {e}", o.header.t_ns),
-                )
-            })?);
-        }
-        Ok(ground_truth)
+    fn ground_truth_stream(&self) -> Result<Stream<'_, NavState>, IoError> {
+        let odoms = self.topic_stream(TOPIC_GROUND_TRUTH, decode_odometry, |o| o.header.t_ns)?;
+        let biases = if self.has(TOPIC_GROUND_TRUTH_BIAS) {
+            Some(self.topic_stream(TOPIC_GROUND_TRUTH_BIAS, decode_bias, |b| b.header.t_ns)?)
+        } else {
+            None
+        };
+        Ok(Box::new(GroundTruthJoin {
+            path: &self.path,
+            odoms,
+            biases,
+            failed: false,
+        }))
     }
 
     fn warnings(&self) -> Vec<String> {
         self.warnings.clone()
     }
 
-    fn sim_truth(&self) -> Option<SimTruth> {
-        self.sim_truth.clone()
+    fn sim_truth(&self) -> Option<&SimTruth> {
+        self.sim_truth.as_ref()
+    }
+}
+
+/// The ground truth of an MCAP file, one state at a time: each odometry message joined with the
+/// bias message of the same stamp (the file has both topics or only the odometry). The first
+/// mismatch ends the stream with an error naming the stamp.
+struct GroundTruthJoin<'a> {
+    path: &'a Path,
+    odoms: Stream<'static, msgs::Odometry>,
+    biases: Option<Stream<'static, msgs::Imu>>,
+    failed: bool,
+}
+
+impl GroundTruthJoin<'_> {
+    fn state(&mut self, o: msgs::Odometry) -> Result<NavState, IoError> {
+        let t_ns = o.header.t_ns;
+        let b = match &mut self.biases {
+            None => None,
+            Some(biases) => match biases.next().transpose()? {
+                Some(b) if b.header.t_ns == t_ns => Some(b),
+                Some(b) => {
+                    return Err(invalid(
+                        self.path,
+                        format!(
+                            "{TOPIC_GROUND_TRUTH_BIAS}: no message at {t_ns} ns (the next one is \
+                             at {} ns)",
+                            b.header.t_ns
+                        ),
+                    ))
+                }
+                None => {
+                    return Err(invalid(
+                        self.path,
+                        format!(
+                            "{TOPIC_GROUND_TRUTH_BIAS}: no message at {t_ns} ns (fewer messages \
+                             than {TOPIC_GROUND_TRUTH})"
+                        ),
+                    ))
+                }
+            },
+        };
+        convert::ground_truth_from_msgs(&o, b.as_ref())
+            .map_err(|e| invalid(self.path, format!("{TOPIC_GROUND_TRUTH} at {t_ns} ns: {e}")))
+    }
+}
+
+impl Iterator for GroundTruthJoin<'_> {
+    type Item = Result<NavState, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        let r = match self.odoms.next() {
+            Some(Ok(o)) => self.state(o),
+            Some(Err(e)) => Err(e),
+            None => match self.biases.as_mut().and_then(|b| b.next()) {
+                None => return None,
+                Some(Err(e)) => Err(e),
+                Some(Ok(b)) => Err(invalid(
+                    self.path,
+                    format!(
+                        "{TOPIC_GROUND_TRUTH_BIAS} at {} ns: no {TOPIC_GROUND_TRUTH} message at \
+                         its stamp (more messages than {TOPIC_GROUND_TRUTH})",
+                        b.header.t_ns
+                    ),
+                )),
+            },
+        };
+        if r.is_err() {
+            self.failed = true;
+        }
+        Some(r)
     }
 }
 

@@ -390,8 +390,8 @@ impl Recording for RosRecording {
         Ok(Box::new(std::iter::empty()))
     }
 
-    fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
-        Ok(Vec::new())
+    fn ground_truth_stream(&self) -> Result<Stream<'_, NavState>, IoError> {
+        Ok(Box::new(std::iter::empty()))
     }
 
     fn warnings(&self) -> Vec<String> {
