@@ -42,6 +42,11 @@ struct RecordCtx {
 }
 
 /// A pull reader of an MCAP file's records, with the channel table built as it goes.
+///
+/// Chunks are read here, not by the `mcap` reader: a chunk that does not decompress to its
+/// size or whose CRC does not match is skipped, its messages lost, and the pass at open says
+/// so in a warning naming the offset (the streams skip the same chunks silently); the file is
+/// read on. Everything else that fails to parse is an error.
 struct Records {
     file: std::io::BufReader<std::fs::File>,
     reader: LinearReader,
@@ -49,6 +54,11 @@ struct Records {
     /// Bytes of the file handed to the reader so far: a record that fails to parse (or a chunk
     /// whose CRC does not match) ends at or before this offset.
     read_bytes: u64,
+    /// The records of the chunk being read, decompressed, and the offset of the next one.
+    chunk: Vec<u8>,
+    chunk_pos: usize,
+    /// Whether skipped chunks are reported (in [`RecordCtx::skipped`]).
+    report_skips: bool,
 }
 
 /// What a visitor did with a record.
@@ -64,9 +74,10 @@ impl Records {
         check_chunk_sizes(path)?;
         let f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
         // A record length limit, so a corrupt length inside a chunk fails instead of allocating.
+        // Chunks come whole (`emit_chunks`): [`Records::next_with`] checks and opens them.
         let opts = LinearReaderOptions::default()
             .with_record_length_limit(MAX_CHUNK_BYTES as usize)
-            .with_validate_chunk_crcs(true);
+            .with_emit_chunks(true);
         Ok(Records {
             file: std::io::BufReader::with_capacity(1 << 16, f),
             reader: LinearReader::new_with_options(opts),
@@ -77,7 +88,85 @@ impl Records {
                 skipped: Vec::new(),
             },
             read_bytes: 0,
+            chunk: Vec::new(),
+            chunk_pos: 0,
+            report_skips: false,
         })
+    }
+
+    /// The next record inside the current chunk, `None` when it is read; an error when its
+    /// framing is broken (the chunk's CRC matched, or it had none).
+    fn chunk_record(&mut self) -> Result<Option<(u8, std::ops::Range<usize>)>, IoError> {
+        let pos = self.chunk_pos;
+        if pos >= self.chunk.len() {
+            return Ok(None);
+        }
+        let head = self.chunk.get(pos..pos + 9).and_then(|h| {
+            let len = u64::from_le_bytes(h[1..9].try_into().ok()?);
+            let start = pos + 9;
+            let end = start.checked_add(usize::try_from(len).ok()?)?;
+            (end <= self.chunk.len()).then_some((h[0], start..end))
+        });
+        let Some((op, range)) = head else {
+            self.chunk_pos = self.chunk.len();
+            return Err(IoError::Corrupt {
+                file: self.ctx.path.clone(),
+                what: "chunk".into(),
+                offset: self.read_bytes,
+                msg: format!(
+                    "the record at byte {pos} of the chunk (ending at or before this offset) \
+                     runs past its end"
+                ),
+            });
+        };
+        self.chunk_pos = range.end;
+        Ok(Some((op, range)))
+    }
+
+    /// Decompresses and checks the chunk record `data` into `chunk` (its allocation reused from
+    /// chunk to chunk); why not, when it cannot be read (the caller skips it).
+    fn open_chunk(chunk: &mut Vec<u8>, data: &[u8]) -> Result<(), String> {
+        let rec = mcap::parse_record(mcap::records::op::CHUNK, data).map_err(|e| e.to_string())?;
+        let Record::Chunk { header, data } = rec else {
+            return Err("not a chunk".into());
+        };
+        let size = usize::try_from(header.uncompressed_size)
+            .ok()
+            .filter(|&n| n as u64 <= MAX_CHUNK_BYTES)
+            .ok_or_else(|| {
+                format!(
+                    "uncompressed size {} is too large",
+                    header.uncompressed_size
+                )
+            })?;
+        chunk.clear();
+        match header.compression.as_str() {
+            "" => chunk.extend_from_slice(&data),
+            "zstd" => {
+                let d = zstd::stream::read::Decoder::with_buffer(&data[..])
+                    .map_err(|e| format!("zstd: {e}"))?;
+                read_at_most(d, size, chunk).map_err(|e| format!("zstd: {e}"))?;
+            }
+            "lz4" => {
+                let d = lz4::Decoder::new(&data[..]).map_err(|e| format!("lz4: {e}"))?;
+                read_at_most(d, size, chunk).map_err(|e| format!("lz4: {e}"))?;
+            }
+            other => return Err(format!("compression {other:?} is not supported")),
+        }
+        if chunk.len() != size {
+            return Err(format!(
+                "decompressed to {} bytes, not its {size}",
+                chunk.len()
+            ));
+        }
+        let crc = crc32fast::hash(chunk);
+        if header.uncompressed_crc != 0 && crc != header.uncompressed_crc {
+            return Err(format!(
+                "CRC {crc:#010x} of its records, {:#010x} recorded",
+                header.uncompressed_crc
+            ));
+        }
+        Ok(())
     }
 
     /// Feeds records to `visit` (schemas and channels are recorded first) until it returns an
@@ -86,8 +175,22 @@ impl Records {
         &mut self,
         mut visit: impl FnMut(&RecordCtx, &Record<'_>) -> Result<Step<T>, IoError>,
     ) -> Result<Option<T>, IoError> {
-        let ctx = &mut self.ctx;
-        while let Some(event) = self.reader.next_event() {
+        loop {
+            // The records of the chunk being read first.
+            if let Some((opcode, range)) = self.chunk_record()? {
+                let at = self.read_bytes;
+                let data = self.chunk.get(range).unwrap_or(&[]);
+                let rec = mcap::parse_record(opcode, data)
+                    .map_err(|e| record_err(&self.ctx.path, e, at))?;
+                if let Step::Item(t) = Self::take(&mut self.ctx, &rec, &mut visit)? {
+                    return Ok(Some(t));
+                }
+                continue;
+            }
+            let Some(event) = self.reader.next_event() else {
+                return Ok(None);
+            };
+            let ctx = &mut self.ctx;
             let at = self.read_bytes;
             let err = |e| record_err(&ctx.path, e, at);
             let rec = match event.map_err(err)? {
@@ -97,6 +200,19 @@ impl Records {
                         read_some(&mut self.file, buf).map_err(|e| IoError::io(&ctx.path, e))?;
                     self.reader.notify_read(n);
                     self.read_bytes += n as u64;
+                    continue;
+                }
+                LinearReadEvent::Record { data, opcode } if opcode == mcap::records::op::CHUNK => {
+                    self.chunk_pos = 0;
+                    if let Err(why) = Self::open_chunk(&mut self.chunk, data) {
+                        self.chunk.clear();
+                        if self.report_skips {
+                            self.ctx.skipped.push(format!(
+                                "the chunk ending at byte offset {at} was skipped ({why}): its \
+                                 messages are lost"
+                            ));
+                        }
+                    }
                     continue;
                 }
                 LinearReadEvent::Record { data, opcode } => {
@@ -114,22 +230,30 @@ impl Records {
                     }
                 }
             };
-            match &rec {
-                Record::Schema { header, .. } => {
-                    ctx.schemas.insert(header.id, header.name.clone());
-                }
-                Record::Channel(c) => {
-                    let ty = ctx.schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                    ctx.channels
-                        .insert(c.id, (c.topic.clone(), ty, c.message_encoding.clone()));
-                }
-                _ => {}
-            }
-            if let Step::Item(t) = visit(ctx, &rec)? {
+            if let Step::Item(t) = Self::take(ctx, &rec, &mut visit)? {
                 return Ok(Some(t));
             }
         }
-        Ok(None)
+    }
+
+    /// Records a schema or channel, then hands the record to `visit`.
+    fn take<T>(
+        ctx: &mut RecordCtx,
+        rec: &Record<'_>,
+        visit: &mut impl FnMut(&RecordCtx, &Record<'_>) -> Result<Step<T>, IoError>,
+    ) -> Result<Step<T>, IoError> {
+        match rec {
+            Record::Schema { header, .. } => {
+                ctx.schemas.insert(header.id, header.name.clone());
+            }
+            Record::Channel(c) => {
+                let ty = ctx.schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                ctx.channels
+                    .insert(c.id, (c.topic.clone(), ty, c.message_encoding.clone()));
+            }
+            _ => {}
+        }
+        visit(ctx, rec)
     }
 }
 
@@ -166,6 +290,14 @@ impl RecordCtx {
         }
         Ok(Some((topic.as_str(), want)))
     }
+}
+
+/// Reads `r` to its end into `out` (cleared; its allocation reused), at most `size + 1` bytes (so
+/// that a longer stream shows as longer without being read whole).
+fn read_at_most(r: impl Read, size: usize, out: &mut Vec<u8>) -> std::io::Result<()> {
+    out.clear();
+    out.reserve(size);
+    r.take(size as u64 + 1).read_to_end(out).map(drop)
 }
 
 /// Reads into `buf` until it is full or the file ends; the bytes read (0 at the end).
@@ -214,6 +346,7 @@ impl McapRecording {
     /// simulator's truth and the topics with messages (messages are not decoded).
     pub fn open(path: &Path) -> Result<Self, IoError> {
         let mut r = Records::open(path)?;
+        r.report_skips = true;
         let mut calib = None;
         let mut sim_truth = None;
         let mut topics: Vec<&'static str> = Vec::new();
