@@ -829,15 +829,15 @@ fn interpolate_between(a: &NavState, b: &NavState, t_ns: i64) -> NavState {
 /// (an evaluation that passes over an hour of ground truth without holding it): the same
 /// states, `None` before the first or after the last stamp (and for a stamp earlier than the
 /// previous one asked). The first error of the stream is kept ([`GtCursor::error`]) and ends it.
-pub struct GtCursor<I> {
+pub struct GtCursor<I, E> {
     stream: I,
     /// The last state at or before the stamps asked so far, and the one after it.
     a: Option<NavState>,
     b: Option<NavState>,
-    error: Option<povins_platform::error::IoError>,
+    error: Option<E>,
 }
 
-impl<I: Iterator<Item = Result<NavState, povins_platform::error::IoError>>> GtCursor<I> {
+impl<E, I: Iterator<Item = Result<NavState, E>>> GtCursor<I, E> {
     /// A cursor at the start of `stream`.
     pub fn new(mut stream: I) -> Self {
         let mut error = None;
@@ -884,7 +884,7 @@ impl<I: Iterator<Item = Result<NavState, povins_platform::error::IoError>>> GtCu
     }
 
     /// The error that ended the stream, if one did.
-    pub fn error(self) -> Option<povins_platform::error::IoError> {
+    pub fn error(self) -> Option<E> {
         self.error
     }
 }

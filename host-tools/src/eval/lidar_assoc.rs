@@ -146,7 +146,7 @@ pub fn assess_with(
     steps: &[KeyframeDepthEvents],
     sigma_dr_m: f64,
 ) -> AssocQuality {
-    let mut gt = GtCursor::new(gt.iter().copied().map(Ok));
+    let mut gt = GtCursor::new(gt.iter().copied().map(Ok::<_, std::convert::Infallible>));
     let mut a = Assessor::new(truth, t_bc, td_s, sigma_dr_m);
     for step in steps {
         a.step(step.t_cam_ns, &step.events, |t| gt.at(t));

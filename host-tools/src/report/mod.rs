@@ -25,6 +25,8 @@ use crate::eval::{Alignment, EvalOptions};
 use crate::frontend_stats::FrontendSummary;
 use crate::runner::{percentile, Frontend, GtCursor, InitMode, RunOutput, RunTotals};
 use anyhow::Result;
+use povins_core::inertial::NavState;
+use povins_core::math::Vec3;
 use povins_platform::recording::Recording;
 use povins_platform::trajectory::StampedPose;
 use spill::PoseLog;
@@ -430,17 +432,6 @@ fn evaluate_against_truth(
     if !rec.contents().ground_truth {
         return Ok(());
     }
-    if let Some(truth) = rec.sim_truth().filter(|_| d.lidar_events.is_kept()) {
-        let c = rec.calibration();
-        let mut a = lidar_assoc::Assessor::new(truth, &c.t_bc, c.td_s, t.lidar.sigma_dr_m);
-        let mut gt = GtCursor::new(rec.ground_truth_stream()?);
-        d.lidar_events
-            .for_each(|step| a.step(step.t_cam_ns, &step.events, |t| gt.at(t)))?;
-        if let Some(e) = gt.error() {
-            return Err(e.into());
-        }
-        s.assoc = Some(AssocSummary::from(&a.finish()));
-    }
     // The ground truth's poses, read from the recording once (a pass over an MCAP file reads
     // every chunk) and logged for the passes below.
     let mut gt_log = PoseLog::default();
@@ -450,6 +441,28 @@ fn evaluate_against_truth(
     gt_log.flush();
     if gt_log.is_empty() {
         return Ok(());
+    }
+    if let Some(truth) = rec.sim_truth().filter(|_| d.lidar_events.is_kept()) {
+        let c = rec.calibration();
+        let mut a = lidar_assoc::Assessor::new(truth, &c.t_bc, c.td_s, t.lidar.sigma_dr_m);
+        // The check reads the pose only (velocity and biases are not logged).
+        let states = gt_log.poses()?.map(|p| {
+            p.map(|p| NavState {
+                t_ns: p.t_ns,
+                p_wb: p.p_wb,
+                q_wb: p.q_wb,
+                v_wb: Vec3::zeros(),
+                bg: Vec3::zeros(),
+                ba: Vec3::zeros(),
+            })
+        });
+        let mut gt = GtCursor::new(states);
+        d.lidar_events
+            .for_each(|step| a.step(step.t_cam_ns, &step.events, |t| gt.at(t)))?;
+        if let Some(e) = gt.error() {
+            return Err(e);
+        }
+        s.assoc = Some(AssocSummary::from(&a.finish()));
     }
     if let Some(t0) = t.first_camera_ns.filter(|_| d.trajectory.is_some()) {
         let stamps = gt_log.poses()?.map(|p| p.map(|p| p.t_ns));
