@@ -1,8 +1,10 @@
 //! Reading an MCAP file incrementally ([`McapRecording`]): one pass when it is opened for the
 //! calibration, the simulator's truth and which topics have messages, then one pass per
-//! stream, each pulling records from the file as it goes and decoding only its own topic's
-//! messages. A stream holds its reader's buffer (a chunk at most, [`super::MAX_CHUNK_BYTES`])
-//! and at most [`REORDER`] decoded messages, whatever the file's length.
+//! stream, each pulling records from the file as it goes, decoding only its own topic's
+//! messages and stopping after the topic's last message (the count of the pass at open). A stream
+//! holds one chunk record and its decompressed records (each at most [`super::MAX_CHUNK_BYTES`])
+//! and at most [`REORDER`] decoded messages, whatever the file's length; a corrupt chunk is
+//! skipped (`Records`).
 //!
 //! Each topic is offered in header-stamp order: messages written out of order by fewer than
 //! [`REORDER`] places are put back in order; a repeated stamp, or a message further out of
