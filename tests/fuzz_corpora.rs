@@ -296,6 +296,57 @@ fn write_seeds() {
             &with_sel(sel, &m.data),
         );
     }
+    // ros_msgs: a small sweep in every LiDAR wire format, in both encodings.
+    {
+        use povins::platform::cloud::{livox::CustomMsg, Wire};
+        use povins::platform::dataset::LidarScan;
+        let t0 = 1_700_000_000_000_000_000;
+        let sweep = LidarScan {
+            t_ns: t0,
+            points: (0..8)
+                .map(|k| povins::core::lidar::LidarPoint {
+                    t_ns: t0 + k * 10_000_000,
+                    p_l: [k as f32, 1.0, 0.5 - k as f32 * 0.1],
+                    intensity: 10.0 * k as f32,
+                })
+                .collect(),
+        };
+        for wire in Wire::all() {
+            for enc in [Encoding::Ros1, Encoding::Cdr] {
+                let (ty, bytes) = match (wire, enc) {
+                    (Wire::Cloud(l), Encoding::Ros1) => (
+                        "sensor_msgs/PointCloud2",
+                        povins::platform::rosbag1::msgs::encode_point_cloud2_in(
+                            l, &sweep, 0, "lidar",
+                        )
+                        .unwrap(),
+                    ),
+                    (Wire::Cloud(l), Encoding::Cdr) => (
+                        "sensor_msgs/PointCloud2",
+                        povins::platform::ros2::convert::lidar_to_msg_in(l, &sweep, "lidar")
+                            .unwrap()
+                            .encode()
+                            .unwrap(),
+                    ),
+                    (_, _) => {
+                        let m = CustomMsg::from_scan(&sweep, "livox").unwrap();
+                        let b = match enc {
+                            Encoding::Ros1 => m.encode_ros1(0).unwrap(),
+                            Encoding::Cdr => m.encode_cdr().unwrap(),
+                        };
+                        ("livox_ros_driver/CustomMsg", b)
+                    }
+                };
+                let sel = entry::msg_selector(ty, enc).unwrap();
+                let e = if enc == Encoding::Cdr { "cdr" } else { "ros1" };
+                seed(
+                    "ros_msgs",
+                    &format!("lidar-{}-{e}", wire.name()),
+                    &with_sel(sel, &bytes),
+                );
+            }
+        }
+    }
     // image: a small real PNG and JPEG, a raw mono8 header.
     let mut png = Vec::new();
     {

@@ -279,6 +279,7 @@ pub const MSG_KINDS: &[&str] = &[
     "sensor_msgs/PointCloud2",
     "sensor_msgs/PointCloud",
     "nav_msgs/Odometry",
+    "livox_ros_driver/CustomMsg",
 ];
 
 /// The selector byte of [`ros_msgs`] for a message type and encoding (`None`: no decoder).
@@ -288,8 +289,9 @@ pub fn msg_selector(msg_type: &str, enc: Encoding) -> Option<u8> {
 }
 
 /// `ros_msgs`: the first byte picks the decoder and encoding ([`MSG_KINDS`]), the rest is the
-/// serialized message. CDR-only types (PointCloud2, PointCloud, Odometry: povins reads them
-/// from MCAP files) ignore the encoding bit.
+/// serialized message. CDR-only types (PointCloud, Odometry: povins reads them from MCAP files)
+/// ignore the encoding bit. LiDAR clouds are decoded as a run reads them (any layout, and with
+/// `selector / 2 / len` picking a forced layout or the spin assumption for clouds without time).
 pub fn ros_msgs(data: &[u8]) {
     use povins_platform::ros2::{convert, msgs};
     let (sel, msg) = split(data);
@@ -317,8 +319,29 @@ pub fn ros_msgs(data: &[u8]) {
         5 => {
             let _ = calib_msgs::frame_id(enc, msg);
         }
-        6 => {
-            let _ = msgs::PointCloud2::decode(msg).map(|m| convert::lidar_from_msg(&m));
+        6 | 9 => {
+            use povins_platform::cloud::{livox, CloudOptions, Layout, NoTime};
+            let variant = usize::from(sel / 2) / MSG_KINDS.len();
+            let opts = CloudOptions {
+                layout: match variant % 8 {
+                    0 | 7 => None,
+                    k => Layout::ALL.get(k - 1).copied(),
+                },
+                no_time: match variant % 3 {
+                    0 => NoTime::Stamp,
+                    k => NoTime::Spin {
+                        period_ns: 100_000_000,
+                        clockwise: k == 1,
+                        stamp_is_end: variant % 2 == 0,
+                    },
+                },
+            };
+            let ty = if sel / 2 % MSG_KINDS.len() as u8 == 6 {
+                decode::POINT_CLOUD2_TYPE
+            } else {
+                livox::CUSTOM_MSG_TYPE
+            };
+            let _ = decode::sweep(enc, ty, msg, &opts);
         }
         7 => {
             let _ = msgs::PointCloud::decode(msg).map(|m| convert::features_from_msg(&m));

@@ -39,14 +39,12 @@ impl RecordingArgs {
     pub fn open(&self, config: Option<&Path>) -> Result<Box<dyn Recording>> {
         let file = config.map(RunConfigFile::read).transpose()?;
         let input = InputOptions::new(file.as_ref(), &self.input)?;
-        for note in input.unused_notes() {
-            eprintln!("{note}");
-        }
         if !povins_platform::containers::is_ros_recording(&self.dataset) {
             anyhow::ensure!(
                 !input.any_for_bags(),
-                "--calib, --imu-calib, --camera, --imu-topic, --image-topic, --accel-topic and \
-                 --accel-unit (and their `[input]` keys) apply to ROS recordings only"
+                "--calib, --imu-calib, --camera, --imu-topic, --image-topic, --accel-topic, \
+                 --accel-unit, --lidar-topic, --lidar-layout and --lidar-no-time (and their \
+                 `[input]` keys) apply to ROS recordings only"
             );
             return Ok(povins_platform::open_recording(&self.dataset)?);
         }

@@ -136,6 +136,11 @@ impl<'a> CdrReader<'a> {
         Ok(u32::from_le_bytes(self.prim("uint32")?))
     }
 
+    /// `uint64`.
+    pub fn u64(&mut self) -> Result<u64, CdrError> {
+        Ok(u64::from_le_bytes(self.prim("uint64")?))
+    }
+
     /// `int32`.
     pub fn i32(&mut self) -> Result<i32, CdrError> {
         Ok(i32::from_le_bytes(self.prim("int32")?))
@@ -262,6 +267,12 @@ impl CdrWriter {
     /// `uint32`.
     pub fn u32(&mut self, v: u32) {
         self.align(4);
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
+
+    /// `uint64`.
+    pub fn u64(&mut self, v: u64) {
+        self.align(8);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
 

@@ -8,6 +8,7 @@
 
 pub mod boxed;
 pub mod cdr;
+pub mod cloud;
 pub mod containers;
 pub mod dataset;
 pub mod driver;

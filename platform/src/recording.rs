@@ -66,7 +66,8 @@ pub trait Recording: Send + Sync {
         None
     }
     /// What was wrong in the recording but read past (samples dropped for their stamps, parts
-    /// skipped, a missing index): complete once the streams have ended.
+    /// skipped, a missing index): complete once the streams have ended. A line that starts with
+    /// [`NOTE`] is information, not a warning ([`label`]).
     fn warnings(&self) -> Vec<String> {
         Vec::new()
     }
@@ -124,5 +125,16 @@ impl Recording for Dataset {
 
     fn sim_truth(&self) -> Option<&SimTruth> {
         self.sim_truth.as_ref()
+    }
+}
+
+/// The start of a [`Recording::warnings`] line that is information (what a LiDAR topic gave).
+pub const NOTE: &str = "note: ";
+
+/// A [`Recording::warnings`] line as the user sees it: `("note", text)` or `("warning", line)`.
+pub fn label(line: &str) -> (&'static str, &str) {
+    match line.strip_prefix(NOTE) {
+        Some(text) => ("note", text),
+        None => ("warning", line),
     }
 }

@@ -37,7 +37,8 @@ pub fn run(args: Args) -> Result<()> {
         .with_context(|| format!("converting {}", args.recording.dataset.display()))?;
     progress.bar.finish();
     for w in rec.warnings() {
-        eprintln!("warning: {w}");
+        let (label, text) = povins_platform::recording::label(&w);
+        eprintln!("{label}: {text}");
     }
     println!("{}", summary(&args.out, &written));
     Ok(())

@@ -88,7 +88,8 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("warning: image at {t} ns: {e}");
     }
     for w in rec.warnings() {
-        eprintln!("warning: {w}");
+        let (label, text) = povins_platform::recording::label(&w);
+        eprintln!("{label}: {text}");
     }
     if totals.image_failures > totals.image_errors.len() {
         eprintln!(

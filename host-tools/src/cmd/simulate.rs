@@ -11,6 +11,7 @@ use crate::sim::render::{sequence, RenderOptions};
 use crate::sim::{self, LidarKind, Scenario, SimConfig, SimOutput};
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
+use povins_platform::cloud::Wire;
 use povins_platform::dataset::{Calibration, Dataset, ImageFrame};
 use povins_platform::mcap_log::write::McapWriter;
 use povins_platform::rosbag1::write::{BagWriter, Compression};
@@ -150,6 +151,13 @@ pub struct Args {
     /// Points per LiDAR sweep (default per sensor).
     #[arg(long)]
     pub lidar_points: Option<usize>,
+    /// How the sweeps of a ROS recording (`rosbag1`, `rosbag2-*`, `mcap-ros1`) are written: a
+    /// driver's `sensor_msgs/PointCloud2` layout (`compact`, povins' own, the default;
+    /// `ouster`, `velodyne`, `hesai`, `robosense`, `livox2`) or Livox's `CustomMsg`
+    /// (`livox-custom`: livox_ros_driver, ROS 1 only; `livox2-custom`: livox_ros_driver2).
+    /// See `povins_platform::cloud`.
+    #[arg(long, value_parser = parse_wire, default_value = "compact")]
+    pub lidar_layout: Wire,
     /// Rotation error of the true camera-LiDAR relation vs the stored calibration, deg.
     #[arg(long, default_value_t = 0.5)]
     pub lidar_extrinsic_error_deg: f64,
@@ -275,6 +283,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.compression.is_none() || args.format == Format::Rosbag1,
         "--compression applies to --format rosbag1 only"
     );
+    anyhow::ensure!(
+        args.lidar_layout == Wire::default() || !matches!(args.format, Format::Mcap | Format::Euroc),
+        "--lidar-layout needs a ROS recording (rosbag1, rosbag2-sqlite3, rosbag2-mcap, mcap-ros1): \
+         povins' MCAP and EuRoC folders have their own layout"
+    );
     if args.image_encoding != ImageEncoding::Raw {
         anyhow::ensure!(
             args.images && !matches!(args.format, Format::Mcap | Format::Euroc),
@@ -331,6 +344,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn parse_wire(s: &str) -> Result<Wire, String> {
+    Wire::parse(s).ok_or_else(|| {
+        let names: Vec<&str> = Wire::all().into_iter().map(Wire::name).collect();
+        format!("{s:?}: expected one of {}", names.join(", "))
+    })
+}
+
 /// Writes `ds` at `out` as the ROS recording `format` with RealSense topic names
 /// ([`DatasetTopics::realsense`]; [`roswrite::write_dataset`] decides the messages, the
 /// container stores them), and its calibration beside it.
@@ -340,7 +360,10 @@ fn write_ros_recording(
     format: Format,
     args: &Args,
 ) -> anyhow::Result<()> {
-    let topics = DatasetTopics::realsense();
+    let topics = DatasetTopics {
+        lidar_wire: args.lidar_layout,
+        ..DatasetTopics::realsense()
+    };
     let jpeg = |q: u8| {
         move |w: u32, h: u32, px: &[u8]| -> Result<Vec<u8>, String> {
             let (w, h) = (u16::try_from(w), u16::try_from(h));

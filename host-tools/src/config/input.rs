@@ -8,10 +8,18 @@
 //! camera = "cam0"                        # the camchain's camera
 //! imu_topic = "/imu0"
 //! image_topic = "/cam0/image_raw"
-//! lidar_topic = "/points"                # read, not used yet
-//! accel_topic = "/camera/accel/sample"   # read, not used yet
-//! accel_unit = "auto"                    # "mps2" | "g" | "auto"; read, not used yet
+//! lidar_topic = "/points"                # PointCloud2 or Livox CustomMsg
+//! lidar_layout = "auto"                  # or a driver's: "ouster" | "velodyne" | "hesai" |
+//!                                        # "robosense" | "livox2" | "compact"
+//! lidar_no_time = "stamp"                # clouds without point times: "stamp" | "spin-start" |
+//!                                        # "spin-end" (points spread by azimuth)
+//! lidar_spin = "cw"                      # "cw" | "ccw", seen from above, for "spin-*"
+//! lidar_sweep_period_s = 0.1             # for "spin-*"
+//! accel_topic = "/camera/accel/sample"
+//! accel_unit = "auto"                    # "mps2" | "g" | "auto"
 //! ```
+//!
+//! How LiDAR clouds are read, and what the layouts are: [`povins_platform::cloud`].
 //!
 //! Relative paths in the table are relative to the TOML file's folder (on the command line, to
 //! the working directory). Unknown keys are errors naming the file and the key.
@@ -57,6 +65,69 @@ impl From<AccelUnit> for povins_platform::rosrec::merge::AccelUnit {
     }
 }
 
+/// A driver's PointCloud2 layout (`[input] lidar_layout`, `--lidar-layout`; absent: told from
+/// the cloud, [`povins_platform::cloud`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LidarLayout {
+    /// Told from the cloud's fields and values.
+    Auto,
+    /// povins' own 20-byte points.
+    Compact,
+    /// ouster-ros.
+    Ouster,
+    /// velodyne_pointcloud XYZIRT.
+    Velodyne,
+    /// Hesai ROS drivers.
+    Hesai,
+    /// RoboSense rslidar_sdk XYZIRT.
+    Robosense,
+    /// livox_ros_driver2's PointCloud2.
+    Livox2,
+}
+
+impl LidarLayout {
+    fn layout(self) -> Option<povins_platform::cloud::Layout> {
+        use povins_platform::cloud::Layout as L;
+        match self {
+            LidarLayout::Auto => None,
+            LidarLayout::Compact => Some(L::Compact),
+            LidarLayout::Ouster => Some(L::Ouster),
+            LidarLayout::Velodyne => Some(L::Velodyne),
+            LidarLayout::Hesai => Some(L::Hesai),
+            LidarLayout::Robosense => Some(L::Robosense),
+            LidarLayout::Livox2 => Some(L::Livox2),
+        }
+    }
+}
+
+/// What a cloud without point times is taken to mean (`[input] lidar_no_time`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum LidarNoTime {
+    /// Every point at the stamp (no de-skew).
+    #[default]
+    Stamp,
+    /// Spread by azimuth over the sweep period, the stamp the sweep's start.
+    SpinStart,
+    /// Spread by azimuth over the sweep period, the stamp the sweep's end.
+    SpinEnd,
+}
+
+/// The spin direction seen from above (`[input] lidar_spin`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LidarSpin {
+    /// Clockwise (azimuth decreasing).
+    #[default]
+    Cw,
+    /// Counter-clockwise.
+    Ccw,
+}
+
+/// Default `lidar_sweep_period_s` (10 Hz).
+pub const DEFAULT_SWEEP_PERIOD_S: f64 = 0.1;
+
 /// The `[input]` keys (see the module docs).
 #[derive(Debug, Clone, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -65,9 +136,19 @@ pub struct InputOptions {
     pub imu_topic: Option<String>,
     /// The camera topic.
     pub image_topic: Option<String>,
-    /// The LiDAR topic (not used yet).
+    /// The LiDAR topic.
     pub lidar_topic: Option<String>,
-    /// A separate accelerometer topic, merged into the IMU's (not used yet).
+    /// The LiDAR clouds' layout (absent: told from each cloud).
+    pub lidar_layout: Option<LidarLayout>,
+    /// What a cloud without point times is taken to mean.
+    #[serde(default)]
+    pub lidar_no_time: LidarNoTime,
+    /// Spin direction for `lidar_no_time = "spin-*"`.
+    #[serde(default)]
+    pub lidar_spin: LidarSpin,
+    /// Sweep period for `lidar_no_time = "spin-*"`, s.
+    pub lidar_sweep_period_s: Option<f64>,
+    /// A separate accelerometer topic, merged into the IMU's.
     pub accel_topic: Option<String>,
     /// Kalibr camchain file or EuRoC folder.
     pub calib: Option<PathBuf>,
@@ -75,7 +156,7 @@ pub struct InputOptions {
     pub imu_calib: Option<PathBuf>,
     /// The camchain's camera, `camN`.
     pub camera: Option<String>,
-    /// The accelerometer's unit (not used yet).
+    /// The accelerometer's unit.
     #[serde(default)]
     pub accel_unit: AccelUnit,
 }
@@ -101,9 +182,17 @@ pub struct InputArgs {
     /// `sensor_msgs/Image` or `CompressedImage` topic).
     #[arg(long)]
     pub image_topic: Option<String>,
-    /// LiDAR topic (read, not used yet).
+    /// LiDAR topic of a bag: `sensor_msgs/PointCloud2` or Livox `CustomMsg` (default: its one
+    /// such topic; with several, none is read and a warning lists them).
     #[arg(long)]
     pub lidar_topic: Option<String>,
+    /// The LiDAR clouds' point layout (default: told from each cloud's fields and values).
+    #[arg(long, value_enum)]
+    pub lidar_layout: Option<LidarLayout>,
+    /// What a cloud without per-point times is taken to mean (default: every point at the
+    /// stamp, with a warning).
+    #[arg(long, value_enum)]
+    pub lidar_no_time: Option<LidarNoTime>,
     /// Accelerometer topic to merge into the IMU's, interpolated to the gyro's stamps (default:
     /// a RealSense `.../gyro/...` and `.../accel/...` pair is found by name).
     #[arg(long)]
@@ -159,6 +248,12 @@ impl InputOptions {
         if let Some(u) = args.accel_unit {
             o.accel_unit = u;
         }
+        if args.lidar_layout.is_some() {
+            o.lidar_layout = args.lidar_layout;
+        }
+        if let Some(n) = args.lidar_no_time {
+            o.lidar_no_time = n;
+        }
         o.validate().context("the input switches")?;
         Ok(o)
     }
@@ -172,6 +267,11 @@ impl InputOptions {
         ] {
             if v.as_deref().is_some_and(|t| t.trim().is_empty()) {
                 bail!("`{key}` is empty");
+            }
+        }
+        if let Some(p) = self.lidar_sweep_period_s {
+            if !(p.is_finite() && (0.001..=1.0).contains(&p)) {
+                bail!("`lidar_sweep_period_s` = {p}: expected 0.001 to 1 s");
             }
         }
         if let Some(c) = &self.camera {
@@ -192,6 +292,28 @@ impl InputOptions {
             || self.image_topic.is_some()
             || self.accel_topic.is_some()
             || self.accel_unit != AccelUnit::Auto
+            || self.lidar_topic.is_some()
+            || self.lidar_layout.and_then(LidarLayout::layout).is_some()
+            || self.lidar_no_time != LidarNoTime::Stamp
+    }
+
+    /// How LiDAR clouds are read.
+    pub fn cloud_options(&self) -> povins_platform::cloud::CloudOptions {
+        use povins_platform::cloud::{CloudOptions, NoTime};
+        let period_ns =
+            (self.lidar_sweep_period_s.unwrap_or(DEFAULT_SWEEP_PERIOD_S) * 1e9).round() as i64;
+        let clockwise = self.lidar_spin == LidarSpin::Cw;
+        CloudOptions {
+            layout: self.lidar_layout.and_then(LidarLayout::layout),
+            no_time: match self.lidar_no_time {
+                LidarNoTime::Stamp => NoTime::Stamp,
+                LidarNoTime::SpinStart | LidarNoTime::SpinEnd => NoTime::Spin {
+                    period_ns,
+                    clockwise,
+                    stamp_is_end: self.lidar_no_time == LidarNoTime::SpinEnd,
+                },
+            },
+        }
     }
 
     /// The topic choice for the recording layer, the Kalibr `rostopic`s (`kalibr_*`) being the
@@ -214,21 +336,9 @@ impl InputOptions {
             image: pick(&self.image_topic, kalibr_image),
             accel: self.accel_topic.clone(),
             accel_unit: self.accel_unit.into(),
+            lidar: self.lidar_topic.clone(),
+            cloud: self.cloud_options(),
         }
-    }
-
-    /// Notes about the keys that are read but not used yet.
-    pub fn unused_notes(&self) -> Vec<String> {
-        let mut v = Vec::new();
-        for (key, set) in [("lidar_topic", self.lidar_topic.is_some())] {
-            if set {
-                v.push(format!(
-                    "note: `{key}` is read but not used yet (the bag reader takes the IMU and \
-                     camera topics only)"
-                ));
-            }
-        }
-        v
     }
 
     /// The calibration found ([`CalibrationFound`]): the files, or without `calib` the

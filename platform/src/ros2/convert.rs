@@ -11,8 +11,9 @@
 //! - LiDAR sweep -> `sensor_msgs/msg/PointCloud2`, frame `lidar0`, unordered (`height` 1), 20-byte
 //!   little-endian points: `x`, `y`, `z`, `intensity` FLOAT32 at 0, 4, 8, 12 and `t` UINT32 at 16:
 //!   the point time in integer nanoseconds after the header stamp (the sweep start), as Ouster
-//!   drivers publish it. Exact for offsets up to 4.29 s; a point before the sweep start or later
-//!   than that cannot be written.
+//!   drivers publish it (povins' compact layout; [`lidar_to_msg_in`] writes a driver's layout,
+//!   [`crate::cloud`]). Exact for offsets up to 4.29 s; a point before the sweep start or later
+//!   than that cannot be written. Reading takes every driver layout [`crate::cloud`] knows.
 //! - Image -> `sensor_msgs/msg/Image`, frame `cam0`, `mono8`, `step` = width. Reading also takes
 //!   `sensor_msgs/msg/CompressedImage` (JPEG or PNG, any colour type, decoded to mono8).
 //! - Feature frame -> `sensor_msgs/msg/PointCloud`, frame `cam0`, following VINS-Mono's
@@ -24,16 +25,12 @@
 //!   index; we name them and read by name, falling back to the index for unnamed channels. Values
 //!   are `float32`: ids must stay below 2^24 and pixels are rounded to `f32` (3e-5 px at 752 px).
 
-use super::msgs::{
-    ChannelFloat32, CompressedImage, Image, Imu, Odometry, PointCloud, PointCloud2, PointField,
-    POINT_FIELD_FLOAT32, POINT_FIELD_UINT32,
-};
+use super::msgs::{ChannelFloat32, CompressedImage, Image, Imu, Odometry, PointCloud, PointCloud2};
 use super::Header;
 use crate::dataset::{FeatureFrame, ImageFrame, LidarScan};
 use nalgebra::Quaternion;
 use povins_core::camera::{FeatureObs, PinholeCamera};
 use povins_core::inertial::{ImuSample, NavState};
-use povins_core::lidar::LidarPoint;
 use povins_core::math::{Quat, Vec3};
 use std::collections::HashMap;
 
@@ -138,128 +135,37 @@ pub fn ground_truth_from_msgs(o: &Odometry, bias: Option<&Imu>) -> Result<NavSta
     }
 }
 
-/// The fixed layout of povins point clouds.
-pub fn lidar_fields() -> Vec<PointField> {
-    let f = |name: &str, offset, datatype| PointField {
-        name: name.into(),
-        offset,
-        datatype,
-        count: 1,
-    };
-    vec![
-        f("x", 0, POINT_FIELD_FLOAT32),
-        f("y", 4, POINT_FIELD_FLOAT32),
-        f("z", 8, POINT_FIELD_FLOAT32),
-        f("intensity", 12, POINT_FIELD_FLOAT32),
-        f("t", 16, POINT_FIELD_UINT32),
-    ]
+/// LiDAR sweep message in povins' compact layout ([`crate::cloud::Layout::Compact`]).
+pub fn lidar_to_msg(s: &LidarScan) -> Result<PointCloud2, String> {
+    lidar_to_msg_in(crate::cloud::Layout::Compact, s, FRAME_LIDAR)
 }
 
-const LIDAR_POINT_STEP: u32 = 20;
-
-/// LiDAR sweep message.
-pub fn lidar_to_msg(s: &LidarScan) -> Result<PointCloud2, String> {
+/// LiDAR sweep message in a driver's point layout, frame `frame_id`.
+pub fn lidar_to_msg_in(
+    layout: crate::cloud::Layout,
+    s: &LidarScan,
+    frame_id: &str,
+) -> Result<PointCloud2, String> {
     let n = u32::try_from(s.points.len()).map_err(|_| "too many points".to_string())?;
-    let mut data = Vec::with_capacity(s.points.len() * LIDAR_POINT_STEP as usize);
-    for p in &s.points {
-        let dt = p
-            .t_ns
-            .checked_sub(s.t_ns)
-            .and_then(|d| u32::try_from(d).ok())
-            .ok_or_else(|| {
-                format!(
-                    "point time {} ns is not within 0..4.29 s after the sweep start {} ns",
-                    p.t_ns, s.t_ns
-                )
-            })?;
-        for v in [p.p_l[0], p.p_l[1], p.p_l[2], p.intensity] {
-            data.extend_from_slice(&v.to_le_bytes());
-        }
-        data.extend_from_slice(&dt.to_le_bytes());
-    }
+    let (fields, step, data) = crate::cloud::encode_points(layout, s)?;
     let dense = s.points.iter().all(|p| p.p_l.iter().all(|x| x.is_finite()));
     Ok(PointCloud2 {
-        header: Header::new(s.t_ns, FRAME_LIDAR),
+        header: Header::new(s.t_ns, frame_id),
         height: 1,
         width: n,
-        fields: lidar_fields(),
+        fields,
         is_bigendian: false,
-        point_step: LIDAR_POINT_STEP,
-        row_step: LIDAR_POINT_STEP * n,
+        point_step: step,
+        row_step: step * n,
         data,
         is_dense: dense,
     })
 }
 
-/// LiDAR sweep from a message with `x`, `y`, `z` (FLOAT32), optional `intensity` (FLOAT32, else
-/// 0) and `t` (UINT32 ns after the stamp).
+/// LiDAR sweep from a message in any driver layout, told from its fields
+/// ([`crate::cloud::decode_point_cloud2`]; dropped points are not reported here).
 pub fn lidar_from_msg(m: &PointCloud2) -> Result<LidarScan, String> {
-    if m.is_bigendian {
-        return Err("big-endian point data is not supported".into());
-    }
-    let field = |name: &str, dt: u8| -> Result<Option<usize>, String> {
-        match m.fields.iter().find(|f| f.name == name) {
-            None => Ok(None),
-            Some(f) if f.datatype == dt && f.count == 1 && f.offset + 4 <= m.point_step => {
-                Ok(Some(f.offset as usize))
-            }
-            Some(f) => Err(format!(
-                "field {name:?} has datatype {} count {} offset {}, expected datatype {dt} count 1 within point_step {}",
-                f.datatype, f.count, f.offset, m.point_step
-            )),
-        }
-    };
-    let need = |name: &str, dt: u8| -> Result<usize, String> {
-        field(name, dt)?.ok_or_else(|| format!("point field {name:?} is missing"))
-    };
-    let (ox, oy, oz) = (
-        need("x", POINT_FIELD_FLOAT32)?,
-        need("y", POINT_FIELD_FLOAT32)?,
-        need("z", POINT_FIELD_FLOAT32)?,
-    );
-    let oi = field("intensity", POINT_FIELD_FLOAT32)?;
-    let ot = need("t", POINT_FIELD_UINT32)?;
-    let (step, row) = (m.point_step as usize, m.row_step as usize);
-    let (w, h) = (m.width as usize, m.height as usize);
-    if w.checked_mul(step).is_none_or(|b| b > row) {
-        return Err(format!(
-            "width {w} x point_step {step} exceeds row_step {row}"
-        ));
-    }
-    if h.checked_mul(row).is_none_or(|b| b > m.data.len()) {
-        return Err(format!(
-            "{h} rows of {row} bytes exceed the {} data bytes",
-            m.data.len()
-        ));
-    }
-    let word = |p: &[u8], o: usize| -> [u8; 4] {
-        let mut a = [0u8; 4];
-        if let Some(s) = p.get(o..o + 4) {
-            a.copy_from_slice(s);
-        }
-        a
-    };
-    let mut points = Vec::with_capacity(w * h);
-    for r in 0..h {
-        for c in 0..w {
-            let start = r * row + c * step;
-            let p = m.data.get(start..start + step).unwrap_or(&[]);
-            let dt = u32::from_le_bytes(word(p, ot));
-            points.push(LidarPoint {
-                t_ns: m.header.t_ns + i64::from(dt),
-                p_l: [
-                    f32::from_le_bytes(word(p, ox)),
-                    f32::from_le_bytes(word(p, oy)),
-                    f32::from_le_bytes(word(p, oz)),
-                ],
-                intensity: oi.map_or(0.0, |o| f32::from_le_bytes(word(p, o))),
-            });
-        }
-    }
-    Ok(LidarScan {
-        t_ns: m.header.t_ns,
-        points,
-    })
+    crate::cloud::decode_point_cloud2(m, &crate::cloud::CloudOptions::default()).map(|d| d.scan)
 }
 
 /// Image message (mono8). `px` are the pixels (from the frame or its file).

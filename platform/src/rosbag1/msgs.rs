@@ -57,7 +57,7 @@ impl<'a> Reader<'a> {
         Ok(s)
     }
 
-    fn arr<const N: usize>(&mut self, what: &str) -> Result<[u8; N], MsgError> {
+    pub(crate) fn arr<const N: usize>(&mut self, what: &str) -> Result<[u8; N], MsgError> {
         let mut a = [0u8; N];
         a.copy_from_slice(self.take(N, what)?);
         Ok(a)
@@ -182,6 +182,56 @@ pub fn any_image(msg_type: &str, msg: &[u8]) -> Result<ImageFrame, MsgError> {
     }
 }
 
+/// `sensor_msgs/PointCloud2` -> the same struct the CDR decoder gives
+/// ([`crate::ros2::msgs::PointCloud2`]); the point data is read by [`crate::cloud`].
+pub fn point_cloud2(msg: &[u8]) -> Result<crate::ros2::msgs::PointCloud2, MsgError> {
+    use crate::ros2::msgs::{PointCloud2, PointField};
+    let mut r = Reader::new(msg);
+    let (t_ns, frame_id) = r.header_with_frame()?;
+    let height = r.u32()?;
+    let width = r.u32()?;
+    let at = r.pos;
+    let n = r.u32()? as usize;
+    // A field takes at least 13 bytes (empty name, offset, datatype, count).
+    if n.saturating_mul(13) > r.remaining() {
+        return Err(MsgError {
+            offset: at,
+            msg: format!(
+                "{n} point fields cannot fit in the {} bytes left",
+                r.remaining()
+            ),
+        });
+    }
+    let mut fields = Vec::with_capacity(n);
+    for _ in 0..n {
+        fields.push(PointField {
+            name: r.string()?.to_owned(),
+            offset: r.u32()?,
+            datatype: r.u8()?,
+            count: r.u32()?,
+        });
+    }
+    let is_bigendian = r.u8()? != 0;
+    let point_step = r.u32()?;
+    let row_step = r.u32()?;
+    let data = r.bytes("data")?.to_vec();
+    let is_dense = r.u8()? != 0;
+    Ok(PointCloud2 {
+        header: crate::ros2::Header {
+            t_ns,
+            frame_id: frame_id.to_owned(),
+        },
+        height,
+        width,
+        fields,
+        is_bigendian,
+        point_step,
+        row_step,
+        data,
+        is_dense,
+    })
+}
+
 /// A ROS 1 message type as a bag's connection record names it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MsgType {
@@ -253,16 +303,6 @@ pub const POINT_CLOUD2_MSG: MsgType = MsgType {
         "uint8 FLOAT64 = 8\n\nstring name\nuint32 offset\nuint8  datatype\nuint32 count\n"
     ),
 };
-
-/// The PointCloud2 fields [`point_cloud2`] writes: `x`, `y`, `z`, `intensity` (float32) and `t`
-/// (uint32, ns after the header stamp, as the Ouster driver writes it), 20 bytes a point.
-pub const POINT_FIELDS: [(&str, u32, u8); 5] = [
-    ("x", 0, 7),
-    ("y", 4, 7),
-    ("z", 8, 7),
-    ("intensity", 12, 7),
-    ("t", 16, 6),
-];
 
 /// A ROS time (`sec: u32`, `nsec: u32`, little-endian) of `t_ns`, when it fits one.
 pub fn ros_time(t_ns: i64) -> Option<[u8; 8]> {
@@ -369,42 +409,40 @@ pub fn encode_compressed_image(
     Ok(w.0)
 }
 
-/// `sensor_msgs/PointCloud2` of a sweep: one row of [`POINT_FIELDS`], little-endian, stamped
-/// with the sweep time; a point before it or more than 2^32 ns after it is an error.
+/// `sensor_msgs/PointCloud2` of a sweep in povins' compact layout
+/// ([`crate::cloud::Layout::Compact`]), stamped with the sweep time.
 pub fn encode_point_cloud2(
     scan: &crate::dataset::LidarScan,
     seq: u32,
     frame_id: &str,
 ) -> Result<Vec<u8>, MsgError> {
+    encode_point_cloud2_in(crate::cloud::Layout::Compact, scan, seq, frame_id)
+}
+
+/// `sensor_msgs/PointCloud2` of a sweep in a driver's layout ([`crate::cloud::encode_points`]):
+/// one row, little-endian, stamped with the sweep time.
+pub fn encode_point_cloud2_in(
+    layout: crate::cloud::Layout,
+    scan: &crate::dataset::LidarScan,
+    seq: u32,
+    frame_id: &str,
+) -> Result<Vec<u8>, MsgError> {
     let mut w = Writer::header(seq, scan.t_ns, frame_id)?;
-    let n = scan.points.len();
+    let (fields, step, data) =
+        crate::cloud::encode_points(layout, scan).map_err(|msg| MsgError { offset: 0, msg })?;
     w.u32(1);
-    w.len(n)?;
-    w.len(POINT_FIELDS.len())?;
-    for (name, offset, datatype) in POINT_FIELDS {
-        w.bytes(name.as_bytes())?;
-        w.u32(offset);
-        w.0.push(datatype);
-        w.u32(1);
+    w.len(scan.points.len())?;
+    w.len(fields.len())?;
+    for f in &fields {
+        w.bytes(f.name.as_bytes())?;
+        w.u32(f.offset);
+        w.0.push(f.datatype);
+        w.u32(f.count);
     }
     w.0.push(0);
-    let step = 20usize;
-    w.u32(step as u32);
-    w.len(n * step)?;
-    w.len(n * step)?;
-    for (i, p) in scan.points.iter().enumerate() {
-        let dt = u32::try_from(p.t_ns - scan.t_ns).map_err(|_| MsgError {
-            offset: w.0.len(),
-            msg: format!(
-                "point {i} at {} ns is not within 2^32 ns after the sweep stamp {} ns",
-                p.t_ns, scan.t_ns
-            ),
-        })?;
-        for v in [p.p_l[0], p.p_l[1], p.p_l[2], p.intensity] {
-            w.0.extend(v.to_le_bytes());
-        }
-        w.u32(dt);
-    }
+    w.u32(step);
+    w.len(data.len())?;
+    w.bytes(&data)?;
     w.0.push(1);
     Ok(w.0)
 }

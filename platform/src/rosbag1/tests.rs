@@ -127,7 +127,9 @@ fn empty_and_message_less_bags() {
         topics::Selection {
             imu: None,
             camera: None,
-            accel: None
+            accel: None,
+            lidar: None,
+            lidar_note: None,
         }
     );
 }

@@ -5,6 +5,7 @@
 
 use super::Encoding;
 use crate::cdr::CdrError;
+use crate::cloud::{self, livox, CloudOptions, Decoded};
 use crate::dataset::ImageFrame;
 use crate::ros2::msgs as cdr_msgs;
 use crate::rosbag1::msgs as ros1_msgs;
@@ -18,6 +19,15 @@ pub const IMU_TYPE: &str = "sensor_msgs/Imu";
 pub const IMAGE_TYPE: &str = "sensor_msgs/Image";
 /// `sensor_msgs/CompressedImage`.
 pub const COMPRESSED_IMAGE_TYPE: &str = "sensor_msgs/CompressedImage";
+/// `sensor_msgs/PointCloud2`.
+pub const POINT_CLOUD2_TYPE: &str = "sensor_msgs/PointCloud2";
+/// The LiDAR message types read: PointCloud2 in any driver layout, Livox's CustomMsg of both
+/// drivers ([`crate::cloud`]).
+pub const LIDAR_TYPES: [&str; 3] = [
+    POINT_CLOUD2_TYPE,
+    livox::CUSTOM_MSG_TYPE,
+    livox::CUSTOM_MSG2_TYPE,
+];
 
 impl From<CdrError> for MsgError {
     fn from(e: CdrError) -> Self {
@@ -80,4 +90,27 @@ pub fn image(enc: Encoding, msg_type: &str, msg: &[u8]) -> Result<ImageFrame, Ms
             })
         }
     }
+}
+
+/// A LiDAR message of type `msg_type` ([`LIDAR_TYPES`]) -> the sweep, the points dropped and
+/// where the point times came from ([`crate::cloud`]).
+pub fn sweep(
+    enc: Encoding,
+    msg_type: &str,
+    msg: &[u8],
+    opts: &CloudOptions,
+) -> Result<Decoded, MsgError> {
+    let bad = |msg: String| MsgError { offset: 0, msg };
+    if livox::CUSTOM_MSG_TYPES.contains(&msg_type) {
+        let m = match enc {
+            Encoding::Ros1 => livox::CustomMsg::decode_ros1(msg)?,
+            Encoding::Cdr => livox::CustomMsg::decode_cdr(msg)?,
+        };
+        return m.decode().map_err(bad);
+    }
+    let m = match enc {
+        Encoding::Ros1 => ros1_msgs::point_cloud2(msg)?,
+        Encoding::Cdr => cdr_msgs::PointCloud2::decode(msg)?,
+    };
+    cloud::decode_point_cloud2(&m, opts).map_err(bad)
 }

@@ -1,7 +1,12 @@
-//! A ROS recording as a [`Recording`]: the IMU and camera topics chosen by [`super::topics`],
-//! their messages pulled in the container's log-time order and decoded one at a time as the
-//! streams are pulled (images to gray then, not before). The calibration is given by the caller
-//! (Kalibr files, an EuRoC folder's `sensor.yaml` files).
+//! A ROS recording as a [`Recording`]: the IMU, camera and LiDAR topics chosen by
+//! [`super::topics`], their messages pulled in the container's log-time order and decoded one at
+//! a time as the streams are pulled (images to gray then, not before; LiDAR clouds in whatever
+//! driver layout, [`crate::cloud`]). The calibration is given by the caller (Kalibr files, an
+//! EuRoC folder's `sensor.yaml` files, which give the LiDAR extrinsic `T_bl`).
+//!
+//! When the LiDAR stream ends, one line says what it gave: sweeps, points kept and dropped by
+//! cause, and where the point times came from (a [`crate::recording::NOTE`] when nothing was
+//! dropped or guessed, a warning otherwise).
 //!
 //! ## Stamps
 //! A sample's time is its `header.stamp`. A stamp of zero (a driver that leaves the header
@@ -16,6 +21,7 @@ use super::decode::{self, MsgError};
 use super::merge::{self, AccelUnit, Merged};
 use super::topics::{select_with, TopicChoice};
 use super::{LogStream, MessageLog, TopicInfo};
+use crate::cloud::{CloudCounts, CloudOptions, Decoded, TimeSource};
 use crate::dataset::{Calibration, FeatureFrame, ImageFrame, LidarScan};
 use crate::error::IoError;
 use crate::recording::{Contents, Recording, Stream};
@@ -34,6 +40,8 @@ pub struct RosRecording {
     imu: TopicInfo,
     camera: Option<TopicInfo>,
     accel: Option<TopicInfo>,
+    lidar: Option<TopicInfo>,
+    cloud: CloudOptions,
     unit: AccelUnit,
     warnings: std::sync::Arc<Mutex<Vec<String>>>,
 }
@@ -71,7 +79,11 @@ impl RosRecording {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let warnings = std::sync::Arc::new(Mutex::new(log.warnings()));
+        let mut warnings = log.warnings();
+        if let Some(note) = sel.lidar_note {
+            warnings.push(format!("{}: {note}", path.display()));
+        }
+        let warnings = std::sync::Arc::new(Mutex::new(warnings));
         let mut rec = RosRecording {
             name,
             log,
@@ -79,6 +91,8 @@ impl RosRecording {
             imu,
             camera: sel.camera,
             accel: sel.accel,
+            lidar: sel.lidar,
+            cloud: choice.cloud,
             unit: choice.accel_unit,
             warnings,
         };
@@ -128,6 +142,11 @@ impl RosRecording {
         self.camera.as_ref()
     }
 
+    /// The chosen LiDAR topic.
+    pub fn lidar_topic(&self) -> Option<&TopicInfo> {
+        self.lidar.as_ref()
+    }
+
     fn warn(&self, msg: String) {
         if let Ok(mut w) = self.warnings.lock() {
             w.push(msg);
@@ -165,6 +184,15 @@ trait Stamped {
 }
 
 impl Stamped for ImuSample {
+    fn t_ns(&self) -> i64 {
+        self.t_ns
+    }
+    fn set_t_ns(&mut self, t_ns: i64) {
+        self.t_ns = t_ns;
+    }
+}
+
+impl Stamped for LidarScan {
     fn t_ns(&self) -> i64 {
         self.t_ns
     }
@@ -317,6 +345,91 @@ impl<T: Stamped, D: Fn(&[u8]) -> Result<T, MsgError>> Iterator for Checked<'_, T
     }
 }
 
+/// What the sweeps of a LiDAR topic dropped, and where their point times came from.
+#[derive(Debug, Default)]
+struct CloudTally {
+    sweeps: u64,
+    counts: CloudCounts,
+    time: Option<TimeSource>,
+    other_time: Option<TimeSource>,
+}
+
+impl CloudTally {
+    fn add(&mut self, d: &Decoded) {
+        self.sweeps += 1;
+        self.counts.add(&d.counts);
+        match self.time {
+            None => self.time = Some(d.time),
+            Some(t) if t != d.time && self.other_time.is_none() => self.other_time = Some(d.time),
+            _ => {}
+        }
+    }
+}
+
+/// A LiDAR topic's sweeps; when they end, a line for the user on what was read and dropped.
+struct Tallied<'a> {
+    inner: Stream<'a, LidarScan>,
+    tally: std::sync::Arc<Mutex<CloudTally>>,
+    rec: &'a RosRecording,
+    topic: &'a TopicInfo,
+}
+
+impl Iterator for Tallied<'_> {
+    type Item = Result<LidarScan, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let next = self.inner.next();
+        if next.is_none() {
+            let Ok(mut g) = self.tally.lock() else {
+                return None;
+            };
+            if g.sweeps > 0 {
+                let t = std::mem::take(&mut *g);
+                self.rec.warn(describe_tally(self.rec, self.topic, &t));
+            }
+        }
+        next
+    }
+}
+
+/// `FILE: TOPIC (TYPE): N sweeps, M of P points kept (...); point time from ...`: a note when
+/// nothing was dropped and the times are what the field says, else a warning.
+fn describe_tally(rec: &RosRecording, topic: &TopicInfo, t: &CloudTally) -> String {
+    let c = &t.counts;
+    let clean = c.dropped() == 0
+        && t.other_time.is_none()
+        && matches!(t.time, Some(TimeSource::Field { expected: true, .. }));
+    let mut s = format!(
+        "{}{}: {} ({}): {} sweeps, {} of {} points kept",
+        if clean { crate::recording::NOTE } else { "" },
+        rec.log.path().display(),
+        topic.topic,
+        topic.msg_type,
+        t.sweeps,
+        c.points - c.dropped(),
+        c.points
+    );
+    if c.dropped() > 0 {
+        s.push_str(&format!("; {}", c.describe()));
+    }
+    if let Some(time) = t.time {
+        s.push_str(&format!("; {time}"));
+        if let TimeSource::Field {
+            expected: false, ..
+        } = time
+        {
+            s.push_str(
+                " (not what the field's name and type suggest: the values fit only this; \
+                 set [input] lidar_layout if it is wrong)",
+            );
+        }
+    }
+    if let Some(other) = t.other_time {
+        s.push_str(&format!("; some sweeps differ: {other}"));
+    }
+    s
+}
+
 impl Recording for RosRecording {
     fn name(&self) -> &str {
         &self.name
@@ -331,7 +444,7 @@ impl Recording for RosRecording {
             imu: true,
             frames: false,
             images: self.camera.is_some(),
-            lidar: false,
+            lidar: self.lidar.is_some(),
             ground_truth: false,
             imu_span_ns: self.imu.span_ns,
             image_count: self.camera.as_ref().map(|c| c.count as usize),
@@ -387,7 +500,25 @@ impl Recording for RosRecording {
     }
 
     fn sweeps(&self) -> Result<Stream<'_, LidarScan>, IoError> {
-        Ok(Box::new(std::iter::empty()))
+        let Some(t) = &self.lidar else {
+            return Ok(Box::new(std::iter::empty()));
+        };
+        let (enc, ty, opts) = (t.encoding, t.msg_type.clone(), self.cloud);
+        let tally = std::sync::Arc::new(Mutex::new(CloudTally::default()));
+        let into = tally.clone();
+        let inner = self.checked(t, move |b| {
+            let d = decode::sweep(enc, &ty, b, &opts)?;
+            if let Ok(mut g) = into.lock() {
+                g.add(&d);
+            }
+            Ok(d.scan)
+        });
+        Ok(Box::new(Tallied {
+            inner,
+            tally,
+            rec: self,
+            topic: t,
+        }))
     }
 
     fn ground_truth_stream(&self) -> Result<Stream<'_, NavState>, IoError> {

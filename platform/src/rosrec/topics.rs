@@ -8,8 +8,12 @@
 //! filled in. When the user names an accelerometer topic (`accel`), or when the IMU candidates
 //! are exactly two and one name contains `gyro` and the other `accel`, the gyro topic is the IMU
 //! and the accelerometer topic is merged into it ([`super::merge`]).
+//!
+//! The LiDAR topic (`sensor_msgs/PointCloud2`, Livox `CustomMsg`) is chosen the same way, except
+//! that several candidates are not an error: none is used, and [`Selection::lidar_note`] says
+//! why (a bag often holds a driver's cloud beside filtered ones).
 
-use super::decode::{COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE};
+use super::decode::{COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE, LIDAR_TYPES};
 use super::TopicInfo;
 
 /// The topics a run reads.
@@ -22,6 +26,10 @@ pub struct Selection {
     /// The accelerometer topic merged into the IMU topic's samples, when the IMU's
     /// accelerometer is published apart.
     pub accel: Option<TopicInfo>,
+    /// The LiDAR topic.
+    pub lidar: Option<TopicInfo>,
+    /// Why no LiDAR topic was chosen among several.
+    pub lidar_note: Option<String>,
 }
 
 /// Chooses the IMU and camera topics: `want_*` names one, otherwise the single topic of the
@@ -52,6 +60,10 @@ pub struct TopicChoice {
     pub accel: Option<String>,
     /// The accelerometer's unit.
     pub accel_unit: super::merge::AccelUnit,
+    /// The LiDAR topic.
+    pub lidar: Option<String>,
+    /// How its clouds are read.
+    pub cloud: crate::cloud::CloudOptions,
 }
 
 /// [`select`] with every choice, the accelerometer topic among them.
@@ -81,7 +93,23 @@ pub fn select_with(all: &[TopicInfo], choice: &TopicChoice) -> Result<Selection,
         &[IMAGE_TYPE, COMPRESSED_IMAGE_TYPE],
         want_camera,
     )?;
-    Ok(Selection { imu, camera, accel })
+    let (lidar, lidar_note) = match pick(all, "LiDAR", &LIDAR_TYPES, choice.lidar.as_deref()) {
+        Ok(t) => (t, None),
+        Err(e) if choice.lidar.is_none() => (
+            None,
+            Some(format!(
+                "{e}; no LiDAR is read (name one with --lidar-topic)"
+            )),
+        ),
+        Err(e) => return Err(e),
+    };
+    Ok(Selection {
+        imu,
+        camera,
+        accel,
+        lidar,
+        lidar_note,
+    })
 }
 
 /// The RealSense pair among the IMU candidates: exactly two, one named `gyro` and one `accel`.

@@ -12,9 +12,11 @@
 //! | IMU | `sensor_msgs/Imu` | `sensor_msgs/msg/Imu` | gyro, specific force; orientation unknown (`orientation_covariance[0] = -1`), covariances zero |
 //! | images | `sensor_msgs/Image` | `sensor_msgs/msg/Image` | `mono8`, `step` = width |
 //! | images, compressed | `sensor_msgs/CompressedImage` | `sensor_msgs/msg/CompressedImage` | the bytes an [`ImageCompressor`] gives, with its `format` |
-//! | LiDAR | `sensor_msgs/PointCloud2` | `sensor_msgs/msg/PointCloud2` | the 20-byte points of [`crate::rosbag1::msgs::POINT_FIELDS`] |
+//! | LiDAR | `sensor_msgs/PointCloud2` | `sensor_msgs/msg/PointCloud2` | povins' 20-byte points ([`crate::cloud::Layout::Compact`]), or a driver's layout ([`DatasetTopics::lidar_wire`]) |
+//! | LiDAR, Livox | `livox_ros_driver{,2}/CustomMsg` | `livox_ros_driver2/msg/CustomMsg` | [`crate::cloud::livox`] |
 
 use super::Encoding;
+use crate::cloud::{livox, Wire};
 use crate::dataset::{Dataset, ImageFrame};
 use crate::error::IoError;
 use crate::ros2::{self, msgs as ros2msgs, Header};
@@ -55,6 +57,8 @@ pub struct DatasetTopics {
     pub image: (String, String),
     /// `sensor_msgs/PointCloud2` topic and frame id.
     pub lidar: (String, String),
+    /// How sweeps are written (default povins' compact PointCloud2).
+    pub lidar_wire: Wire,
 }
 
 impl DatasetTopics {
@@ -69,6 +73,7 @@ impl DatasetTopics {
                 "camera_infra1_optical_frame",
             ),
             lidar: pair("/lidar/points", "lidar"),
+            lidar_wire: Wire::default(),
         }
     }
 
@@ -109,7 +114,7 @@ enum Kind {
     Imu,
     Image,
     CompressedImage,
-    PointCloud2,
+    Lidar(Wire),
 }
 
 /// ROS 2 `RIHS01` type description hashes (Humble to Jazzy give the same types; computed by
@@ -144,11 +149,23 @@ impl Kind {
                 ros2::compressed_image_schema,
                 RIHS01_COMPRESSED_IMAGE,
             ),
-            Kind::PointCloud2 => (
+            Kind::Lidar(Wire::Cloud(_)) => (
                 ros1::POINT_CLOUD2_MSG,
                 "sensor_msgs/msg/PointCloud2",
                 ros2::point_cloud2_schema,
                 RIHS01_POINT_CLOUD2,
+            ),
+            Kind::Lidar(Wire::LivoxCustom) => (
+                livox::CUSTOM_MSG,
+                "livox_ros_driver/msg/CustomMsg",
+                livox::custom_msg2_schema,
+                livox::RIHS01_CUSTOM_MSG2,
+            ),
+            Kind::Lidar(Wire::Livox2Custom) => (
+                livox::CUSTOM_MSG2,
+                "livox_ros_driver2/msg/CustomMsg",
+                livox::custom_msg2_schema,
+                livox::RIHS01_CUSTOM_MSG2,
             ),
         };
         match encoding {
@@ -259,6 +276,30 @@ fn encode_image(
     }
 }
 
+fn encode_sweep(
+    s: &crate::dataset::LidarScan,
+    seq: u32,
+    frame: &str,
+    wire: Wire,
+    encoding: Encoding,
+) -> Result<Vec<u8>, EncError> {
+    match (wire, encoding) {
+        (Wire::Cloud(l), Encoding::Ros1) => {
+            ros1::encode_point_cloud2_in(l, s, seq, frame).map_err(ros1_err)
+        }
+        (Wire::Cloud(l), Encoding::Cdr) => ros2::convert::lidar_to_msg_in(l, s, frame)
+            .map_err(|e| (0, e))
+            .and_then(|m| m.encode().map_err(cdr_err)),
+        (_, _) => {
+            let m = livox::CustomMsg::from_scan(s, frame).map_err(|e| (0, e))?;
+            match encoding {
+                Encoding::Ros1 => m.encode_ros1(seq).map_err(ros1_err),
+                Encoding::Cdr => m.encode_cdr().map_err(cdr_err),
+            }
+        }
+    }
+}
+
 /// Writes the IMU samples, the images (in memory or as PNG files; compressed by `compress` when
 /// given) and the LiDAR sweeps of `ds` into `w` on `topics` in `encoding` (see the module docs).
 /// Errors name `path` (the container), the topic and the message index.
@@ -281,9 +322,18 @@ pub fn write_dataset(
         true => None,
         false => Some(w.add_topic(&image_kind.spec(&image_topic, encoding))?),
     };
+    let wire = topics.lidar_wire;
+    if (wire, encoding) == (Wire::LivoxCustom, Encoding::Cdr) && !ds.lidar.is_empty() {
+        return Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            msg: "livox_ros_driver/CustomMsg is ROS 1 only (the driver has no ROS 2 version): \
+                  write livox2-custom"
+                .into(),
+        });
+    }
     let cl = match ds.lidar.is_empty() {
         true => None,
-        false => Some(w.add_topic(&Kind::PointCloud2.spec(&topics.lidar.0, encoding))?),
+        false => Some(w.add_topic(&Kind::Lidar(wire).spec(&topics.lidar.0, encoding))?),
     };
     // (time, stream, index): stream 0 IMU, 1 image, 2 sweep.
     let mut order: Vec<(i64, u8, usize)> = Vec::new();
@@ -319,17 +369,7 @@ pub fn write_dataset(
             (2, _, Some(c)) => {
                 let s = &ds.lidar[k];
                 let frame = &topics.lidar.1;
-                let data = match encoding {
-                    Encoding::Ros1 => ros1::encode_point_cloud2(s, seq, frame).map_err(ros1_err),
-                    Encoding::Cdr => {
-                        ros2::convert::lidar_to_msg(s)
-                            .map_err(|e| (0, e))
-                            .and_then(|mut m| {
-                                m.header.frame_id.clone_from(frame);
-                                m.encode().map_err(cdr_err)
-                            })
-                    }
-                };
+                let data = encode_sweep(s, seq, frame, wire, encoding);
                 (c, &topics.lidar.0, data)
             }
             _ => continue,
