@@ -332,7 +332,7 @@ pub fn ros_msgs(data: &[u8]) {
                     k => NoTime::Spin {
                         period_ns: 100_000_000,
                         clockwise: k == 1,
-                        stamp_is_end: variant % 2 == 0,
+                        stamp_is_end: variant.is_multiple_of(2),
                     },
                 },
             };

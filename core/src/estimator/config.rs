@@ -580,6 +580,8 @@ impl EstimatorConfig {
                     depth_range_m: (0.0, 0.0),
                     span_s: 0.0,
                 },
+                crop_to_view: false,
+                view_margin_rad: 0.0,
             },
         }
     };

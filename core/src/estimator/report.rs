@@ -252,6 +252,9 @@ pub struct Counters {
     pub lidar_points_rejected: u64,
     /// LiDAR points evicted from the full buffer before use.
     pub lidar_points_evicted: u64,
+    /// LiDAR points dropped when pushed: they cannot reach the camera's image
+    /// ([`crate::lidar::crop`]).
+    pub lidar_points_outside_view: u64,
 }
 
 impl Counters {
@@ -294,5 +297,6 @@ impl Counters {
         lidar_points_accepted: 0,
         lidar_points_rejected: 0,
         lidar_points_evicted: 0,
+        lidar_points_outside_view: 0,
     };
 }

@@ -160,9 +160,23 @@ impl<
             self.counters.lidar_points_rejected += points.len() as u64;
             return Err(Error::OutOfRange);
         }
-        match self.sweeps_in.push(points, trigger_ns) {
-            Queued::Queued { evicted } => {
+        let l = &self.cfg.lidar;
+        let crop = l
+            .crop_to_view
+            .then(|| {
+                crate::lidar::ViewCrop::new(
+                    &self.cfg.camera,
+                    &self.cfg.extrinsic,
+                    &l.extrinsic,
+                    l.view_margin_rad,
+                )
+            })
+            .flatten();
+        let keep = |p: &LidarPoint| crop.as_ref().is_none_or(|c| c.keeps(p.p_l));
+        match self.sweeps_in.push_kept(points, trigger_ns, keep) {
+            Queued::Queued { evicted, outside } => {
                 self.counters.lidar_points_evicted += u64::from(evicted);
+                self.counters.lidar_points_outside_view += u64::from(outside);
                 Ok(())
             }
             Queued::Full => {

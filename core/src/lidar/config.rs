@@ -145,6 +145,14 @@ pub struct LidarConfig {
     pub td_l_s: f64,
     /// Association parameters.
     pub association: AssociationConfig,
+    /// Drop, when a sweep is pushed, the points that cannot reach the camera's image within
+    /// [`LidarConfig::view_margin_rad`] ([`crate::lidar::crop`]), so that a LiDAR that sees all
+    /// around fills the buffers with points the association can use. Counted in
+    /// `Counters::lidar_points_outside_view`.
+    pub crop_to_view: bool,
+    /// Angle added on every side of the camera's field of view by the crop, rad. Default 0.6:
+    /// a camera turning at 1.2 rad/s over the association's 0.5 s span.
+    pub view_margin_rad: f64,
 }
 
 impl LidarConfig {
@@ -162,6 +170,8 @@ impl LidarConfig {
         extrinsic: LidarExtrinsic::IDENTITY,
         td_l_s: 0.0,
         association: AssociationConfig::DEFAULT,
+        crop_to_view: true,
+        view_margin_rad: 0.6,
     };
 }
 
@@ -217,5 +227,11 @@ impl LidarConfig {
             far > near && far.is_finite(),
         );
         r.positive("lidar.association.span_s", a.span_s);
+        r.check(
+            "lidar.view_margin_rad",
+            self.view_margin_rad,
+            "0..=3.1416",
+            (0.0..=core::f64::consts::PI).contains(&self.view_margin_rad),
+        );
     }
 }

@@ -2,6 +2,8 @@
 //! depth association of visual features on the unit sphere of the keyframe camera.
 //!
 //! Pipeline (driven by [`crate::estimator`]):
+//! 0. When a sweep is pushed, [`ViewCrop`] drops the points that cannot reach the camera's image
+//!    (counted), and the rest wait in [`PendingSweeps`] until the INS has passed them.
 //! 1. [`PointBuffer::push_scan`]: every point of a sweep is de-skewed with the INS pose at its
 //!    own time (`t_imu = t_lidar + td_l_s`) and the LiDAR-IMU extrinsic `T_bl`, and stored in the
 //!    INS world frame `w`. The buffer keeps the latest points up to its capacity and time span.
@@ -19,6 +21,7 @@ mod angle_index;
 pub mod association;
 pub mod buffer;
 pub mod config;
+pub mod crop;
 mod deskew;
 pub mod pending;
 mod plane;
@@ -29,6 +32,7 @@ mod testutil;
 pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
 pub use buffer::{PointBuffer, ScanStats, WorldPoint};
 pub use config::{AssociationConfig, LdmMode, LidarConfig, LidarExtrinsic};
+pub use crop::ViewCrop;
 pub use pending::{PendingSweeps, Queued};
 pub use rejection::DepthPair;
 

@@ -41,10 +41,13 @@ struct Sweep {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Queued {
     /// Queued; `evicted` points (the first ones pushed) did not fit in the free room and were
-    /// dropped, as a full point buffer would evict its oldest points.
+    /// dropped, as a full point buffer would evict its oldest points; `outside` were not kept
+    /// by the caller's filter ([`PendingSweeps::push_kept`]).
     Queued {
         /// Points dropped for lack of room.
         evicted: u32,
+        /// Points the filter did not keep.
+        outside: u32,
     },
     /// Refused whole: no free sweep slot, or no room at all for its points.
     Full,
@@ -94,9 +97,23 @@ impl<const Q: usize, const S: usize> PendingSweeps<Q, S> {
     /// last ones pushed (the newest of a sweep in time order) are kept; refused whole when no
     /// sweep slot is free or no point fits.
     pub fn push(&mut self, points: &[LidarPoint], trigger_ns: i64) -> Queued {
+        self.push_kept(points, trigger_ns, |_| true)
+    }
+
+    /// [`PendingSweeps::push`] of the points `keep` keeps (the others are counted in
+    /// [`Queued::Queued::outside`]; the sweep's times still count all of them).
+    pub fn push_kept(
+        &mut self,
+        points: &[LidarPoint],
+        trigger_ns: i64,
+        keep: impl Fn(&LidarPoint) -> bool,
+    ) -> Queued {
         let t0_ns = points.iter().map(|p| p.t_ns).min().unwrap_or(trigger_ns);
-        let fits = |p: &&LidarPoint| i32::try_from(p.t_ns.saturating_sub(t0_ns)).is_ok();
+        let packs = |p: &LidarPoint| i32::try_from(p.t_ns.saturating_sub(t0_ns)).is_ok();
+        let fits = |p: &&LidarPoint| packs(p) && keep(p);
+        let all_packable = points.iter().filter(|p| packs(p)).count();
         let packable = points.iter().filter(fits).count();
+        let outside = all_packable - packable;
         let free = Q - self.len;
         if self.sweeps.is_full() || (packable > 0 && free == 0) {
             return Queued::Full;
@@ -120,13 +137,14 @@ impl<const Q: usize, const S: usize> PendingSweeps<Q, S> {
             trigger_ns,
             start,
             len: n,
-            dropped: u32::try_from(points.len() - packable).unwrap_or(u32::MAX),
+            dropped: u32::try_from(points.len() - all_packable).unwrap_or(u32::MAX),
             received: u32::try_from(points.len()).unwrap_or(u32::MAX),
         };
         // Not full (checked above): cannot fail.
         let _ = self.sweeps.push_back(sweep);
         Queued::Queued {
             evicted: u32::try_from(evicted).unwrap_or(u32::MAX),
+            outside: u32::try_from(outside).unwrap_or(u32::MAX),
         }
     }
 
@@ -216,7 +234,10 @@ mod tests {
     fn sweeps_come_back_exactly_in_order_across_the_ring_end() {
         let mut q: PendingSweeps<10, 3> = PendingSweeps::new();
         let (a, b, c) = (sweep(0, 4), sweep(10_000, 4), sweep(20_000, 5));
-        const ALL: Queued = Queued::Queued { evicted: 0 };
+        const ALL: Queued = Queued::Queued {
+            evicted: 0,
+            outside: 0,
+        };
         assert_eq!(q.push(&a, 5), ALL);
         assert_eq!(q.push(&b, 6), ALL);
         assert_eq!(q.next_trigger_ns(), Some(5));
@@ -233,9 +254,21 @@ mod tests {
     fn a_sweep_larger_than_the_room_keeps_its_last_points() {
         let mut q: PendingSweeps<10, 3> = PendingSweeps::new();
         let (a, b) = (sweep(0, 7), sweep(10_000, 5));
-        assert_eq!(q.push(&a, 1), Queued::Queued { evicted: 0 });
+        assert_eq!(
+            q.push(&a, 1),
+            Queued::Queued {
+                evicted: 0,
+                outside: 0
+            }
+        );
         // 3 points free: the last 3 of b are kept.
-        assert_eq!(q.push(&b, 2), Queued::Queued { evicted: 2 });
+        assert_eq!(
+            q.push(&b, 2),
+            Queued::Queued {
+                evicted: 2,
+                outside: 0
+            }
+        );
         assert_eq!(q.push(&b, 3), Queued::Full);
         assert_eq!(pop(&mut q), Some((a, 7, 0)));
         let (kept, received, dropped) = pop(&mut q).expect("b");
@@ -247,12 +280,24 @@ mod tests {
         let mut q: PendingSweeps<10, 3> = PendingSweeps::new();
         let mut s = sweep(0, 3);
         s[1].t_ns = i64::MAX;
-        assert_eq!(q.push(&s, 1), Queued::Queued { evicted: 0 });
+        assert_eq!(
+            q.push(&s, 1),
+            Queued::Queued {
+                evicted: 0,
+                outside: 0
+            }
+        );
         let (pts, rec, dropped) = pop(&mut q).expect("one sweep");
         assert_eq!((pts.len(), rec, dropped), (2, 3, 1));
         // Empty sweeps and a full slot list.
         for k in 0..3 {
-            assert_eq!(q.push(&[], k), Queued::Queued { evicted: 0 });
+            assert_eq!(
+                q.push(&[], k),
+                Queued::Queued {
+                    evicted: 0,
+                    outside: 0
+                }
+            );
         }
         assert_eq!(q.push(&[], 9), Queued::Full);
     }
@@ -261,7 +306,13 @@ mod tests {
     fn zero_capacity_refuses_points_but_not_empty_sweeps() {
         let mut q: PendingSweeps<0, 2> = PendingSweeps::new();
         assert_eq!(q.push(&sweep(0, 1), 1), Queued::Full);
-        assert_eq!(q.push(&[], 1), Queued::Queued { evicted: 0 });
+        assert_eq!(
+            q.push(&[], 1),
+            Queued::Queued {
+                evicted: 0,
+                outside: 0
+            }
+        );
         assert_eq!(q.pop_with(|it, _, _| it.len()), Some(0));
     }
 }

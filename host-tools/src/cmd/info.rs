@@ -148,6 +148,15 @@ pub fn summary(log: &dyn MessageLog, choice: &TopicChoice) -> String {
                     a.topic
                 );
             }
+            match (&sel.lidar, &sel.lidar_note) {
+                (Some(l), _) => {
+                    let _ = writeln!(s, "          LiDAR {} ({})", l.topic, l.msg_type);
+                }
+                (None, Some(note)) => {
+                    let _ = writeln!(s, "          LiDAR none: {note}");
+                }
+                (None, None) => {}
+            }
             if sel.imu.is_none() || sel.camera.is_none() {
                 let _ = writeln!(
                     s,
@@ -164,7 +173,8 @@ pub fn summary(log: &dyn MessageLog, choice: &TopicChoice) -> String {
         let _ = writeln!(
             s,
             "note      {} carries raw sensor packets ({}): a LiDAR needs the driver's \
-             sensor_msgs/PointCloud2 topic (replay the packets through the driver)",
+             sensor_msgs/PointCloud2 or Livox CustomMsg topic (replay the packets through the \
+             driver)",
             t.topic, t.msg_type
         );
     }

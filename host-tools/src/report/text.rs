@@ -118,6 +118,21 @@ pub fn lidar_lines(s: &Summary) -> Vec<String> {
             s.depth_opt_ms_max
         ),
     ];
+    let c = |k: &str| {
+        s.counters
+            .get(k)
+            .and_then(serde_json::Value::as_u64)
+            .unwrap_or(0)
+    };
+    v.push(format!(
+        "points    {} received: {} stored, {} outside the camera's view (cropped), {} evicted \
+         (buffer full), {} rejected (non-finite, range, time)",
+        c("lidar_points_received"),
+        c("lidar_points_accepted"),
+        c("lidar_points_outside_view"),
+        c("lidar_points_evicted"),
+        c("lidar_points_rejected"),
+    ));
     if let Some(a) = &s.assoc {
         v.push(format!(
             "assoc     {} checked vs truth: {} within 3 sigma_dr before rejection, {} after; edge features {} -> {}",
