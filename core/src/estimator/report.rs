@@ -250,8 +250,12 @@ pub struct Counters {
     pub lidar_points_accepted: u64,
     /// LiDAR points rejected (non-finite, range, time outside the INS window).
     pub lidar_points_rejected: u64,
-    /// LiDAR points evicted from the full buffer before use.
+    /// LiDAR points evicted from the full buffer (every stored point is, in the end, once the
+    /// buffer has filled).
     pub lidar_points_evicted: u64,
+    /// Of those, points younger than the association's span when evicted: lost before every
+    /// keyframe that could use them had (the buffer is too small for the LiDAR's rate).
+    pub lidar_points_evicted_in_span: u64,
     /// LiDAR points dropped when pushed: they cannot reach the camera's image
     /// ([`crate::lidar::crop`]).
     pub lidar_points_outside_view: u64,
@@ -297,6 +301,7 @@ impl Counters {
         lidar_points_accepted: 0,
         lidar_points_rejected: 0,
         lidar_points_evicted: 0,
+        lidar_points_evicted_in_span: 0,
         lidar_points_outside_view: 0,
     };
 }

@@ -372,6 +372,7 @@ impl<
                         + u64::from(st.rejected_time)
                         + u64::from(dropped);
                     c.lidar_points_evicted += u64::from(st.evicted);
+                    c.lidar_points_evicted_in_span += u64::from(st.evicted_in_span);
                 }
                 Some(None) => c.lidar_scans_refused += 1,
                 None => break,

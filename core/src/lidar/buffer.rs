@@ -67,6 +67,11 @@ pub struct ScanStats {
     pub rejected_time: u32,
     /// Older points dropped to make room (capacity `P`).
     pub evicted: u32,
+    /// Of those, points younger than the association's span
+    /// ([`AssociationConfig::span_s`](super::AssociationConfig::span_s)) before the point that
+    /// pushed them out: lost before a keyframe could use them all (a buffer too small for the
+    /// LiDAR's rate).
+    pub evicted_in_span: u32,
 }
 
 /// One stored point: offset from its segment's origin (`w` axes, m) and time offset from the
@@ -180,6 +185,7 @@ impl<const P: usize> PointBuffer<P> {
             ..ScanStats::default()
         };
         let td_ns = seconds_to_ns(cfg.td_l_s);
+        let span_ns = seconds_to_ns(cfg.association.span_s);
         let r_bl = cfg.extrinsic.q_bl.to_rotation_matrix().into_inner();
         let p_bl = cfg.extrinsic.p_bl;
         let mut cursor = InterpCursor::new();
@@ -208,9 +214,10 @@ impl<const P: usize> PointBuffer<P> {
                 st.rejected_nonfinite = st.rejected_nonfinite.saturating_add(1);
                 continue;
             }
-            match self.store(pt.t_ns, &p_w, &p_wb, &mut open) {
-                Some(evicted) => {
+            match self.store(pt.t_ns, &p_w, &p_wb, &mut open, span_ns) {
+                Some((evicted, in_span)) => {
                     st.evicted = st.evicted.saturating_add(sat_u32(evicted));
+                    st.evicted_in_span = st.evicted_in_span.saturating_add(sat_u32(in_span));
                     st.accepted = st.accepted.saturating_add(1);
                 }
                 None => st.rejected_range = st.rejected_range.saturating_add(1),
@@ -261,9 +268,17 @@ impl<const P: usize> PointBuffer<P> {
     }
 
     /// Appends one de-skewed point (`p_wb`: body position, the origin if a segment opens).
-    /// Returns the points evicted for it, or `None` (nothing changed) when the point is more than
-    /// [`MAX_OFFSET_M`] from the body, which only an absurd extrinsic offset can cause.
-    fn store(&mut self, t_ns: i64, p_w: &Vec3, p_wb: &Vec3, open: &mut bool) -> Option<usize> {
+    /// Returns the points evicted for it and how many of them were less than `span_ns` older
+    /// than it, or `None` (nothing changed) when the point is more than [`MAX_OFFSET_M`] from
+    /// the body, which only an absurd extrinsic offset can cause.
+    fn store(
+        &mut self,
+        t_ns: i64,
+        p_w: &Vec3,
+        p_wb: &Vec3,
+        open: &mut bool,
+        span_ns: i64,
+    ) -> Option<(usize, usize)> {
         let pack = |seg: &Segment| -> Option<Packed> {
             let dt_ns = i32::try_from(t_ns.checked_sub(seg.t0_ns)?).ok()?;
             let d = p_w - seg.origin_w;
@@ -280,10 +295,14 @@ impl<const P: usize> PointBuffer<P> {
             len: 0,
         };
         let fresh_packed = pack(&fresh)?;
-        let mut evicted = 0;
+        let (mut evicted, mut in_span) = (0, 0);
         if self.len == P {
+            let young = self
+                .oldest_time_ns()
+                .is_some_and(|t| t_ns.saturating_sub(t) < span_ns);
             self.evict_oldest_point();
             evicted += 1;
+            in_span += usize::from(young);
         }
         // Append to this scan's segment if it is still there (only P == 1 evicts it whole
         // above) and the point fits it; otherwise open a segment at the body.
@@ -291,11 +310,16 @@ impl<const P: usize> PointBuffer<P> {
             Some(p) => p,
             None => {
                 if self.segs.is_full() {
-                    evicted += self.evict_oldest_segment();
+                    let young = self.segs.front().is_some_and(|s| {
+                        t_ns.saturating_sub(s.t0_ns.saturating_add(i64::from(s.dt_max))) < span_ns
+                    });
+                    let n = self.evict_oldest_segment();
+                    evicted += n;
+                    in_span += if young { n } else { 0 };
                 }
                 // Cannot fail: there is room now. Nothing is stored if it did.
                 if self.segs.push_back(fresh).is_err() {
-                    return Some(evicted);
+                    return Some((evicted, in_span));
                 }
                 *open = true;
                 fresh_packed
@@ -309,7 +333,14 @@ impl<const P: usize> PointBuffer<P> {
             seg.len += 1;
             self.len += 1;
         }
-        Some(evicted)
+        Some((evicted, in_span))
+    }
+
+    /// Time of the oldest stored point (LiDAR clock), ns.
+    fn oldest_time_ns(&self) -> Option<i64> {
+        let seg = self.segs.front()?;
+        let q = self.pts.get(self.head)?;
+        Some(seg.t0_ns.saturating_add(i64::from(q.dt_ns)))
     }
 
     fn evict_oldest_point(&mut self) {
@@ -534,6 +565,7 @@ mod tests {
             rejected_range: 3,
             rejected_time: 4,
             evicted: 0,
+            evicted_in_span: 0,
         };
         assert_eq!(st, want);
         assert_eq!(buf.len(), 7);
@@ -579,6 +611,16 @@ mod tests {
             st.accepted + st.rejected_nonfinite + st.rejected_range + st.rejected_time
         );
         assert_eq!(st.evicted, 190 - P as u32);
+        // Each evicted point is about P ms older than the one that pushed it out: within the
+        // 0.5 s span, not within 50 ms.
+        assert_eq!(st.evicted_in_span, st.evicted);
+        let mut short = cfg;
+        short.association.span_s = 0.05;
+        let st_short = PointBuffer::<P>::new().push_scan(&pts, &ins, &short);
+        assert_eq!(
+            (st_short.evicted, st_short.evicted_in_span),
+            (st.evicted, 0)
+        );
         // The last P valid ones: indices 127..=191 without 190.
         let want: Vec<i64> = (127..192)
             .filter(|&i| i != 190)
