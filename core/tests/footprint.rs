@@ -13,7 +13,7 @@ const TABLE_HEAD: &str = "| type | keyframes | landmarks | LiDAR points, grid, q
 
 /// The LiDAR capacities of the default build (the `lidar` feature).
 type WithLidar<const N: usize, const L: usize, const D: usize> =
-    Estimator<N, L, D, 65_536, 256, 192, 32_768>;
+    Estimator<N, L, D, 131_072, 256, 192, 65_536>;
 
 /// Every type the table lists, by the name written in its first cell (the README describes the
 /// default build; without the `lidar` feature the types that take its defaults are skipped).
@@ -111,7 +111,7 @@ fn lidar_storage_is_what_the_lidar_feature_adds() {
     let without = size_of::<Estimator<10, 200, 166, 0, 0, 0, 0>>();
     // 16-byte points and 16-byte grid cells, at least.
     assert!(
-        with - without >= 65_536 * 16 + 256 * 192 * 16,
+        with - without >= 131_072 * 16 + 256 * 192 * 16,
         "{with} - {without}"
     );
     let default = size_of::<Estimator<10, 200, 166>>();

@@ -21,8 +21,11 @@ use crate::inertial::window::InsWindow;
 use crate::math::Vec3;
 use heapless::Deque;
 
-/// Most points the estimator's buffer holds (about 0.5 s of a Livox Mid-70).
-pub const MAX_LIDAR_POINTS: usize = 65_536;
+/// Most points the estimator's buffer holds (2 MB): the association's 0.5 s span of a LiDAR
+/// delivering up to 262,000 points/s into the camera's view (a Livox Avia's 240,000; an Ouster
+/// OS1-128 at 1024 x 10 after the crop to the camera, [`super::crop`]). 65,536 lost a third of
+/// the simulated hand-held Livox's points within the span (BENCHMARKS.md, "Real LiDARs").
+pub const MAX_LIDAR_POINTS: usize = 131_072;
 
 /// Most segments (scans, or pieces of scans) a [`PointBuffer`] tracks; the oldest is evicted
 /// whole to open a new one. 256 sweeps cover 25 s of a 10 Hz LiDAR; at 48 bytes a segment the

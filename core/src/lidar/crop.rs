@@ -19,6 +19,7 @@
 use crate::camera::{CameraExtrinsic, PinholeCamera};
 use crate::math::{Mat3, Vec3};
 
+use super::buffer::MIN_RANGE_M;
 use super::LidarExtrinsic;
 
 /// Points of each image side where the lens model is inverted to find the field of view.
@@ -80,10 +81,14 @@ impl ViewCrop {
     }
 
     /// Whether the point `p_l` (LiDAR frame) can reach the image (see the module docs).
-    /// Non-finite points are kept (the buffer rejects and counts them).
+    /// Invalid points (non-finite, or nearer than [`MIN_RANGE_M`]: "no return") are kept, for
+    /// the buffer to reject and count them as such.
     pub fn keeps(&self, p_l: [f32; 3]) -> bool {
-        let p = self.r_cl * Vec3::new(f64::from(p_l[0]), f64::from(p_l[1]), f64::from(p_l[2]))
-            + self.p_cl;
+        let p_l = Vec3::new(f64::from(p_l[0]), f64::from(p_l[1]), f64::from(p_l[2]));
+        if !(p_l.norm_squared() >= MIN_RANGE_M * MIN_RANGE_M) {
+            return true;
+        }
+        let p = self.r_cl * p_l + self.p_cl;
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
             return true;
         }
@@ -143,6 +148,7 @@ mod tests {
             assert_eq!(c.keeps(at(ax, ay)), keep, "ax {ax} ay {ay}");
         }
         assert!(c.keeps([f32::NAN, 0.0, 1.0]));
+        assert!(c.keeps([0.0, 0.0, 0.0]) && c.keeps([0.0, 0.0, -0.05]));
         // A margin that reaches behind the camera keeps that axis whole.
         let all =
             ViewCrop::new(&camera(), &identity_cam(), &LidarExtrinsic::IDENTITY, 3.0).unwrap();
