@@ -85,7 +85,8 @@ impl ViewCrop {
     /// the buffer to reject and count them as such.
     pub fn keeps(&self, p_l: [f32; 3]) -> bool {
         let p_l = Vec3::new(f64::from(p_l[0]), f64::from(p_l[1]), f64::from(p_l[2]));
-        if !(p_l.norm_squared() >= MIN_RANGE_M * MIN_RANGE_M) {
+        let r2 = p_l.norm_squared();
+        if r2.is_nan() || r2 < MIN_RANGE_M * MIN_RANGE_M {
             return true;
         }
         let p = self.r_cl * p_l + self.p_cl;
