@@ -345,6 +345,51 @@ impl InputOptions {
     /// recording's own (`log`: [`from_recording`]); an error says what is missing and where it
     /// was looked for.
     pub fn calibration_files(&self, log: &dyn MessageLog) -> Result<CalibrationFound> {
+        let mut found = self.camera_and_imu(log)?;
+        if found.t_bl.is_none() {
+            self.lidar_from_tf_static(log, &mut found);
+        }
+        Ok(found)
+    }
+
+    /// The LiDAR extrinsic `T_bl` from the recording's `/tf_static` (the IMU's and the LiDAR
+    /// messages' frames), when the recording has a LiDAR topic and no file gave one; where it
+    /// came from, or why there is none, goes into `found.sources`.
+    fn lidar_from_tf_static(&self, log: &dyn MessageLog, found: &mut CalibrationFound) {
+        use povins_platform::rosrec::{calib_msgs, topics};
+        let all = log.topics();
+        let Ok(sel) = topics::select_with(&all, &self.topic_choice(&all, None, None)) else {
+            return;
+        };
+        let (Some(imu), Some(lidar)) = (sel.imu, sel.lidar) else {
+            return;
+        };
+        match calib_msgs::t_b_from_log(log, &imu, &lidar) {
+            Some(Ok(t)) => {
+                found.t_bl = Some(t);
+                let _ = write!(
+                    found.sources,
+                    "\nLiDAR   T_bl from {}'s /tf_static ({} to {})",
+                    log.path().display(),
+                    imu.topic,
+                    lidar.topic
+                );
+            }
+            Some(Err(e)) => {
+                let _ = write!(found.sources, "\nLiDAR   no T_bl: {e}");
+            }
+            None => {
+                let _ = write!(
+                    found.sources,
+                    "\nLiDAR   no T_bl: no /tf_static in the recording (give [lidar.extrinsic] in \
+                     --config, or an EuRoC --calib folder with lidar0/sensor.yaml)"
+                );
+            }
+        }
+    }
+
+    /// [`Self::calibration_files`] before the LiDAR's `/tf_static`.
+    fn camera_and_imu(&self, log: &dyn MessageLog) -> Result<CalibrationFound> {
         let Some(calib) = &self.calib else {
             let mut found = from_recording(log, self)?;
             if let Some(p) = &self.imu_calib {
@@ -389,7 +434,7 @@ pub struct CalibrationFound {
     pub camera: KalibrCamera,
     /// The IMU, when a file gave it.
     pub imu: Option<KalibrImu>,
-    /// An EuRoC folder's LiDAR extrinsic.
+    /// The LiDAR extrinsic: an EuRoC folder's, or the recording's `/tf_static`.
     pub t_bl: Option<Extrinsic>,
     /// Where they came from, a line each.
     pub sources: String,
@@ -550,7 +595,7 @@ pub fn from_recording(log: &dyn MessageLog, input: &InputOptions) -> Result<Cali
         }
         Some(r) => r.map_err(|e| anyhow!("{path}: {e}"))?,
     };
-    let t_bc = match calib_msgs::t_bc_from_log(log, &imu, &cam) {
+    let t_bc = match calib_msgs::t_b_from_log(log, &imu, &cam) {
         None => {
             return Err(missing(
                 "the camera-IMU extrinsic T_bc: the recording has no /tf_static",

@@ -301,13 +301,14 @@ pub fn relative(tf: &[(String, String, Extrinsic)], a: &str, b: &str) -> Option<
     })
 }
 
-/// The camera in the body, `T_bc`, from the recording's `/tf_static` and the frames of the
-/// IMU and camera topics: `None` when the recording has no `/tf_static`, an error when it has
-/// one that does not link the two frames.
-pub fn t_bc_from_log(
+/// A sensor in the body, `T_bs` (the camera's `T_bc`, the LiDAR's `T_bl`), from the recording's
+/// `/tf_static` and the `header.frame_id` of the first message of the IMU topic and of the
+/// sensor's topic `other`: `None` when the recording has no `/tf_static`, an error when it has one
+/// that does not link the two frames.
+pub fn t_b_from_log(
     log: &dyn MessageLog,
     imu: &TopicInfo,
-    camera: &TopicInfo,
+    other: &TopicInfo,
 ) -> Option<Result<Extrinsic, String>> {
     let all = log.topics();
     let tf_topic = all
@@ -330,9 +331,12 @@ pub fn t_bc_from_log(
                 .map_err(|e| format!("/tf_static message {k}: byte {}: {}", e.offset, e.msg))?;
             tf.extend(part);
         }
-        let (b, c) = (first_frame(imu)?, first_frame(camera)?);
+        let (b, c) = (first_frame(imu)?, first_frame(other)?);
         relative(&tf, &b, &c).ok_or_else(|| {
-            format!("/tf_static does not link the IMU's frame {b:?} and the camera's frame {c:?}")
+            format!(
+                "/tf_static does not link the IMU's frame {b:?} and {}'s frame {c:?}",
+                other.topic
+            )
         })
     };
     Some(run())
@@ -471,5 +475,122 @@ mod tests {
             camera_info_topic(&all[..1], "/c/image_raw").unwrap().topic,
             "/a/camera_info"
         );
+    }
+
+    /// A ROS 1 `tf2_msgs/TFMessage` of `(parent, child, T_parent_child)`.
+    fn tf_ros1(tfs: &[(&str, &str, Extrinsic)]) -> Vec<u8> {
+        let string = |b: &mut Vec<u8>, s: &str| {
+            b.extend((s.len() as u32).to_le_bytes());
+            b.extend(s.as_bytes());
+        };
+        let mut b = (tfs.len() as u32).to_le_bytes().to_vec();
+        for (parent, child, t) in tfs {
+            b.extend([0u8; 12]); // seq, stamp
+            string(&mut b, parent);
+            string(&mut b, child);
+            for v in [t.p_ab.x, t.p_ab.y, t.p_ab.z] {
+                b.extend(v.to_le_bytes());
+            }
+            let q = t.q_ab.coords;
+            for v in [q.x, q.y, q.z, q.w] {
+                b.extend(v.to_le_bytes());
+            }
+        }
+        b
+    }
+
+    /// A log of three topics, one message each.
+    #[derive(Debug)]
+    struct Log(Vec<(TopicInfo, Vec<u8>)>);
+
+    impl MessageLog for Log {
+        fn path(&self) -> &std::path::Path {
+            std::path::Path::new("mem.bag")
+        }
+        fn describe(&self) -> String {
+            "memory".into()
+        }
+        fn topics(&self) -> Vec<TopicInfo> {
+            self.0.iter().map(|(t, _)| t.clone()).collect()
+        }
+        fn messages(&self, topic: &str) -> super::super::LogStream<'_> {
+            let v: Vec<_> = self
+                .0
+                .iter()
+                .filter(|(t, _)| t.topic == topic)
+                .map(|(_, d)| {
+                    Ok(super::super::LogMessage {
+                        log_time_ns: 1,
+                        offset: 0,
+                        data: d.clone(),
+                    })
+                })
+                .collect();
+            Box::new(v.into_iter())
+        }
+        fn warnings(&self) -> Vec<String> {
+            Vec::new()
+        }
+    }
+
+    #[test]
+    fn a_lidar_extrinsic_is_found_in_tf_static_from_the_clouds_frame() {
+        let topic = |name: &str, ty: &str| TopicInfo {
+            topic: name.into(),
+            msg_type: ty.into(),
+            encoding: Encoding::Ros1,
+            count: 1,
+            span_ns: None,
+        };
+        let header = |frame: &str| {
+            let mut b = vec![0u8; 12];
+            b.extend((frame.len() as u32).to_le_bytes());
+            b.extend(frame.as_bytes());
+            b
+        };
+        let rz = |a: f64| Quat::from_axis_angle(&Vec3::z_axis(), a);
+        let t_base_imu = ext(rz(0.1), [0.0, 0.0, 0.1]);
+        let t_base_lidar = ext(rz(-0.4), [0.2, 0.0, 0.3]);
+        let cloud = crate::rosbag1::msgs::encode_point_cloud2(
+            &crate::dataset::LidarScan {
+                t_ns: 1_000_000_000,
+                points: Vec::new(),
+            },
+            0,
+            "os_lidar",
+        )
+        .unwrap();
+        let log = Log(vec![
+            (topic("/imu", "sensor_msgs/Imu"), header("imu_link")),
+            (topic("/points", "sensor_msgs/PointCloud2"), cloud),
+            (
+                topic("/tf_static", TF_TYPE),
+                tf_ros1(&[
+                    ("base", "imu_link", t_base_imu),
+                    ("base", "os_lidar", t_base_lidar),
+                ]),
+            ),
+        ]);
+        let all = log.topics();
+        let t_bl = t_b_from_log(&log, &all[0], &all[1]).unwrap().unwrap();
+        // T_bl = T_base_imu^-1 T_base_lidar.
+        let want_q = t_base_imu.q_ab.inverse() * t_base_lidar.q_ab;
+        let want_p = t_base_imu.q_ab.inverse() * (t_base_lidar.p_ab - t_base_imu.p_ab);
+        assert!((t_bl.q_ab.angle_to(&want_q)).abs() < 1e-12);
+        assert!((t_bl.p_ab - want_p).norm() < 1e-12);
+        // A cloud in a frame /tf_static does not know: an error naming the topic and frame.
+        let mut other = log.0.clone();
+        other[1].1 = crate::rosbag1::msgs::encode_point_cloud2(
+            &crate::dataset::LidarScan {
+                t_ns: 1,
+                points: Vec::new(),
+            },
+            0,
+            "velodyne",
+        )
+        .unwrap();
+        let log = Log(other);
+        let e = t_b_from_log(&log, &all[0], &all[1]).unwrap().unwrap_err();
+        assert!(e.contains("/points") && e.contains("velodyne"), "{e}");
     }
 }
