@@ -34,6 +34,8 @@ impl<
             t_ns: nav.t_ns,
             t_cam_ns,
             decision,
+            lidar_points_cropped_total: self.counters.lidar_points_outside_view,
+            lidar_points_lost_total: self.counters.lidar_points_evicted_in_span,
             ..Default::default()
         };
         self.events.clear();

@@ -70,6 +70,13 @@ pub struct KeyframeReport {
     pub total_ns: u64,
     /// LiDAR points (inside the association span) seen by the depth association.
     pub lidar_points: u32,
+    /// LiDAR points the crop to the camera's view dropped since the start, at this keyframe
+    /// (`Counters::lidar_points_outside_view`; the difference between two keyframes is what
+    /// the sweeps between them lost).
+    pub lidar_points_cropped_total: u64,
+    /// LiDAR points lost younger than the association's span since the start, at this keyframe
+    /// (`Counters::lidar_points_evicted_in_span`).
+    pub lidar_points_lost_total: u64,
     /// Features of this keyframe given a LiDAR depth.
     pub depths_associated: u32,
     /// LiDAR depths removed by the uncertainty-based rejection (paper IV.C) in this step.

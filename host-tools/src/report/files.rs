@@ -35,9 +35,12 @@ fn write_state_row(f: &mut impl Write, s: &NavState) -> std::io::Result<()> {
     writeln!(f)
 }
 
-/// The LiDAR columns appended to `stats.csv` (one row per keyframe).
+/// The LiDAR columns appended to `stats.csv` (one row per keyframe): `lidar_cropped` and
+/// `lidar_lost` are the points of the sweeps since the previous keyframe that the crop to the
+/// camera's view dropped and that were lost younger than the association's span
+/// (`KeyframeReport::lidar_points_cropped_total`, `lidar_points_lost_total`).
 pub const STATS_LIDAR_COLUMNS: &str =
-    "lidar_points,depths_associated,depths_rejected,ldm_count,association_ms,rejection_ms,depth_opt_ms";
+    "lidar_points,depths_associated,depths_rejected,ldm_count,association_ms,rejection_ms,depth_opt_ms,lidar_cropped,lidar_lost";
 
 /// The landmark-admission columns appended to `stats.csv` (see `core::estimator::Admission`).
 pub const STATS_ADMISSION_COLUMNS: &str =
@@ -55,11 +58,17 @@ fn stats_header() -> String {
     )
 }
 
-/// One row of `stats.csv` (columns in [`stats_header`]).
-fn write_stats_row(f: &mut impl Write, r: &KeyframeReport) -> std::io::Result<()> {
+/// One row of `stats.csv` (columns in [`stats_header`]); `prev` is the previous row's report
+/// (the LiDAR drop counts are differences).
+fn write_stats_row(
+    f: &mut impl Write,
+    r: &KeyframeReport,
+    prev: Option<&KeyframeReport>,
+) -> std::io::Result<()> {
+    let since = |now: u64, then: Option<u64>| now.saturating_sub(then.unwrap_or(0));
     write!(
         f,
-        "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{},{:.4e}",
+        "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{},{:.4e}",
         povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
         r.backend_ns() as f64 * 1e-6,
         r.solve_ns as f64 * 1e-6,
@@ -88,6 +97,14 @@ fn write_stats_row(f: &mut impl Write, r: &KeyframeReport) -> std::io::Result<()
         r.association_ns as f64 * 1e-6,
         r.rejection_ns as f64 * 1e-6,
         r.depth_opt_ns as f64 * 1e-6,
+        since(
+            r.lidar_points_cropped_total,
+            prev.map(|p| p.lidar_points_cropped_total)
+        ),
+        since(
+            r.lidar_points_lost_total,
+            prev.map(|p| p.lidar_points_lost_total)
+        ),
         r.admission.admitted,
         r.admission.single_view,
         r.admission.low_parallax,
@@ -163,6 +180,8 @@ pub struct OutputFiles {
     error: Option<anyhow::Error>,
     /// Rows written (headers aside).
     rows: u64,
+    /// The previous keyframe's report (`stats.csv`'s LiDAR drop counts are differences).
+    last_report: Option<KeyframeReport>,
 }
 
 impl OutputFiles {
@@ -182,6 +201,7 @@ impl OutputFiles {
             },
             error: None,
             rows: 0,
+            last_report: None,
         };
         files.write(|f| Some(&mut f.trajectory), write_tum_header);
         files.write(|f| Some(&mut f.keyframes), write_tum_header);
@@ -308,7 +328,11 @@ impl RunSink for OutputFiles {
     }
 
     fn report(&mut self, r: &KeyframeReport, _lidar_events: &[DepthEvent]) {
-        self.write(|f| Some(&mut f.stats), |w| write_stats_row(w, r));
+        let prev = self.last_report.replace(*r);
+        self.write(
+            |f| Some(&mut f.stats),
+            |w| write_stats_row(w, r, prev.as_ref()),
+        );
     }
 
     fn keyframe(&mut self, s: &NavState) {
