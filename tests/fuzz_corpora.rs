@@ -331,7 +331,10 @@ fn write_seeds() {
                     (_, _) => {
                         let m = CustomMsg::from_scan(&sweep, "livox").unwrap();
                         let b = match enc {
-                            Encoding::Ros1 => m.encode_ros1(0).unwrap(),
+                            Encoding::Ros1 => {
+                                povins::platform::rosbag1::msgs::encode_livox_custom_msg(&m, 0)
+                                    .unwrap()
+                            }
                             Encoding::Cdr => m.encode_cdr().unwrap(),
                         };
                         ("livox_ros_driver/CustomMsg", b)

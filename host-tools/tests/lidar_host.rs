@@ -391,7 +391,9 @@ fn run_writes_the_lidar_columns_and_summary_keys() {
             "ldm_count",
             "association_ms",
             "rejection_ms",
-            "depth_opt_ms"
+            "depth_opt_ms",
+            "lidar_cropped",
+            "lidar_lost"
         ]
     );
     let rows: Vec<&str> = stats.lines().skip(1).collect();

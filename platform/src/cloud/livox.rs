@@ -13,11 +13,12 @@
 //!
 //! A point's time is `timebase + offset_time`. `point_num` is informational (the array's length
 //! is used). `reflectivity` becomes the intensity. The `tag` byte flags noise ([`is_noise`]).
+//! CDR is read and written here; ROS 1 serialization by [`crate::rosbag1::msgs`]
+//! (`livox_custom_msg`, `encode_livox_custom_msg`, `LIVOX_CUSTOM_MSG`).
 
 use super::{CloudCounts, Decoded, TimeRef, TimeSource, TimeSpec, TimeUnit, MAX_SWEEP_SPAN_NS};
 use crate::cdr::{CdrError, CdrReader, CdrWriter};
 use crate::dataset::LidarScan;
-use crate::rosbag1::msgs::{MsgError, MsgType};
 use povins_core::lidar::LidarPoint;
 
 /// `livox_ros_driver/CustomMsg`, ROS 1 form.
@@ -30,38 +31,6 @@ pub const CUSTOM_MSG_TYPES: [&str; 2] = [CUSTOM_MSG_TYPE, CUSTOM_MSG2_TYPE];
 /// The ROS 1 md5sum of `CustomMsg` (the same in both packages: nested types enter it by their
 /// own md5sum). Checked against the `rosbags` Python package's in `tests/livox_python.rs`.
 pub const CUSTOM_MSG_MD5: &str = "e4d6829bdfe657cb6c21a746c86b21a6";
-
-macro_rules! custom_msg_def {
-    ($pkg:literal) => {
-        concat!(
-            "std_msgs/Header header\nuint64 timebase\nuint32 point_num\nuint8 lidar_id\n",
-            "uint8[3] rsvd\n",
-            $pkg,
-            "/CustomPoint[] points\n",
-            "================================================================================\n",
-            "MSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n",
-            "================================================================================\n",
-            "MSG: ",
-            $pkg,
-            "/CustomPoint\nuint32 offset_time\nfloat32 x\nfloat32 y\nfloat32 z\n",
-            "uint8 reflectivity\nuint8 tag\nuint8 line\n"
-        )
-    };
-}
-
-/// `livox_ros_driver/CustomMsg` for a ROS 1 bag's connection record.
-pub const CUSTOM_MSG: MsgType = MsgType {
-    name: CUSTOM_MSG_TYPE,
-    md5sum: CUSTOM_MSG_MD5,
-    definition: custom_msg_def!("livox_ros_driver"),
-};
-
-/// `livox_ros_driver2/CustomMsg` for a ROS 1 bag's connection record.
-pub const CUSTOM_MSG2: MsgType = MsgType {
-    name: CUSTOM_MSG2_TYPE,
-    md5sum: CUSTOM_MSG_MD5,
-    definition: custom_msg_def!("livox_ros_driver2"),
-};
 
 /// `livox_ros_driver2/msg/CustomMsg`'s definition for a `ros2msg` schema (nested types after it,
 /// [`crate::ros2::schema_text`]).
@@ -131,51 +100,10 @@ pub struct CustomMsg {
     pub points: Vec<CustomPoint>,
 }
 
-/// Bytes of a ROS 1 `CustomPoint`.
-const ROS1_POINT_BYTES: usize = 19;
+/// Bytes of a `CustomPoint` in ROS 1 serialization (packed); CDR pads it to 20 but the last.
+pub const POINT_BYTES: usize = 19;
 
 impl CustomMsg {
-    /// Decodes a ROS 1 serialized message.
-    pub fn decode_ros1(msg: &[u8]) -> Result<Self, MsgError> {
-        let mut r = crate::rosbag1::msgs::Reader::new(msg);
-        let (stamp_ns, frame_id) = r.header_with_frame()?;
-        let timebase_ns = u64::from_le_bytes(r.arr("timebase")?);
-        let point_num = r.u32()?;
-        let lidar_id = r.u8()?;
-        r.take(3, "rsvd")?;
-        let at = msg.len() - r.remaining();
-        let n = r.u32()? as usize;
-        if n.saturating_mul(ROS1_POINT_BYTES) > r.remaining() {
-            return Err(MsgError {
-                offset: at,
-                msg: format!(
-                    "{n} points of {ROS1_POINT_BYTES} bytes cannot fit in the {} bytes left",
-                    r.remaining()
-                ),
-            });
-        }
-        let mut points = Vec::with_capacity(n);
-        for _ in 0..n {
-            let b = r.take(ROS1_POINT_BYTES, "CustomPoint")?;
-            let f = |o: usize| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
-            points.push(CustomPoint {
-                offset_time: u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-                p_l: [f(4), f(8), f(12)],
-                reflectivity: b[16],
-                tag: b[17],
-                line: b[18],
-            });
-        }
-        Ok(CustomMsg {
-            stamp_ns,
-            frame_id: frame_id.to_owned(),
-            timebase_ns,
-            point_num,
-            lidar_id,
-            points,
-        })
-    }
-
     /// Decodes a CDR message (ROS 2, `livox_ros_driver2`).
     pub fn decode_cdr(msg: &[u8]) -> Result<Self, CdrError> {
         let mut r = CdrReader::new(msg)?;
@@ -187,7 +115,7 @@ impl CustomMsg {
             r.u8()?;
         }
         // Each point takes 19 bytes and is padded to 20 but the last.
-        let n = r.seq_len(ROS1_POINT_BYTES)?;
+        let n = r.seq_len(POINT_BYTES)?;
         let mut points = Vec::with_capacity(n);
         for _ in 0..n {
             let offset_time = r.u32()?;
@@ -246,32 +174,6 @@ impl CustomMsg {
             lidar_id: 0,
             points,
         })
-    }
-
-    /// ROS 1 serialization (`seq` is the header's).
-    pub fn encode_ros1(&self, seq: u32) -> Result<Vec<u8>, MsgError> {
-        let stamp = crate::rosbag1::msgs::ros_time(self.stamp_ns).ok_or_else(|| MsgError {
-            offset: 0,
-            msg: format!("stamp {} ns does not fit a ROS 1 time", self.stamp_ns),
-        })?;
-        let mut b = Vec::with_capacity(48 + self.frame_id.len() + 19 * self.points.len());
-        b.extend(seq.to_le_bytes());
-        b.extend(stamp);
-        b.extend((self.frame_id.len() as u32).to_le_bytes());
-        b.extend(self.frame_id.as_bytes());
-        b.extend(self.timebase_ns.to_le_bytes());
-        b.extend(self.point_num.to_le_bytes());
-        b.push(self.lidar_id);
-        b.extend([0u8; 3]);
-        b.extend((self.points.len() as u32).to_le_bytes());
-        for p in &self.points {
-            b.extend(p.offset_time.to_le_bytes());
-            for v in p.p_l {
-                b.extend(v.to_le_bytes());
-            }
-            b.extend([p.reflectivity, p.tag, p.line]);
-        }
-        Ok(b)
     }
 
     /// CDR serialization (ROS 2).

@@ -1,6 +1,7 @@
 use super::livox::{self, CustomMsg};
 use super::*;
 use crate::ros2::msgs::PointCloud2;
+use crate::rosbag1::msgs as ros1_msgs;
 use povins_core::lidar::LidarPoint;
 
 /// A sweep of `n` points over 0.1 s after `t0_ns`, at 1-40 m in every direction.
@@ -115,7 +116,8 @@ fn both_livox_custom_messages_give_the_same_points_and_times() {
     for t0 in STAMPS {
         let s = sweep(t0, 500);
         let m = CustomMsg::from_scan(&s, "livox_frame").unwrap();
-        let ros1 = CustomMsg::decode_ros1(&m.encode_ros1(4).unwrap()).unwrap();
+        let ros1 = ros1_msgs::livox_custom_msg(&ros1_msgs::encode_livox_custom_msg(&m, 4).unwrap())
+            .unwrap();
         let cdr = CustomMsg::decode_cdr(&m.encode_cdr().unwrap()).unwrap();
         assert_eq!(ros1, m);
         assert_eq!(cdr, m);
@@ -279,9 +281,12 @@ fn malformed_clouds_are_errors_never_panics() {
         assert!(crate::rosbag1::msgs::point_cloud2(&ros1[..cut]).is_err());
     }
     let m = CustomMsg::from_scan(&s, "l").unwrap();
-    let (r1, cdr) = (m.encode_ros1(0).unwrap(), m.encode_cdr().unwrap());
+    let (r1, cdr) = (
+        ros1_msgs::encode_livox_custom_msg(&m, 0).unwrap(),
+        m.encode_cdr().unwrap(),
+    );
     for cut in 0..r1.len() {
-        assert!(CustomMsg::decode_ros1(&r1[..cut]).is_err());
+        assert!(ros1_msgs::livox_custom_msg(&r1[..cut]).is_err());
     }
     for cut in 0..cdr.len() {
         assert!(CustomMsg::decode_cdr(&cdr[..cut]).is_err(), "cut {cut}");

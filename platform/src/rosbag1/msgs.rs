@@ -447,6 +447,108 @@ pub fn encode_point_cloud2_in(
     Ok(w.0)
 }
 
+use crate::cloud::livox;
+
+macro_rules! custom_msg_def {
+    ($pkg:literal) => {
+        concat!(
+            "std_msgs/Header header\nuint64 timebase\nuint32 point_num\nuint8 lidar_id\n",
+            "uint8[3] rsvd\n",
+            $pkg,
+            "/CustomPoint[] points\n",
+            "================================================================================\n",
+            "MSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n",
+            "================================================================================\n",
+            "MSG: ",
+            $pkg,
+            "/CustomPoint\nuint32 offset_time\nfloat32 x\nfloat32 y\nfloat32 z\n",
+            "uint8 reflectivity\nuint8 tag\nuint8 line\n"
+        )
+    };
+}
+
+/// `livox_ros_driver/CustomMsg` for a ROS 1 bag's connection record.
+pub const LIVOX_CUSTOM_MSG: MsgType = MsgType {
+    name: livox::CUSTOM_MSG_TYPE,
+    md5sum: livox::CUSTOM_MSG_MD5,
+    definition: custom_msg_def!("livox_ros_driver"),
+};
+
+/// `livox_ros_driver2/CustomMsg` for a ROS 1 bag's connection record.
+pub const LIVOX_CUSTOM_MSG2: MsgType = MsgType {
+    name: livox::CUSTOM_MSG2_TYPE,
+    md5sum: livox::CUSTOM_MSG_MD5,
+    definition: custom_msg_def!("livox_ros_driver2"),
+};
+
+/// `livox_ros_driver/CustomMsg` or `livox_ros_driver2/CustomMsg` ([`livox`]).
+pub fn livox_custom_msg(msg: &[u8]) -> Result<livox::CustomMsg, MsgError> {
+    let mut r = Reader::new(msg);
+    let (stamp_ns, frame_id) = r.header_with_frame()?;
+    let timebase_ns = u64::from_le_bytes(r.arr("timebase")?);
+    let point_num = r.u32()?;
+    let lidar_id = r.u8()?;
+    r.take(3, "rsvd")?;
+    let at = msg.len() - r.remaining();
+    let n = r.u32()? as usize;
+    if n.saturating_mul(livox::POINT_BYTES) > r.remaining() {
+        return Err(MsgError {
+            offset: at,
+            msg: format!(
+                "{n} points of {} bytes cannot fit in the {} bytes left",
+                livox::POINT_BYTES,
+                r.remaining()
+            ),
+        });
+    }
+    let mut points = Vec::with_capacity(n);
+    for _ in 0..n {
+        let b = r.take(livox::POINT_BYTES, "CustomPoint")?;
+        let f = |o: usize| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        points.push(livox::CustomPoint {
+            offset_time: u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+            p_l: [f(4), f(8), f(12)],
+            reflectivity: b[16],
+            tag: b[17],
+            line: b[18],
+        });
+    }
+    Ok(livox::CustomMsg {
+        stamp_ns,
+        frame_id: frame_id.to_owned(),
+        timebase_ns,
+        point_num,
+        lidar_id,
+        points,
+    })
+}
+
+/// A Livox `CustomMsg` in ROS 1 serialization (`seq` is the header's).
+pub fn encode_livox_custom_msg(m: &livox::CustomMsg, seq: u32) -> Result<Vec<u8>, MsgError> {
+    let stamp = ros_time(m.stamp_ns).ok_or_else(|| MsgError {
+        offset: 0,
+        msg: format!("stamp {} ns does not fit a ROS 1 time", m.stamp_ns),
+    })?;
+    let mut b = Vec::with_capacity(48 + m.frame_id.len() + 19 * m.points.len());
+    b.extend(seq.to_le_bytes());
+    b.extend(stamp);
+    b.extend((m.frame_id.len() as u32).to_le_bytes());
+    b.extend(m.frame_id.as_bytes());
+    b.extend(m.timebase_ns.to_le_bytes());
+    b.extend(m.point_num.to_le_bytes());
+    b.push(m.lidar_id);
+    b.extend([0u8; 3]);
+    b.extend((m.points.len() as u32).to_le_bytes());
+    for p in &m.points {
+        b.extend(p.offset_time.to_le_bytes());
+        for v in p.p_l {
+            b.extend(v.to_le_bytes());
+        }
+        b.extend([p.reflectivity, p.tag, p.line]);
+    }
+    Ok(b)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

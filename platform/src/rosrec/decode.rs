@@ -103,7 +103,7 @@ pub fn sweep(
     let bad = |msg: String| MsgError { offset: 0, msg };
     if livox::CUSTOM_MSG_TYPES.contains(&msg_type) {
         let m = match enc {
-            Encoding::Ros1 => livox::CustomMsg::decode_ros1(msg)?,
+            Encoding::Ros1 => ros1_msgs::livox_custom_msg(msg)?,
             Encoding::Cdr => livox::CustomMsg::decode_cdr(msg)?,
         };
         return m.decode().map_err(bad);

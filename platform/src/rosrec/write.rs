@@ -156,13 +156,13 @@ impl Kind {
                 RIHS01_POINT_CLOUD2,
             ),
             Kind::Lidar(Wire::LivoxCustom) => (
-                livox::CUSTOM_MSG,
+                ros1::LIVOX_CUSTOM_MSG,
                 "livox_ros_driver/msg/CustomMsg",
                 livox::custom_msg2_schema,
                 livox::RIHS01_CUSTOM_MSG2,
             ),
             Kind::Lidar(Wire::Livox2Custom) => (
-                livox::CUSTOM_MSG2,
+                ros1::LIVOX_CUSTOM_MSG2,
                 "livox_ros_driver2/msg/CustomMsg",
                 livox::custom_msg2_schema,
                 livox::RIHS01_CUSTOM_MSG2,
@@ -293,7 +293,7 @@ fn encode_sweep(
         (_, _) => {
             let m = livox::CustomMsg::from_scan(s, frame).map_err(|e| (0, e))?;
             match encoding {
-                Encoding::Ros1 => m.encode_ros1(seq).map_err(ros1_err),
+                Encoding::Ros1 => ros1::encode_livox_custom_msg(&m, seq).map_err(ros1_err),
                 Encoding::Cdr => m.encode_cdr().map_err(cdr_err),
             }
         }
