@@ -507,6 +507,14 @@ impl CalibrationFound {
             "T_bc      p_bc [{}, {}, {}] m, q_bc [{}, {}, {}, {}] (x y z w)",
             p.x, p.y, p.z, q.x, q.y, q.z, q.w
         );
+        if let Some(t) = &self.t_bl {
+            let (q, p) = (t.q_ab.coords, t.p_ab);
+            let _ = writeln!(
+                s,
+                "T_bl      p_bl [{}, {}, {}] m, q_bl [{}, {}, {}, {}] (x y z w)",
+                p.x, p.y, p.z, q.x, q.y, q.z, q.w
+            );
+        }
         let _ = writeln!(s, "td_s      {} s (t_imu = t_cam + td_s)", c.td_s);
         if let Some(t) = &c.rostopic {
             let _ = writeln!(s, "rostopic  camera {t}");
