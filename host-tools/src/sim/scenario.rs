@@ -43,13 +43,26 @@ impl Scenario {
     }
 }
 
-/// Which LiDAR to simulate.
+/// Which LiDAR to simulate: `livox` and `ouster` are the reduced-density patterns the
+/// scenarios (and their goldens) use; the sensor models are at their real point rates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum LidarKind {
-    /// Livox rosette (Mid-70 on the robot, Avia otherwise).
+    /// Livox rosette (Mid-70 on the robot, Avia otherwise), 10,000-20,000 points a sweep.
     Livox,
-    /// Ouster OS1-128 spinning.
+    /// Ouster OS1-128 spinning, 180 columns (23,040 points a sweep).
     Ouster,
+    /// Ouster OS1-128 at 1024 x 10: 131,072 points a sweep, 45 deg vertical field of view.
+    #[value(name = "os1-128")]
+    Os1_128,
+    /// Velodyne VLP-16: 16 beams 2 deg apart over +-15 deg, 1,800 columns (0.2 deg) at 10 Hz:
+    /// 28,800 points a sweep.
+    #[value(name = "vlp16")]
+    Vlp16,
+    /// Livox Avia: 70.4 x 77.2 deg rosette, 240,000 points/s (24,000 a 10 Hz sweep).
+    Avia,
+    /// Livox Mid-70: 70.4 deg circular rosette, 100,000 points/s (10,000 a sweep).
+    #[value(name = "mid70")]
+    Mid70,
     /// No LiDAR.
     None,
 }
@@ -458,6 +471,39 @@ pub fn lidar_pattern(sc: Scenario, kind: LidarKind) -> Option<(LidarPattern, (f6
                 points: 20_000,
             },
             (1.0, 120.0),
+        )),
+        // The sensor models at their real rates (datasheets).
+        LidarKind::Os1_128 => Some((
+            LidarPattern::Spinning {
+                beams: 128,
+                columns: 1024,
+                fov_v: 45.0 * DEG,
+            },
+            (0.5, 120.0),
+        )),
+        LidarKind::Vlp16 => Some((
+            LidarPattern::Spinning {
+                beams: 16,
+                columns: 1800,
+                fov_v: 30.0 * DEG,
+            },
+            (0.5, 100.0),
+        )),
+        LidarKind::Avia => Some((
+            LidarPattern::Rosette {
+                fov_h: 70.4 * DEG,
+                fov_v: 77.2 * DEG,
+                points: 24_000,
+            },
+            (1.0, 190.0),
+        )),
+        LidarKind::Mid70 => Some((
+            LidarPattern::Rosette {
+                fov_h: 70.4 * DEG,
+                fov_v: 70.4 * DEG,
+                points: 10_000,
+            },
+            (1.0, 90.0),
         )),
         // OS1-128: 45 deg vertical FoV; 2048 columns reduced to 180 (2 deg) to keep files modest.
         LidarKind::Ouster => Some((
