@@ -516,3 +516,48 @@ pub fn lidar_pattern(sc: Scenario, kind: LidarKind) -> Option<(LidarPattern, (f6
         )),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_sensor_models_have_their_real_point_rates() {
+        for (kind, rays, name) in [
+            (LidarKind::Os1_128, 131_072, "os1-128"),
+            (LidarKind::Vlp16, 28_800, "vlp16"),
+            (LidarKind::Avia, 24_000, "avia"),
+            (LidarKind::Mid70, 10_000, "mid70"),
+        ] {
+            for sc in [Scenario::Robot, Scenario::Vehicle] {
+                let (pattern, _) = lidar_pattern(sc, kind).unwrap();
+                assert_eq!(pattern.rays(), rays, "{name}");
+            }
+            let parsed = <LidarKind as clap::ValueEnum>::from_str(name, false).unwrap();
+            assert_eq!(parsed, kind);
+        }
+        // The reduced patterns the scenarios use keep their sizes (the goldens depend on them).
+        assert_eq!(
+            lidar_pattern(Scenario::Robot, LidarKind::Livox)
+                .unwrap()
+                .0
+                .rays(),
+            10_000
+        );
+        assert_eq!(
+            lidar_pattern(Scenario::Handheld, LidarKind::Livox)
+                .unwrap()
+                .0
+                .rays(),
+            20_000
+        );
+        assert_eq!(
+            lidar_pattern(Scenario::Vehicle, LidarKind::Ouster)
+                .unwrap()
+                .0
+                .rays(),
+            23_040
+        );
+        assert!(lidar_pattern(Scenario::Robot, LidarKind::None).is_none());
+    }
+}
