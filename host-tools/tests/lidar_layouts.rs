@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{povins, simulate_handheld};
+use common::{povins, rosbags_python, simulate_handheld};
 use std::path::{Path, PathBuf};
 
 fn s(p: &Path) -> &str {
@@ -118,34 +118,6 @@ fn every_lidar_layout_replays_to_the_euroc_folders_trajectory() {
     assert!(!ok && err.contains("ROS 1 only"), "{err}");
 }
 
-/// `POVINS_ROSBAGS_PYTHON`, else the venv `<repo>/target/pyenv-rosbags` (made on first use by
-/// `scripts/pyenv.sh`; needs PyPI, without it the test fails saying so).
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
-        return p.into();
-    }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let out = std::process::Command::new("bash")
-        .arg(root.join("scripts/pyenv.sh"))
-        .arg(root.join("target/pyenv-rosbags"))
-        .arg("rosbags, yaml, mcap, mcap_ros1, numpy")
-        .args([
-            "rosbags==0.11.9",
-            "pyyaml",
-            "mcap==1.6.0",
-            "mcap-ros1-support==0.9.0",
-            "numpy",
-        ])
-        .output()
-        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
-    assert!(
-        out.status.success(),
-        "scripts/pyenv.sh failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
-}
-
 /// `lidar0/data.csv` rows: (point t_ns, x, y, z), in file order.
 fn lidar_rows(euroc: &Path) -> Vec<(i64, [f64; 3])> {
     std::fs::read_to_string(euroc.join("mav0/lidar0/data.csv"))
@@ -169,7 +141,7 @@ fn sweeps_written_by_rosbags_in_every_layout_are_read_alike() {
     let want = lidar_rows(&euroc);
     assert!(want.len() > 1000, "{} points", want.len());
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/write_lidar_layouts.py");
-    let out = std::process::Command::new(python())
+    let out = std::process::Command::new(rosbags_python())
         .arg(&script)
         .arg(&euroc)
         .arg(dir.path())

@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{povins, simulate_handheld};
+use common::{povins, rosbags_python, simulate_handheld};
 use std::path::{Path, PathBuf};
 
 /// The new formats, and the name of the recording each writes.
@@ -185,34 +185,6 @@ fn a_ros2_bag_needs_a_new_folder_and_compression_is_for_ros1_bags() {
 }
 
 /// The Python interpreter with `rosbags`, `mcap` and `mcap-ros1-support`:
-/// `POVINS_ROSBAGS_PYTHON`, else the venv `<repo>/target/pyenv-rosbags` (made on first use by
-/// `scripts/pyenv.sh`, the packages installed with pip: needs PyPI, without it the test fails
-/// saying so).
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
-        return p.into();
-    }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let out = std::process::Command::new("bash")
-        .arg(root.join("scripts/pyenv.sh"))
-        .arg(root.join("target/pyenv-rosbags"))
-        .arg("rosbags, yaml, mcap, mcap_ros1")
-        .args([
-            "rosbags==0.11.9",
-            "pyyaml",
-            "mcap==1.6.0",
-            "mcap-ros1-support==0.9.0",
-        ])
-        .output()
-        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
-    assert!(
-        out.status.success(),
-        "scripts/pyenv.sh failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
-}
-
 #[test]
 #[ignore = "needs python3 and PyPI (installs rosbags, mcap, mcap-ros1-support into target/pyenv-rosbags)"]
 fn independent_readers_read_our_recordings() {
@@ -222,7 +194,7 @@ fn independent_readers_read_our_recordings() {
     simulate("euroc", &euroc, "2", true);
     let ds = povins_platform::read_dataset(&euroc).unwrap();
     assert!(!ds.imu.is_empty() && !ds.images.is_empty() && !ds.lidar.is_empty());
-    let py = python();
+    let py = rosbags_python();
     for (format, name) in FORMATS {
         let rec = dir.path().join(name);
         simulate(format, &rec, "2", true);

@@ -77,3 +77,33 @@ pub fn simulate_handheld(
     args.extend_from_slice(extra);
     simulate("handheld", "3", seconds, format, out, &args)
 }
+
+/// `POVINS_ROSBAGS_PYTHON`, else the venv `<repo>/target/pyenv-rosbags` with the independent
+/// ROS tools (`rosbags`, `mcap`, `mcap-ros1-support`, numpy), made on first use by
+/// `scripts/pyenv.sh` (needs PyPI; without it the calling test fails saying so).
+#[allow(dead_code)]
+pub fn rosbags_python() -> std::path::PathBuf {
+    if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
+        return p.into();
+    }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = Command::new("bash")
+        .arg(root.join("scripts/pyenv.sh"))
+        .arg(root.join("target/pyenv-rosbags"))
+        .arg("rosbags, yaml, mcap, mcap_ros1, numpy")
+        .args([
+            "rosbags==0.11.9",
+            "pyyaml",
+            "mcap==1.6.0",
+            "mcap-ros1-support==0.9.0",
+            "numpy",
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
+    assert!(
+        out.status.success(),
+        "scripts/pyenv.sh failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::path::PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+}
