@@ -240,6 +240,9 @@ pub struct Estimator<
     points: PointBuffer<P>,
     /// LiDAR sweeps waiting for the IMU ([`timing`]).
     sweeps_in: PendingSweeps<Q, PENDING_SWEEPS>,
+    /// The crop of pushed sweeps to the camera's view (`lidar.crop_to_view`), made from the
+    /// configuration once: `None` when off or when the lens cannot be inverted.
+    view_crop: Option<crate::lidar::ViewCrop>,
     /// IMU samples waiting for [`Estimator::update`] ([`timing`]).
     imu_in: heapless::Deque<ImuSample, IMU_QUEUE>,
     /// The newest gyro readings `(t_ns, rad/s)`, for the angular acceleration a rolling
@@ -423,6 +426,7 @@ impl<
             ins_window: InsWindow::new(),
             points: PointBuffer::new(),
             sweeps_in: PendingSweeps::new(),
+            view_crop: None,
             imu_in: heapless::Deque::new(),
             gyro_recent: heapless::Deque::new(),
             grid: SphereGrid::new(),
@@ -498,6 +502,18 @@ impl<
         self.ins_window.clear();
         self.points.reset_to_new();
         self.sweeps_in.clear();
+        let l = &cfg.lidar;
+        self.view_crop = l
+            .crop_to_view
+            .then(|| {
+                crate::lidar::ViewCrop::new(
+                    &cfg.camera,
+                    &cfg.extrinsic,
+                    &l.extrinsic,
+                    l.view_margin_rad,
+                )
+            })
+            .flatten();
         self.imu_in.clear();
         self.grid.reset_to_new();
         self.events.clear();

@@ -162,18 +162,7 @@ impl<
             self.counters.lidar_points_rejected += points.len() as u64;
             return Err(Error::OutOfRange);
         }
-        let l = &self.cfg.lidar;
-        let crop = l
-            .crop_to_view
-            .then(|| {
-                crate::lidar::ViewCrop::new(
-                    &self.cfg.camera,
-                    &self.cfg.extrinsic,
-                    &l.extrinsic,
-                    l.view_margin_rad,
-                )
-            })
-            .flatten();
+        let crop = self.view_crop;
         let keep = |p: &LidarPoint| crop.as_ref().is_none_or(|c| c.keeps(p.p_l));
         match self.sweeps_in.push_kept(points, trigger_ns, keep) {
             Queued::Queued { evicted, outside } => {

@@ -229,10 +229,11 @@ impl<'a> Points<'a> {
                     return Ok(Some((f, spec, k < expected)));
                 }
             }
-            let first = (0..self.len())
-                .map(|k| as_f64(read(self.get(k), f)))
-                .next()
-                .unwrap_or(f64::NAN);
+            let first = if self.len() > 0 {
+                as_f64(read(self.get(0), f))
+            } else {
+                f64::NAN
+            };
             return Err(format!(
                 "the point times in field {name:?} ({}, first value {first}) are not within \
                  1 s of header.stamp {} ns in s, ms or ns, after the stamp or since the epoch; \
@@ -349,18 +350,20 @@ impl Spin {
     }
 }
 
-/// A value to write into a field.
+/// Writes `v` into the field at `offset` of type `dt` (a float cast to the field's type).
 fn put(buf: &mut [u8], offset: u32, dt: u8, v: f64) {
     let o = offset as usize;
-    let b: Vec<u8> = match dt {
-        UINT8 => vec![v as u8],
-        UINT16 => (v as u16).to_le_bytes().to_vec(),
-        UINT32 => (v as u32).to_le_bytes().to_vec(),
-        FLOAT32 => (v as f32).to_le_bytes().to_vec(),
-        _ => v.to_le_bytes().to_vec(),
+    let mut write = |b: &[u8]| {
+        if let Some(s) = buf.get_mut(o..o + b.len()) {
+            s.copy_from_slice(b);
+        }
     };
-    if let Some(s) = buf.get_mut(o..o + b.len()) {
-        s.copy_from_slice(&b);
+    match dt {
+        UINT8 => write(&[v as u8]),
+        UINT16 => write(&(v as u16).to_le_bytes()),
+        UINT32 => write(&(v as u32).to_le_bytes()),
+        FLOAT32 => write(&(v as f32).to_le_bytes()),
+        _ => write(&v.to_le_bytes()),
     }
 }
 
