@@ -1,0 +1,147 @@
+//! povins' Ouster decoder against the Ouster SDK (Python `ouster-sdk`, the independent
+//! reference): the OS1-128 sample capture of shared/data decoded by both, every point compared.
+//!
+//! Run with `cargo test -p povins-platform --test ouster_sdk -- --ignored`. Python is
+//! `$POVINS_PYTHON`, else `/work/pyenv/bin/python`, else `python3`; it needs `pip install
+//! ouster-sdk`. A missing package or capture fails the test.
+
+use povins_platform::ouster::{read_pcap, Metadata};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/fixtures/ouster")
+}
+
+fn python() -> String {
+    if let Ok(p) = std::env::var("POVINS_PYTHON") {
+        return p;
+    }
+    let venv = "/work/pyenv/bin/python";
+    if Path::new(venv).exists() {
+        venv.into()
+    } else {
+        "python3".into()
+    }
+}
+
+/// One reference point: frame id, column time, position (m, sensor frame).
+struct RefPoint {
+    frame_id: i64,
+    t_ns: i64,
+    p: [f64; 3],
+}
+
+fn read_points(path: &Path) -> Vec<RefPoint> {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(b.len() % 40, 0, "{}: not whole records", path.display());
+    let i64_at = |o: usize| i64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+    let f64_at = |o: usize| f64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+    (0..b.len() / 40)
+        .map(|k| {
+            let o = 40 * k;
+            RefPoint {
+                frame_id: i64_at(o),
+                t_ns: i64_at(o + 8),
+                p: [f64_at(o + 16), f64_at(o + 24), f64_at(o + 32)],
+            }
+        })
+        .collect()
+}
+
+fn csv_rows(path: &Path) -> Vec<Vec<String>> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+#[ignore = "needs ../shared/data and the Python package ouster-sdk"]
+fn sweeps_and_imu_equal_the_ouster_sdk() {
+    let dir = fixtures();
+    let capture = dir.join("OS-1-128_v2.3.0_1024x10_lb_n3.pcap");
+    let meta_path = dir.join("OS-1-128_v2.3.0_1024x10.json");
+    assert!(
+        capture.exists() && meta_path.exists(),
+        "missing {} or {}",
+        capture.display(),
+        meta_path.display()
+    );
+    let out = tempfile::tempdir().unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/ouster_reference.py");
+    let py = python();
+    let run = Command::new(&py)
+        .arg(&script)
+        .arg(&capture)
+        .arg(&meta_path)
+        .arg(out.path())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {py}: {e} (set POVINS_PYTHON)"));
+    assert!(
+        run.status.success(),
+        "{py} {} failed (is `pip install ouster-sdk` done?):\n{}",
+        script.display(),
+        String::from_utf8_lossy(&run.stderr)
+    );
+
+    let meta = Metadata::from_file(&meta_path).unwrap();
+    let ours = read_pcap(&capture, &meta).unwrap();
+    assert_eq!(ours.bad_packets, 0, "{:?}", ours.first_error);
+    let sweeps = csv_rows(&out.path().join("sweeps.csv"));
+    let refs = read_points(&out.path().join("points.bin"));
+    assert_eq!(ours.scans.len(), sweeps.len(), "sweeps: ours vs the SDK's");
+    let (mut k, mut max_d, mut n_points) = (0usize, 0f64, 0usize);
+    for (scan, row) in ours.scans.iter().zip(&sweeps) {
+        let (frame_id, n): (i64, usize) = (row[0].parse().unwrap(), row[2].parse().unwrap());
+        assert_eq!(scan.points.len(), n, "frame {frame_id}: points");
+        assert_eq!(
+            scan.t_ns,
+            row[3].parse::<i64>().unwrap(),
+            "frame {frame_id}: t_ns"
+        );
+        for p in &scan.points {
+            let r = &refs[k];
+            assert_eq!(r.frame_id, frame_id);
+            assert_eq!(p.t_ns, r.t_ns, "frame {frame_id} point {k}: time");
+            let d = (0..3)
+                .map(|i| (f64::from(p.p_l[i]) - r.p[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            max_d = max_d.max(d);
+            assert!(
+                d < 1e-3,
+                "frame {frame_id} point {k}: {:?} vs {:?}",
+                p.p_l,
+                r.p
+            );
+            k += 1;
+        }
+        n_points += n;
+    }
+    assert_eq!(k, refs.len());
+
+    let imu = csv_rows(&out.path().join("imu.csv"));
+    assert_eq!(ours.imu.len(), imu.len(), "IMU packets");
+    let mut max_rel = 0f64;
+    for (p, r) in ours.imu.iter().zip(&imu) {
+        let t: Vec<i64> = r[..3].iter().map(|s| s.parse().unwrap()).collect();
+        assert_eq!([p.sys_t_ns, p.accel_t_ns, p.gyro_t_ns], [t[0], t[1], t[2]]);
+        let v: Vec<f64> = r[3..9].iter().map(|s| s.parse().unwrap()).collect();
+        // The SDK gives f32 m/s^2 and rad/s; ours are f64 of the same f32 readings.
+        for (a, b) in p.accel_mps2.iter().chain(&p.gyro_rps).zip(&v) {
+            let rel = (a - b).abs() / b.abs().max(1e-3);
+            max_rel = max_rel.max(rel);
+            assert!(rel < 1e-6, "IMU {a} vs SDK {b}");
+        }
+    }
+    eprintln!(
+        "ouster-sdk agreement: {} sweeps, {n_points} points, max |dp| {:.3e} m, times equal; \
+         {} IMU packets, max relative difference {max_rel:.1e}; counts {:?}",
+        sweeps.len(),
+        max_d,
+        imu.len(),
+        ours.counts
+    );
+}
