@@ -1,11 +1,13 @@
 //! povins' Ouster decoder against the Ouster SDK (Python `ouster-sdk`, the independent
 //! reference): the OS1-128 sample capture of shared/data decoded by both, every point compared.
 //!
+//! The same for the ROS 1 bag of raw `ouster_ros` packets (512x10, metadata in the bag).
+//!
 //! Run with `cargo test -p povins-platform --test ouster_sdk -- --ignored`. Python is
 //! `$POVINS_PYTHON`, else `/work/pyenv/bin/python`, else `python3`; it needs `pip install
 //! ouster-sdk`. A missing package or capture fails the test.
 
-use povins_platform::ouster::{read_pcap, Metadata};
+use povins_platform::ouster::{read_pcap, rosbag::read_bag, Metadata, OusterCapture};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -57,25 +59,17 @@ fn csv_rows(path: &Path) -> Vec<Vec<String>> {
         .collect()
 }
 
-#[test]
-#[ignore = "needs ../shared/data and the Python package ouster-sdk"]
-fn sweeps_and_imu_equal_the_ouster_sdk() {
-    let dir = fixtures();
-    let capture = dir.join("OS-1-128_v2.3.0_1024x10_lb_n3.pcap");
-    let meta_path = dir.join("OS-1-128_v2.3.0_1024x10.json");
-    assert!(
-        capture.exists() && meta_path.exists(),
-        "missing {} or {}",
-        capture.display(),
-        meta_path.display()
-    );
+/// Runs the reference script with `args` (the output folder appended) into a temporary folder.
+fn reference(args: &[&Path]) -> tempfile::TempDir {
+    for a in args.iter().filter(|a| a.extension().is_some()) {
+        assert!(a.exists(), "missing {}", a.display());
+    }
     let out = tempfile::tempdir().unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/ouster_reference.py");
     let py = python();
     let run = Command::new(&py)
         .arg(&script)
-        .arg(&capture)
-        .arg(&meta_path)
+        .args(args)
         .arg(out.path())
         .output()
         .unwrap_or_else(|e| panic!("cannot run {py}: {e} (set POVINS_PYTHON)"));
@@ -85,12 +79,15 @@ fn sweeps_and_imu_equal_the_ouster_sdk() {
         script.display(),
         String::from_utf8_lossy(&run.stderr)
     );
+    out
+}
 
-    let meta = Metadata::from_file(&meta_path).unwrap();
-    let ours = read_pcap(&capture, &meta).unwrap();
+/// Asserts `ours` equals the reference in `out`: every point within 1 mm and at the same time,
+/// every IMU packet's times equal and values within f32 rounding. Returns a summary.
+fn compare(ours: &OusterCapture, out: &Path) -> String {
     assert_eq!(ours.bad_packets, 0, "{:?}", ours.first_error);
-    let sweeps = csv_rows(&out.path().join("sweeps.csv"));
-    let refs = read_points(&out.path().join("points.bin"));
+    let sweeps = csv_rows(&out.join("sweeps.csv"));
+    let refs = read_points(&out.join("points.bin"));
     assert_eq!(ours.scans.len(), sweeps.len(), "sweeps: ours vs the SDK's");
     let (mut k, mut max_d, mut n_points) = (0usize, 0f64, 0usize);
     for (scan, row) in ours.scans.iter().zip(&sweeps) {
@@ -122,7 +119,7 @@ fn sweeps_and_imu_equal_the_ouster_sdk() {
     }
     assert_eq!(k, refs.len());
 
-    let imu = csv_rows(&out.path().join("imu.csv"));
+    let imu = csv_rows(&out.join("imu.csv"));
     assert_eq!(ours.imu.len(), imu.len(), "IMU packets");
     let mut max_rel = 0f64;
     for (p, r) in ours.imu.iter().zip(&imu) {
@@ -136,12 +133,44 @@ fn sweeps_and_imu_equal_the_ouster_sdk() {
             assert!(rel < 1e-6, "IMU {a} vs SDK {b}");
         }
     }
-    eprintln!(
-        "ouster-sdk agreement: {} sweeps, {n_points} points, max |dp| {:.3e} m, times equal; \
-         {} IMU packets, max relative difference {max_rel:.1e}; counts {:?}",
+    format!(
+        "{} sweeps, {n_points} points, max |dp| {max_d:.3e} m, times equal; {} IMU packets, \
+         max relative difference {max_rel:.1e}; counts {:?}",
         sweeps.len(),
-        max_d,
         imu.len(),
         ours.counts
+    )
+}
+
+#[test]
+#[ignore = "needs ../shared/data and the Python package ouster-sdk"]
+fn pcap_sweeps_and_imu_equal_the_ouster_sdk() {
+    let dir = fixtures();
+    let capture = dir.join("OS-1-128_v2.3.0_1024x10_lb_n3.pcap");
+    let meta_path = dir.join("OS-1-128_v2.3.0_1024x10.json");
+    let out = reference(&[&capture, &meta_path]);
+    let meta = Metadata::from_file(&meta_path).unwrap();
+    let ours = read_pcap(&capture, &meta).unwrap();
+    assert_eq!(
+        (ours.scans.len(), ours.imu.len(), ours.counts.packets),
+        (3, 30, 192)
     );
+    eprintln!("ouster-sdk agreement, pcap: {}", compare(&ours, out.path()));
+}
+
+#[test]
+#[ignore = "needs ../shared/data and the Python package ouster-sdk"]
+fn bag_sweeps_and_imu_equal_the_ouster_sdk() {
+    let bag = fixtures().join("512x10_raw.bag");
+    let out = reference(&[Path::new("--bag"), &bag]);
+    let (meta, ours) = read_bag(&bag).unwrap();
+    assert_eq!(
+        (meta.columns_per_frame, meta.prod_line.as_str()),
+        (512, "OS-0-128")
+    );
+    assert_eq!(
+        (ours.scans.len(), ours.imu.len(), ours.counts.packets),
+        (1, 10, 32)
+    );
+    eprintln!("ouster-sdk agreement, bag: {}", compare(&ours, out.path()));
 }

@@ -36,7 +36,7 @@
 pub mod metadata;
 pub mod packet;
 pub mod pcap;
-//ROSBAG pub mod rosbag;
+pub mod rosbag;
 pub mod sweep;
 
 #[cfg(test)]
