@@ -12,11 +12,37 @@ use etherparse::defrag::IpDefragPool;
 use etherparse::{NetSlice, SlicedPacket, TransportSlice, UdpSlice};
 use pcap_file::pcap::PcapReader;
 use pcap_file::DataLink;
+use std::collections::HashMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// Capture time after which a datagram's missing fragments are given up, ns.
 pub const FRAGMENT_TIMEOUT_NS: i64 = 1_000_000_000;
+
+/// Identifies a fragmented datagram: source and destination addresses, identification.
+type FragKey = (Vec<u8>, Vec<u8>, u32);
+
+fn frag_key(net: &NetSlice) -> Option<FragKey> {
+    match net {
+        NetSlice::Ipv4(ip) => {
+            let h = ip.header();
+            Some((
+                h.source().to_vec(),
+                h.destination().to_vec(),
+                u32::from(h.identification()),
+            ))
+        }
+        NetSlice::Ipv6(ip) => {
+            let h = ip.header();
+            let id = ip.extensions().clone().into_iter().find_map(|e| match e {
+                etherparse::Ipv6ExtensionSlice::Fragment(f) => Some(f.identification()),
+                _ => None,
+            })?;
+            Some((h.source().to_vec(), h.destination().to_vec(), id))
+        }
+        _ => None,
+    }
+}
 
 /// One UDP datagram of a capture.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -60,6 +86,9 @@ pub struct PcapUdp<R: Read> {
     path: PathBuf,
     datalink: DataLink,
     pool: IpDefragPool<i64, ()>,
+    /// The datagrams being reassembled (source, destination, identification) and the capture
+    /// time of their last fragment: `pool` holds the same ones, this counts what is given up.
+    pending: HashMap<FragKey, i64>,
     ports: Option<Vec<u16>>,
     /// Byte offset of the next record.
     offset: u64,
@@ -100,6 +129,7 @@ impl<R: Read> PcapUdp<R> {
             path: path.to_path_buf(),
             datalink,
             pool: IpDefragPool::new(),
+            pending: HashMap::new(),
             ports: None,
             offset: 24,
             counts: PcapCounts::default(),
@@ -146,7 +176,19 @@ impl<R: Read> PcapUdp<R> {
         }
         self.counts.fragments += 1;
         self.expire(t_ns);
-        match self.pool.process_sliced_packet(&sliced, t_ns, ()) {
+        let key = sliced.net.as_ref().and_then(frag_key);
+        let result = self.pool.process_sliced_packet(&sliced, t_ns, ());
+        if let Some(k) = key {
+            match &result {
+                Ok(None) => {
+                    self.pending.insert(k, t_ns);
+                }
+                _ => {
+                    self.pending.remove(&k);
+                }
+            }
+        }
+        match result {
             Ok(None) => None,
             Ok(Some(whole)) => {
                 self.counts.reassembled += 1;
@@ -179,13 +221,10 @@ impl<R: Read> PcapUdp<R> {
         }
         self.last_retain_ns = t_ns;
         let cutoff = t_ns.saturating_sub(FRAGMENT_TIMEOUT_NS);
-        let dropped = std::cell::Cell::new(0u64);
-        self.pool.retain(|t| {
-            let keep = *t >= cutoff;
-            dropped.set(dropped.get() + u64::from(!keep));
-            keep
-        });
-        self.counts.incomplete += dropped.get();
+        let before = self.pending.len();
+        self.pending.retain(|_, t| *t >= cutoff);
+        self.counts.incomplete += (before - self.pending.len()) as u64;
+        self.pool.retain(|t| *t >= cutoff);
     }
 
     fn accept(&mut self, udp: &UdpSlice, t_ns: i64) -> Option<UdpDatagram> {

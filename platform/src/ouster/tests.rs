@@ -353,3 +353,114 @@ fn fixture_capture_decodes() {
     assert_eq!(cap.imu.len(), 30);
     assert_eq!(cap.scans.len(), 3);
 }
+
+/// A libpcap file (Ethernet link type, µs timestamps) of `frames` at times `t_us`.
+fn pcap_file(frames: &[(u64, Vec<u8>)]) -> Vec<u8> {
+    let mut b = Vec::new();
+    b.extend_from_slice(&0xa1b2_c3d4u32.to_le_bytes());
+    b.extend_from_slice(&2u16.to_le_bytes());
+    b.extend_from_slice(&4u16.to_le_bytes());
+    b.extend_from_slice(&[0; 8]);
+    b.extend_from_slice(&65535u32.to_le_bytes());
+    b.extend_from_slice(&1u32.to_le_bytes());
+    for (t_us, f) in frames {
+        b.extend_from_slice(&((t_us / 1_000_000) as u32).to_le_bytes());
+        b.extend_from_slice(&((t_us % 1_000_000) as u32).to_le_bytes());
+        b.extend_from_slice(&(f.len() as u32).to_le_bytes());
+        b.extend_from_slice(&(f.len() as u32).to_le_bytes());
+        b.extend_from_slice(f);
+    }
+    b
+}
+
+/// An Ethernet + IPv4 frame of protocol `proto`, fragment at `offset` (bytes, a multiple of 8).
+fn ipv4_frame(proto: u8, id: u16, offset: usize, more: bool, data: &[u8]) -> Vec<u8> {
+    let mut f = vec![2, 0, 0, 0, 0, 1, 2, 0, 0, 0, 0, 2, 0x08, 0x00];
+    let mut ip = vec![0x45, 0];
+    ip.extend_from_slice(&((20 + data.len()) as u16).to_be_bytes());
+    ip.extend_from_slice(&id.to_be_bytes());
+    let frag = (offset / 8) as u16 | if more { 0x2000 } else { 0 };
+    ip.extend_from_slice(&frag.to_be_bytes());
+    ip.extend_from_slice(&[64, proto, 0, 0, 169, 254, 0, 1, 169, 254, 0, 2]);
+    let sum: u32 = ip
+        .chunks(2)
+        .map(|w| u32::from(u16::from_be_bytes([w[0], w[1]])))
+        .sum();
+    let sum = (sum & 0xffff) + (sum >> 16);
+    let sum = !(((sum & 0xffff) + (sum >> 16)) as u16);
+    ip[10..12].copy_from_slice(&sum.to_be_bytes());
+    f.extend_from_slice(&ip);
+    f.extend_from_slice(data);
+    f
+}
+
+fn udp(dst_port: u16, payload: &[u8]) -> Vec<u8> {
+    let mut u = Vec::new();
+    u.extend_from_slice(&7502u16.to_be_bytes());
+    u.extend_from_slice(&dst_port.to_be_bytes());
+    u.extend_from_slice(&((8 + payload.len()) as u16).to_be_bytes());
+    u.extend_from_slice(&[0, 0]);
+    u.extend_from_slice(payload);
+    u
+}
+
+#[test]
+fn pcap_reassembles_fragments_and_counts_the_rest() {
+    let big: Vec<u8> = (0..3000u32).map(|i| (i % 251) as u8).collect();
+    let dgram = udp(7502, &big);
+    let frag = |off: usize, end: usize| {
+        let more = end < dgram.len();
+        ipv4_frame(17, 77, off, more, &dgram[off..end.min(dgram.len())])
+    };
+    let lost = udp(7502, &big);
+    let mut arp = vec![2, 0, 0, 0, 0, 1, 2, 0, 0, 0, 0, 2, 0x08, 0x06];
+    arp.extend_from_slice(&[0, 1, 8, 0, 6, 4, 0, 1]);
+    arp.extend_from_slice(&[0; 20]);
+    let mut tcp = [0u8; 20];
+    tcp[12] = 0x50; // data offset: 5 words
+    let frames = vec![
+        (1_000_000, ipv4_frame(17, 1, 0, false, &udp(7503, &[5; 48]))),
+        (1_000_100, frag(0, 1480)),
+        (1_000_200, arp),
+        (1_000_300, ipv4_frame(6, 2, 0, false, &tcp)),
+        (1_000_400, frag(1480, 2960)),
+        (1_000_500, ipv4_frame(17, 3, 0, false, &udp(9999, &[1; 10]))),
+        (1_000_600, frag(2960, 4000)),
+        (1_000_700, ipv4_frame(17, 9, 0, true, &lost[..1480])),
+        (3_000_000, ipv4_frame(17, 10, 0, true, &lost[..1480])),
+        (3_000_100, vec![1, 2, 3]),
+    ];
+    let bytes = pcap_file(&frames);
+    let path = std::path::Path::new("mem.pcap");
+    let udp = PcapUdp::new(&bytes[..], path).unwrap().ports(&[7502, 7503]);
+    let mut it = udp;
+    let got: Vec<UdpDatagram> = it.by_ref().map(Result::unwrap).collect();
+    assert_eq!(got.len(), 2);
+    assert_eq!((got[0].dst_port, got[0].payload.len()), (7503, 48));
+    assert_eq!(got[0].t_capture_ns, 1_000_000_000);
+    assert_eq!((got[1].dst_port, got[1].src_port), (7502, 7502));
+    assert_eq!(got[1].payload, big);
+    assert_eq!(got[1].t_capture_ns, 1_000_600_000);
+    let c = it.counts();
+    assert_eq!(c.records, 10);
+    assert_eq!((c.datagrams, c.fragments, c.reassembled), (2, 5, 1));
+    assert_eq!((c.non_udp, c.other_ports, c.malformed), (2, 1, 1));
+    assert_eq!(c.incomplete, 1); // id 9 given up when id 10 arrived 2 s later
+
+    // A capture cut inside its third record: an error naming that record's offset.
+    let cut = &bytes[..24 + (16 + frames[0].1.len()) + (16 + frames[1].1.len()) + 20];
+    let mut it = PcapUdp::new(cut, path).unwrap();
+    assert!(it.next().unwrap().is_ok());
+    let e = it.next().unwrap().unwrap_err().to_string();
+    let off = 24 + (16 + frames[0].1.len()) + (16 + frames[1].1.len());
+    assert!(
+        e.contains("mem.pcap") && e.contains(&format!("offset {off}")),
+        "{e}"
+    );
+    assert!(it.next().is_none());
+    let e = PcapUdp::new(&b"not a pcap"[..], path)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("mem.pcap"), "{e}");
+}
