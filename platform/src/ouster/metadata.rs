@@ -389,8 +389,15 @@ impl XyzLut {
         for m in 0..cols {
             let enc = 2.0 * std::f64::consts::PI * (1.0 - m as f64 / cols as f64);
             for row in 0..rows {
-                let azi = -meta.beam_azimuth_angles_deg[row].to_radians();
-                let alt = meta.beam_altitude_angles_deg[row].to_radians();
+                // Parsed metadata has one angle per row; hand-edited fields may not (0 then).
+                let azi = -meta
+                    .beam_azimuth_angles_deg
+                    .get(row)
+                    .map_or(0.0, |a| a.to_radians());
+                let alt = meta
+                    .beam_altitude_angles_deg
+                    .get(row)
+                    .map_or(0.0, |a| a.to_radians());
                 let d = [
                     (enc + azi).cos() * alt.cos(),
                     (enc + azi).sin() * alt.cos(),

@@ -172,7 +172,7 @@ impl SweepAssembler {
             .filter(|&m| self.meta.in_window(m) && !cur.seen.get(m).copied().unwrap_or(false))
             .count();
         self.counts.missing_columns += missing as u64;
-        self.counts.dropped_packets += missing.div_ceil(self.meta.columns_per_packet) as u64;
+        self.counts.dropped_packets += missing.div_ceil(self.meta.columns_per_packet.max(1)) as u64;
         self.counts.sweeps += 1;
         self.counts.points += cur.points.len() as u64;
         self.last = Some(SweepInfo {
