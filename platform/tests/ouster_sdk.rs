@@ -3,9 +3,8 @@
 //!
 //! The same for the ROS 1 bag of raw `ouster_ros` packets (512x10, metadata in the bag).
 //!
-//! Run with `cargo test -p povins-platform --test ouster_sdk -- --ignored`. Python is
-//! `$POVINS_PYTHON`, else `/work/pyenv/bin/python`, else `python3`; it needs `pip install
-//! ouster-sdk`. A missing package or capture fails the test.
+//! Run with `cargo test -p povins-platform --test ouster_sdk -- --ignored`. Python is a venv
+//! made on first use (`target/pyenv-ouster`, `ouster-sdk` 1.0.1 from PyPI). A missing package or capture fails the test.
 
 use povins_platform::ouster::{read_pcap, rosbag::read_bag, Metadata, OusterCapture};
 use std::path::{Path, PathBuf};
@@ -15,16 +14,27 @@ fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/fixtures/ouster")
 }
 
+/// Python with `ouster-sdk` (pinned), in its own venv `target/pyenv-ouster` made on first use by
+/// `scripts/pyenv.sh` (it pins `rosbags` 0.9, which the rosbags tests' venv must not get), or
+/// `$POVINS_OUSTER_PYTHON`.
 fn python() -> String {
-    if let Ok(p) = std::env::var("POVINS_PYTHON") {
+    if let Ok(p) = std::env::var("POVINS_OUSTER_PYTHON") {
         return p;
     }
-    let venv = "/work/pyenv/bin/python";
-    if Path::new(venv).exists() {
-        venv.into()
-    } else {
-        "python3".into()
-    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = Command::new("bash")
+        .arg(root.join("scripts/pyenv.sh"))
+        .arg(root.join("target/pyenv-ouster"))
+        .arg("ouster.sdk.pcap, numpy")
+        .arg("ouster-sdk==1.0.1")
+        .output()
+        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
+    assert!(
+        out.status.success(),
+        "scripts/pyenv.sh failed (needs PyPI for ouster-sdk): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).trim().to_string()
 }
 
 /// One reference point: frame id, column time, position (m, sensor frame).
@@ -72,10 +82,10 @@ fn reference(args: &[&Path]) -> tempfile::TempDir {
         .args(args)
         .arg(out.path())
         .output()
-        .unwrap_or_else(|e| panic!("cannot run {py}: {e} (set POVINS_PYTHON)"));
+        .unwrap_or_else(|e| panic!("cannot run {py}: {e} "));
     assert!(
         run.status.success(),
-        "{py} {} failed (is `pip install ouster-sdk` done?):\n{}",
+        "{py} {} failed :\n{}",
         script.display(),
         String::from_utf8_lossy(&run.stderr)
     );
