@@ -102,6 +102,10 @@ fn config_toml() {
 fn estimator() {
     replay("estimator");
 }
+#[test]
+fn ouster_packets() {
+    replay("ouster_packets");
+}
 
 // ---------------------------------------------------------------------------------------------
 // Seeds

@@ -39,6 +39,7 @@ pub const TARGETS: &[(&str, RunOne)] = &[
     ("image", image),
     ("config_toml", config_toml),
     ("estimator", estimator),
+    ("ouster_packets", ouster_packets),
 ];
 
 /// Most messages or rows read from one input (the inputs are small; this bounds a loop
@@ -262,6 +263,61 @@ pub fn mcap(data: &[u8]) {
         read_log(log.as_ref());
     }
     let _ = povins_platform::mcap_io::read_dataset(&p);
+}
+
+/// The OS1-128 metadata the crate ships for its tests (BSD-3, Ouster; see its README).
+fn ouster_meta() -> &'static povins_platform::ouster::Metadata {
+    static META: OnceLock<povins_platform::ouster::Metadata> = OnceLock::new();
+    META.get_or_init(|| {
+        let json = include_str!("../../platform/src/ouster/testdata/os1-128_v2.3.0_1024x10.json");
+        povins_platform::ouster::Metadata::from_json(json).expect("shipped metadata")
+    })
+}
+
+/// `ouster_packets`: byte 0 picks a small packet layout (profile, 1-4 rows, 1-4 columns per
+/// packet, 16 columns per frame, a column window that may wrap); the rest is decoded as one
+/// OS1-128 lidar packet, an IMU packet, a run of small-layout lidar packets into the sweep
+/// assembler, metadata JSON and a pcap capture.
+pub fn ouster_packets(data: &[u8]) {
+    use povins_platform::ouster::{
+        decode_imu, Decoder, LidarProfile, Metadata, PcapUdp, SweepAssembler,
+    };
+    let Some((&sel, rest)) = data.split_first() else {
+        return;
+    };
+    let base = ouster_meta();
+    let _ = Decoder::new(base).decode_lidar(rest);
+    let _ = decode_imu(rest);
+    let sel = usize::from(sel);
+    let profiles = [
+        LidarProfile::Legacy,
+        LidarProfile::Single,
+        LidarProfile::Dual,
+        LidarProfile::LowDataRate,
+    ];
+    let mut m = base.clone();
+    m.profile = profiles[sel % 4];
+    m.pixels_per_column = 1 + (sel >> 2) % 4;
+    m.columns_per_packet = 1 + (sel >> 4) % 4;
+    m.columns_per_frame = 16;
+    m.column_window = [(sel >> 6) * 5, 9];
+    m.beam_altitude_angles_deg.truncate(m.pixels_per_column);
+    m.beam_azimuth_angles_deg.truncate(m.pixels_per_column);
+    m.pixel_shift_by_row.truncate(m.pixels_per_column);
+    let dec = Decoder::new(&m);
+    let mut asm = SweepAssembler::new(&m);
+    for chunk in rest.chunks(dec.lidar_packet_bytes()).take(MAX_ITEMS) {
+        if let Ok(p) = dec.decode_lidar(chunk) {
+            let _ = asm.push(&p);
+        }
+    }
+    let _ = asm.finish();
+    if let Ok(text) = std::str::from_utf8(rest) {
+        let _ = Metadata::from_json(text);
+    }
+    if let Ok(udp) = PcapUdp::new(rest, Path::new("in.pcap")) {
+        let _ = udp.take(MAX_ITEMS).count();
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

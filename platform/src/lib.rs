@@ -21,6 +21,7 @@ pub mod kalibr;
 pub mod mcap_io;
 pub mod mcap_log;
 pub mod odometry;
+pub mod ouster;
 pub mod pipeline;
 pub mod recording;
 pub mod ros2;
