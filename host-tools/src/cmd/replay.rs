@@ -1,7 +1,8 @@
 //! `povins replay --realtime DATASET --out DIR`: the onboard pipeline (see `povins timing`)
 //! over a dataset, writing the IMU-rate poses it published to `DIR/trajectory.tum` and
 //! printing the timing table (and, with `--mcap-out FILE`, an MCAP file of the poses for
-//! Foxglove: [`McapSink`]). With `--deterministic` the trajectory is bit-identical to
+//! Foxglove: [`McapSink`]; with `--mavlink ADDRESS`, the odometry to an autopilot:
+//! [`MavlinkSink`]). With `--deterministic` the trajectory is bit-identical to
 //! `povins run`'s on the same input and settings, with either front end (`--frontend tracks`,
 //! or `images`: the pipeline's image front-end stage).
 
@@ -9,7 +10,8 @@ use super::timing::{run_pipeline, PipelineArgs, TimingSummary};
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::realtime::imu_samples_estimate;
 use anyhow::{bail, Context, Result};
-use povins_platform::pipeline::{McapSink, TumSink};
+use povins_platform::pipeline::mavlink::{BodyAxes, Endpoint};
+use povins_platform::pipeline::{MavlinkOptions, MavlinkSink, McapSink, TumSink};
 use povins_platform::trajectory::StampedPose;
 use std::path::PathBuf;
 
@@ -31,6 +33,74 @@ pub struct Args {
     /// /povins/keyframe.
     #[arg(long, value_name = "FILE")]
     pub mcap_out: Option<PathBuf>,
+    /// Also send the odometry to an autopilot over MAVLink (`ODOMETRY` in the local FRD
+    /// frame, `HEARTBEAT`, answers to `TIMESYNC`): udpout:HOST:PORT, udpin:ADDR:PORT or
+    /// serial:DEVICE:BAUD (README, "Odometry to PX4 or ArduPilot").
+    #[arg(long, value_name = "ADDRESS")]
+    pub mavlink: Option<String>,
+    /// `ODOMETRY` messages per second of sensor time.
+    #[arg(long, value_name = "HZ", default_value_t = 30.0, requires = "mavlink")]
+    pub mavlink_rate: f64,
+    /// The vehicle's forward, right and down axes as signed IMU axes (x,-y,-z: an IMU
+    /// mounted forward-left-up; x,y,z: forward-right-down).
+    #[arg(
+        long,
+        value_name = "F,R,D",
+        default_value = "x,-y,-z",
+        requires = "mavlink"
+    )]
+    pub mavlink_body_axes: String,
+    /// The MAVLink system id to send as (the vehicle's).
+    #[arg(long, value_name = "ID", default_value_t = 1, requires = "mavlink")]
+    pub mavlink_sysid: u8,
+}
+
+/// The MAVLink sink of `args`, when asked for.
+fn mavlink_sink(args: &Args) -> Result<Option<MavlinkSink>> {
+    let Some(addr) = &args.mavlink else {
+        return Ok(None);
+    };
+    let endpoint = Endpoint::parse(addr).map_err(anyhow::Error::msg)?;
+    let axes = BodyAxes::parse(&args.mavlink_body_axes)
+        .map_err(|e| anyhow::anyhow!("--mavlink-body-axes: {e}"))?;
+    let opts = MavlinkOptions {
+        rate_hz: args.mavlink_rate,
+        system_id: args.mavlink_sysid,
+        axes,
+        ..MavlinkOptions::new(endpoint)
+    };
+    let sink = MavlinkSink::new(opts).with_context(|| format!("--mavlink {addr}"))?;
+    Ok(Some(sink))
+}
+
+/// The summary line of the MAVLink output; an error when it sent nothing it was given.
+fn mavlink_summary(addr: &str, rate_hz: f64, sink: &MavlinkSink, poses: usize) -> Result<()> {
+    let c = sink.counts();
+    println!(
+        "mavlink   {addr}: {} ODOMETRY ({rate_hz} Hz), {} HEARTBEAT, {} TIMESYNC answered \
+         ({} before the first pose), {} received, {} resets",
+        c.odometry_sent,
+        c.heartbeats_sent,
+        c.timesync_answered,
+        c.timesync_unanswered,
+        c.received,
+        c.resets
+    );
+    if c.odometry_dropped_queue + c.odometry_unsent > 0 {
+        eprintln!(
+            "warning: mavlink: {} ODOMETRY not sent ({} queue full, {} with no peer or refused)",
+            c.odometry_dropped_queue + c.odometry_unsent,
+            c.odometry_dropped_queue,
+            c.odometry_unsent
+        );
+    }
+    if let Some(e) = &c.first_error {
+        eprintln!("warning: mavlink: {} errors, the first: {e}", c.errors);
+    }
+    if poses > 0 && c.odometry_sent == 0 {
+        bail!("--mavlink {addr}: no ODOMETRY could be sent");
+    }
+    Ok(())
 }
 
 /// Runs the command.
@@ -45,9 +115,10 @@ pub fn run(args: Args) -> Result<()> {
     // Room for every pose up front: the sinks do not allocate on the IMU thread.
     let n = imu_samples_estimate(&*rec)?;
     let mcap = args.mcap_out.as_ref().map(|f| McapSink::new(f, n));
-    let mut both = (TumSink::new(&path, n), mcap);
-    let report = run_pipeline(&args.pipeline, &*rec, &mut both, "replay")?;
-    let (sink, mcap) = both;
+    let mavlink = mavlink_sink(&args)?;
+    let mut sinks = ((TumSink::new(&path, n), mcap), mavlink);
+    let report = run_pipeline(&args.pipeline, &*rec, &mut sinks, "replay")?;
+    let ((sink, mcap), mavlink) = sinks;
     for line in TimingSummary::new(&*rec, &args.pipeline, &report)?.lines() {
         println!("{line}");
     }
@@ -65,6 +136,9 @@ pub fn run(args: Args) -> Result<()> {
             ),
             Err(e) => eprintln!("warning: evaluation failed: {e:#}"),
         }
+    }
+    if let (Some(m), Some(addr)) = (&mavlink, &args.mavlink) {
+        mavlink_summary(addr, args.mavlink_rate, m, sink.poses().len())?;
     }
     println!("output    {}", path.display());
     if let (Some(m), Some(f)) = (&mcap, &args.mcap_out) {

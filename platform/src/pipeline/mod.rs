@@ -59,12 +59,14 @@
 
 mod backend;
 mod imu;
+pub mod mavlink;
 pub mod mcap_sink;
 pub mod rt;
 pub mod sink;
 pub mod stats;
 
 pub use crate::source::{Clock, Pacer, Pacing, SensorEvent, Source, SystemClock};
+pub use mavlink::{MavlinkCounts, MavlinkOptions, MavlinkSink};
 pub use mcap_sink::McapSink;
 pub use rt::RtStatus;
 pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};

@@ -1,0 +1,190 @@
+//! Issue 34 bar 1: an autopilot's side that is not ours (Python `pymavlink`,
+//! `scripts/mavlink_receiver.py`) receives `povins replay --realtime --mavlink` on a loopback
+//! port: the ODOMETRY it decodes, converted back to povins' frames and matched by `time_usec`,
+//! equal `trajectory.tum`; the rate is the one asked for; its TIMESYNC requests are answered on
+//! a clock that maps povins' stamps onto its own.
+
+mod common;
+
+use povins_core::math::{Quat, Vec3};
+use povins_platform::pipeline::mavlink::{from_frd, BodyAxes, FrdPose};
+use povins_platform::trajectory::read_tum;
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+
+fn pymavlink_python() -> std::path::PathBuf {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = Command::new("bash")
+        .arg(root.join("scripts/pyenv.sh"))
+        .arg(root.join("target/pyenv-mavlink"))
+        .arg("pymavlink")
+        .arg("pymavlink==2.4.49")
+        .output()
+        .expect("bash");
+    assert!(
+        out.status.success(),
+        "scripts/pyenv.sh failed (needs PyPI for pymavlink): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).trim().into()
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+#[test]
+#[ignore = "needs PyPI (pymavlink) and runs 15 s in real time"]
+fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("seq");
+    let (ok, _, err) = common::povins(&[
+        "simulate",
+        "--seed",
+        "3",
+        "--duration",
+        "15",
+        "--lidar",
+        "none",
+        "--format",
+        "euroc",
+        "--out",
+        data.to_str().unwrap(),
+    ]);
+    assert!(ok, "simulate: {err}");
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let json = tmp.path().join("received.json");
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/mavlink_receiver.py");
+    let mut rx = Command::new(pymavlink_python())
+        .arg(script)
+        .arg(format!("udpin:127.0.0.1:{port}"))
+        .arg(&json)
+        .args(["3", "120"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("python");
+    let mut lines = BufReader::new(rx.stdout.take().unwrap()).lines();
+    assert_eq!(lines.next().unwrap().unwrap(), "ready");
+    let out = tmp.path().join("out");
+    let (ok, stdout, err) = common::povins(&[
+        "replay",
+        "--realtime",
+        data.to_str().unwrap(),
+        "--no-rt",
+        "--out",
+        out.to_str().unwrap(),
+        "--mavlink",
+        &format!("udpout:127.0.0.1:{port}"),
+        "--mavlink-rate",
+        "30",
+    ]);
+    assert!(ok, "replay: {err}");
+    assert!(rx.wait().unwrap().success());
+    let summary: Vec<String> = lines.map_while(Result::ok).collect();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let odo = v["odometry"].as_array().unwrap();
+    let traj = read_tum(&out.join("trajectory.tum")).unwrap();
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("mavlink"))
+        .unwrap_or_default()
+        .to_string();
+    eprintln!("{line}\npymavlink: {summary:?}");
+
+    // Rate: 30 per second of published poses (decimated by stamp).
+    let span_s = (traj.last().unwrap().t_ns - traj[0].t_ns) as f64 * 1e-9;
+    let expected = span_s * 30.0;
+    assert!(
+        (odo.len() as f64 - expected).abs() <= 0.02 * expected + 1.0,
+        "{} ODOMETRY over {span_s:.2} s of poses",
+        odo.len()
+    );
+    assert!(v["heartbeats"].as_u64().unwrap() >= (span_s as u64).saturating_sub(1));
+
+    // Every ODOMETRY equals the trajectory's pose at its time_usec.
+    let by_us: std::collections::HashMap<i64, usize> = traj
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (p.t_ns / 1000, i))
+        .collect();
+    let (mut max_p, mut max_deg) = (0f64, 0f64);
+    for o in odo {
+        let f: Vec<f64> = o
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        assert_eq!(
+            (f[13], f[14], f[15]),
+            (20.0, 12.0, 3.0),
+            "LOCAL_FRD, BODY_FRD, VIO"
+        );
+        assert_eq!((f[17], f[18]), (1.0, 197.0), "system 1, component VIO");
+        assert_eq!(f[11], 0.0, "no reset in this run");
+        let i = by_us[&(f[0] as i64)];
+        let frd = FrdPose {
+            p_l: Vec3::new(f[1], f[2], f[3]),
+            q_lv: Quat::from_quaternion(nalgebra::Quaternion::new(f[4], f[5], f[6], f[7])),
+            v_v: Vec3::new(f[8], f[9], f[10]),
+        };
+        let (p, q, _) = from_frd(&frd, &BodyAxes::default());
+        max_p = max_p.max((p - traj[i].p_wb).norm());
+        max_deg = max_deg.max(q.angle_to(&traj[i].q_wb).to_degrees());
+    }
+    eprintln!(
+        "{} ODOMETRY: max position difference {max_p:.2e} m, attitude {max_deg:.2e} deg",
+        odo.len()
+    );
+    assert!(max_p < 1e-3 && max_deg < 0.01);
+
+    // TIMESYNC: offset = tc1 - (ts1 + recv) / 2 on each answer (loopback: symmetric paths).
+    // Converged: the median offset of the second quarter of the answers and of the last
+    // quarter agree within 0.5 ms; with it povins' stamps map onto the receiver's clock with a
+    // small, positive latency.
+    let ts: Vec<[f64; 3]> = v["timesync"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| {
+            let a = a.as_array().unwrap();
+            [0, 1, 2].map(|k| a[k].as_i64().unwrap() as f64)
+        })
+        .collect();
+    assert!(
+        ts.len() as f64 >= span_s * 10.0 * 0.8,
+        "{} TIMESYNC answers",
+        ts.len()
+    );
+    let offsets: Vec<f64> = ts.iter().map(|a| a[0] - 0.5 * (a[1] + a[2])).collect();
+    let q = offsets.len() / 4;
+    let early = median(&mut offsets[q..2 * q].to_vec());
+    let off = median(&mut offsets[3 * q..].to_vec());
+    let spread = (off - early).abs();
+    let mut lat_ms: Vec<f64> = odo
+        .iter()
+        .map(|o| {
+            let a = o.as_array().unwrap();
+            let stamp_ns = a[0].as_f64().unwrap() * 1000.0;
+            (a[16].as_f64().unwrap() - (stamp_ns - off)) * 1e-6
+        })
+        .collect();
+    let lat = median(&mut lat_ms);
+    eprintln!(
+        "TIMESYNC: {} answers, offset drift {:.3} ms between quarters; stamp-to-receipt latency median {lat:.3} ms",
+        ts.len(),
+        spread * 1e-6
+    );
+    assert!(
+        spread < 0.5e6,
+        "the offset moved {spread} ns between quarters"
+    );
+    assert!((0.0..50.0).contains(&lat), "median latency {lat} ms");
+}

@@ -1,0 +1,67 @@
+#!/usr/bin/env python3
+"""An autopilot's side of povins' MAVLink output, written with pymavlink (not povins' code).
+
+Listens on udpin:ADDR:PORT, records every ODOMETRY, sends TIMESYNC requests (tc1 = 0, ts1 = its
+own monotonic clock in ns) to the sender at 10 Hz once it has spoken, records the answers, and
+stops SECONDS after the last message (or at a time limit). Writes OUT.json:
+  {"odometry": [[time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, reset_counter, quality,
+                 frame_id, child_frame_id, estimator_type, recv_ns, srcsys, srccomp], ...],
+   "timesync": [[tc1, ts1, recv_ns], ...], "heartbeats": N, "other": {type: count}}
+Usage: mavlink_receiver.py udpin:127.0.0.1:PORT OUT.json [IDLE_S] [LIMIT_S]
+"""
+import json
+import math
+import sys
+import time
+
+import os
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402
+
+
+def main():
+    url, out = sys.argv[1], sys.argv[2]
+    idle_s = float(sys.argv[3]) if len(sys.argv) > 3 else 3.0
+    limit_s = float(sys.argv[4]) if len(sys.argv) > 4 else 600.0
+    conn = mavutil.mavlink_connection(url, dialect="common", source_system=1, source_component=1)
+    odo, ts, heartbeats, other = [], [], 0, {}
+    start = time.monotonic()
+    last_msg = None
+    next_sync = 0.0
+    print("ready", flush=True)
+    while time.monotonic() - start < limit_s:
+        now = time.monotonic()
+        if last_msg is not None and now - last_msg > idle_s:
+            break
+        if last_msg is None and now - start > 120:
+            break
+        if last_msg is not None and now >= next_sync:
+            conn.mav.timesync_send(0, time.monotonic_ns())
+            next_sync = now + 0.1
+        m = conn.recv_match(blocking=True, timeout=0.05)
+        if m is None:
+            continue
+        recv_ns = time.monotonic_ns()
+        last_msg = time.monotonic()
+        t = m.get_type()
+        if t == "ODOMETRY":
+            q = list(m.q)
+            odo.append([m.time_usec, m.x, m.y, m.z, q[0], q[1], q[2], q[3], m.vx, m.vy, m.vz,
+                        m.reset_counter, m.quality, m.frame_id, m.child_frame_id,
+                        m.estimator_type, recv_ns, m.get_srcSystem(), m.get_srcComponent(),
+                        0 if math.isnan(m.pose_covariance[0]) else 1])
+        elif t == "TIMESYNC":
+            if m.tc1 != 0:
+                ts.append([m.tc1, m.ts1, recv_ns])
+        elif t == "HEARTBEAT":
+            heartbeats += 1
+        else:
+            other[t] = other.get(t, 0) + 1
+    with open(out, "w") as f:
+        json.dump({"odometry": odo, "timesync": ts, "heartbeats": heartbeats, "other": other}, f)
+    print(f"{len(odo)} ODOMETRY, {len(ts)} TIMESYNC answers, {heartbeats} HEARTBEAT", flush=True)
+
+
+if __name__ == "__main__":
+    main()
