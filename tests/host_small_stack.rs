@@ -36,6 +36,7 @@ fn host_replay_and_pipeline_run_on_a_small_stack() {
             pacing: Pacing::AsFastAsPossible,
             deterministic: true,
             realtime_priority: false,
+            smooth_horizon_s: None,
         };
         {
             let mut sink = CallbackSink::poses(|p: &PoseOut| poses.push(p.nav));

@@ -21,6 +21,8 @@ pub struct RealtimeOptions {
     pub deterministic: bool,
     /// Ask for `SCHED_FIFO` and locked memory (and say when not permitted).
     pub realtime_priority: bool,
+    /// The continuous output's horizon, s (`None`: exact output).
+    pub smooth_horizon_s: Option<f64>,
 }
 
 /// IMU samples read to find the IMU period.
@@ -84,6 +86,7 @@ pub fn run_dataset_with<K: Sink + Send>(
         fifo_priority: opts.realtime_priority.then_some(80),
         lock_memory: opts.realtime_priority,
         announce: opts.realtime_priority,
+        smooth_horizon_s: opts.smooth_horizon_s,
         ..PipelineConfig::default()
     };
     let report = pipeline::run(&mut *odo, source, sink, &pcfg, |n| {

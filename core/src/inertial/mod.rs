@@ -9,6 +9,7 @@ pub mod init;
 pub mod ins;
 pub mod motion_init;
 pub mod preintegration;
+pub mod smooth;
 pub mod state;
 pub mod window;
 
@@ -18,5 +19,6 @@ pub use init::{StaticInitConfig, StaticInitializer, StaticStats};
 pub use ins::{Ins, InsConfig};
 pub use motion_init::{MotionInitConfig, MotionInitializer, Refusal};
 pub use preintegration::{Mat15, PreintConfig, Preintegration, Vec15};
+pub use smooth::OutputSmoother;
 pub use state::{state_from_full, NavState};
 pub use window::InsWindow;

@@ -36,6 +36,13 @@ pub struct PipelineArgs {
     /// Do not ask for SCHED_FIFO and locked memory.
     #[arg(long)]
     pub no_rt: bool,
+    /// The continuous output for control: each estimator correction spread over
+    /// --continuous-horizon-s instead of taken in one IMU step (README, "Continuous output").
+    #[arg(long)]
+    pub continuous: bool,
+    /// The continuous output's horizon, s.
+    #[arg(long, value_name = "S", default_value_t = povins_core::inertial::smooth::DEFAULT_HORIZON_S, requires = "continuous")]
+    pub continuous_horizon_s: f64,
 }
 
 /// Arguments of `povins timing`.
@@ -58,6 +65,8 @@ pub struct TimingSummary {
     pub speed: f64,
     /// Lockstep mode.
     pub deterministic: bool,
+    /// `exact` or `continuous (horizon S s)`.
+    pub output: String,
     /// The front end that fed the estimator.
     pub frontend: Frontend,
     /// IMU period, ms.
@@ -81,6 +90,11 @@ impl TimingSummary {
             dataset: rec.name().to_string(),
             speed: a.speed,
             deterministic: a.deterministic,
+            output: if a.continuous {
+                format!("continuous (horizon {} s)", a.continuous_horizon_s)
+            } else {
+                "exact".into()
+            },
             frontend: a.run.frontend.unwrap_or(default_frontend(rec)),
             imu_period_ms: imu_period_ns(rec)? as f64 * 1e-6,
             keyframe_period_ms: report.keyframe_period_ns.map(|p| p as f64 * 1e-6),
@@ -160,6 +174,16 @@ impl TimingSummary {
             "fast path {} updates too old for the ring, at most {} samples re-propagated by one",
             c.updates_too_old, c.max_replay
         ));
+        let o = &c.output_steps;
+        v.push(format!(
+            "output    {}: largest correction {:.1} mm; steps departing from the IMU's motion: \
+             max {:.1} mm, {} over 1 cm, {} over 5 cm",
+            self.output,
+            o.max_correction_m * 1e3,
+            o.max_departure_m * 1e3,
+            o.steps_over_1cm,
+            o.steps_over_5cm
+        ));
         v
     }
 }
@@ -174,6 +198,7 @@ pub fn options(a: &PipelineArgs) -> RealtimeOptions {
         },
         deterministic: a.deterministic,
         realtime_priority: !a.no_rt,
+        smooth_horizon_s: a.continuous.then_some(a.continuous_horizon_s),
     }
 }
 

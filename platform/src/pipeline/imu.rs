@@ -14,7 +14,7 @@ use super::{PipelineConfig, Shared, ToBackend, FAST_PATH_RING};
 use crate::driver::elapsed_ns;
 use crate::error::IoError;
 use crate::source::{SensorEvent, Source};
-use povins_core::inertial::{FastPath, ImuSample, NavState};
+use povins_core::inertial::{FastPath, ImuSample, NavState, OutputSmoother};
 use rtrb::{Consumer, Producer, PushError};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
@@ -35,6 +35,10 @@ pub(crate) struct ImuWorker<'a, S, K> {
     pub sent: u64,
     /// The source's error that ended the stream, if any.
     pub error: Option<IoError>,
+    /// The continuous output's offset ([`PipelineConfig::smooth_horizon_s`]).
+    pub smoother: Option<OutputSmoother>,
+    /// Corrections applied since the last publication (position), m.
+    pub pending_correction_m: f64,
 }
 
 impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
@@ -150,8 +154,33 @@ impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
         }
     }
 
-    /// Publishes one pose with its latencies.
+    /// An update moved the fast path's newest state from `before` to `after`.
+    fn on_correction(&mut self, before: Option<&NavState>, after: Option<&NavState>) {
+        if let (Some(b), Some(a)) = (before, after) {
+            if a.t_ns == b.t_ns {
+                let m = (a.p_wb - b.p_wb).norm();
+                let steps = &mut self.counters.output_steps;
+                steps.max_correction_m = steps.max_correction_m.max(m);
+                self.pending_correction_m += m;
+            }
+        }
+        if let Some(s) = &mut self.smoother {
+            s.on_update(before, after);
+        }
+    }
+
+    /// Publishes one pose with its latencies (through the continuous output's offset when
+    /// asked for).
     fn publish(&mut self, nav: NavState, arrival: Instant) {
+        let (nav, departure_m) = match &mut self.smoother {
+            Some(s) => {
+                let out = s.output(&nav);
+                (out, s.last_step_m())
+            }
+            None => (nav, self.pending_correction_m),
+        };
+        self.pending_correction_m = 0.0;
+        self.counters.output_steps.step(departure_m);
         let now = Instant::now();
         let latency_ns = u64::try_from(now.duration_since(arrival).as_nanos()).unwrap_or(u64::MAX);
         let stamp_latency_ns = self.source.stamp_instant(nav.t_ns).map(|t| {
@@ -186,7 +215,10 @@ impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
         while let Ok(r) = self.rx.pop() {
             if let Some(u) = &r.ins {
                 let t0 = Instant::now();
-                *got = Some(self.fast.apply(u));
+                let before = self.fast.state().copied();
+                let after = self.fast.apply(u);
+                self.on_correction(before.as_ref(), after.as_ref());
+                *got = Some(after);
                 ns += elapsed_ns(t0);
             }
             if let Some(k) = &r.keyframe {

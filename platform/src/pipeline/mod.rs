@@ -70,7 +70,7 @@ pub use mavlink::{MavlinkCounts, MavlinkOptions, MavlinkSink};
 pub use mcap_sink::McapSink;
 pub use rt::RtStatus;
 pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};
-pub use stats::{LatencyHist, PipelineCounters, StageSummary, Timing, STAGES};
+pub use stats::{LatencyHist, OutputSteps, PipelineCounters, StageSummary, Timing, STAGES};
 
 use crate::error::IoError;
 use povins_core::estimator::Counters;
@@ -108,6 +108,10 @@ pub struct PipelineConfig {
     pub lock_memory: bool,
     /// Print a line on stderr for each real-time setting not permitted.
     pub announce: bool,
+    /// The continuous output: each estimator correction spread over this horizon, s
+    /// ([`povins_core::inertial::OutputSmoother`]); `None`: the exact output (it jumps by the
+    /// correction at an update).
+    pub smooth_horizon_s: Option<f64>,
 }
 
 impl Default for PipelineConfig {
@@ -120,6 +124,7 @@ impl Default for PipelineConfig {
             fifo_priority: Some(80),
             lock_memory: true,
             announce: true,
+            smooth_horizon_s: None,
         }
     }
 }
@@ -258,6 +263,10 @@ where
                     counters: PipelineCounters::default(),
                     sent: 0,
                     error: None,
+                    smoother: cfg
+                        .smooth_horizon_s
+                        .map(povins_core::inertial::OutputSmoother::new),
+                    pending_correction_m: 0.0,
                 };
                 w.run();
                 (r, w.timing, w.counters, w.fast.counters(), w.error)

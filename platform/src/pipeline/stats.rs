@@ -169,7 +169,7 @@ impl Timing {
 }
 
 /// What the pipeline counted.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct PipelineCounters {
     /// IMU samples from the source.
     pub imu_in: u64,
@@ -203,4 +203,31 @@ pub struct PipelineCounters {
     pub updates_too_old: u64,
     /// Most IMU samples one update re-propagated on the fast path.
     pub max_replay: u32,
+    /// How the published poses stepped (see [`OutputSteps`]).
+    pub output_steps: OutputSteps,
+}
+
+/// How far the published IMU-rate output stepped away from the motion the IMU measured: an
+/// estimator update restarts the INS and the exact output takes the whole correction in one
+/// step; the continuous output ([`super::PipelineConfig::smooth_horizon_s`]) spreads it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct OutputSteps {
+    /// The largest correction of the exact state at one sample (position), m.
+    pub max_correction_m: f64,
+    /// The largest departure of one published step from the IMU-measured motion, m (the
+    /// correction itself for the exact output).
+    pub max_departure_m: f64,
+    /// Published steps departing by more than 1 cm.
+    pub steps_over_1cm: u64,
+    /// Published steps departing by more than 5 cm.
+    pub steps_over_5cm: u64,
+}
+
+impl OutputSteps {
+    /// Records a published step's departure, m.
+    pub fn step(&mut self, departure_m: f64) {
+        self.max_departure_m = self.max_departure_m.max(departure_m);
+        self.steps_over_1cm += u64::from(departure_m > 0.01);
+        self.steps_over_5cm += u64::from(departure_m > 0.05);
+    }
 }
