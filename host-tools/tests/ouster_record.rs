@@ -362,3 +362,77 @@ fn drops_reorderings_and_garbage_are_counted() {
          {d:.3e} m)"
     );
 }
+
+fn povins(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_povins"))
+        .args(args)
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap()
+}
+
+#[test]
+#[ignore = "needs ../shared/data"]
+fn pcap_conversion_gives_the_same_files_in_both_formats() {
+    let dir = tempfile::tempdir().unwrap();
+    let (e, m) = (dir.path().join("e"), dir.path().join("m"));
+    for (out, format) in [(&e, "euroc"), (&m, "mcap")] {
+        let o = povins(&[
+            "record".as_ref(),
+            "--ouster-meta".as_ref(),
+            meta_path().as_os_str(),
+            "--pcap".as_ref(),
+            capture().as_os_str(),
+            "--format".as_ref(),
+            format.as_ref(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let euroc = povins_platform::euroc::EurocFolder::open(&e).unwrap();
+    let mcap = povins_platform::mcap_io::McapRecording::open(&m.join("recording.mcap")).unwrap();
+    let sweeps = |r: &dyn Recording| r.sweeps().unwrap().map(Result::unwrap).collect::<Vec<_>>();
+    let imu = |r: &dyn Recording| r.imu().unwrap().map(Result::unwrap).collect::<Vec<_>>();
+    let (se, sm) = (sweeps(&euroc), sweeps(&mcap));
+    assert_eq!((se.len(), imu(&euroc).len()), (3, 30));
+    assert_eq!(se, sm, "EuRoC vs MCAP sweeps");
+    assert_eq!(imu(&euroc), imu(&mcap), "EuRoC vs MCAP IMU");
+    assert_eq!(euroc.calibration().t_bl, mcap.calibration().t_bl);
+    // The offline conversion's sweeps are the capture's as read_pcap assembles them.
+    let meta = Metadata::from_file(&meta_path()).unwrap();
+    assert_eq!(se, read_pcap(&capture(), &meta).unwrap().scans);
+}
+
+#[test]
+fn nothing_received_is_an_error_naming_the_ports() {
+    let meta = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../platform/src/ouster/testdata/os1-128_v2.3.0_1024x10.json");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec");
+    let base: Vec<&std::ffi::OsStr> = vec![
+        "record".as_ref(),
+        "--ouster-meta".as_ref(),
+        meta.as_os_str(),
+        "--lidar-port".as_ref(),
+        "0".as_ref(),
+        "--imu-port".as_ref(),
+        "0".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ];
+    let o = povins(&[&base[..], &["--duration".as_ref(), "0.3".as_ref()]].concat());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("nothing received on udp 127.0.0.1:") && err.contains("(IMU) in 0.3 s"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing written");
+    let o = povins(&base);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--duration S is needed"),
+        "{err}"
+    );
+}
