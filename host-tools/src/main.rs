@@ -31,6 +31,9 @@ enum Cmd {
     Info(cmd::info::Args),
     /// Write a recording (EuRoC folder, MCAP, ROS 1 bag with --calib) as an EuRoC ASL folder.
     Convert(cmd::convert::Args),
+    /// Record an Ouster sensor's UDP stream (or convert a pcap capture of it) as an EuRoC
+    /// folder or MCAP file: LiDAR sweeps, IMU samples, the LiDAR-IMU extrinsic.
+    Record(cmd::record::Args),
     /// Run the image front end alone: tracks, per-image statistics, pictures.
     Track(cmd::track::Args),
     /// Compare front ends' tracks on real images: counts, lengths, epipolar violations vs gyro.
@@ -79,6 +82,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Run(a) => cmd::run::run(a),
         Cmd::Info(a) => cmd::info::run(a),
         Cmd::Convert(a) => cmd::convert::run(a),
+        Cmd::Record(a) => cmd::record::run(a),
         Cmd::Track(a) => cmd::track::run(a),
         Cmd::CompareTracks(a) => cmd::compare_tracks::run(a),
         Cmd::ScoreTracks(a) => cmd::score_tracks::run(a),

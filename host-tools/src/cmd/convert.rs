@@ -45,7 +45,7 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// Refuses an `out` that exists and is not an empty folder.
-fn check_out_dir(out: &Path) -> Result<()> {
+pub(crate) fn check_out_dir(out: &Path) -> Result<()> {
     if !out.exists() {
         return Ok(());
     }

@@ -7,6 +7,7 @@ pub mod demo;
 pub mod eval;
 pub mod info;
 pub mod plot;
+pub mod record;
 pub mod regress;
 pub mod replay;
 pub mod run;

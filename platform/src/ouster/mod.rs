@@ -31,8 +31,11 @@
 //! IMU profile) is 48 bytes ([`decode_imu`]).
 //!
 //! Entry points: [`Metadata::from_file`], [`Decoder::decode_lidar`], [`decode_imu`],
-//! [`SweepAssembler::push`], [`pcap::PcapUdp`], and [`read_pcap`] for a whole capture.
+//! [`SweepAssembler::push`], [`pcap::PcapUdp`], [`read_pcap`] for a whole capture,
+//! [`live::OusterUdp`] for a live sensor (a [`crate::source::Source`]), and [`calibration`] for
+//! the recording of an Ouster alone (body = IMU frame).
 
+pub mod live;
 pub mod metadata;
 pub mod packet;
 pub mod pcap;
@@ -40,16 +43,76 @@ pub mod rosbag;
 pub mod sweep;
 
 #[cfg(test)]
+mod live_tests;
+#[cfg(test)]
 mod tests;
 
+pub use live::{LiveCounts, LiveOptions, OusterUdp, StreamDecoder};
 pub use metadata::{LidarProfile, Metadata, XyzLut};
 pub use packet::{decode_imu, Column, Decoder, ImuPacket, LidarPacket, Pixel, G_MPS2};
 pub use pcap::{PcapCounts, PcapUdp, UdpDatagram};
 pub use sweep::{Counts, SweepAssembler, SweepInfo};
 
-use crate::dataset::LidarScan;
+use crate::dataset::{Calibration, Extrinsic, LidarScan};
 use crate::IoError;
+use povins_core::camera::{Distortion, PinholeCamera};
+use povins_core::inertial::ImuNoise;
+use povins_core::math::{Quat, Vec3};
 use std::path::Path;
+
+/// The Ouster OS IMU's (InvenSense ICM-20948) noise: the datasheet's white-noise densities
+/// (gyro 0.015 deg/s/sqrt(Hz), accelerometer 230 ug/sqrt(Hz)) and bias random walks of the order
+/// of a MEMS IMU's (not on the datasheet): a starting point, to override with `[imu_noise]`.
+pub const OUSTER_IMU_NOISE: ImuNoise = ImuNoise {
+    gyro_noise_density: 2.618e-4,
+    accel_noise_density: 2.256e-3,
+    gyro_bias_rw: 2.0e-5,
+    accel_bias_rw: 3.0e-3,
+    bias_corr_time_s: None,
+};
+
+/// The Ouster IMU's sample rate, Hz (100 Hz on OS sensors).
+pub const OUSTER_IMU_RATE_HZ: f64 = 100.0;
+
+/// The LiDAR extrinsic of a recording whose body frame is the Ouster's IMU frame: `T_bl` =
+/// `imu_to_sensor_transform`^-1 (`p_imu = R^T (p_sensor - t)`), LiDAR points being in the
+/// sensor frame. The metadata's rotation is taken to the nearest rotation.
+pub fn t_imu_sensor(meta: &Metadata) -> Extrinsic {
+    let m = meta.imu_to_sensor_m();
+    let r = nalgebra::Matrix3::from_fn(|i, j| m[i][j]);
+    let q_sensor_imu = Quat::from_matrix(&r);
+    let t = Vec3::new(m[0][3], m[1][3], m[2][3]);
+    let q_imu_sensor = q_sensor_imu.inverse();
+    Extrinsic {
+        q_ab: q_imu_sensor,
+        p_ab: -(q_imu_sensor * t),
+    }
+}
+
+/// The calibration of a recording of an Ouster alone: no camera (a zero-size placeholder, as an
+/// EuRoC folder without `cam0` reads), body = IMU frame, [`OUSTER_IMU_NOISE`] at
+/// [`OUSTER_IMU_RATE_HZ`], `T_bl` from [`t_imu_sensor`].
+pub fn calibration(meta: &Metadata) -> Calibration {
+    Calibration {
+        camera: PinholeCamera {
+            readout_s: 0.0,
+            width: 0,
+            height: 0,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 0.0,
+            cy: 0.0,
+            distortion: Distortion::None,
+        },
+        t_bc: Extrinsic::identity(),
+        td_s: 0.0,
+        camera_rate_hz: 0.0,
+        imu_noise: OUSTER_IMU_NOISE,
+        imu_rate_hz: OUSTER_IMU_RATE_HZ,
+        gravity_mps2: G_MPS2,
+        t_bl: Some(t_imu_sensor(meta)),
+    }
+}
 
 /// A metadata or packet decoding failure.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -2,12 +2,12 @@ use super::*;
 
 const META_JSON: &str = include_str!("testdata/os1-128_v2.3.0_1024x10.json");
 
-fn meta() -> Metadata {
+pub(super) fn meta() -> Metadata {
     Metadata::from_json(META_JSON).unwrap()
 }
 
 /// A small metadata: `rows` channels, `cols` columns per frame, 4 columns per packet.
-fn small_meta(profile: LidarProfile, rows: usize, cols: usize) -> Metadata {
+pub(super) fn small_meta(profile: LidarProfile, rows: usize, cols: usize) -> Metadata {
     let mut m = meta();
     m.profile = profile;
     m.pixels_per_column = rows;
@@ -21,7 +21,7 @@ fn small_meta(profile: LidarProfile, rows: usize, cols: usize) -> Metadata {
 }
 
 /// Builds a lidar packet: columns `first_m..first_m + 4`, pixel (c, r) range `range(c, r)`.
-fn build(
+pub(super) fn build(
     meta: &Metadata,
     frame_id: u16,
     first_m: u16,

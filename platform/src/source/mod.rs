@@ -8,7 +8,8 @@
 //!   or as fast as possible.
 //! - [`Prefetch`] runs a source on a helper thread and decodes its images there, so a replay
 //!   never waits for the decoder.
-//! - A live driver implements [`Source`] itself (`platform/examples/live_source.rs`).
+//! - A live driver implements [`Source`] itself (`platform/examples/live_source.rs`;
+//!   [`crate::ouster::OusterUdp`] for an Ouster sensor over UDP).
 
 mod merge;
 mod prefetch;
