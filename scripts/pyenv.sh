@@ -7,6 +7,10 @@ set -euo pipefail
 venv=$1 imports=$2
 shift 2
 py="$venv/bin/python"
+# Tests run in parallel: one of them makes the venv, the others wait for it.
+mkdir -p "$(dirname "$venv")"
+exec 9>"$venv.lock"
+flock 9
 [ -x "$py" ] || python3 -m venv "$venv" >&2 || { echo "pyenv: python3 -m venv $venv failed (is python3-venv installed?)" >&2; exit 1; }
 "$py" -c "import $imports" 2>/dev/null \
   || "$py" -m pip install --quiet --disable-pip-version-check "$@" >&2 \
