@@ -12,23 +12,6 @@ use povins_platform::trajectory::read_tum;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 
-fn pymavlink_python() -> std::path::PathBuf {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let out = Command::new("bash")
-        .arg(root.join("scripts/pyenv.sh"))
-        .arg(root.join("target/pyenv-mavlink"))
-        .arg("pymavlink")
-        .arg("pymavlink==2.4.49")
-        .output()
-        .expect("bash");
-    assert!(
-        out.status.success(),
-        "scripts/pyenv.sh failed (needs PyPI for pymavlink): {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).trim().into()
-}
-
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -61,7 +44,7 @@ fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
     let json = tmp.path().join("received.json");
     let script =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/mavlink_receiver.py");
-    let mut rx = Command::new(pymavlink_python())
+    let mut rx = Command::new(common::pymavlink_python())
         .arg(script)
         .arg(format!("udpin:127.0.0.1:{port}"))
         .arg(&json)

@@ -10,6 +10,8 @@
 //! venv `target/pyenv-ouster` (made on first use by `scripts/pyenv.sh`, needs PyPI) or
 //! `$POVINS_OUSTER_PYTHON`.
 
+mod common;
+
 use povins_platform::ouster::{read_pcap, t_imu_sensor, Decoder, Metadata, PcapUdp};
 use povins_platform::recording::Recording;
 use std::collections::BTreeMap;
@@ -34,23 +36,7 @@ fn meta_path() -> PathBuf {
 
 /// Python with `ouster-sdk` 1.0.1 (as `platform/tests/ouster_sdk.rs`).
 fn python() -> String {
-    if let Ok(p) = std::env::var("POVINS_OUSTER_PYTHON") {
-        return p;
-    }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let out = Command::new("bash")
-        .arg(root.join("scripts/pyenv.sh"))
-        .arg(root.join("target/pyenv-ouster"))
-        .arg("ouster.sdk.pcap, numpy")
-        .arg("ouster-sdk==1.0.1")
-        .output()
-        .expect("scripts/pyenv.sh: could not start bash");
-    assert!(
-        out.status.success(),
-        "scripts/pyenv.sh failed (needs PyPI for ouster-sdk): {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).trim().to_string()
+    common::ouster_python().to_string_lossy().into_owned()
 }
 
 /// The SDK's decoding of the capture (sweeps.csv, points.bin, imu.csv) in a temporary folder.

@@ -78,32 +78,69 @@ pub fn simulate_handheld(
     simulate("handheld", "3", seconds, format, out, &args)
 }
 
-/// `POVINS_ROSBAGS_PYTHON`, else the venv `<repo>/target/pyenv-rosbags` with the independent
-/// ROS tools (`rosbags`, `mcap`, `mcap-ros1-support`, numpy), made on first use by
+/// `$env_var`, else the interpreter of the venv `<repo>/target/<venv>` holding `pkgs` (pip
+/// requirements; `imports` is the import line that proves them installed), made on first use by
 /// `scripts/pyenv.sh` (needs PyPI; without it the calling test fails saying so).
 #[allow(dead_code)]
-pub fn rosbags_python() -> std::path::PathBuf {
-    if let Some(p) = std::env::var_os("POVINS_ROSBAGS_PYTHON") {
+pub fn venv_python(env_var: &str, venv: &str, imports: &str, pkgs: &[&str]) -> std::path::PathBuf {
+    if let Some(p) = std::env::var_os(env_var) {
         return p.into();
     }
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let out = Command::new("bash")
         .arg(root.join("scripts/pyenv.sh"))
-        .arg(root.join("target/pyenv-rosbags"))
-        .arg("rosbags, yaml, mcap, mcap_ros1, numpy")
-        .args([
+        .arg(root.join("target").join(venv))
+        .arg(imports)
+        .args(pkgs)
+        .output()
+        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
+    assert!(
+        out.status.success(),
+        "scripts/pyenv.sh failed (needs PyPI for {pkgs:?}): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::path::PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+}
+
+/// The independent ROS tools (`rosbags`, `mcap`, `mcap-ros1-support`, numpy):
+/// [`venv_python`] of `target/pyenv-rosbags`, or `POVINS_ROSBAGS_PYTHON`.
+#[allow(dead_code)]
+pub fn rosbags_python() -> std::path::PathBuf {
+    venv_python(
+        "POVINS_ROSBAGS_PYTHON",
+        "pyenv-rosbags",
+        "rosbags, yaml, mcap, mcap_ros1, numpy",
+        &[
             "rosbags==0.11.9",
             "pyyaml",
             "mcap==1.6.0",
             "mcap-ros1-support==0.9.0",
             "numpy",
-        ])
-        .output()
-        .unwrap_or_else(|e| panic!("scripts/pyenv.sh: could not start bash: {e}"));
-    assert!(
-        out.status.success(),
-        "scripts/pyenv.sh failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    std::path::PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+        ],
+    )
+}
+
+/// Python with the Ouster SDK (`ouster-sdk` 1.0.1, which pins `rosbags` 0.9, hence a venv of its
+/// own): [`venv_python`] of `target/pyenv-ouster`, or `POVINS_OUSTER_PYTHON` (the same venv as
+/// `platform/tests/ouster_sdk.rs`).
+#[allow(dead_code)]
+pub fn ouster_python() -> std::path::PathBuf {
+    venv_python(
+        "POVINS_OUSTER_PYTHON",
+        "pyenv-ouster",
+        "ouster.sdk.pcap, numpy",
+        &["ouster-sdk==1.0.1"],
+    )
+}
+
+/// Python with `pymavlink` 2.4.49: [`venv_python`] of `target/pyenv-mavlink`, or
+/// `POVINS_MAVLINK_PYTHON`.
+#[allow(dead_code)]
+pub fn pymavlink_python() -> std::path::PathBuf {
+    venv_python(
+        "POVINS_MAVLINK_PYTHON",
+        "pyenv-mavlink",
+        "pymavlink",
+        &["pymavlink==2.4.49"],
+    )
 }
