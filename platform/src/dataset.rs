@@ -6,7 +6,7 @@
 //! are in the LiDAR frame `l`. Extrinsics follow the core's naming: `q_bc`/`p_bc` map camera
 //! coordinates into the body frame (`P_b = R_bc P_c + p_bc`, EuRoC's `T_BS`).
 
-use povins_core::camera::{FeatureObs, PinholeCamera};
+use povins_core::camera::{Distortion, FeatureObs, PinholeCamera};
 use povins_core::inertial::{ImuNoise, ImuSample, NavState};
 use povins_core::lidar::LidarPoint;
 use povins_core::math::{Quat, Vec3};
@@ -27,6 +27,21 @@ impl Extrinsic {
             q_ab: Quat::identity(),
             p_ab: Vec3::zeros(),
         }
+    }
+}
+
+/// The camera of a recording without one (LiDAR-inertial, IMU only): zero-size, so the
+/// estimator cannot mistake it for a real camera.
+pub fn no_camera() -> PinholeCamera {
+    PinholeCamera {
+        readout_s: 0.0,
+        width: 0,
+        height: 0,
+        fx: 1.0,
+        fy: 1.0,
+        cx: 0.0,
+        cy: 0.0,
+        distortion: Distortion::None,
     }
 }
 

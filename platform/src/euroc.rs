@@ -130,21 +130,7 @@ impl EurocFolder {
                 (cam, compose_in_imu(&t_b_imu, &t), td, rate)
             }
             // No camera at all: a placeholder the estimator cannot mistake for a real one.
-            None => (
-                PinholeCamera {
-                    readout_s: 0.0,
-                    width: 0,
-                    height: 0,
-                    fx: 1.0,
-                    fy: 1.0,
-                    cx: 0.0,
-                    cy: 0.0,
-                    distortion: Distortion::None,
-                },
-                Extrinsic::identity(),
-                0.0,
-                0.0,
-            ),
+            None => (crate::dataset::no_camera(), Extrinsic::identity(), 0.0, 0.0),
         };
         let (imu_noise, imu_rate_hz, gravity_mps2) = read_imu_yaml(&imu_yaml)?;
         let lidar_dir = mav0.join("lidar0");

@@ -55,7 +55,6 @@ pub use sweep::{Counts, SweepAssembler, SweepInfo};
 
 use crate::dataset::{Calibration, Extrinsic, LidarScan};
 use crate::IoError;
-use povins_core::camera::{Distortion, PinholeCamera};
 use povins_core::inertial::ImuNoise;
 use povins_core::math::{Quat, Vec3};
 use std::path::Path;
@@ -89,21 +88,12 @@ pub fn t_imu_sensor(meta: &Metadata) -> Extrinsic {
     }
 }
 
-/// The calibration of a recording of an Ouster alone: no camera (a zero-size placeholder, as an
+/// The calibration of a recording of an Ouster alone: no camera ([`crate::dataset::no_camera`], as an
 /// EuRoC folder without `cam0` reads), body = IMU frame, [`OUSTER_IMU_NOISE`] at
 /// [`OUSTER_IMU_RATE_HZ`], `T_bl` from [`t_imu_sensor`].
 pub fn calibration(meta: &Metadata) -> Calibration {
     Calibration {
-        camera: PinholeCamera {
-            readout_s: 0.0,
-            width: 0,
-            height: 0,
-            fx: 1.0,
-            fy: 1.0,
-            cx: 0.0,
-            cy: 0.0,
-            distortion: Distortion::None,
-        },
+        camera: crate::dataset::no_camera(),
         t_bc: Extrinsic::identity(),
         td_s: 0.0,
         camera_rate_hz: 0.0,

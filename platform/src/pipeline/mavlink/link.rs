@@ -163,8 +163,8 @@ impl Link {
         }
     }
 
-    /// Receives the messages of one datagram (or one message from a serial port); `Ok(None)`
-    /// after [`RECV_TIMEOUT`] without any. Frames that do not parse are counted in `bad`.
+    /// Receives the messages of one datagram (or one message from a serial port) into `out`,
+    /// left empty after [`RECV_TIMEOUT`] without any. Frames that do not parse are counted in `bad`.
     pub fn recv(
         &self,
         buf: &mut [u8],
