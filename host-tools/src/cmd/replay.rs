@@ -11,7 +11,7 @@ use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::realtime::imu_samples_estimate;
 use anyhow::{bail, Context, Result};
 use povins_platform::pipeline::mavlink::{BodyAxes, Endpoint};
-use povins_platform::pipeline::{MavlinkOptions, MavlinkSink, McapSink, TumSink};
+use povins_platform::pipeline::{MavlinkOptions, MavlinkSink, McapOptions, McapSink, TumSink};
 use povins_platform::trajectory::StampedPose;
 use std::path::PathBuf;
 
@@ -30,7 +30,8 @@ pub struct Args {
     pub out: PathBuf,
     /// Also write the published poses to this MCAP file for Foxglove: `foxglove.PoseInFrame`
     /// (JSON) on /povins/pose at IMU rate and each keyframe's optimized state on
-    /// /povins/keyframe.
+    /// /povins/keyframe. Written during the run and flushed every second: a run that is killed
+    /// leaves a file readable up to its last second.
     #[arg(long, value_name = "FILE")]
     pub mcap_out: Option<PathBuf>,
     /// Also send the odometry to an autopilot over MAVLink (`ODOMETRY` in the local FRD
@@ -114,11 +115,27 @@ pub fn run(args: Args) -> Result<()> {
     let path = args.out.join("trajectory.tum");
     // Room for every pose up front: the sinks do not allocate on the IMU thread.
     let n = imu_samples_estimate(&*rec)?;
-    let mcap = args.mcap_out.as_ref().map(|f| McapSink::new(f, n));
+    let mcap = match &args.mcap_out {
+        Some(f) => Some(
+            McapSink::create(f, McapOptions::default())
+                .with_context(|| format!("--mcap-out {}", f.display()))?,
+        ),
+        None => None,
+    };
     let mavlink = mavlink_sink(&args)?;
     let mut sinks = ((TumSink::new(&path, n), mcap), mavlink);
     let report = run_pipeline(&args.pipeline, &*rec, &mut sinks, "replay")?;
     let ((sink, mcap), mavlink) = sinks;
+    if let Some(m) = &mcap {
+        let c = m.counts();
+        if c.dropped_queue > 0 {
+            eprintln!(
+                "warning: mcap: {} of {} outputs not written (the writer fell behind)",
+                c.dropped_queue,
+                c.dropped_queue + c.poses + c.keyframes
+            );
+        }
+    }
     for line in TimingSummary::new(&*rec, &args.pipeline, &report)?.lines() {
         println!("{line}");
     }
@@ -142,11 +159,13 @@ pub fn run(args: Args) -> Result<()> {
     }
     println!("output    {}", path.display());
     if let (Some(m), Some(f)) = (&mcap, &args.mcap_out) {
+        let c = m.counts();
         println!(
-            "mcap      {} ({} poses, {} keyframes)",
+            "mcap      {} ({} poses, {} keyframes, flushed {} times during the run)",
             f.display(),
-            m.poses().len(),
-            m.keyframes().len()
+            c.poses,
+            c.keyframes,
+            c.flushes
         );
     }
     Ok(())

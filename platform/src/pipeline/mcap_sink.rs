@@ -1,17 +1,35 @@
-//! [`McapSink`]: the pipeline's outputs as an MCAP file for Foxglove: every IMU-rate pose on
-//! [`TOPIC_POSE`] and every keyframe's optimized state on [`TOPIC_KEYFRAME`], both as
-//! `foxglove.PoseInFrame` messages (JSON schema encoding, JSON messages: Foxglove's 3D panel
-//! shows them as poses, its plot panel their fields).
+//! [`McapSink`]: the pipeline's outputs as an MCAP file for Foxglove, written while the run goes
+//! on: every IMU-rate pose on [`TOPIC_POSE`] and every keyframe's optimized state on
+//! [`TOPIC_KEYFRAME`], both as `foxglove.PoseInFrame` messages (JSON schema encoding, JSON
+//! messages: Foxglove's 3D panel shows them as poses, its plot panel their fields).
 //!
-//! Like [`super::TumSink`], the sink only copies each output into memory reserved up front (no
-//! disk, no lock, no allocation on the IMU thread while the reservation lasts); the file is
-//! written at [`Sink::finish`].
+//! ## Streaming
+//! The sink's calls run on the pipeline's IMU thread: they copy the pose into a lock-free queue
+//! ([`McapOptions::queue`] entries, allocated when the sink is made) and return; a writer thread
+//! serializes and writes. The writer closes the open chunk (zstd, at most
+//! [`McapOptions::chunk_bytes`] before compression) and flushes the file to the operating system
+//! at least every [`McapOptions::flush_period`] (1 s), so a process that is killed (`SIGKILL`,
+//! a crash, a power cut after the OS wrote its cache) leaves a file whose records up to the last
+//! flush are complete and readable by a streaming MCAP reader (no summary or footer: readers
+//! that need the index report it missing; `mcap recover` rebuilds it). A run that ends normally
+//! ([`Sink::finish`]) writes the summary and footer. The file is created when the sink is made,
+//! so a path that cannot be written fails before the run starts.
+//!
+//! A full queue (the disk slower than the IMU for longer than the queue lasts) drops the pose and
+//! counts it ([`McapCounts::dropped_queue`]); a write error ends the writing, is counted, and is
+//! returned by [`Sink::finish`] naming the file.
 
 use super::sink::{KeyframeOut, PoseOut, Sink};
 use crate::error::IoError;
 use crate::trajectory::StampedPose;
 use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 /// Topic of the IMU-rate poses.
 pub const TOPIC_POSE: &str = "/povins/pose";
@@ -21,50 +39,334 @@ pub const TOPIC_KEYFRAME: &str = "/povins/keyframe";
 pub const POSE_IN_FRAME: &str = "foxglove.PoseInFrame";
 /// The frame the poses are given in (the estimator's world frame, z up).
 pub const WORLD_FRAME: &str = "world";
+/// How often the writer thread looks at the queue.
+const POLL: Duration = Duration::from_millis(20);
 
-/// Collects poses and keyframe states; writes them as MCAP at [`Sink::finish`].
+/// How [`McapSink`] writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct McapOptions {
+    /// Longest time between two flushes of the file (each closes the open chunk).
+    pub flush_period: Duration,
+    /// Largest chunk before compression, bytes (a chunk is also closed at every flush).
+    pub chunk_bytes: u64,
+    /// Poses and keyframes the queue to the writer thread holds.
+    pub queue: usize,
+}
+
+impl Default for McapOptions {
+    /// Flushed every second, chunks of at most 1 MiB, a queue of 8192 (8 s at 1 kHz).
+    fn default() -> Self {
+        McapOptions {
+            flush_period: Duration::from_secs(1),
+            chunk_bytes: 1 << 20,
+            queue: 8192,
+        }
+    }
+}
+
+/// What the MCAP output did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct McapCounts {
+    /// Poses written on [`TOPIC_POSE`].
+    pub poses: u64,
+    /// Keyframe states written on [`TOPIC_KEYFRAME`].
+    pub keyframes: u64,
+    /// Poses and keyframes not written: the queue to the writer thread was full, or the
+    /// writing had stopped at an error.
+    pub dropped_queue: u64,
+    /// Flushes of the file during the run (not counting the end).
+    pub flushes: u64,
+}
+
+/// One output on its way to the writer thread.
+#[derive(Debug, Clone, Copy)]
+enum Item {
+    Pose(StampedPose),
+    Keyframe(StampedPose),
+}
+
+/// Counts shared with the writer thread.
+#[derive(Debug, Default)]
+struct Shared {
+    stop: AtomicBool,
+    poses: AtomicU64,
+    keyframes: AtomicU64,
+    flushes: AtomicU64,
+}
+
+/// A [`Sink`] writing the poses and keyframe states to an MCAP file as the run goes (see the
+/// module doc).
 #[derive(Debug)]
 pub struct McapSink {
     path: PathBuf,
-    poses: Vec<StampedPose>,
-    keyframes: Vec<StampedPose>,
+    tx: rtrb::Producer<Item>,
+    shared: Arc<Shared>,
+    dropped: u64,
+    writer: Option<JoinHandle<Result<(), IoError>>>,
 }
 
 impl McapSink {
-    /// A sink writing `path`, with room for `capacity` poses reserved up front (the number of
-    /// IMU samples) and for one keyframe per 10 of them.
-    pub fn new(path: impl Into<PathBuf>, capacity: usize) -> Self {
-        McapSink {
-            path: path.into(),
-            poses: Vec::with_capacity(capacity),
-            keyframes: Vec::with_capacity(capacity / 10 + 16),
+    /// Creates `path` (schema and channels written at once) and starts the writer thread.
+    pub fn create(path: impl Into<PathBuf>, opts: McapOptions) -> Result<Self, IoError> {
+        let path = path.into();
+        if opts.flush_period.is_zero() || opts.queue == 0 || opts.chunk_bytes == 0 {
+            return Err(IoError::Invalid {
+                path,
+                msg: format!(
+                    "MCAP output options {opts:?}: the flush period, the chunk size and the \
+                     queue must be above 0"
+                ),
+            });
+        }
+        let mut file = PoseMcapWriter::create(&path, opts.chunk_bytes)?;
+        // The header, schema and channels reach the disk before the first pose.
+        file.flush()?;
+        let shared = Arc::new(Shared::default());
+        let (tx, rx) = rtrb::RingBuffer::new(opts.queue);
+        let s = shared.clone();
+        let writer = std::thread::Builder::new()
+            .name("mcap-writer".into())
+            .spawn(move || write_loop(file, rx, &s, opts.flush_period))
+            .map_err(|e| IoError::io(&path, e))?;
+        Ok(McapSink {
+            path,
+            tx,
+            shared,
+            dropped: 0,
+            writer: Some(writer),
+        })
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The counts so far (complete after [`Sink::finish`]).
+    pub fn counts(&self) -> McapCounts {
+        McapCounts {
+            poses: self.shared.poses.load(Ordering::Relaxed),
+            keyframes: self.shared.keyframes.load(Ordering::Relaxed),
+            dropped_queue: self.dropped,
+            flushes: self.shared.flushes.load(Ordering::Relaxed),
         }
     }
 
-    /// The poses collected so far.
-    pub fn poses(&self) -> &[StampedPose] {
-        &self.poses
+    fn push(&mut self, item: Item) {
+        if self.tx.push(item).is_err() {
+            self.dropped += 1;
+        }
     }
 
-    /// The keyframe states collected so far.
-    pub fn keyframes(&self) -> &[StampedPose] {
-        &self.keyframes
+    /// Stops the writer thread after it has written what is queued; its result.
+    fn stop(&mut self) -> Result<(), IoError> {
+        self.shared.stop.store(true, Ordering::Release);
+        let Some(h) = self.writer.take() else {
+            return Ok(());
+        };
+        h.thread().unpark();
+        match h.join() {
+            Ok(r) => r,
+            Err(_) => Err(IoError::Invalid {
+                path: self.path.clone(),
+                msg: "the MCAP writer thread panicked".into(),
+            }),
+        }
     }
 }
 
 impl Sink for McapSink {
     fn pose(&mut self, p: &PoseOut) {
-        self.poses.push(StampedPose::from(&p.nav));
+        self.push(Item::Pose(StampedPose::from(&p.nav)));
     }
 
     fn keyframe(&mut self, k: &KeyframeOut) {
         if let Some(s) = &k.state {
-            self.keyframes.push(StampedPose::from(s));
+            self.push(Item::Keyframe(StampedPose::from(s)));
         }
     }
 
     fn finish(&mut self) -> Result<(), IoError> {
-        write_poses_mcap(&self.path, &self.poses, &self.keyframes)
+        self.stop()
+    }
+}
+
+impl Drop for McapSink {
+    /// Without [`Sink::finish`], the file is still completed (errors are lost: call `finish`).
+    fn drop(&mut self) {
+        let _ = self.stop();
+    }
+}
+
+/// The writer thread: writes what the queue holds, flushes every `period`, and at the stop
+/// writes the rest and the summary.
+fn write_loop(
+    mut file: PoseMcapWriter,
+    mut rx: rtrb::Consumer<Item>,
+    shared: &Shared,
+    period: Duration,
+) -> Result<(), IoError> {
+    let mut last_flush = Instant::now();
+    let mut unflushed = false;
+    loop {
+        // Read before draining: whatever was pushed before the stop is written.
+        let stop = shared.stop.load(Ordering::Acquire);
+        while let Ok(item) = rx.pop() {
+            match item {
+                Item::Pose(p) => {
+                    file.write(Topic::Pose, &p)?;
+                    shared.poses.fetch_add(1, Ordering::Relaxed);
+                }
+                Item::Keyframe(p) => {
+                    file.write(Topic::Keyframe, &p)?;
+                    shared.keyframes.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            unflushed = true;
+        }
+        if stop {
+            return file.finish();
+        }
+        let since = last_flush.elapsed();
+        if since >= period {
+            if unflushed {
+                file.flush()?;
+                shared.flushes.fetch_add(1, Ordering::Relaxed);
+                unflushed = false;
+            }
+            last_flush = Instant::now();
+            continue;
+        }
+        std::thread::park_timeout(POLL.min(period - since));
+    }
+}
+
+/// The two channels of a pose file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Topic {
+    /// [`TOPIC_POSE`].
+    Pose,
+    /// [`TOPIC_KEYFRAME`].
+    Keyframe,
+}
+
+/// An MCAP file of `foxglove.PoseInFrame` JSON messages on [`TOPIC_POSE`] and
+/// [`TOPIC_KEYFRAME`] (log and publish time: the pose's stamp), written message by message.
+pub struct PoseMcapWriter {
+    path: PathBuf,
+    w: mcap::Writer<mcap::write::NoSeek<BufWriter<File>>>,
+    channels: [u16; 2],
+    sequence: [u32; 2],
+    buf: Vec<u8>,
+}
+
+impl std::fmt::Debug for PoseMcapWriter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PoseMcapWriter")
+            .field("path", &self.path)
+            .field("sequence", &self.sequence)
+            .finish_non_exhaustive()
+    }
+}
+
+impl PoseMcapWriter {
+    /// Creates `path` with its header, schema and channels; zstd chunks of at most
+    /// `chunk_bytes` before compression, compressed on the calling thread.
+    pub fn create(path: &Path, chunk_bytes: u64) -> Result<Self, IoError> {
+        let f = File::create(path).map_err(|e| IoError::io(path, e))?;
+        let me = mcap_error(path);
+        let mut w = mcap::WriteOptions::new()
+            .chunk_size(Some(chunk_bytes))
+            .compression_threads(0)
+            // Each chunk is built in memory and written whole when it closes: the file never
+            // holds a chunk header whose length is still a placeholder (a seeking writer puts
+            // one on the disk and patches it at the chunk's end; killed in between, a reader
+            // takes the placeholder for a record of 2^64 bytes).
+            .disable_seeking(true)
+            .create(mcap::write::NoSeek::new(BufWriter::with_capacity(
+                1 << 16,
+                f,
+            )))
+            .map_err(&me)?;
+        let schema = serde_json::to_vec(&pose_in_frame_schema()).map_err(|e| IoError::Invalid {
+            path: path.into(),
+            msg: e.to_string(),
+        })?;
+        let sid = w
+            .add_schema(POSE_IN_FRAME, "jsonschema", &schema)
+            .map_err(&me)?;
+        let no_meta = BTreeMap::new();
+        let pose = w
+            .add_channel(sid, TOPIC_POSE, "json", &no_meta)
+            .map_err(&me)?;
+        let keyframe = w
+            .add_channel(sid, TOPIC_KEYFRAME, "json", &no_meta)
+            .map_err(&me)?;
+        Ok(PoseMcapWriter {
+            path: path.into(),
+            w,
+            channels: [pose, keyframe],
+            sequence: [0, 0],
+            buf: Vec::with_capacity(512),
+        })
+    }
+
+    /// One message on `topic`; an error for a time before 1970 (not an MCAP log time).
+    pub fn write(&mut self, topic: Topic, p: &StampedPose) -> Result<(), IoError> {
+        let k = topic as usize;
+        let name = [TOPIC_POSE, TOPIC_KEYFRAME][k];
+        let (Ok(t), Some(msg)) = (u64::try_from(p.t_ns), pose_in_frame_json(p)) else {
+            return Err(IoError::Invalid {
+                path: self.path.clone(),
+                msg: format!(
+                    "{name}: time {} ns is before 1970 and cannot be an MCAP log time",
+                    p.t_ns
+                ),
+            });
+        };
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, &msg).map_err(|e| IoError::Invalid {
+            path: self.path.clone(),
+            msg: e.to_string(),
+        })?;
+        self.sequence[k] = self.sequence[k].saturating_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id: self.channels[k],
+            sequence: self.sequence[k],
+            log_time: t,
+            publish_time: t,
+        };
+        self.w
+            .write_to_known_channel(&header, &self.buf)
+            .map_err(mcap_error(&self.path))
+    }
+
+    /// Closes the open chunk and hands everything written to the operating system.
+    pub fn flush(&mut self) -> Result<(), IoError> {
+        self.w.flush().map_err(mcap_error(&self.path))
+    }
+
+    /// Writes the summary and the footer and closes the file.
+    pub fn finish(mut self) -> Result<(), IoError> {
+        let me = mcap_error(&self.path);
+        self.w.finish().map_err(&me)?;
+        self.w
+            .into_inner()
+            .into_inner()
+            .into_inner()
+            .map_err(|e| IoError::io(&self.path, e.into_error()))?;
+        Ok(())
+    }
+}
+
+/// An MCAP writer's error as an [`IoError`] naming `path` (the OS's error as such).
+fn mcap_error(path: &Path) -> impl Fn(mcap::McapError) -> IoError + '_ {
+    move |e| match e {
+        mcap::McapError::Io(e) => IoError::io(path, e),
+        e => IoError::Invalid {
+            path: path.into(),
+            msg: format!("writing MCAP: {e}"),
+        },
     }
 }
 
@@ -126,63 +428,21 @@ pub fn pose_in_frame_json(p: &StampedPose) -> Option<serde_json::Value> {
     }))
 }
 
-/// Writes `poses` on [`TOPIC_POSE`] and `keyframes` on [`TOPIC_KEYFRAME`] as
-/// `foxglove.PoseInFrame` JSON messages (log and publish time: the pose's stamp).
+/// Writes `poses` on [`TOPIC_POSE`] and `keyframes` on [`TOPIC_KEYFRAME`] at once
+/// ([`PoseMcapWriter`]).
 pub fn write_poses_mcap(
     path: &Path,
     poses: &[StampedPose],
     keyframes: &[StampedPose],
 ) -> Result<(), IoError> {
-    let me = |e: mcap::McapError| IoError::Corrupt {
-        file: path.into(),
-        what: "mcap".into(),
-        offset: 0,
-        msg: e.to_string(),
-    };
-    let f = std::fs::File::create(path).map_err(|e| IoError::io(path, e))?;
-    let mut w = mcap::WriteOptions::new()
-        .create(std::io::BufWriter::with_capacity(1 << 20, f))
-        .map_err(me)?;
-    let schema = serde_json::to_vec(&pose_in_frame_schema()).map_err(|e| IoError::Invalid {
-        path: path.into(),
-        msg: e.to_string(),
-    })?;
-    let sid = w
-        .add_schema(POSE_IN_FRAME, "jsonschema", &schema)
-        .map_err(me)?;
-    let no_meta = BTreeMap::new();
-    for (topic, list) in [(TOPIC_POSE, poses), (TOPIC_KEYFRAME, keyframes)] {
-        let cid = w.add_channel(sid, topic, "json", &no_meta).map_err(me)?;
-        let mut buf = Vec::with_capacity(256);
-        for (k, p) in list.iter().enumerate() {
-            let (Ok(t), Some(msg)) = (u64::try_from(p.t_ns), pose_in_frame_json(p)) else {
-                return Err(IoError::Invalid {
-                    path: path.into(),
-                    msg: format!(
-                        "{topic}: time {} ns is before 1970 and cannot be an MCAP log time",
-                        p.t_ns
-                    ),
-                });
-            };
-            buf.clear();
-            serde_json::to_writer(&mut buf, &msg).map_err(|e| IoError::Invalid {
-                path: path.into(),
-                msg: e.to_string(),
-            })?;
-            let header = mcap::records::MessageHeader {
-                channel_id: cid,
-                sequence: u32::try_from(k + 1).unwrap_or(u32::MAX),
-                log_time: t,
-                publish_time: t,
-            };
-            w.write_to_known_channel(&header, &buf).map_err(me)?;
-        }
+    let mut w = PoseMcapWriter::create(path, McapOptions::default().chunk_bytes)?;
+    for p in poses {
+        w.write(Topic::Pose, p)?;
     }
-    w.finish().map_err(me)?;
-    w.into_inner()
-        .into_inner()
-        .map_err(|e| IoError::io(path, e.into_error()))?;
-    Ok(())
+    for p in keyframes {
+        w.write(Topic::Keyframe, p)?;
+    }
+    w.finish()
 }
 
 #[cfg(test)]
@@ -200,17 +460,36 @@ mod tests {
         }
     }
 
+    fn pose_out(k: i64) -> PoseOut {
+        PoseOut {
+            nav: nav(k),
+            latency_ns: 10,
+            stamp_latency_ns: None,
+        }
+    }
+
+    /// The messages of a (possibly unfinished) MCAP file, read as a stream up to its end or its
+    /// first incomplete record: (topic, log time, JSON).
+    fn stream(bytes: &[u8]) -> Vec<(String, u64, serde_json::Value)> {
+        let mut out = Vec::new();
+        let Ok(msgs) = mcap::MessageStream::new(bytes) else {
+            return out;
+        };
+        for m in msgs {
+            let Ok(m) = m else { break };
+            let v = serde_json::from_slice(&m.data).expect("JSON");
+            out.push((m.channel.topic.clone(), m.log_time, v));
+        }
+        out
+    }
+
     #[test]
     fn mcap_sink_writes_pose_in_frame_messages() {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("poses.mcap");
-        let mut sink = McapSink::new(&path, 8);
+        let mut sink = McapSink::create(&path, McapOptions::default()).expect("created");
         for k in 0..5 {
-            sink.pose(&PoseOut {
-                nav: nav(k),
-                latency_ns: 10,
-                stamp_latency_ns: None,
-            });
+            sink.pose(&pose_out(k));
         }
         sink.keyframe(&KeyframeOut {
             report: Default::default(),
@@ -220,8 +499,9 @@ mod tests {
             report: Default::default(),
             state: None,
         });
-        assert!(!path.exists(), "written before finish");
         sink.finish().expect("written");
+        let c = sink.counts();
+        assert_eq!((c.poses, c.keyframes, c.dropped_queue), (5, 1, 0));
         let bytes = std::fs::read(&path).expect("the file");
         let msgs: Vec<_> = mcap::MessageStream::new(&bytes)
             .expect("an MCAP file")
@@ -231,6 +511,7 @@ mod tests {
         assert_eq!((on(TOPIC_POSE), on(TOPIC_KEYFRAME)), (5, 1));
         let first = &msgs[0];
         assert_eq!(first.log_time, nav(0).t_ns as u64);
+        assert_eq!(first.sequence, 1);
         let v: serde_json::Value = serde_json::from_slice(&first.data).expect("JSON");
         let q = nav(0).q_wb;
         assert_eq!(v["pose"]["orientation"]["w"].as_f64(), Some(q.w));
@@ -241,5 +522,118 @@ mod tests {
         assert_eq!(schema.name, POSE_IN_FRAME);
         let s: serde_json::Value = serde_json::from_slice(&schema.data).expect("JSON schema");
         assert_eq!(s["title"], POSE_IN_FRAME);
+        // Finished: the summary indexes every message.
+        let summary = mcap::Summary::read(&bytes)
+            .expect("a summary")
+            .expect("present");
+        let stats = summary.stats.expect("statistics");
+        assert_eq!(stats.message_count, 6);
+    }
+
+    /// While the run goes on, what was pushed is in the file within the flush period, as complete
+    /// records a streaming reader reads without the (missing) summary.
+    #[test]
+    fn mcap_sink_flushes_while_running() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("live.mcap");
+        let opts = McapOptions {
+            flush_period: Duration::from_millis(100),
+            ..McapOptions::default()
+        };
+        let mut sink = McapSink::create(&path, opts).expect("created");
+        let header = std::fs::read(&path).expect("the file");
+        assert!(
+            header.starts_with(b"\x89MCAP0\r\n"),
+            "the magic is written at once"
+        );
+        for k in 0..50 {
+            sink.pose(&pose_out(k));
+        }
+        // Written and flushed by the thread within a few periods, the sink still open.
+        let mut seen = Vec::new();
+        for _ in 0..100 {
+            std::thread::sleep(Duration::from_millis(20));
+            seen = stream(&std::fs::read(&path).expect("the file"));
+            if seen.len() == 50 {
+                break;
+            }
+        }
+        assert_eq!(seen.len(), 50, "all 50 poses readable before finish");
+        assert!(seen.iter().all(|(t, _, _)| t == TOPIC_POSE));
+        let times: Vec<u64> = seen.iter().map(|(_, t, _)| *t).collect();
+        let want: Vec<u64> = (0..50).map(|k| nav(k).t_ns as u64).collect();
+        assert_eq!(times, want);
+        assert!(sink.counts().flushes >= 1);
+        let unfinished = std::fs::read(&path).expect("the file");
+        assert!(
+            mcap::Summary::read(&unfinished).is_err()
+                || mcap::Summary::read(&unfinished).is_ok_and(|s| s.is_none()),
+            "no footer before finish"
+        );
+        for k in 50..60 {
+            sink.pose(&pose_out(k));
+        }
+        sink.finish().expect("finished");
+        let done = stream(&std::fs::read(&path).expect("the file"));
+        assert_eq!(done.len(), 60);
+    }
+
+    /// A file cut anywhere (a process killed in the middle of a write) reads up to its last
+    /// complete chunk: every message before the cut's chunk, in order, none invented.
+    #[test]
+    fn a_cut_file_reads_up_to_its_last_complete_chunk() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("cut.mcap");
+        let mut w = PoseMcapWriter::create(&path, 4096).expect("created");
+        for k in 0..400 {
+            w.write(Topic::Pose, &StampedPose::from(&nav(k)))
+                .expect("written");
+            if k % 37 == 36 {
+                w.flush().expect("flushed");
+            }
+        }
+        w.finish().expect("finished");
+        let bytes = std::fs::read(&path).expect("the file");
+        let all = stream(&bytes);
+        assert_eq!(all.len(), 400);
+        let mut last = 0;
+        for cut in (0..bytes.len()).step_by(97) {
+            let part = stream(&bytes[..cut]);
+            assert!(part.len() >= last, "more bytes never read fewer messages");
+            last = part.len();
+            assert_eq!(part[..], all[..part.len()], "a prefix of the messages");
+        }
+    }
+
+    #[test]
+    fn an_unwritable_path_fails_when_the_sink_is_made() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("no/such/folder/poses.mcap");
+        let e = McapSink::create(&path, McapOptions::default()).expect_err("refused");
+        assert!(e.to_string().contains("no/such/folder"), "{e}");
+        let bad = McapOptions {
+            queue: 0,
+            ..McapOptions::default()
+        };
+        assert!(McapSink::create(dir.path().join("a.mcap"), bad).is_err());
+    }
+
+    #[test]
+    fn a_full_queue_drops_and_counts() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("small.mcap");
+        let opts = McapOptions {
+            queue: 4,
+            ..McapOptions::default()
+        };
+        let mut sink = McapSink::create(&path, opts).expect("created");
+        for k in 0..10_000 {
+            sink.pose(&pose_out(k));
+        }
+        sink.finish().expect("finished");
+        let c = sink.counts();
+        assert_eq!(c.poses + c.dropped_queue, 10_000);
+        let read = stream(&std::fs::read(&path).expect("the file"));
+        assert_eq!(read.len() as u64, c.poses);
     }
 }

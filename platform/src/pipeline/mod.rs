@@ -67,7 +67,7 @@ pub mod stats;
 
 pub use crate::source::{Clock, Pacer, Pacing, SensorEvent, Source, SystemClock};
 pub use mavlink::{MavlinkCounts, MavlinkOptions, MavlinkSink};
-pub use mcap_sink::McapSink;
+pub use mcap_sink::{McapCounts, McapOptions, McapSink};
 pub use rt::RtStatus;
 pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};
 pub use stats::{LatencyHist, OutputSteps, PipelineCounters, StageSummary, Timing, STAGES};

@@ -1,7 +1,8 @@
 //! Outputs of the pipeline: a [`Sink`] receives every IMU-rate pose ([`PoseOut`], with its
 //! latency) and every keyframe report ([`KeyframeOut`]) on the IMU thread. Provided:
 //! [`CallbackSink`] (closures), [`TumSink`] (a TUM trajectory file, written at the end so the
-//! IMU thread never waits on the disk) and [`super::McapSink`] (MCAP for Foxglove, likewise).
+//! IMU thread never waits on the disk) and [`super::McapSink`] (MCAP for Foxglove, written by a
+//! thread of its own during the run).
 
 use crate::error::IoError;
 use crate::trajectory::{write_tum, StampedPose};
