@@ -11,7 +11,9 @@ use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::realtime::imu_samples_estimate;
 use anyhow::{bail, Context, Result};
 use povins_platform::pipeline::mavlink::{BodyAxes, Endpoint};
-use povins_platform::pipeline::{MavlinkOptions, MavlinkSink, McapOptions, McapSink, TumSink};
+use povins_platform::pipeline::{
+    FoxgloveOptions, FoxgloveSink, MavlinkOptions, MavlinkSink, McapOptions, McapSink, TumSink,
+};
 use povins_platform::trajectory::StampedPose;
 use std::path::PathBuf;
 
@@ -54,6 +56,31 @@ pub struct Args {
     /// The MAVLink system id to send as (the vehicle's).
     #[arg(long, value_name = "ID", default_value_t = 1, requires = "mavlink")]
     pub mavlink_sysid: u8,
+    /// Serve the live pose (/povins/pose, 30 Hz), the keyframes' path (/povins/path) and the
+    /// window's landmarks (/povins/landmarks) to the Foxglove app over its WebSocket protocol:
+    /// PORT (on 127.0.0.1: this machine only) or HOST:PORT (e.g. 0.0.0.0:8765 for the network).
+    #[arg(long, value_name = "[HOST:]PORT")]
+    pub foxglove: Option<String>,
+}
+
+/// The Foxglove server of `args`, when asked for (started before the run, its address printed).
+fn foxglove_sink(args: &Args) -> Result<Option<FoxgloveSink>> {
+    let Some(addr) = &args.foxglove else {
+        return Ok(None);
+    };
+    let opts = FoxgloveOptions::parse(addr).map_err(|e| anyhow::anyhow!("--foxglove {e}"))?;
+    let host = opts.host.clone();
+    let sink = FoxgloveSink::new(opts)?;
+    let shown = if host.contains(':') {
+        format!("[{host}]")
+    } else {
+        host
+    };
+    eprintln!(
+        "foxglove: serving ws://{shown}:{} (open it in the Foxglove app: Open connection)",
+        sink.port()
+    );
+    Ok(Some(sink))
 }
 
 /// The MAVLink sink of `args`, when asked for.
@@ -123,9 +150,10 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
     };
     let mavlink = mavlink_sink(&args)?;
-    let mut sinks = ((TumSink::new(&path, n), mcap), mavlink);
+    let foxglove = foxglove_sink(&args)?;
+    let mut sinks = (((TumSink::new(&path, n), mcap), mavlink), foxglove);
     let report = run_pipeline(&args.pipeline, &*rec, &mut sinks, "replay")?;
-    let ((sink, mcap), mavlink) = sinks;
+    let (((sink, mcap), mavlink), foxglove) = sinks;
     if let Some(m) = &mcap {
         let c = m.counts();
         if c.dropped_queue > 0 {
@@ -156,6 +184,22 @@ pub fn run(args: Args) -> Result<()> {
     }
     if let (Some(m), Some(addr)) = (&mavlink, &args.mavlink) {
         mavlink_summary(addr, args.mavlink_rate, m, sink.poses().len())?;
+    }
+    if let Some(f) = &foxglove {
+        let c = f.counts();
+        println!(
+            "foxglove  port {}: {} poses, {} paths, {} landmark updates published",
+            f.port(),
+            c.poses,
+            c.paths,
+            c.landmark_updates
+        );
+        if c.dropped_queue + c.landmarks_skipped > 0 {
+            eprintln!(
+                "warning: foxglove: {} outputs dropped (queue full), {} keyframes' landmarks skipped",
+                c.dropped_queue, c.landmarks_skipped
+            );
+        }
     }
     println!("output    {}", path.display());
     if let (Some(m), Some(f)) = (&mcap, &args.mcap_out) {

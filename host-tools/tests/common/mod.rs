@@ -144,3 +144,16 @@ pub fn pymavlink_python() -> std::path::PathBuf {
         &["pymavlink==2.4.49"],
     )
 }
+
+/// Python with `websockets` and `protobuf` (an independent Foxglove WebSocket client,
+/// `scripts/foxglove_client.py`): [`venv_python`] of `target/pyenv-foxglove`, or
+/// `POVINS_FOXGLOVE_PYTHON`.
+#[allow(dead_code)]
+pub fn foxglove_python() -> std::path::PathBuf {
+    venv_python(
+        "POVINS_FOXGLOVE_PYTHON",
+        "pyenv-foxglove",
+        "websockets, google.protobuf",
+        &["websockets==15.0.1", "protobuf==6.31.1"],
+    )
+}

@@ -4,7 +4,7 @@
 //! docs of [`super`] for why), and sends one [`FromBackend`] per IMU sample back: the estimator's
 //! [`InsUpdate`] and keyframe report.
 
-use super::sink::KeyframeOut;
+use super::sink::{KeyframeOut, LandmarkTap};
 use super::stats::{PipelineCounters, Timing};
 use super::{Shared, ToBackend};
 use crate::driver::{elapsed_ns, handle, Handled, Observer};
@@ -31,16 +31,21 @@ pub(crate) const WAIT: Duration = Duration::from_micros(200);
 
 /// The newest INS update and keyframe of one sample's outputs (an update is a whole INS: a
 /// later one supersedes an earlier one).
-#[derive(Default)]
-struct Reply {
+struct Reply<'t> {
     ins: Option<InsUpdate>,
     keyframe: Option<KeyframeOut>,
+    /// Where the keyframes' landmarks go, if a sink shows them.
+    tap: Option<&'t LandmarkTap>,
 }
 
-impl Observer for Reply {
+impl Observer for Reply<'_> {
     fn output(&mut self, o: &Output<'_>) {
         self.ins = o.ins.or(self.ins);
         if let Some(k) = &o.keyframe {
+            if let Some(tap) = self.tap {
+                let t_ns = k.window.last().map_or(0, |kf| kf.state.t_ns);
+                tap.publish(t_ns, k.landmarks);
+            }
             self.keyframe = Some(KeyframeOut {
                 report: k.report,
                 state: k.window.last().map(|kf| kf.state),
@@ -56,6 +61,7 @@ pub(crate) fn run(
     mut rx: Consumer<ToBackend>,
     mut tx: Producer<FromBackend>,
     shared: &Shared,
+    tap: Option<&LandmarkTap>,
 ) -> (Timing, Vec<i64>, PipelineCounters) {
     let mut timing = Timing::default();
     let mut counters = PipelineCounters::default();
@@ -73,7 +79,11 @@ pub(crate) fn run(
             break;
         };
         let t0 = Instant::now();
-        let mut reply = Reply::default();
+        let mut reply = Reply {
+            ins: None,
+            keyframe: None,
+            tap,
+        };
         let handled = handle(odo, &ev, &mut reply);
         let dt = elapsed_ns(t0);
         match (handled, &ev) {

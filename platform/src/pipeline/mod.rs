@@ -58,6 +58,7 @@
 #![warn(missing_docs)]
 
 mod backend;
+pub mod foxglove;
 mod imu;
 pub mod mavlink;
 pub mod mcap_sink;
@@ -65,11 +66,12 @@ pub mod rt;
 pub mod sink;
 pub mod stats;
 
+pub use self::foxglove::{FoxgloveCounts, FoxgloveOptions, FoxgloveSink};
 pub use crate::source::{Clock, Pacer, Pacing, SensorEvent, Source, SystemClock};
 pub use mavlink::{MavlinkCounts, MavlinkOptions, MavlinkSink};
 pub use mcap_sink::{McapCounts, McapOptions, McapSink};
 pub use rt::RtStatus;
-pub use sink::{CallbackSink, KeyframeOut, PoseOut, Sink, TumSink};
+pub use sink::{CallbackSink, KeyframeOut, LandmarkTap, PoseOut, Sink, TumSink};
 pub use stats::{LatencyHist, OutputSteps, PipelineCounters, StageSummary, Timing, STAGES};
 
 use crate::error::IoError;
@@ -212,6 +214,7 @@ where
     K: Sink + Send,
 {
     let shared = Shared::default();
+    let tap = sink.landmark_tap();
     let mut rt = RtStatus {
         mlock: cfg.lock_memory.then(rt::lock_memory),
         threads: Vec::new(),
@@ -226,6 +229,7 @@ where
     let sink_on_imu: &mut K = &mut *sink;
     let joined = std::thread::scope(|sc| {
         let shared = &shared;
+        let tap = tap.as_deref();
         let backend = std::thread::Builder::new()
             .name("povins-backend".into())
             .stack_size(THREAD_STACK_BYTES)
@@ -236,7 +240,7 @@ where
                     cfg.fifo_priority.map(|p| p.saturating_sub(10).max(1)),
                 );
                 let _ = shared.backend_thread.set(std::thread::current());
-                let out = backend::run(odo, to_rx, from_tx, shared);
+                let out = backend::run(odo, to_rx, from_tx, shared, tap);
                 shared.backend_finished.store(true, Ordering::Release);
                 shared.wake_imu();
                 (r, out, odo.counters().estimator)

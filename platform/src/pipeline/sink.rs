@@ -8,7 +8,10 @@ use crate::error::IoError;
 use crate::trajectory::{write_tum, StampedPose};
 use povins_core::estimator::KeyframeReport;
 use povins_core::inertial::NavState;
+use povins_core::odometry::LandmarkPoint;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 /// One IMU-rate pose as published.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,6 +45,71 @@ pub trait Sink {
     /// The end of the stream: write files, flush.
     fn finish(&mut self) -> Result<(), IoError> {
         Ok(())
+    }
+
+    /// Where the back end should put each keyframe's landmarks, for a sink that shows them
+    /// (asked once, before the run; the first sink of a pair that has one gets them).
+    fn landmark_tap(&self) -> Option<Arc<LandmarkTap>> {
+        None
+    }
+}
+
+/// The newest keyframe's landmarks, handed from the back-end thread to a sink's own thread
+/// without waiting: the back end copies them in when the slot is free (`try_lock`; busy: that
+/// keyframe's landmarks are skipped, counted), into room reserved up front; the reader copies
+/// them out when [`LandmarkTap::version`] moved.
+#[derive(Debug)]
+pub struct LandmarkTap {
+    slot: Mutex<(i64, Vec<LandmarkPoint>)>,
+    capacity: usize,
+    version: AtomicU64,
+    skipped: AtomicU64,
+}
+
+impl LandmarkTap {
+    /// Room for `capacity` landmarks (the estimator's landmark capacity; more are cut).
+    pub fn new(capacity: usize) -> Self {
+        LandmarkTap {
+            slot: Mutex::new((0, Vec::with_capacity(capacity))),
+            capacity,
+            version: AtomicU64::new(0),
+            skipped: AtomicU64::new(0),
+        }
+    }
+
+    /// The back end: the landmarks of the keyframe at `t_ns`.
+    pub fn publish(&self, t_ns: i64, points: &[LandmarkPoint]) {
+        match self.slot.try_lock() {
+            Ok(mut s) => {
+                s.0 = t_ns;
+                s.1.clear();
+                s.1.extend_from_slice(&points[..points.len().min(self.capacity)]);
+                self.version.fetch_add(1, Ordering::Release);
+            }
+            Err(_) => {
+                self.skipped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    /// Increments with every [`Self::publish`] that landed.
+    pub fn version(&self) -> u64 {
+        self.version.load(Ordering::Acquire)
+    }
+
+    /// Keyframes whose landmarks were skipped (the reader held the slot).
+    pub fn skipped(&self) -> u64 {
+        self.skipped.load(Ordering::Relaxed)
+    }
+
+    /// Copies the newest landmarks into `out`; their keyframe's time, ns.
+    pub fn read(&self, out: &mut Vec<LandmarkPoint>) -> i64 {
+        let Ok(s) = self.slot.lock() else {
+            return 0;
+        };
+        out.clear();
+        out.extend_from_slice(&s.1);
+        s.0
     }
 }
 
@@ -132,6 +200,10 @@ impl<S: Sink> Sink for Option<S> {
     fn finish(&mut self) -> Result<(), IoError> {
         self.as_mut().map_or(Ok(()), Sink::finish)
     }
+
+    fn landmark_tap(&self) -> Option<Arc<LandmarkTap>> {
+        self.as_ref().and_then(Sink::landmark_tap)
+    }
 }
 
 /// Both sinks get every output (`(a, b)`).
@@ -149,6 +221,10 @@ impl<A: Sink, B: Sink> Sink for (A, B) {
     fn finish(&mut self) -> Result<(), IoError> {
         self.0.finish()?;
         self.1.finish()
+    }
+
+    fn landmark_tap(&self) -> Option<Arc<LandmarkTap>> {
+        self.0.landmark_tap().or_else(|| self.1.landmark_tap())
     }
 }
 
