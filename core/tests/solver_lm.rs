@@ -302,3 +302,34 @@ fn already_optimal_stops_on_gradient_without_iterating() {
     assert_eq!(s.termination, Termination::GradientTolerance);
     assert_eq!((s.iterations, s.final_cost), (0, 0.0));
 }
+
+/// The work budget: at most `max_trials` trial steps in the solve, no linearization without a
+/// trial left for it, and the best state found kept (the state a shorter solve reaches).
+#[test]
+fn the_trial_budget_ends_the_solve_at_its_best_state() {
+    let mut ws = Box::new(LmWorkspace::<D>::new());
+    let free = LmConfig {
+        max_iterations: 50,
+        ..LmConfig::DEFAULT
+    };
+    let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+    let unlimited = ws.solve(&mut p, &free).unwrap();
+    assert!(unlimited.accepted + unlimited.rejected > 3, "{unlimited:?}");
+    for budget in 1..=3u32 {
+        let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+        let cfg = LmConfig {
+            max_trials: budget,
+            ..free
+        };
+        let s = ws.solve(&mut p, &cfg).unwrap();
+        assert_eq!(s.termination, Termination::Budget, "{s:?}");
+        assert_eq!(s.accepted + s.rejected, budget as usize, "{s:?}");
+        assert_eq!(
+            p.linearizations, s.iterations,
+            "no linearization after the budget's last trial"
+        );
+        assert!(s.final_cost <= s.initial_cost, "{s:?}");
+        let cost: f64 = rosenbrock(&p.x).iter().map(|r| r * r).sum();
+        assert_eq!(cost, s.final_cost, "the state is the one reported");
+    }
+}

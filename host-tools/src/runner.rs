@@ -135,6 +135,25 @@ impl FrameLog {
     }
 }
 
+/// Whether the core's stage timings use the thread's CPU time ([`use_cpu_time`]).
+static CPU_TIME: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Times the estimator's stages (the keyframe reports' `*_ns`: `stats.csv`, the summary's
+/// back-end figures) by the running thread's CPU time instead of the wall clock, for the runs
+/// this process starts from now on (`--cpu-time`).
+pub fn use_cpu_time(on: bool) {
+    CPU_TIME.store(on, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// The core's timing clock: [`monotonic_ns`], or with [`use_cpu_time`] the thread's CPU time.
+pub fn core_clock() -> fn() -> u64 {
+    if CPU_TIME.load(std::sync::atomic::Ordering::Relaxed) {
+        povins_platform::pipeline::rt::thread_cpu_ns
+    } else {
+        monotonic_ns
+    }
+}
+
 /// Monotonic nanoseconds since the first call (the core's timing clock).
 pub fn monotonic_ns() -> u64 {
     static T0: OnceLock<Instant> = OnceLock::new();
@@ -444,7 +463,7 @@ pub fn start(
 ) -> Result<(Box<dyn Odometry + Send>, i64)> {
     check_input(rec, fe)?;
     let (start_ns, gt_start) = start_state(rec, &mut cfg, init)?;
-    let mut odo = boxed_odometry(cfg, &fe.front_end(), Some(monotonic_ns))
+    let mut odo = boxed_odometry(cfg, &fe.front_end(), Some(core_clock()))
         .with_context(|| rec.name().to_string())?;
     if let Some(s0) = gt_start {
         odo.initialize(s0)

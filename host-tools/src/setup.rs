@@ -79,11 +79,18 @@ pub struct RunArgs {
     /// LiDAR switches (override the config file).
     #[command(flatten)]
     pub lidar: LidarArgs,
+    /// Time the estimator's stages (`stats.csv`, the back-end figures of the summary) by the
+    /// thread's CPU time instead of the wall clock: the work done, without the time the OS gave
+    /// to other processes (worst cases compared on a shared machine). The output is the same.
+    #[arg(long)]
+    pub cpu_time: bool,
 }
 
 impl RunArgs {
-    /// Opens the recording ([`RecordingArgs::open`] with `--config`'s `[input]`).
+    /// Opens the recording ([`RecordingArgs::open`] with `--config`'s `[input]`), and selects
+    /// the core's timing clock (`--cpu-time`) for the run.
     pub fn open(&self) -> Result<Box<dyn Recording>> {
+        crate::runner::use_cpu_time(self.cpu_time);
         self.recording.open(self.config.as_deref())
     }
 }

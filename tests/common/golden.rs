@@ -67,6 +67,8 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         observations_used,
         residual_rms_px,
         iterations,
+        // Always false without a budget (the golden runs have none).
+        budget_hit: _,
         cost,
         termination,
         culled_chi2,

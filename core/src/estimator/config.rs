@@ -15,7 +15,7 @@ use crate::Error;
 mod groups;
 mod imu_faults;
 
-pub use groups::{CullConfig, TdConfig, ZuptConfig};
+pub use groups::{CullConfig, SolveBudget, TdConfig, ZuptConfig};
 pub use imu_faults::{ImuGapConfig, ImuSpikeConfig};
 
 /// How visual landmarks enter the optimization.
@@ -275,6 +275,8 @@ pub struct EstimatorConfig {
     pub lm_first: LmConfig,
     /// Levenberg-Marquardt settings of the second pass (after the chi-square cull).
     pub lm_second: LmConfig,
+    /// The work budget of a keyframe's two passes (`[solve_budget]`).
+    pub solve_budget: SolveBudget,
     /// Fold the visual residuals of the oldest keyframe into the marginalization prior (landmarks
     /// anchored there are re-anchored first, see `estimator::marginalize`). Without, the prior
     /// carries only the IMU and earlier-prior information.
@@ -371,6 +373,7 @@ impl EstimatorConfig {
             cull: CullConfig::DEFAULT,
             lm_first: lm,
             lm_second: lm,
+            solve_budget: SolveBudget::DEFAULT,
             marginalize_visual: true,
             reuse_marginalized_landmarks: true,
             td: TdConfig::DEFAULT,
@@ -390,6 +393,7 @@ impl EstimatorConfig {
         const LM: LmConfig = LmConfig {
             max_iterations: 0,
             max_retries: 0,
+            max_trials: 0,
             initial_lambda: 0.0,
             lambda_min: 0.0,
             lambda_max: 0.0,
@@ -528,6 +532,10 @@ impl EstimatorConfig {
             },
             lm_first: LM,
             lm_second: LM,
+            solve_budget: SolveBudget {
+                max_linearizations: 0,
+                max_trials: 0,
+            },
             marginalize_visual: false,
             reuse_marginalized_landmarks: false,
             td: TdConfig {
@@ -661,6 +669,7 @@ impl EstimatorConfig {
         self.imu_spike.check_ranges(r);
         self.td.check_ranges(r);
         self.cull.check_ranges(r);
+        self.solve_budget.check_ranges(r);
         self.lidar.check_ranges(r);
         // Each further group adds its own list here.
     }

@@ -25,6 +25,8 @@ pub struct KeyframeReport {
     pub residual_rms_px: f64,
     /// LM iterations over both passes.
     pub iterations: u32,
+    /// The work budget (`solve_budget`) ended the solve early (or left no second pass).
+    pub budget_hit: bool,
     /// Robust cost before and after the solve.
     pub cost: (f64, f64),
     /// Why the last LM pass stopped.
@@ -213,6 +215,8 @@ pub struct Counters {
     pub landmarks_evicted: u64,
     /// Solves that returned an error (the state kept its last accepted value).
     pub solver_failures: u64,
+    /// Keyframes whose solve the work budget ended (`solve_budget`).
+    pub solve_budget_hits: u64,
     /// Marginalizations that failed (the prior was dropped).
     pub marginalization_failures: u64,
     /// Estimator resets (IMU gap, preintegration overflow, divergence).
@@ -286,6 +290,7 @@ impl Counters {
         landmarks_refused_capacity: 0,
         landmarks_evicted: 0,
         solver_failures: 0,
+        solve_budget_hits: 0,
         marginalization_failures: 0,
         resets: 0,
         divergence_resets: 0,

@@ -8,8 +8,8 @@
 
 use super::problem::{FactorSet, Problem};
 use super::window::Layout;
-use super::{now, Estimator, KeyframeReport, VisualMode};
-use crate::solver::{LmWorkspace, NormalEquations};
+use super::{now, Estimator, KeyframeReport, SolveBudget, VisualMode};
+use crate::solver::{LmWorkspace, NormalEquations, Termination};
 use crate::Error;
 
 impl<
@@ -62,10 +62,24 @@ impl<
         )
     }
 
-    fn run_lm(&mut self, cfg: &crate::solver::LmConfig, report: &mut KeyframeReport) -> bool {
+    /// One LM pass with `cfg` limited to what is `left` of the keyframe's budget (spent here:
+    /// linearizations, trial steps). False when the solve failed.
+    fn run_lm(
+        &mut self,
+        pass: &crate::solver::LmConfig,
+        left: &mut SolveBudget,
+        report: &mut KeyframeReport,
+    ) -> bool {
+        let cfg = crate::solver::LmConfig {
+            max_iterations: pass
+                .max_iterations
+                .min(usize::try_from(left.max_linearizations).unwrap_or(usize::MAX)),
+            max_trials: pass.max_trials.min(left.max_trials),
+            ..*pass
+        };
         let layout = self.solve_layout();
         let (mut problem, lm, _) = self.split(layout, FactorSet::All);
-        let res = lm.solve(&mut problem, cfg);
+        let res = lm.solve(&mut problem, &cfg);
         report.disabled_landmarks += problem.counts.disabled;
         report.landmarks_used = problem.counts.landmarks;
         report.ldm_count = problem.counts.ldm;
@@ -78,6 +92,19 @@ impl<
                 report.cost.1 = sum.final_cost;
                 report.iterations += sum.iterations as u32;
                 report.termination = Some(sum.termination);
+                let spend = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+                left.max_linearizations = left
+                    .max_linearizations
+                    .saturating_sub(spend(sum.iterations));
+                left.max_trials = left
+                    .max_trials
+                    .saturating_sub(spend(sum.accepted + sum.rejected));
+                if sum.termination == Termination::Budget
+                    || (sum.termination == Termination::MaxIterations
+                        && cfg.max_iterations < pass.max_iterations)
+                {
+                    report.budget_hit = true;
+                }
                 true
             }
             Err(_) => {
@@ -107,17 +134,27 @@ impl<
         report.admission = adm;
         report.td_info_per_s2 = self.td_information();
         self.td_hold = report.td_info_per_s2 < self.cfg.td.min_info_per_s2;
+        let mut left = self.cfg.solve_budget;
         let first = self.cfg.lm_first;
-        if !self.run_lm(&first, report) {
+        if !self.run_lm(&first, &mut left, report) {
             return;
         }
         report.culled_chi2 = self.chi2_cull();
         let min_culled =
             self.cfg.cull.second_pass_min_culled_frac * f64::from(report.observations_used);
         if report.culled_chi2 > 0 && f64::from(report.culled_chi2) >= min_culled {
-            self.prepare_landmarks(false);
-            let second = self.cfg.lm_second;
-            self.run_lm(&second, report);
+            if left.max_linearizations == 0 || left.max_trials == 0 {
+                // The budget is spent: the culled observations are out, the first pass's
+                // state stays.
+                report.budget_hit = true;
+            } else {
+                self.prepare_landmarks(false);
+                let second = self.cfg.lm_second;
+                self.run_lm(&second, &mut left, report);
+            }
+        }
+        if report.budget_hit {
+            self.counters.solve_budget_hits += 1;
         }
         self.update_imu_noise_scale(&self.solve_layout());
         if self.cfg.lidar.enabled && self.cfg.lidar.depth_only_opt {

@@ -15,7 +15,10 @@
 //!
 //! Stops (see [`Termination`]): gradient `max |b_i| <= gradient_tolerance` (before solving),
 //! step `|dx| <= step_tolerance` (nothing applied), relative cost decrease of an accepted step
-//! `<= function_tolerance`, the iteration bound, the retry bound, or `lambda > lambda_max`.
+//! `<= function_tolerance`, the iteration bound, the retry bound, `lambda > lambda_max`, or the
+//! work budget (`max_trials` trial steps in the solve; with `max_iterations` it bounds the
+//! linearizations and factorizations, hence the time, of a solve whatever the data). Every stop
+//! but an error leaves the best state found: a step is applied only when it lowers the cost.
 
 use super::ldlt::{FactorReport, Ldlt, PivotFloor};
 use super::normal_equations::NormalEquations;
@@ -52,6 +55,10 @@ pub struct LmConfig {
     pub max_iterations: usize,
     /// Maximum rejected trial steps within one iteration.
     pub max_retries: usize,
+    /// Maximum trial steps (accepted and rejected, each a damped factorization and a cost
+    /// evaluation) in the whole solve: with `max_iterations` a work budget
+    /// ([`Termination::Budget`]). `u32::MAX`: no limit.
+    pub max_trials: u32,
     /// Initial damping `lambda` (relative to the clamped diagonal).
     pub initial_lambda: f64,
     /// Lower bound of `lambda` after successful steps.
@@ -79,6 +86,7 @@ impl LmConfig {
     pub const DEFAULT: Self = Self {
         max_iterations: 10,
         max_retries: 10,
+        max_trials: u32::MAX,
         initial_lambda: 1e-4,
         lambda_min: 1e-12,
         lambda_max: 1e16,
@@ -136,6 +144,9 @@ pub enum Termination {
     RetriesExhausted,
     /// Rejections pushed `lambda` above `lambda_max`; the state is the last accepted one.
     DampingLimit,
+    /// `max_trials` trial steps were made (the work budget ended); the state is the last
+    /// accepted one.
+    Budget,
 }
 
 /// Outcome of a solve, as data.
@@ -240,6 +251,9 @@ impl<const D: usize> LmWorkspace<D> {
             summary.iterations += 1;
             let mut retries = 0;
             loop {
+                if summary.accepted + summary.rejected >= cfg.max_trials as usize {
+                    break 'outer Termination::Budget;
+                }
                 let dx = self.dx.get_mut(..n).ok_or(Error::CapacityExceeded)?;
                 self.ldlt.load(&self.ne)?;
                 self.ldlt
@@ -286,6 +300,10 @@ impl<const D: usize> LmWorkspace<D> {
             }
             if summary.iterations >= cfg.max_iterations {
                 break Termination::MaxIterations;
+            }
+            // No linearization the budget leaves no trial for.
+            if summary.accepted + summary.rejected >= cfg.max_trials as usize {
+                break Termination::Budget;
             }
             self.ne.reset(n)?;
             problem.linearize(&mut self.ne)?;

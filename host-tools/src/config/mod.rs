@@ -5,7 +5,8 @@
 //! - the top level is [`EstimatorConfig`] (with its tables `[camera]`, `[extrinsic]`,
 //!   `[imu_noise]` ([`povins_core::inertial::ImuNoise`]), `[keyframe]`, `[static_init]`,
 //!   `[rest]`, `[preint]`, `[first_prior]`, `[lm_first]` / `[lm_second]`
-//!   ([`povins_core::solver::LmConfig`]), `[zupt]`, `[td]`, `[cull]`
+//!   ([`povins_core::solver::LmConfig`]), `[solve_budget]`
+//!   ([`povins_core::estimator::SolveBudget`]), `[zupt]`, `[td]`, `[cull]`
 //!   ([`povins_core::estimator::ZuptConfig`], [`povins_core::estimator::TdConfig`],
 //!   [`povins_core::estimator::CullConfig`]), `[imu_noise_adapt]`, `[health]`, `[lidar]`,
 //!   `[lidar.extrinsic]`, `[lidar.association]`);

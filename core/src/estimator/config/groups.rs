@@ -180,3 +180,57 @@ impl Default for CullConfig {
         Self::DEFAULT
     }
 }
+
+/// The work budget of one keyframe's solve (`[solve_budget]`), for a bounded time per keyframe:
+/// the Levenberg-Marquardt passes (the first, and the second after the chi-square cull) share
+/// at most `max_linearizations` linearizations and `max_trials` trial steps (each a damped
+/// factorization and a cost evaluation). When it runs out, the solve keeps its best state (a
+/// step is applied only when it lowers the cost) and the keyframe goes on: the culls, the
+/// depth-only optimization and the marginalization always complete. The budget counts work,
+/// not time, so the output stays bit-identical from run to run and across machines.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
+pub struct SolveBudget {
+    /// Linearizations of the window over both passes (`u32::MAX`: no budget).
+    pub max_linearizations: u32,
+    /// Trial steps over both passes (`u32::MAX`: no budget).
+    pub max_trials: u32,
+}
+
+impl SolveBudget {
+    /// No budget: each pass stops by its own `max_iterations` and `max_retries` only.
+    pub const UNLIMITED: SolveBudget = SolveBudget {
+        max_linearizations: u32::MAX,
+        max_trials: u32::MAX,
+    };
+
+    /// The defaults (what [`Default`] gives).
+    pub const DEFAULT: SolveBudget = SolveBudget::UNLIMITED;
+
+    /// The range checks (`[solve_budget]`): at least one of each.
+    pub fn check_ranges(&self, r: &mut Ranges<'_>) {
+        r.check(
+            "solve_budget.max_linearizations",
+            f64::from(self.max_linearizations),
+            ">= 1",
+            self.max_linearizations >= 1,
+        );
+        r.check(
+            "solve_budget.max_trials",
+            f64::from(self.max_trials),
+            ">= 1",
+            self.max_trials >= 1,
+        );
+    }
+}
+
+impl Default for SolveBudget {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
