@@ -74,11 +74,21 @@ fn datagrams() -> Vec<Item> {
 /// Starts `povins record` on free loopback ports, replays `items` at their capture pace, and
 /// returns the summary's counts and the output folder.
 fn record(items: &[Item], dir: &Path) -> BTreeMap<String, u64> {
+    record_until(items, dir, Some("3"))
+}
+
+/// `povins record` with `--duration` when given; without, it is ended by `SIGINT` (Ctrl-C)
+/// once every datagram was sent and the last one has had time to be read.
+fn record_until(items: &[Item], dir: &Path, duration: Option<&str>) -> BTreeMap<String, u64> {
     let out = dir.join("rec");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_povins"))
-        .args(["record", "--ouster-meta"])
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_povins"));
+    cmd.args(["record", "--ouster-meta"])
         .arg(meta_path())
-        .args(["--lidar-port", "0", "--imu-port", "0", "--duration", "3"])
+        .args(["--lidar-port", "0", "--imu-port", "0"]);
+    if let Some(d) = duration {
+        cmd.args(["--duration", d]);
+    }
+    let mut child = cmd
         .arg("--out")
         .arg(&out)
         .stdout(Stdio::piped())
@@ -109,6 +119,11 @@ fn record(items: &[Item], dir: &Path) -> BTreeMap<String, u64> {
         std::thread::sleep(due.saturating_duration_since(Instant::now()));
         tx.send_to(b, addrs[usize::from(!lidar)]).unwrap();
     }
+    if duration.is_none() {
+        // The receivers read within their poll period (100 ms); give them ample time.
+        std::thread::sleep(Duration::from_millis(500));
+        sigint(child.id());
+    }
     let done = child.wait_with_output().unwrap();
     reader.join().unwrap();
     let stdout = String::from_utf8_lossy(&done.stdout).to_string();
@@ -122,6 +137,16 @@ fn record(items: &[Item], dir: &Path) -> BTreeMap<String, u64> {
         .filter_map(|kv| kv.split_once('='))
         .map(|(k, v)| (k.to_string(), v.parse().unwrap()))
         .collect()
+}
+
+/// Sends `SIGINT` (what Ctrl-C sends) to process `pid`.
+fn sigint(pid: u32) {
+    let ok = Command::new("kill")
+        .args(["-INT", &pid.to_string()])
+        .status()
+        .expect("kill runs")
+        .success();
+    assert!(ok, "kill -INT {pid}");
 }
 
 fn csv_rows(path: &Path) -> Vec<Vec<String>> {
@@ -415,10 +440,51 @@ fn nothing_received_is_an_error_naming_the_ports() {
         "{err}"
     );
     assert!(!out.exists(), "nothing written");
-    let o = povins(&base);
-    let err = String::from_utf8_lossy(&o.stderr);
+    // Without --duration it listens until Ctrl-C; interrupted with nothing received, it says
+    // so and writes nothing.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_povins"))
+        .args(&base)
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    err.read_line(&mut line).unwrap();
+    assert!(line.contains("until Ctrl-C"), "{line}");
+    sigint(child.id());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    let status = child.wait().unwrap();
+    assert!(!status.success());
     assert!(
-        !o.status.success() && err.contains("--duration S is needed"),
-        "{err}"
+        rest.contains("record: interrupted") && rest.contains("nothing received on udp 127.0.0.1:"),
+        "{rest}"
     );
+    assert!(!out.exists(), "nothing written");
+}
+
+/// Ctrl-C ends a recording without --duration, and what was received is written: the same
+/// sweeps and IMU samples as a timed recording of the same datagrams.
+#[test]
+#[ignore = "needs ../shared/data"]
+fn an_interrupted_recording_keeps_what_it_received() {
+    let items = datagrams();
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let timed = record(&items, a.path());
+    let interrupted = record_until(&items, b.path(), None);
+    assert_eq!(timed, interrupted, "the counts");
+    assert_eq!(
+        (interrupted["lidar_datagrams"], interrupted["imu_datagrams"]),
+        (192, 30),
+        "{interrupted:?}"
+    );
+    let (sa, sb) = (
+        recorded_sweeps(&a.path().join("rec")),
+        recorded_sweeps(&b.path().join("rec")),
+    );
+    assert_eq!(sa.len(), 3);
+    assert_eq!(sa, sb, "the sweeps");
+    let imu = |d: &Path| csv_rows(&d.join("rec/mav0/imu0/data.csv"));
+    assert_eq!(imu(a.path()), imu(b.path()), "the IMU samples");
 }

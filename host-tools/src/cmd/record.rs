@@ -1,6 +1,7 @@
-//! `povins record --ouster-meta META.json --duration S --out DIR`: records an Ouster sensor's
-//! UDP stream (lidar and IMU packets) for `S` seconds, or converts a pcap capture of it
-//! (`--pcap FILE`, deterministic), into a recording `povins run` reads:
+//! `povins record --ouster-meta META.json [--duration S] --out DIR`: records an Ouster sensor's
+//! UDP stream (lidar and IMU packets) for `S` seconds or until Ctrl-C (either way Ctrl-C ends it
+//! early, and what was received is written), or converts a pcap capture of it (`--pcap FILE`,
+//! deterministic), into a recording `povins run` reads:
 //!
 //! - `--format euroc` (default): `DIR/mav0/imu0/data.csv` (+ `sensor.yaml`: body = IMU frame,
 //!   the Ouster IMU's noise), `DIR/mav0/lidar0/data.csv` (points in the Ouster **sensor frame**,
@@ -28,6 +29,8 @@ use povins_platform::ouster::{
 };
 use std::net::IpAddr;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Output format.
@@ -55,7 +58,8 @@ pub struct Args {
     /// IMU packet port (default: the metadata's `udp_port_imu`, else 7503; 0: any free).
     #[arg(long)]
     pub imu_port: Option<u16>,
-    /// How long to record, seconds (needed without --pcap).
+    /// How long to record, seconds (without it: until Ctrl-C; either way, Ctrl-C ends the
+    /// recording early and writes what was received).
     #[arg(long, conflicts_with = "pcap")]
     pub duration: Option<f64>,
     /// Convert this pcap capture instead of listening (the datagrams to the two ports).
@@ -111,20 +115,26 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-/// Receives from the sockets until `--duration` has passed.
+/// Receives from the sockets until `--duration` has passed or Ctrl-C (`SIGINT`) is pressed,
+/// then decodes what the receivers still hold.
 fn from_udp(
     args: &Args,
     meta: &Metadata,
     ports: (u16, u16),
     sink: &mut Sink,
 ) -> Result<LiveCounts> {
-    let duration_s = args.duration.context(
-        "--duration S is needed to record from the sockets (or give --pcap FILE to convert a capture)",
-    )?;
-    anyhow::ensure!(
-        duration_s.is_finite() && duration_s > 0.0 && duration_s < 1e7,
-        "--duration {duration_s}: give a positive number of seconds"
-    );
+    if let Some(d) = args.duration {
+        anyhow::ensure!(
+            d.is_finite() && d > 0.0 && d < 1e7,
+            "--duration {d}: give a positive number of seconds"
+        );
+    }
+    let interrupted = Arc::new(AtomicBool::new(false));
+    {
+        let flag = interrupted.clone();
+        ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed))
+            .context("cannot catch Ctrl-C")?;
+    }
     let opts = LiveOptions {
         addr: args.addr,
         lidar_port: ports.0,
@@ -134,14 +144,25 @@ fn from_udp(
     let mut src = OusterUdp::bind(meta, opts)?;
     let (la, ia) = src.local_addrs();
     let (lb, ib) = src.recv_buffer_bytes();
+    let how_long = args.duration.map_or("until Ctrl-C".to_string(), |d| {
+        format!("for {d} s (Ctrl-C: stop early)")
+    });
     eprintln!(
-        "record: listening on udp {la} (lidar) and udp {ia} (IMU) for {duration_s} s \
+        "record: listening on udp {la} (lidar) and udp {ia} (IMU) {how_long} \
          (receive buffers {lb} and {ib} bytes)"
     );
     let start = Instant::now();
-    src.set_deadline(start + Duration::from_secs_f64(duration_s));
+    if let Some(d) = args.duration {
+        src.set_deadline(start + Duration::from_secs_f64(d));
+    }
     let mut report = Report::new(start);
+    let mut stopping = false;
     loop {
+        if !stopping && interrupted.load(Ordering::Relaxed) {
+            eprintln!("record: interrupted: writing what was received");
+            src.stop();
+            stopping = true;
+        }
         match src.poll(Duration::from_millis(200))? {
             Live::End => break,
             Live::Idle => {}
@@ -152,9 +173,10 @@ fn from_udp(
     let counts = src.counts();
     anyhow::ensure!(
         counts.datagrams() > 0,
-        "nothing received on udp {la} (lidar) or udp {ia} (IMU) in {duration_s} s: is the sensor \
+        "nothing received on udp {la} (lidar) or udp {ia} (IMU) in {:.1} s: is the sensor \
          sending to this host (its udp_dest) and these ports, and is --addr an address of this \
-         host on the sensor's network (0.0.0.0: any)?"
+         host on the sensor's network (0.0.0.0: any)?",
+        start.elapsed().as_secs_f64()
     );
     Ok(counts)
 }

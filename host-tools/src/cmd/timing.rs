@@ -1,7 +1,7 @@
 //! `povins timing DATASET`: the onboard pipeline (`povins_platform::pipeline`: IMU and back-end
 //! threads, pinned, `SCHED_FIFO` when permitted; the image front-end stage on the back-end
 //! thread when the dataset has images) over a dataset, paced at the recorded rate by default,
-//! then the timing table: per-stage p50/p99/max (the front end's per-image decode and
+//! then the timing table: per-stage p50/p99/p99.9/max (the front end's per-image decode and
 //! processing time and its image-stamp -> track-frame latency included), IMU-output latency,
 //! back-end lag against the keyframe period, deadline misses and drops (`--json` for a
 //! machine-readable copy). `povins replay --realtime` runs the same pipeline and prints the
@@ -134,8 +134,8 @@ impl TimingSummary {
             ),
             format!("threads   {}", self.rt.summary()),
             format!(
-                "{:<28} {:>8} {:>10} {:>10} {:>10}",
-                "stage", "count", "p50 ms", "p99 ms", "max ms"
+                "{:<28} {:>8} {:>10} {:>10} {:>10} {:>10}",
+                "stage", "count", "p50 ms", "p99 ms", "p99.9 ms", "max ms"
             ),
         ];
         for (name, s) in &self.stages {
@@ -143,8 +143,8 @@ impl TimingSummary {
                 continue;
             }
             v.push(format!(
-                "{name:<28} {:>8} {:>10.4} {:>10.4} {:>10.4}",
-                s.count, s.p50_ms, s.p99_ms, s.max_ms
+                "{name:<28} {:>8} {:>10.4} {:>10.4} {:>10.4} {:>10.4}",
+                s.count, s.p50_ms, s.p99_ms, s.p999_ms, s.max_ms
             ));
         }
         v.push(format!(

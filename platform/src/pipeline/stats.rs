@@ -78,18 +78,19 @@ impl LatencyHist {
         self.count().saturating_sub(below)
     }
 
-    /// p50, p99 and max in ms.
+    /// p50, p99, p99.9 and max in ms.
     pub fn summary_ms(&self) -> StageSummary {
         StageSummary {
             count: self.count(),
             p50_ms: self.percentile_ns(50.0) as f64 * 1e-6,
             p99_ms: self.percentile_ns(99.0) as f64 * 1e-6,
+            p999_ms: self.percentile_ns(99.9) as f64 * 1e-6,
             max_ms: self.max_ns() as f64 * 1e-6,
         }
     }
 }
 
-/// p50 / p99 / max of one stage, ms.
+/// p50 / p99 / p99.9 / max of one stage, ms.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct StageSummary {
     /// Values recorded.
@@ -98,6 +99,8 @@ pub struct StageSummary {
     pub p50_ms: f64,
     /// 99th percentile, ms.
     pub p99_ms: f64,
+    /// 99.9th percentile, ms (with fewer than 1000 values: the largest but a fraction of one).
+    pub p999_ms: f64,
     /// Maximum, ms.
     pub max_ms: f64,
 }
