@@ -147,6 +147,18 @@ fn synthetic_dataset_round_trips_through_a_folder() {
         "{e}"
     );
 
+    // A dataset without a camera (a LiDAR-inertial recording: the zero-size placeholder) is
+    // written without cam0, and reads back as one without a camera.
+    let mut li = synthetic("li");
+    li.sim_truth = None;
+    li.calib.camera = povins_platform::dataset::no_camera();
+    li.images.clear();
+    li.features.clear();
+    let li_root = dir.path().join("li");
+    write_dataset(&li_root, &li).unwrap();
+    assert!(!li_root.join("mav0/cam0").exists(), "no cam0 folder");
+    assert_eq!(read_dataset(&li_root).unwrap().calib.camera.width, 0);
+
     // Writing what was read (images referenced by path only) copies the PNGs.
     let mut listed = read_dataset(&root).unwrap();
     let copy = dir.path().join("copy").join("synthetic-seq");

@@ -323,13 +323,8 @@ impl Sink {
             format!("copying {} to {}", self.meta_path.display(), copy.display())
         })?;
         if self.mcap.is_none() {
-            let w = EurocWriter::create(&self.out, &self.calib)?;
-            // The writer always writes cam0/sensor.yaml; without a camera (a zero-size
-            // placeholder) the folder must have no cam0, which is how a reader knows.
-            let cam0 = self.out.join("mav0").join("cam0");
-            std::fs::remove_dir_all(&cam0)
-                .with_context(|| format!("removing {}", cam0.display()))?;
-            self.euroc = Some(w);
+            // No camera: the writer makes no cam0.
+            self.euroc = Some(EurocWriter::create(&self.out, &self.calib)?);
         }
         Ok(())
     }

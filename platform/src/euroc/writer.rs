@@ -74,17 +74,21 @@ pub struct EurocWriter {
 }
 
 impl EurocWriter {
-    /// Creates `dir/mav0` with the calibration's `sensor.yaml` files and an `imu0/data.csv`
-    /// holding its header.
+    /// Creates `dir/mav0` with the calibration's `sensor.yaml` files (no `cam0` for a
+    /// calibration without a camera) and an `imu0/data.csv` holding its header.
     pub fn create(dir: &Path, calib: &Calibration) -> Result<Self, IoError> {
         let mav0 = dir.join("mav0");
         let imu_dir = mav0.join("imu0");
         mkdir(&imu_dir)?;
         write_file(&imu_dir.join("sensor.yaml"), &imu_yaml(calib))?;
         let imu = Csv::create(imu_dir.join("data.csv"), IMU_HEADER)?;
-        let cam_dir = mav0.join("cam0");
-        mkdir(&cam_dir)?;
-        write_file(&cam_dir.join("sensor.yaml"), &camera_yaml(calib))?;
+        // A recording without a camera (the zero-size placeholder, `dataset::no_camera`) gets no
+        // cam0: that is how a reader knows.
+        if calib.camera.width > 0 {
+            let cam_dir = mav0.join("cam0");
+            mkdir(&cam_dir)?;
+            write_file(&cam_dir.join("sensor.yaml"), &camera_yaml(calib))?;
+        }
         if let Some(t) = &calib.t_bl {
             let ldir = mav0.join("lidar0");
             mkdir(&ldir)?;
