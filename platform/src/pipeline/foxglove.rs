@@ -21,7 +21,7 @@
 //! another interface unless the user asks. What clients send is parsed by the SDK (this sink
 //! offers no services, parameters or client publishing).
 
-use super::sink::{KeyframeOut, LandmarkTap, PoseOut, Sink};
+use super::sink::{KeyframeOut, LandmarkTap, PoseOut, RateDecimator, Sink, Stamped};
 use crate::error::IoError;
 use crate::trajectory::StampedPose;
 use ::foxglove::messages::{
@@ -110,13 +110,6 @@ pub struct FoxgloveCounts {
     pub landmarks_skipped: u64,
 }
 
-/// One output on its way to the publishing thread.
-#[derive(Debug, Clone, Copy)]
-enum Item {
-    Pose(StampedPose),
-    Keyframe(StampedPose),
-}
-
 #[derive(Debug, Default)]
 struct Shared {
     stop: AtomicBool,
@@ -127,9 +120,8 @@ struct Shared {
 
 /// A [`Sink`] serving the live pose, path and landmarks to Foxglove (see the module doc).
 pub struct FoxgloveSink {
-    period_ns: i64,
-    next_due_ns: Option<i64>,
-    tx: rtrb::Producer<Item>,
+    rate: RateDecimator,
+    tx: rtrb::Producer<Stamped>,
     dropped: u64,
     shared: Arc<Shared>,
     tap: Arc<LandmarkTap>,
@@ -197,8 +189,7 @@ impl FoxgloveSink {
                 .map_err(|e| IoError::io(&what, e))?
         };
         Ok(FoxgloveSink {
-            period_ns: (1e9 / opts.pose_rate_hz).round() as i64,
-            next_due_ns: None,
+            rate: RateDecimator::new(opts.pose_rate_hz),
             tx,
             dropped: 0,
             shared,
@@ -224,7 +215,7 @@ impl FoxgloveSink {
         }
     }
 
-    fn push(&mut self, item: Item) {
+    fn push(&mut self, item: Stamped) {
         if self.tx.push(item).is_err() {
             self.dropped += 1;
         }
@@ -242,19 +233,15 @@ impl FoxgloveSink {
 impl Sink for FoxgloveSink {
     fn pose(&mut self, p: &PoseOut) {
         let t_ns = p.nav.t_ns;
-        if self.next_due_ns.is_some_and(|due| t_ns < due) {
+        if !self.rate.take(t_ns) {
             return;
         }
-        self.next_due_ns = Some(match self.next_due_ns {
-            Some(due) if t_ns < due + self.period_ns => due + self.period_ns,
-            _ => t_ns + self.period_ns,
-        });
-        self.push(Item::Pose(StampedPose::from(&p.nav)));
+        self.push(Stamped::Pose(StampedPose::from(&p.nav)));
     }
 
     fn keyframe(&mut self, k: &KeyframeOut) {
         if let Some(s) = &k.state {
-            self.push(Item::Keyframe(StampedPose::from(s)));
+            self.push(Stamped::Keyframe(StampedPose::from(s)));
         }
     }
 
@@ -279,7 +266,7 @@ impl Drop for FoxgloveSink {
 fn publish_loop(
     server: WebSocketServerHandle,
     ch: &Channels,
-    mut rx: rtrb::Consumer<Item>,
+    mut rx: rtrb::Consumer<Stamped>,
     shared: &Shared,
     tap: &LandmarkTap,
     opts: &FoxgloveOptions,
@@ -291,7 +278,7 @@ fn publish_loop(
         let stop = shared.stop.load(Ordering::Acquire);
         while let Ok(item) = rx.pop() {
             match item {
-                Item::Pose(p) => {
+                Stamped::Pose(p) => {
                     ch.pose.log_with_meta(
                         &PoseInFrame {
                             timestamp: Some(timestamp(p.t_ns)),
@@ -302,7 +289,7 @@ fn publish_loop(
                     );
                     shared.poses.fetch_add(1, Ordering::Relaxed);
                 }
-                Item::Keyframe(p) => {
+                Stamped::Keyframe(p) => {
                     if path.len() == opts.path_len {
                         path.pop_front();
                     }

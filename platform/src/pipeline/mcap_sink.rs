@@ -19,7 +19,7 @@
 //! counts it ([`McapCounts::dropped_queue`]); a write error ends the writing, is counted, and is
 //! returned by [`Sink::finish`] naming the file.
 
-use super::sink::{KeyframeOut, PoseOut, Sink};
+use super::sink::{KeyframeOut, PoseOut, Sink, Stamped};
 use crate::error::IoError;
 use crate::trajectory::StampedPose;
 use std::collections::BTreeMap;
@@ -78,13 +78,6 @@ pub struct McapCounts {
     pub flushes: u64,
 }
 
-/// One output on its way to the writer thread.
-#[derive(Debug, Clone, Copy)]
-enum Item {
-    Pose(StampedPose),
-    Keyframe(StampedPose),
-}
-
 /// Counts shared with the writer thread.
 #[derive(Debug, Default)]
 struct Shared {
@@ -99,7 +92,7 @@ struct Shared {
 #[derive(Debug)]
 pub struct McapSink {
     path: PathBuf,
-    tx: rtrb::Producer<Item>,
+    tx: rtrb::Producer<Stamped>,
     shared: Arc<Shared>,
     dropped: u64,
     writer: Option<JoinHandle<Result<(), IoError>>>,
@@ -152,7 +145,7 @@ impl McapSink {
         }
     }
 
-    fn push(&mut self, item: Item) {
+    fn push(&mut self, item: Stamped) {
         if self.tx.push(item).is_err() {
             self.dropped += 1;
         }
@@ -177,12 +170,12 @@ impl McapSink {
 
 impl Sink for McapSink {
     fn pose(&mut self, p: &PoseOut) {
-        self.push(Item::Pose(StampedPose::from(&p.nav)));
+        self.push(Stamped::Pose(StampedPose::from(&p.nav)));
     }
 
     fn keyframe(&mut self, k: &KeyframeOut) {
         if let Some(s) = &k.state {
-            self.push(Item::Keyframe(StampedPose::from(s)));
+            self.push(Stamped::Keyframe(StampedPose::from(s)));
         }
     }
 
@@ -202,7 +195,7 @@ impl Drop for McapSink {
 /// writes the rest and the summary.
 fn write_loop(
     mut file: PoseMcapWriter,
-    mut rx: rtrb::Consumer<Item>,
+    mut rx: rtrb::Consumer<Stamped>,
     shared: &Shared,
     period: Duration,
 ) -> Result<(), IoError> {
@@ -213,11 +206,11 @@ fn write_loop(
         let stop = shared.stop.load(Ordering::Acquire);
         while let Ok(item) = rx.pop() {
             match item {
-                Item::Pose(p) => {
+                Stamped::Pose(p) => {
                     file.write(Topic::Pose, &p)?;
                     shared.poses.fetch_add(1, Ordering::Relaxed);
                 }
-                Item::Keyframe(p) => {
+                Stamped::Keyframe(p) => {
                     file.write(Topic::Keyframe, &p)?;
                     shared.keyframes.fetch_add(1, Ordering::Relaxed);
                 }

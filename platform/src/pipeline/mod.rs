@@ -71,7 +71,7 @@ pub use crate::source::{Clock, Pacer, Pacing, SensorEvent, Source, SystemClock};
 pub use mavlink::{MavlinkCounts, MavlinkOptions, MavlinkSink};
 pub use mcap_sink::{McapCounts, McapOptions, McapSink};
 pub use rt::RtStatus;
-pub use sink::{CallbackSink, KeyframeOut, LandmarkTap, PoseOut, Sink, TumSink};
+pub use sink::{CallbackSink, KeyframeOut, LandmarkTap, PoseOut, RateDecimator, Sink, TumSink};
 pub use stats::{LatencyHist, OutputSteps, PipelineCounters, StageSummary, Timing, STAGES};
 
 use crate::error::IoError;

@@ -113,6 +113,47 @@ impl LandmarkTap {
     }
 }
 
+/// Decimates the IMU-rate output by sensor time: a pose passes when its stamp is at least one
+/// period after the last one that passed (held to the period's grid while the stream keeps up,
+/// so the same poses pass in every run of the same data). Used by the sinks that send at a set
+/// rate (MAVLink, Foxglove).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RateDecimator {
+    period_ns: i64,
+    next_due_ns: Option<i64>,
+}
+
+impl RateDecimator {
+    /// `rate_hz` poses per second of sensor time (checked by the caller: finite, above 0).
+    pub fn new(rate_hz: f64) -> Self {
+        RateDecimator {
+            period_ns: ((1e9 / rate_hz).round() as i64).max(1),
+            next_due_ns: None,
+        }
+    }
+
+    /// Whether the pose at `t_ns` passes.
+    pub fn take(&mut self, t_ns: i64) -> bool {
+        if self.next_due_ns.is_some_and(|due| t_ns < due) {
+            return false;
+        }
+        self.next_due_ns = Some(match self.next_due_ns {
+            Some(due) if t_ns < due.saturating_add(self.period_ns) => due + self.period_ns,
+            _ => t_ns.saturating_add(self.period_ns),
+        });
+        true
+    }
+}
+
+/// One output a sink hands to a thread of its own (the MCAP writer, the Foxglove publisher).
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Stamped {
+    /// An IMU-rate pose.
+    Pose(StampedPose),
+    /// A keyframe's optimized state.
+    Keyframe(StampedPose),
+}
+
 /// A sink made of closures.
 pub struct CallbackSink<P, K> {
     on_pose: P,
@@ -232,6 +273,24 @@ impl<A: Sink, B: Sink> Sink for (A, B) {
 mod tests {
     use super::*;
     use crate::trajectory::read_tum;
+
+    /// 200 Hz decimated to 30 Hz: 30 poses a second, on the period's grid, the same ones again
+    /// for the same stamps; a gap restarts the grid at the next pose.
+    #[test]
+    fn rate_decimator_keeps_the_rate_by_stamp() {
+        let stamps: Vec<i64> = (0..400).map(|k| 1_000_000_000 + k * 5_000_000).collect();
+        let run = || {
+            let mut d = RateDecimator::new(30.0);
+            stamps.iter().copied().filter(|&t| d.take(t)).collect::<Vec<_>>()
+        };
+        let kept = run();
+        assert_eq!(kept, run(), "the same poses every run");
+        assert_eq!(kept.len(), 60, "30 Hz over 2 s");
+        assert!(kept.windows(2).all(|w| (30_000_000..=35_000_000).contains(&(w[1] - w[0]))));
+        let mut d = RateDecimator::new(30.0);
+        assert!(d.take(0) && !d.take(10_000_000) && d.take(5_000_000_000));
+        assert!(!d.take(5_010_000_000) && d.take(5_035_000_000));
+    }
 
     fn pose(k: i64) -> PoseOut {
         PoseOut {

@@ -42,7 +42,7 @@ pub mod link;
 pub use frames::{from_frd, to_frd, BodyAxes, FrdPose};
 pub use link::{Endpoint, Link};
 
-use super::sink::{KeyframeOut, PoseOut, Sink};
+use super::sink::{KeyframeOut, PoseOut, RateDecimator, Sink};
 use crate::error::IoError;
 use ::mavlink::dialects::common::{
     MavAutopilot, MavEstimatorType, MavFrame, MavMessage, MavModeFlag, MavState, MavType,
@@ -166,8 +166,7 @@ struct Odom {
 /// A [`Sink`] sending the IMU-rate poses to an autopilot (see the module doc).
 pub struct MavlinkSink {
     opts: MavlinkOptions,
-    period_ns: i64,
-    next_due_ns: Option<i64>,
+    rate: RateDecimator,
     inits: u64,
     reset_counter: u8,
     quality: i8,
@@ -221,9 +220,8 @@ impl MavlinkSink {
             spawn("mavlink-rx", Box::new(move || recv_loop(&s, &l, &o)))?
         };
         Ok(MavlinkSink {
-            period_ns: (1e9 / opts.rate_hz).round() as i64,
+            rate: RateDecimator::new(opts.rate_hz),
             opts,
-            next_due_ns: None,
             inits: 0,
             reset_counter: 0,
             quality: 0,
@@ -260,13 +258,9 @@ impl MavlinkSink {
 impl Sink for MavlinkSink {
     fn pose(&mut self, p: &PoseOut) {
         let t_ns = p.nav.t_ns;
-        if self.next_due_ns.is_some_and(|due| t_ns < due) {
+        if !self.rate.take(t_ns) {
             return;
         }
-        self.next_due_ns = Some(match self.next_due_ns {
-            Some(due) if t_ns < due + self.period_ns => due + self.period_ns,
-            _ => t_ns + self.period_ns,
-        });
         let since_due = p.stamp_latency_ns.unwrap_or(p.latency_ns);
         let sensor_now = t_ns.saturating_add(i64::try_from(since_due).unwrap_or(0));
         self.shared
