@@ -43,15 +43,6 @@ pub fn imu_period_ns(rec: &dyn Recording) -> Result<u64> {
     Ok(d.get(d.len() / 2).copied().unwrap_or(5_000_000))
 }
 
-/// About how many IMU samples `rec` holds (its span over its IMU period; 0 when unknown), to
-/// reserve room for the poses up front.
-pub fn imu_samples_estimate(rec: &dyn Recording) -> Result<usize> {
-    let period = imu_period_ns(rec)?.max(1);
-    Ok(rec.contents().imu_span_ns.map_or(0, |(a, b)| {
-        usize::try_from(u64::try_from(b - a).unwrap_or(0) / period + 2).unwrap_or(0)
-    }))
-}
-
 /// Runs `rec` through the pipeline with the estimator configured by `cfg` (as `povins run`
 /// builds it), started by `init` and fed by the front end in `fe` (the recording's tracks, or
 /// its images through the pipeline's back end), publishing to `sink`; `progress` counts IMU

@@ -145,13 +145,36 @@ fn check_increasing(path: &Path, line: usize, prev: Option<i64>, t: i64) -> Resu
 /// Reads a TUM trajectory. Blank lines and `#` comments are allowed; anything else must be a
 /// valid pose with increasing time.
 pub fn read_tum(path: &Path) -> Result<Vec<StampedPose>, IoError> {
-    let mut out = Vec::new();
-    for (i, line) in open(path)?.lines().enumerate() {
-        let line_no = i + 1;
-        let line = line.map_err(|e| IoError::io(path, e))?;
+    tum_poses(path)?.collect()
+}
+
+/// A TUM trajectory read pose by pose ([`read_tum`]'s rules), in memory that does not grow
+/// with the file.
+pub fn tum_poses(path: &Path) -> Result<TumPoses, IoError> {
+    Ok(TumPoses {
+        path: path.into(),
+        lines: open(path)?.lines(),
+        line_no: 0,
+        last_ns: None,
+        failed: false,
+    })
+}
+
+/// The iterator of [`tum_poses`]: ends after the first error.
+pub struct TumPoses {
+    path: std::path::PathBuf,
+    lines: std::io::Lines<std::io::BufReader<std::fs::File>>,
+    line_no: usize,
+    last_ns: Option<i64>,
+    failed: bool,
+}
+
+impl TumPoses {
+    fn parse(&mut self, line: &str) -> Result<Option<StampedPose>, IoError> {
+        let (path, line_no) = (self.path.as_path(), self.line_no);
         let l = line.trim();
         if l.is_empty() || l.starts_with('#') {
-            continue;
+            return Ok(None);
         }
         let first = l
             .split(|c: char| c == ',' || c.is_whitespace())
@@ -160,20 +183,38 @@ pub fn read_tum(path: &Path) -> Result<Vec<StampedPose>, IoError> {
         let t_ns = parse_seconds_ns(first)
             .ok_or_else(|| parse_err(path, line_no, format!("time {first:?} is not a number")))?;
         let v = fields(path, line_no, l, 8)?;
-        check_increasing(
-            path,
-            line_no,
-            out.last().map(|p: &StampedPose| p.t_ns),
-            t_ns,
-        )?;
+        check_increasing(path, line_no, self.last_ns, t_ns)?;
         let q_wb = unit_quat(path, line_no, v[7], v[4], v[5], v[6])?;
-        out.push(StampedPose {
+        self.last_ns = Some(t_ns);
+        Ok(Some(StampedPose {
             t_ns,
             p_wb: Vec3::new(v[1], v[2], v[3]),
             q_wb,
-        });
+        }))
     }
-    Ok(out)
+}
+
+impl Iterator for TumPoses {
+    type Item = Result<StampedPose, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        while !self.failed {
+            let line = self.lines.next()?;
+            self.line_no += 1;
+            let r = line
+                .map_err(|e| IoError::io(&self.path, e))
+                .and_then(|l| self.parse(&l));
+            match r {
+                Ok(Some(p)) => return Some(Ok(p)),
+                Ok(None) => {}
+                Err(e) => {
+                    self.failed = true;
+                    return Some(Err(e));
+                }
+            }
+        }
+        None
+    }
 }
 
 /// Writes a TUM trajectory.

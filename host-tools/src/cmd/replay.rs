@@ -7,14 +7,15 @@
 //! or `images`: the pipeline's image front-end stage).
 
 use super::timing::{run_pipeline, PipelineArgs, TimingSummary};
-use crate::eval::{evaluate, Alignment, EvalOptions};
-use crate::realtime::imu_samples_estimate;
+use crate::eval::streamed::{ate_rmse, PoseStream};
+use crate::eval::{Alignment, EvalOptions};
 use anyhow::{bail, Context, Result};
 use povins_platform::pipeline::mavlink::{BodyAxes, Endpoint};
 use povins_platform::pipeline::{
-    FoxgloveOptions, FoxgloveSink, MavlinkOptions, MavlinkSink, McapOptions, McapSink, TumSink,
+    FileOptions, FoxgloveOptions, FoxgloveSink, MavlinkOptions, MavlinkSink, McapOptions, McapSink,
+    TumSink,
 };
-use povins_platform::trajectory::StampedPose;
+use povins_platform::trajectory::{tum_poses, StampedPose};
 use std::path::PathBuf;
 
 /// Arguments of `povins replay`.
@@ -102,7 +103,7 @@ fn mavlink_sink(args: &Args) -> Result<Option<MavlinkSink>> {
 }
 
 /// The summary line of the MAVLink output; an error when it sent nothing it was given.
-fn mavlink_summary(addr: &str, rate_hz: f64, sink: &MavlinkSink, poses: usize) -> Result<()> {
+fn mavlink_summary(addr: &str, rate_hz: f64, sink: &MavlinkSink, poses: u64) -> Result<()> {
     let c = sink.counts();
     println!(
         "mavlink   {addr}: {} ODOMETRY ({rate_hz} Hz), {} HEARTBEAT, {} TIMESYNC answered \
@@ -140,8 +141,6 @@ pub fn run(args: Args) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let path = args.out.join("trajectory.tum");
-    // Room for every pose up front: the sinks do not allocate on the IMU thread.
-    let n = imu_samples_estimate(&*rec)?;
     let mcap = match &args.mcap_out {
         Some(f) => Some(
             McapSink::create(f, McapOptions::default())
@@ -151,7 +150,8 @@ pub fn run(args: Args) -> Result<()> {
     };
     let mavlink = mavlink_sink(&args)?;
     let foxglove = foxglove_sink(&args)?;
-    let mut sinks = (((TumSink::new(&path, n), mcap), mavlink), foxglove);
+    let tum = TumSink::create(&path, FileOptions::default())?;
+    let mut sinks = (((tum, mcap), mavlink), foxglove);
     let report = run_pipeline(&args.pipeline, &*rec, &mut sinks, "replay")?;
     let (((sink, mcap), mavlink), foxglove) = sinks;
     if let Some(m) = &mcap {
@@ -167,23 +167,42 @@ pub fn run(args: Args) -> Result<()> {
     for line in TimingSummary::new(&*rec, &args.pipeline, &report)?.lines() {
         println!("{line}");
     }
+    let written = sink.counts();
+    if written.dropped_queue > 0 {
+        bail!(
+            "{}: {} of {} poses not written (the writer fell behind): the trajectory is partial",
+            path.display(),
+            written.dropped_queue,
+            written.dropped_queue + written.poses
+        );
+    }
     let ground_truth = rec.ground_truth()?;
-    if !ground_truth.is_empty() && !sink.poses().is_empty() {
-        let gt: Vec<StampedPose> = ground_truth.iter().map(StampedPose::from).collect();
+    if !ground_truth.is_empty() && written.poses > 0 {
+        // Both sides as streams: the trajectory is read back from its file, not held.
+        let gt = || -> Result<PoseStream<'_>> {
+            Ok(Box::new(
+                ground_truth.iter().map(|s| Ok(StampedPose::from(s))),
+            ))
+        };
+        let est = || -> Result<PoseStream<'_>> {
+            Ok(Box::new(
+                tum_poses(&path)?.map(|p| p.map_err(anyhow::Error::from)),
+            ))
+        };
         let opts = EvalOptions {
             alignment: Alignment::PosYaw,
             ..Default::default()
         };
-        match evaluate(&gt, sink.poses(), &opts) {
+        match ate_rmse(&gt, &est, &opts) {
             Ok(r) => println!(
                 "ATE       {:.4} m, {:.3} deg (posyaw-aligned, {} poses)",
-                r.ate_pos_m.rmse, r.ate_rot_deg.rmse, r.matched_poses
+                r.pos_rmse_m, r.rot_rmse_deg, r.matched
             ),
             Err(e) => eprintln!("warning: evaluation failed: {e:#}"),
         }
     }
     if let (Some(m), Some(addr)) = (&mavlink, &args.mavlink) {
-        mavlink_summary(addr, args.mavlink_rate, m, sink.poses().len())?;
+        mavlink_summary(addr, args.mavlink_rate, m, written.poses)?;
     }
     if let Some(f) = &foxglove {
         let c = f.counts();

@@ -6,7 +6,7 @@
 //! ## Streaming
 //! The sink's calls run on the pipeline's IMU thread: they copy the pose into a lock-free queue
 //! ([`McapOptions::queue`] entries, allocated when the sink is made) and return; a writer thread
-//! serializes and writes. The writer closes the open chunk (zstd, at most
+//! ([`super::file_sink`]) serializes and writes. The writer closes the open chunk (zstd, at most
 //! [`McapOptions::chunk_bytes`] before compression) and flushes the file to the operating system
 //! at least every [`McapOptions::flush_period`] (1 s), so a process that is killed (`SIGKILL`,
 //! a crash, a power cut after the OS wrote its cache) leaves a file whose records up to the last
@@ -16,9 +16,10 @@
 //! so a path that cannot be written fails before the run starts.
 //!
 //! A full queue (the disk slower than the IMU for longer than the queue lasts) drops the pose and
-//! counts it ([`McapCounts::dropped_queue`]); a write error ends the writing, is counted, and is
+//! counts it ([`FileCounts::dropped_queue`]); a write error ends the writing, is counted, and is
 //! returned by [`Sink::finish`] naming the file.
 
+use super::file_sink::{FileCounts, FileOptions, FileSink, StampedWriter};
 use super::sink::{KeyframeOut, PoseOut, Sink, Stamped};
 use crate::error::IoError;
 use crate::trajectory::StampedPose;
@@ -26,10 +27,7 @@ use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Topic of the IMU-rate poses.
 pub const TOPIC_POSE: &str = "/povins/pose";
@@ -39,8 +37,6 @@ pub const TOPIC_KEYFRAME: &str = "/povins/keyframe";
 pub const POSE_IN_FRAME: &str = "foxglove.PoseInFrame";
 /// The frame the poses are given in (the estimator's world frame, z up).
 pub const WORLD_FRAME: &str = "world";
-/// How often the writer thread looks at the queue.
-const POLL: Duration = Duration::from_millis(20);
 
 /// How [`McapSink`] writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -54,183 +50,98 @@ pub struct McapOptions {
 }
 
 impl Default for McapOptions {
-    /// Flushed every second, chunks of at most 1 MiB, a queue of 8192 (8 s at 1 kHz).
+    /// Flushed every second, chunks of at most 1 MiB, a queue of 65,536 outputs.
     fn default() -> Self {
+        let f = FileOptions::default();
         McapOptions {
-            flush_period: Duration::from_secs(1),
+            flush_period: f.flush_period,
             chunk_bytes: 1 << 20,
-            queue: 8192,
+            queue: f.queue,
         }
     }
 }
 
 /// What the MCAP output did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct McapCounts {
-    /// Poses written on [`TOPIC_POSE`].
-    pub poses: u64,
-    /// Keyframe states written on [`TOPIC_KEYFRAME`].
-    pub keyframes: u64,
-    /// Poses and keyframes not written: the queue to the writer thread was full, or the
-    /// writing had stopped at an error.
-    pub dropped_queue: u64,
-    /// Flushes of the file during the run (not counting the end).
-    pub flushes: u64,
-}
-
-/// Counts shared with the writer thread.
-#[derive(Debug, Default)]
-struct Shared {
-    stop: AtomicBool,
-    poses: AtomicU64,
-    keyframes: AtomicU64,
-    flushes: AtomicU64,
-}
+pub type McapCounts = FileCounts;
 
 /// A [`Sink`] writing the poses and keyframe states to an MCAP file as the run goes (see the
 /// module doc).
 #[derive(Debug)]
 pub struct McapSink {
-    path: PathBuf,
-    tx: rtrb::Producer<Stamped>,
-    shared: Arc<Shared>,
-    dropped: u64,
-    writer: Option<JoinHandle<Result<(), IoError>>>,
+    file: FileSink,
 }
 
 impl McapSink {
-    /// Creates `path` (schema and channels written at once) and starts the writer thread.
+    /// Creates `path` (header, schema and channels on the disk before the first pose) and starts
+    /// the writer thread.
     pub fn create(path: impl Into<PathBuf>, opts: McapOptions) -> Result<Self, IoError> {
         let path = path.into();
-        if opts.flush_period.is_zero() || opts.queue == 0 || opts.chunk_bytes == 0 {
+        if opts.chunk_bytes == 0 {
+            return Err(IoError::Invalid {
+                path,
+                msg: format!("MCAP output options {opts:?}: the chunk size must be above 0"),
+            });
+        }
+        let fo = FileOptions {
+            flush_period: opts.flush_period,
+            queue: opts.queue,
+        };
+        if fo.flush_period.is_zero() || fo.queue == 0 {
             return Err(IoError::Invalid {
                 path,
                 msg: format!(
-                    "MCAP output options {opts:?}: the flush period, the chunk size and the \
-                     queue must be above 0"
+                    "MCAP output options {opts:?}: the flush period and the queue must be above 0"
                 ),
             });
         }
         let mut file = PoseMcapWriter::create(&path, opts.chunk_bytes)?;
-        // The header, schema and channels reach the disk before the first pose.
-        file.flush()?;
-        let shared = Arc::new(Shared::default());
-        let (tx, rx) = rtrb::RingBuffer::new(opts.queue);
-        let s = shared.clone();
-        let writer = std::thread::Builder::new()
-            .name("mcap-writer".into())
-            .spawn(move || write_loop(file, rx, &s, opts.flush_period))
-            .map_err(|e| IoError::io(&path, e))?;
+        PoseMcapWriter::flush(&mut file)?;
         Ok(McapSink {
-            path,
-            tx,
-            shared,
-            dropped: 0,
-            writer: Some(writer),
+            file: FileSink::spawn("mcap-writer", &path, Box::new(file), fo)?,
         })
     }
 
     /// The file.
     pub fn path(&self) -> &Path {
-        &self.path
+        self.file.path()
     }
 
     /// The counts so far (complete after [`Sink::finish`]).
     pub fn counts(&self) -> McapCounts {
-        McapCounts {
-            poses: self.shared.poses.load(Ordering::Relaxed),
-            keyframes: self.shared.keyframes.load(Ordering::Relaxed),
-            dropped_queue: self.dropped,
-            flushes: self.shared.flushes.load(Ordering::Relaxed),
-        }
-    }
-
-    fn push(&mut self, item: Stamped) {
-        if self.tx.push(item).is_err() {
-            self.dropped += 1;
-        }
-    }
-
-    /// Stops the writer thread after it has written what is queued; its result.
-    fn stop(&mut self) -> Result<(), IoError> {
-        self.shared.stop.store(true, Ordering::Release);
-        let Some(h) = self.writer.take() else {
-            return Ok(());
-        };
-        h.thread().unpark();
-        match h.join() {
-            Ok(r) => r,
-            Err(_) => Err(IoError::Invalid {
-                path: self.path.clone(),
-                msg: "the MCAP writer thread panicked".into(),
-            }),
-        }
+        self.file.counts()
     }
 }
 
 impl Sink for McapSink {
     fn pose(&mut self, p: &PoseOut) {
-        self.push(Stamped::Pose(StampedPose::from(&p.nav)));
+        self.file.push(Stamped::Pose(StampedPose::from(&p.nav)));
     }
 
     fn keyframe(&mut self, k: &KeyframeOut) {
         if let Some(s) = &k.state {
-            self.push(Stamped::Keyframe(StampedPose::from(s)));
+            self.file.push(Stamped::Keyframe(StampedPose::from(s)));
         }
     }
 
     fn finish(&mut self) -> Result<(), IoError> {
-        self.stop()
+        self.file.stop()
     }
 }
 
-impl Drop for McapSink {
-    /// Without [`Sink::finish`], the file is still completed (errors are lost: call `finish`).
-    fn drop(&mut self) {
-        let _ = self.stop();
+impl StampedWriter for PoseMcapWriter {
+    fn write(&mut self, item: &Stamped) -> Result<(), IoError> {
+        match item {
+            Stamped::Pose(p) => PoseMcapWriter::write(self, Topic::Pose, p),
+            Stamped::Keyframe(p) => PoseMcapWriter::write(self, Topic::Keyframe, p),
+        }
     }
-}
 
-/// The writer thread: writes what the queue holds, flushes every `period`, and at the stop
-/// writes the rest and the summary.
-fn write_loop(
-    mut file: PoseMcapWriter,
-    mut rx: rtrb::Consumer<Stamped>,
-    shared: &Shared,
-    period: Duration,
-) -> Result<(), IoError> {
-    let mut last_flush = Instant::now();
-    let mut unflushed = false;
-    loop {
-        // Read before draining: whatever was pushed before the stop is written.
-        let stop = shared.stop.load(Ordering::Acquire);
-        while let Ok(item) = rx.pop() {
-            match item {
-                Stamped::Pose(p) => {
-                    file.write(Topic::Pose, &p)?;
-                    shared.poses.fetch_add(1, Ordering::Relaxed);
-                }
-                Stamped::Keyframe(p) => {
-                    file.write(Topic::Keyframe, &p)?;
-                    shared.keyframes.fetch_add(1, Ordering::Relaxed);
-                }
-            }
-            unflushed = true;
-        }
-        if stop {
-            return file.finish();
-        }
-        let since = last_flush.elapsed();
-        if since >= period {
-            if unflushed {
-                file.flush()?;
-                shared.flushes.fetch_add(1, Ordering::Relaxed);
-                unflushed = false;
-            }
-            last_flush = Instant::now();
-            continue;
-        }
-        std::thread::park_timeout(POLL.min(period - since));
+    fn flush(&mut self) -> Result<(), IoError> {
+        PoseMcapWriter::flush(self)
+    }
+
+    fn finish(self: Box<Self>) -> Result<(), IoError> {
+        PoseMcapWriter::finish(*self)
     }
 }
 

@@ -58,6 +58,7 @@
 #![warn(missing_docs)]
 
 mod backend;
+pub mod file_sink;
 pub mod foxglove;
 mod imu;
 pub mod mavlink;
@@ -68,10 +69,11 @@ pub mod stats;
 
 pub use self::foxglove::{FoxgloveCounts, FoxgloveOptions, FoxgloveSink};
 pub use crate::source::{Clock, Pacer, Pacing, SensorEvent, Source, SystemClock};
+pub use file_sink::{FileCounts, FileOptions, TumSink};
 pub use mavlink::{MavlinkCounts, MavlinkOptions, MavlinkSink};
 pub use mcap_sink::{McapCounts, McapOptions, McapSink};
 pub use rt::RtStatus;
-pub use sink::{CallbackSink, KeyframeOut, LandmarkTap, PoseOut, RateDecimator, Sink, TumSink};
+pub use sink::{CallbackSink, KeyframeOut, LandmarkTap, PoseOut, RateDecimator, Sink, Stamped};
 pub use stats::{LatencyHist, OutputSteps, PipelineCounters, StageSummary, Timing, STAGES};
 
 use crate::error::IoError;

@@ -1,15 +1,14 @@
 //! Outputs of the pipeline: a [`Sink`] receives every IMU-rate pose ([`PoseOut`], with its
 //! latency) and every keyframe report ([`KeyframeOut`]) on the IMU thread. Provided:
-//! [`CallbackSink`] (closures), [`TumSink`] (a TUM trajectory file, written at the end so the
-//! IMU thread never waits on the disk) and [`super::McapSink`] (MCAP for Foxglove, written by a
-//! thread of its own during the run).
+//! [`CallbackSink`] (closures), [`super::TumSink`] (a TUM trajectory file) and
+//! [`super::McapSink`] (MCAP for Foxglove), both written by a thread of their own during the run
+//! ([`super::file_sink`]), [`super::MavlinkSink`] and [`super::FoxgloveSink`].
 
 use crate::error::IoError;
-use crate::trajectory::{write_tum, StampedPose};
+use crate::trajectory::StampedPose;
 use povins_core::estimator::KeyframeReport;
 use povins_core::inertial::NavState;
 use povins_core::odometry::LandmarkPoint;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
@@ -145,9 +144,9 @@ impl RateDecimator {
     }
 }
 
-/// One output a sink hands to a thread of its own (the MCAP writer, the Foxglove publisher).
+/// One output a sink hands to a thread of its own (the file writers, the Foxglove publisher).
 #[derive(Debug, Clone, Copy)]
-pub(crate) enum Stamped {
+pub enum Stamped {
     /// An IMU-rate pose.
     Pose(StampedPose),
     /// A keyframe's optimized state.
@@ -187,40 +186,6 @@ impl<P: FnMut(&PoseOut), K: FnMut(&KeyframeOut)> Sink for CallbackSink<P, K> {
 
     fn keyframe(&mut self, k: &KeyframeOut) {
         (self.on_keyframe)(k);
-    }
-}
-
-/// Collects the poses and writes them as a TUM trajectory ([`write_tum`]) at
-/// [`Sink::finish`].
-#[derive(Debug)]
-pub struct TumSink {
-    path: PathBuf,
-    poses: Vec<StampedPose>,
-}
-
-impl TumSink {
-    /// A sink writing `path`, with room for `capacity` poses reserved up front (the number of
-    /// IMU samples: no allocation on the IMU thread then).
-    pub fn new(path: impl Into<PathBuf>, capacity: usize) -> Self {
-        TumSink {
-            path: path.into(),
-            poses: Vec::with_capacity(capacity),
-        }
-    }
-
-    /// The poses collected so far.
-    pub fn poses(&self) -> &[StampedPose] {
-        &self.poses
-    }
-}
-
-impl Sink for TumSink {
-    fn pose(&mut self, p: &PoseOut) {
-        self.poses.push(StampedPose::from(&p.nav));
-    }
-
-    fn finish(&mut self) -> Result<(), IoError> {
-        write_tum(&self.path, &self.poses)
     }
 }
 
@@ -281,12 +246,18 @@ mod tests {
         let stamps: Vec<i64> = (0..400).map(|k| 1_000_000_000 + k * 5_000_000).collect();
         let run = || {
             let mut d = RateDecimator::new(30.0);
-            stamps.iter().copied().filter(|&t| d.take(t)).collect::<Vec<_>>()
+            stamps
+                .iter()
+                .copied()
+                .filter(|&t| d.take(t))
+                .collect::<Vec<_>>()
         };
         let kept = run();
         assert_eq!(kept, run(), "the same poses every run");
         assert_eq!(kept.len(), 60, "30 Hz over 2 s");
-        assert!(kept.windows(2).all(|w| (30_000_000..=35_000_000).contains(&(w[1] - w[0]))));
+        assert!(kept
+            .windows(2)
+            .all(|w| (30_000_000..=35_000_000).contains(&(w[1] - w[0]))));
         let mut d = RateDecimator::new(30.0);
         assert!(d.take(0) && !d.take(10_000_000) && d.take(5_000_000_000));
         assert!(!d.take(5_010_000_000) && d.take(5_035_000_000));
@@ -331,23 +302,38 @@ mod tests {
     }
 
     #[test]
-    fn tum_sink_writes_the_poses_at_finish() {
+    fn tum_sink_writes_the_poses_as_they_come() {
+        use super::super::{FileOptions, TumSink};
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("trajectory.tum");
         let mut count = 0usize;
+        let opts = FileOptions {
+            flush_period: std::time::Duration::from_millis(50),
+            ..FileOptions::default()
+        };
         let mut sink = (
-            TumSink::new(&path, 4),
+            TumSink::create(&path, opts).expect("created"),
             CallbackSink::poses(|_: &PoseOut| count += 1),
         );
         for k in 0..4 {
             sink.pose(&pose(k));
         }
-        assert!(!path.exists(), "written before finish");
+        // Written and flushed by the thread before the end.
+        let mut seen = 0;
+        for _ in 0..200 {
+            std::thread::sleep(std::time::Duration::from_millis(10));
+            seen = read_tum(&path).map_or(0, |v| v.len());
+            if seen == 4 {
+                break;
+            }
+        }
+        assert_eq!(seen, 4, "the poses are in the file before finish");
         sink.finish().expect("written");
         let back = read_tum(&path).expect("readable");
         assert_eq!(back.len(), 4);
         assert_eq!(back[3].t_ns, pose(3).nav.t_ns);
         assert_eq!(back[3].p_wb.x, 3.0);
+        assert_eq!(sink.0.counts().poses, 4);
         drop(sink);
         assert_eq!(count, 4);
     }
