@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """An autopilot's side of povins' MAVLink output, written with pymavlink (not povins' code).
 
-Listens on udpin:ADDR:PORT, records every ODOMETRY, sends TIMESYNC requests (tc1 = 0, ts1 = its
+Listens on udpin:ADDR:PORT, records every ODOMETRY and VISION_POSITION_ESTIMATE, sends TIMESYNC requests (tc1 = 0, ts1 = its
 own monotonic clock in ns) to the sender at 10 Hz once it has spoken, records the answers, and
 stops SECONDS after the last message (or at a time limit). Writes OUT.json:
   {"odometry": [[time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, reset_counter, quality,
                  frame_id, child_frame_id, estimator_type, recv_ns, srcsys, srccomp], ...],
+   "vision": [[usec, x, y, z, roll, pitch, yaw, reset_counter], ...],  (VISION_POSITION_ESTIMATE)
    "timesync": [[tc1, ts1, recv_ns], ...], "heartbeats": N, "other": {type: count}}
 Usage: mavlink_receiver.py udpin:127.0.0.1:PORT OUT.json [IDLE_S] [LIMIT_S]
 """
@@ -25,7 +26,7 @@ def main():
     idle_s = float(sys.argv[3]) if len(sys.argv) > 3 else 3.0
     limit_s = float(sys.argv[4]) if len(sys.argv) > 4 else 600.0
     conn = mavutil.mavlink_connection(url, dialect="common", source_system=1, source_component=1)
-    odo, ts, heartbeats, other = [], [], 0, {}
+    odo, vision, ts, heartbeats, other = [], [], [], 0, {}
     start = time.monotonic()
     last_msg = None
     next_sync = 0.0
@@ -51,6 +52,8 @@ def main():
                         m.reset_counter, m.quality, m.frame_id, m.child_frame_id,
                         m.estimator_type, recv_ns, m.get_srcSystem(), m.get_srcComponent(),
                         0 if math.isnan(m.pose_covariance[0]) else 1])
+        elif t == "VISION_POSITION_ESTIMATE":
+            vision.append([m.usec, m.x, m.y, m.z, m.roll, m.pitch, m.yaw, m.reset_counter])
         elif t == "TIMESYNC":
             if m.tc1 != 0:
                 ts.append([m.tc1, m.ts1, recv_ns])
@@ -59,7 +62,8 @@ def main():
         else:
             other[t] = other.get(t, 0) + 1
     with open(out, "w") as f:
-        json.dump({"odometry": odo, "timesync": ts, "heartbeats": heartbeats, "other": other}, f)
+        json.dump({"odometry": odo, "vision": vision, "timesync": ts, "heartbeats": heartbeats,
+                   "other": other}, f)
     print(f"{len(odo)} ODOMETRY, {len(ts)} TIMESYNC answers, {heartbeats} HEARTBEAT", flush=True)
 
 

@@ -66,6 +66,7 @@ fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
         &format!("udpout:127.0.0.1:{port}"),
         "--mavlink-rate",
         "30",
+        "--mavlink-vision-position",
     ]);
     assert!(ok, "replay: {err}");
     assert!(rx.wait().unwrap().success());
@@ -127,6 +128,40 @@ fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
         odo.len()
     );
     assert!(max_p < 1e-3 && max_deg < 0.01);
+
+    // VISION_POSITION_ESTIMATE (ArduPilot's message): one per ODOMETRY, the same pose, the
+    // attitude as roll, pitch, yaw of the vehicle's FRD body in the local FRD frame.
+    let vis = v["vision"].as_array().unwrap();
+    assert_eq!(
+        vis.len(),
+        odo.len(),
+        "one VISION_POSITION_ESTIMATE per ODOMETRY"
+    );
+    let (mut vmax_p, mut vmax_deg) = (0f64, 0f64);
+    for o in vis {
+        let f: Vec<f64> = o
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        assert_eq!(f[7], 0.0, "no reset in this run");
+        let i = by_us[&(f[0] as i64)];
+        let frd = FrdPose {
+            p_l: Vec3::new(f[1], f[2], f[3]),
+            q_lv: Quat::from_euler_angles(f[4], f[5], f[6]),
+            v_v: Vec3::zeros(),
+        };
+        let (p, q, _) = from_frd(&frd, &BodyAxes::default());
+        vmax_p = vmax_p.max((p - traj[i].p_wb).norm());
+        vmax_deg = vmax_deg.max(q.angle_to(&traj[i].q_wb).to_degrees());
+    }
+    eprintln!(
+        "{} VISION_POSITION_ESTIMATE: max position difference {vmax_p:.2e} m, attitude \
+         {vmax_deg:.2e} deg",
+        vis.len()
+    );
+    assert!(vmax_p < 1e-3 && vmax_deg < 0.01);
 
     // TIMESYNC: offset = tc1 - (ts1 + recv) / 2 on each answer (loopback: symmetric paths).
     // Converged: the median offset of the second quarter of the answers and of the last

@@ -57,6 +57,10 @@ pub struct Args {
     /// The MAVLink system id to send as (the vehicle's).
     #[arg(long, value_name = "ID", default_value_t = 1, requires = "mavlink")]
     pub mavlink_sysid: u8,
+    /// Also send `VISION_POSITION_ESTIMATE` (#102) with each `ODOMETRY` (ArduPilot setups that
+    /// take that message).
+    #[arg(long, requires = "mavlink")]
+    pub mavlink_vision_position: bool,
     /// Serve the live pose (/povins/pose, 30 Hz), the keyframes' path (/povins/path) and the
     /// window's landmarks (/povins/landmarks) to the Foxglove app over its WebSocket protocol:
     /// PORT (on 127.0.0.1: this machine only) or HOST:PORT (e.g. 0.0.0.0:8765 for the network).
@@ -95,6 +99,7 @@ fn mavlink_sink(args: &Args) -> Result<Option<MavlinkSink>> {
     let opts = MavlinkOptions {
         rate_hz: args.mavlink_rate,
         system_id: args.mavlink_sysid,
+        vision_position: args.mavlink_vision_position,
         axes,
         ..MavlinkOptions::new(endpoint)
     };
@@ -106,9 +111,10 @@ fn mavlink_sink(args: &Args) -> Result<Option<MavlinkSink>> {
 fn mavlink_summary(addr: &str, rate_hz: f64, sink: &MavlinkSink, poses: u64) -> Result<()> {
     let c = sink.counts();
     println!(
-        "mavlink   {addr}: {} ODOMETRY ({rate_hz} Hz), {} HEARTBEAT, {} TIMESYNC answered \
-         ({} before the first pose), {} received, {} resets",
+        "mavlink   {addr}: {} ODOMETRY ({rate_hz} Hz), {} VISION_POSITION_ESTIMATE, {} HEARTBEAT, \
+         {} TIMESYNC answered ({} before the first pose), {} received, {} resets",
         c.odometry_sent,
+        c.vision_position_sent,
         c.heartbeats_sent,
         c.timesync_answered,
         c.timesync_unanswered,

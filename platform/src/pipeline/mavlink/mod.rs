@@ -46,7 +46,7 @@ use super::sink::{KeyframeOut, PoseOut, RateDecimator, Sink};
 use crate::error::IoError;
 use ::mavlink::dialects::common::{
     MavAutopilot, MavEstimatorType, MavFrame, MavMessage, MavModeFlag, MavState, MavType,
-    HEARTBEAT_DATA, ODOMETRY_DATA, TIMESYNC_DATA,
+    HEARTBEAT_DATA, ODOMETRY_DATA, TIMESYNC_DATA, VISION_POSITION_ESTIMATE_DATA,
 };
 use ::mavlink::MavHeader;
 use povins_core::frontend::KeyframeDecision;
@@ -76,6 +76,10 @@ pub struct MavlinkOptions {
     pub component_id: u8,
     /// How the IMU sits on the vehicle.
     pub axes: BodyAxes,
+    /// Also send `VISION_POSITION_ESTIMATE` (#102) with each `ODOMETRY`: the same position in
+    /// the local FRD frame and the attitude as roll, pitch, yaw (for ArduPilot setups that take
+    /// that message; its `reset_counter` follows `ODOMETRY`'s).
+    pub vision_position: bool,
 }
 
 impl MavlinkOptions {
@@ -87,6 +91,7 @@ impl MavlinkOptions {
             system_id: 1,
             component_id: COMPONENT_VIO,
             axes: BodyAxes::default(),
+            vision_position: false,
         }
     }
 }
@@ -96,6 +101,8 @@ impl MavlinkOptions {
 pub struct MavlinkCounts {
     /// `ODOMETRY` messages sent.
     pub odometry_sent: u64,
+    /// `VISION_POSITION_ESTIMATE` messages sent ([`MavlinkOptions::vision_position`]).
+    pub vision_position_sent: u64,
     /// `ODOMETRY` messages not sent: the queue to the sending thread was full.
     pub odometry_dropped_queue: u64,
     /// `ODOMETRY` messages with nowhere to go (`udpin` before a peer spoke, a refused
@@ -129,6 +136,7 @@ struct Shared {
     counts: Mutex<MavlinkCounts>,
     sent: AtomicU64,
     unsent: AtomicU64,
+    vision_sent: AtomicU64,
 }
 
 impl Shared {
@@ -200,6 +208,7 @@ impl MavlinkSink {
             counts: Mutex::new(MavlinkCounts::default()),
             sent: AtomicU64::new(0),
             unsent: AtomicU64::new(0),
+            vision_sent: AtomicU64::new(0),
         });
         let (tx, rx) = rtrb::RingBuffer::new(QUEUE);
         let spawn = |name: &str, f: Box<dyn FnOnce() + Send>| {
@@ -243,6 +252,7 @@ impl MavlinkSink {
             .map(|c| c.clone())
             .unwrap_or_default();
         c.odometry_sent = self.shared.sent.load(Ordering::Relaxed);
+        c.vision_position_sent = self.shared.vision_sent.load(Ordering::Relaxed);
         c.odometry_unsent = self.shared.unsent.load(Ordering::Relaxed);
         c.odometry_dropped_queue = self.dropped;
         c.resets = self.inits.saturating_sub(1);
@@ -346,6 +356,26 @@ fn odometry(o: &Odom) -> MavMessage {
     })
 }
 
+/// The `VISION_POSITION_ESTIMATE` message of `o`: the position in the local FRD frame, the
+/// attitude of the vehicle's FRD body in it as roll, pitch, yaw (Z-Y-X), the covariance unknown.
+fn vision_position_estimate(o: &Odom) -> MavMessage {
+    let f = &o.pose;
+    let (roll, pitch, yaw) = f.q_lv.euler_angles();
+    let mut covariance = [0.0f32; 21];
+    covariance[0] = f32::NAN;
+    MavMessage::VISION_POSITION_ESTIMATE(VISION_POSITION_ESTIMATE_DATA {
+        usec: o.time_usec,
+        x: f.p_l.x as f32,
+        y: f.p_l.y as f32,
+        z: f.p_l.z as f32,
+        roll: roll as f32,
+        pitch: pitch as f32,
+        yaw: yaw as f32,
+        covariance,
+        reset_counter: o.reset_counter,
+    })
+}
+
 fn heartbeat() -> MavMessage {
     MavMessage::HEARTBEAT(HEARTBEAT_DATA {
         custom_mode: 0,
@@ -370,6 +400,15 @@ fn send_loop(s: &Shared, link: &Link, o: &MavlinkOptions, mut rx: rtrb::Consumer
                     0
                 }
             };
+            if o.vision_position {
+                match link.send(s.header(o), &vision_position_estimate(&odom)) {
+                    Ok(true) => {
+                        s.vision_sent.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Ok(false) => {}
+                    Err(e) => s.error(&format_args!("sending VISION_POSITION_ESTIMATE: {e}")),
+                }
+            }
         }
         if last_heartbeat.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
             last_heartbeat = Some(Instant::now());

@@ -143,6 +143,58 @@ fn odometry_at_the_rate_in_frd_with_resets_and_quality() {
     );
 }
 
+/// With `vision_position`, each ODOMETRY is followed by a VISION_POSITION_ESTIMATE of the same
+/// stamp, position and attitude (roll, pitch, yaw of the same quaternion) and reset counter.
+#[test]
+fn vision_position_estimate_follows_each_odometry() {
+    let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let opts = MavlinkOptions {
+        vision_position: true,
+        ..MavlinkOptions::new(Endpoint::UdpOut(rx.local_addr().unwrap()))
+    };
+    let mut sink = MavlinkSink::new(opts).unwrap();
+    sink.keyframe(&keyframe(KeyframeDecision::First, 10));
+    for i in 0..100 {
+        if i == 50 {
+            sink.keyframe(&keyframe(KeyframeDecision::First, 80));
+        }
+        sink.pose(&pose(T0_NS + i * 5_000_000));
+    }
+    let msgs = receive(&rx, 15);
+    sink.finish().unwrap();
+    let odo: Vec<&ODOMETRY_DATA> = msgs
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::ODOMETRY(o) => Some(o),
+            _ => None,
+        })
+        .collect();
+    let vis: Vec<&VISION_POSITION_ESTIMATE_DATA> = msgs
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::VISION_POSITION_ESTIMATE(v) => Some(v),
+            _ => None,
+        })
+        .collect();
+    assert_eq!((odo.len(), vis.len()), (15, 15));
+    assert_eq!(sink.counts().vision_position_sent, 15);
+    for (o, v) in odo.iter().zip(&vis) {
+        assert_eq!(o.time_usec, v.usec);
+        assert_eq!((o.x, o.y, o.z), (v.x, v.y, v.z));
+        assert_eq!(o.reset_counter, v.reset_counter);
+        let q = Quat::from_quaternion(nalgebra::Quaternion::new(
+            f64::from(o.q[0]),
+            f64::from(o.q[1]),
+            f64::from(o.q[2]),
+            f64::from(o.q[3]),
+        ));
+        let e = Quat::from_euler_angles(f64::from(v.roll), f64::from(v.pitch), f64::from(v.yaw));
+        assert!(q.angle_to(&e) < 1e-6, "{q:?} vs roll/pitch/yaw {e:?}");
+        assert!(v.covariance[0].is_nan());
+    }
+    assert!(vis.iter().any(|v| v.reset_counter == 1));
+}
+
 #[test]
 fn timesync_requests_are_answered_on_the_sensor_clock() {
     let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
