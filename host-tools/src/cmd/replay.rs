@@ -182,13 +182,14 @@ pub fn run(args: Args) -> Result<()> {
             written.dropped_queue + written.poses
         );
     }
-    let ground_truth = rec.ground_truth()?;
-    if !ground_truth.is_empty() && written.poses > 0 {
-        // Both sides as streams: the trajectory is read back from its file, not held.
+    if rec.contents().ground_truth && written.poses > 0 {
+        // Both sides as streams, neither held: the ground truth read from the recording and the
+        // trajectory from its file, once per pass.
         let gt = || -> Result<PoseStream<'_>> {
-            Ok(Box::new(
-                ground_truth.iter().map(|s| Ok(StampedPose::from(s))),
-            ))
+            Ok(Box::new(rec.ground_truth_stream()?.map(|s| {
+                s.map(|s| StampedPose::from(&s))
+                    .map_err(anyhow::Error::from)
+            })))
         };
         let est = || -> Result<PoseStream<'_>> {
             Ok(Box::new(
