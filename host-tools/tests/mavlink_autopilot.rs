@@ -98,14 +98,17 @@ fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
         .enumerate()
         .map(|(i, p)| (p.t_ns / 1000, i))
         .collect();
-    let (mut max_p, mut max_deg) = (0f64, 0f64);
-    for o in odo {
-        let f: Vec<f64> = o
-            .as_array()
+    // The numbers of one message as the receiver recorded them.
+    let numbers = |o: &serde_json::Value| -> Vec<f64> {
+        o.as_array()
             .unwrap()
             .iter()
             .map(|x| x.as_f64().unwrap())
-            .collect();
+            .collect()
+    };
+    let (mut max_p, mut max_deg) = (0f64, 0f64);
+    for o in odo {
+        let f = numbers(o);
         assert_eq!(
             (f[13], f[14], f[15]),
             (20.0, 12.0, 3.0),
@@ -139,12 +142,7 @@ fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
     );
     let (mut vmax_p, mut vmax_deg) = (0f64, 0f64);
     for o in vis {
-        let f: Vec<f64> = o
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_f64().unwrap())
-            .collect();
+        let f = numbers(o);
         assert_eq!(f[7], 0.0, "no reset in this run");
         let i = by_us[&(f[0] as i64)];
         let frd = FrdPose {

@@ -72,31 +72,46 @@ fn receive(rx: &UdpSocket, n: usize) -> Vec<MavMessage> {
     out
 }
 
-#[test]
-fn odometry_at_the_rate_in_frd_with_resets_and_quality() {
-    let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let mut sink = MavlinkSink::new(MavlinkOptions::new(Endpoint::UdpOut(
-        rx.local_addr().unwrap(),
-    )))
-    .unwrap();
-    let t0 = T0_NS;
+/// Sends `n` 200 Hz poses from `T0_NS` through a sink with `opts` (a first keyframe, and a
+/// re-initialization at pose `n / 2`), and returns what `rx` received until `expect` ODOMETRY
+/// arrived, and the sink (finished).
+fn run_sink(
+    rx: &UdpSocket,
+    opts: MavlinkOptions,
+    n: i64,
+    expect: usize,
+) -> (Vec<MavMessage>, MavlinkSink) {
+    let mut sink = MavlinkSink::new(opts).unwrap();
     sink.keyframe(&keyframe(KeyframeDecision::First, 10));
-    // One second of 200 Hz poses; a re-initialization half way.
-    for i in 0..200 {
-        if i == 100 {
+    for i in 0..n {
+        if i == n / 2 {
             sink.keyframe(&keyframe(KeyframeDecision::First, 80));
         }
-        sink.pose(&pose(t0 + i * 5_000_000));
+        sink.pose(&pose(T0_NS + i * 5_000_000));
     }
-    let msgs = receive(&rx, 30);
+    let msgs = receive(rx, expect);
     sink.finish().unwrap();
-    let odo: Vec<&ODOMETRY_DATA> = msgs
-        .iter()
+    (msgs, sink)
+}
+
+/// The ODOMETRY messages of `msgs`.
+fn odometry_of(msgs: &[MavMessage]) -> Vec<&ODOMETRY_DATA> {
+    msgs.iter()
         .filter_map(|m| match m {
             MavMessage::ODOMETRY(o) => Some(o),
             _ => None,
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn odometry_at_the_rate_in_frd_with_resets_and_quality() {
+    let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let t0 = T0_NS;
+    // One second of 200 Hz poses; a re-initialization half way.
+    let opts = MavlinkOptions::new(Endpoint::UdpOut(rx.local_addr().unwrap()));
+    let (msgs, sink) = run_sink(&rx, opts, 200, 30);
+    let odo = odometry_of(&msgs);
     assert!(
         msgs.iter().any(|m| matches!(m, MavMessage::HEARTBEAT(_))),
         "{} messages, {:?}",
@@ -152,23 +167,8 @@ fn vision_position_estimate_follows_each_odometry() {
         vision_position: true,
         ..MavlinkOptions::new(Endpoint::UdpOut(rx.local_addr().unwrap()))
     };
-    let mut sink = MavlinkSink::new(opts).unwrap();
-    sink.keyframe(&keyframe(KeyframeDecision::First, 10));
-    for i in 0..100 {
-        if i == 50 {
-            sink.keyframe(&keyframe(KeyframeDecision::First, 80));
-        }
-        sink.pose(&pose(T0_NS + i * 5_000_000));
-    }
-    let msgs = receive(&rx, 15);
-    sink.finish().unwrap();
-    let odo: Vec<&ODOMETRY_DATA> = msgs
-        .iter()
-        .filter_map(|m| match m {
-            MavMessage::ODOMETRY(o) => Some(o),
-            _ => None,
-        })
-        .collect();
+    let (msgs, sink) = run_sink(&rx, opts, 100, 15);
+    let odo = odometry_of(&msgs);
     let vis: Vec<&VISION_POSITION_ESTIMATE_DATA> = msgs
         .iter()
         .filter_map(|m| match m {
