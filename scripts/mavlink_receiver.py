@@ -5,7 +5,9 @@ Listens on udpin:ADDR:PORT, records every ODOMETRY and VISION_POSITION_ESTIMATE,
 own monotonic clock in ns) to the sender at 10 Hz once it has spoken, records the answers, and
 stops SECONDS after the last message (or at a time limit). Writes OUT.json:
   {"odometry": [[time_usec, x, y, z, qw, qx, qy, qz, vx, vy, vz, reset_counter, quality,
-                 frame_id, child_frame_id, estimator_type, recv_ns, srcsys, srccomp], ...],
+                 frame_id, child_frame_id, estimator_type, recv_ns, srcsys, srccomp,
+                 covariance_known, velocity_covariance[0 1 2 6 7 11] (vx vy vz upper triangle),
+                 pose_covariance[0 6 11 15 18 20] (x y z roll pitch yaw variances); null for NaN], ...],
    "vision": [[usec, x, y, z, roll, pitch, yaw, reset_counter], ...],  (VISION_POSITION_ESTIMATE)
    "timesync": [[tc1, ts1, recv_ns], ...], "heartbeats": N, "other": {type: count}}
 Usage: mavlink_receiver.py udpin:127.0.0.1:PORT OUT.json [IDLE_S] [LIMIT_S]
@@ -19,6 +21,11 @@ import os
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
+
+
+def finite(x):
+    """`x`, or None (JSON null) for NaN, which JSON cannot hold."""
+    return None if math.isnan(x) else float(x)
 
 
 def main():
@@ -51,7 +58,9 @@ def main():
             odo.append([m.time_usec, m.x, m.y, m.z, q[0], q[1], q[2], q[3], m.vx, m.vy, m.vz,
                         m.reset_counter, m.quality, m.frame_id, m.child_frame_id,
                         m.estimator_type, recv_ns, m.get_srcSystem(), m.get_srcComponent(),
-                        0 if math.isnan(m.pose_covariance[0]) else 1])
+                        0 if math.isnan(m.pose_covariance[0]) else 1]
+                       + [finite(m.velocity_covariance[i]) for i in (0, 1, 2, 6, 7, 11)]
+                       + [finite(m.pose_covariance[i]) for i in (0, 6, 11, 15, 18, 20)])
         elif t == "VISION_POSITION_ESTIMATE":
             vision.append([m.usec, m.x, m.y, m.z, m.roll, m.pitch, m.yaw, m.reset_counter])
         elif t == "TIMESYNC":

@@ -93,6 +93,29 @@ fn euroc_alloc_free(mode: VisualMode) {
     });
 }
 
+/// With `covariance = true` (the newest keyframe's marginal covariance after each solve,
+/// propagated at IMU rate) the estimator allocates nothing either.
+#[test]
+fn euroc_with_covariance_does_not_allocate() {
+    small_stack(|| {
+        let ds = load(EUROC_30S);
+        let mut cfg = euroc_config(&ds, VisualMode::PoseOnly);
+        cfg.covariance = true;
+        let frames = frames_of(&ds);
+        let mut est = new_estimator(cfg);
+        let mut with_cov = 0usize;
+        let allocs = count_allocs(|| {
+            drive(&mut est, &ds.imu, &frames, |e, _, _| {
+                with_cov += usize::from(e.nav_covariance().is_some());
+                true
+            });
+        });
+        println!("EuRoC with covariance: {with_cov} states with one, {allocs} allocations");
+        assert!(with_cov > 4000, "only {with_cov} states with a covariance");
+        assert_eq!(allocs, 0, "the estimator allocated {allocs} times");
+    });
+}
+
 #[test]
 fn euroc_pose_only_does_not_allocate() {
     euroc_alloc_free(VisualMode::PoseOnly);

@@ -28,7 +28,7 @@ use crate::estimator::{
 };
 use crate::frontend::image::ImageView;
 use crate::frontend::image::TrackStats;
-use crate::inertial::{ImuSample, InsUpdate, NavState};
+use crate::inertial::{ImuSample, InsCovariance, InsUpdate, NavState};
 use crate::lidar::LidarPoint;
 use crate::math::Vec3;
 use crate::Error;
@@ -39,6 +39,9 @@ pub struct Output<'a> {
     /// The IMU-rate navigation state (INS propagated from the newest optimized keyframe), once
     /// initialized.
     pub nav: Option<NavState>,
+    /// The covariance of `nav`'s error state, with [`crate::estimator::EstimatorConfig::covariance`]
+    /// (`None`: off, or unknown until the first solve after a start or a reset).
+    pub nav_covariance: Option<&'a InsCovariance>,
     /// Set when the INS changed other than by propagating this sample: hand it to a
     /// [`crate::inertial::FastPath`] (see [`ImuOutput::ins`]).
     pub ins: Option<InsUpdate>,

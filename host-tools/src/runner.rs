@@ -13,7 +13,7 @@ use povins_core::estimator::{
     Counters, DepthEvent, EstimatorConfig, FeaturePrediction, KeyframeReport,
 };
 use povins_core::frontend::image::{TrackStats, TrackerConfig};
-use povins_core::inertial::NavState;
+use povins_core::inertial::{InsCovariance, NavState};
 use povins_core::lidar::{LidarConfig, LidarExtrinsic};
 use povins_core::odometry::{FrameOutput, KeyframeState, Odometry, Output};
 use povins_core::vio::{ImageReport, VioAiding, VioCounters};
@@ -196,6 +196,9 @@ pub struct KeyframeDepthEvents {
 pub trait RunSink {
     /// An IMU-rate navigation state (INS from the newest optimized keyframe).
     fn nav(&mut self, s: &NavState);
+    /// The covariance of the IMU-rate state just given to [`RunSink::nav`], when the estimator
+    /// computes one (`covariance = true`) and knows it.
+    fn nav_covariance(&mut self, _s: &NavState, _cov: &InsCovariance) {}
     /// A keyframe step's report and its LiDAR-depth events, in the order of the steps.
     fn report(&mut self, r: &KeyframeReport, lidar_events: &[DepthEvent]);
     /// A keyframe's final state: at its last optimized value, when it left the window or at the
@@ -212,6 +215,10 @@ impl<A: RunSink, B: RunSink> RunSink for (A, B) {
     fn nav(&mut self, s: &NavState) {
         self.0.nav(s);
         self.1.nav(s);
+    }
+    fn nav_covariance(&mut self, s: &NavState, cov: &InsCovariance) {
+        self.0.nav_covariance(s, cov);
+        self.1.nav_covariance(s, cov);
     }
     fn report(&mut self, r: &KeyframeReport, lidar_events: &[DepthEvent]) {
         self.0.report(r, lidar_events);
@@ -737,6 +744,9 @@ impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
         }
         if let Some(nav) = o.nav {
             self.sink.nav(&nav);
+            if let Some(cov) = o.nav_covariance {
+                self.sink.nav_covariance(&nav, cov);
+            }
         }
     }
 

@@ -292,6 +292,10 @@ pub struct EstimatorConfig {
     pub estimate_extrinsic: bool,
     /// Prior standard deviations of the extrinsic: translation m, rotation rad.
     pub extrinsic_prior: (f64, f64),
+    /// Compute the newest keyframe's marginal covariance after each solve and propagate it with
+    /// the IMU-rate state ([`crate::inertial::Ins::covariance`]; `estimator::covariance`): one
+    /// more factorization of the window per keyframe. Changes no estimate.
+    pub covariance: bool,
     /// Online scale of the IMU white-noise densities ([`super::ImuNoiseAdapt`]).
     pub imu_noise_adapt: super::ImuNoiseAdapt,
     /// Health monitor limits and the re-initialization prior.
@@ -379,6 +383,7 @@ impl EstimatorConfig {
             td: TdConfig::DEFAULT,
             estimate_extrinsic: false,
             extrinsic_prior: (0.02, 0.02),
+            covariance: false,
             imu_noise_adapt: super::ImuNoiseAdapt::DEFAULT,
             health: HealthConfig::DEFAULT,
             lidar: LidarConfig::DEFAULT,
@@ -546,6 +551,7 @@ impl EstimatorConfig {
             },
             estimate_extrinsic: false,
             extrinsic_prior: (0.0, 0.0),
+            covariance: false,
             imu_noise_adapt: super::ImuNoiseAdapt {
                 enabled: false,
                 max_density_scale: 0.0,

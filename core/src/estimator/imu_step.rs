@@ -282,6 +282,7 @@ impl<
     ) -> Option<HVec<ImuSample, LATE_SAMPLES>> {
         let kf_state = self.window.last()?.state;
         let ins_cfg = self.ins_config();
+        let kf_cov = self.kf_cov.get().copied();
         let open = self.open_mut()?;
         let mut tail: HVec<ImuSample, LATE_SAMPLES> = HVec::new();
         for s in open.samples().iter().filter(|s| s.t_ns > sample.t_ns) {
@@ -289,6 +290,7 @@ impl<
         }
         open.truncate_at(sample).ok()?;
         let mut ins = Ins::new(ins_cfg, kf_state).ok()?;
+        ins.set_covariance(kf_cov);
         for s in open.samples() {
             ins.propagate(s).ok()?;
         }

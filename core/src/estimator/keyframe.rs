@@ -7,6 +7,7 @@
 use super::problem::InitialPriors;
 use super::{now, Estimator, KeyframeReport};
 use crate::frontend::KeyframeDecision;
+use crate::inertial::covariance::MaybeCovariance;
 use crate::inertial::{ImuSample, NavState};
 use crate::Error;
 
@@ -22,6 +23,9 @@ impl<
 {
     /// The keyframe step (steps 1-6 of the module docs of [`super`]) for the frame in
     /// `self.frame_obs` at camera time `t_cam_ns`, with the INS state `nav` at its `sample`.
+    // Never inlined: `scripts/keyframe_instructions.sh` counts instructions per keyframe step
+    // from its entries.
+    #[inline(never)]
     pub(super) fn add_keyframe(
         &mut self,
         t_cam_ns: i64,
@@ -65,8 +69,10 @@ impl<
             }
         }
 
-        // 6. The INS continues from the newest optimized keyframe; the open interval is
-        // re-linearized at its biases (it holds only the keyframe sample so far).
+        // 6. The INS continues from the newest optimized keyframe, with its covariance when
+        // asked for; the open interval is re-linearized at its biases (it holds only the
+        // keyframe sample so far).
+        self.kf_cov = MaybeCovariance::new(self.newest_covariance());
         self.restart_ins(&nav, &sample)?;
         report.window_len = self.window.len() as u32;
         report.td_s = self.current_td();
@@ -177,6 +183,7 @@ impl<
             self.correct_ins_window(nav, &st);
             if let Some(ins) = self.ins.as_mut() {
                 ins.set_state(st)?;
+                ins.set_covariance(self.kf_cov.get().copied());
             }
             if let Some(open) = self.open_mut() {
                 open.reset(sample, st.bg, st.ba)?;

@@ -41,6 +41,7 @@
 //! test uses 256 KiB).
 
 pub mod config;
+mod covariance;
 mod cull;
 mod frame_step;
 mod health;
@@ -74,6 +75,7 @@ pub use timing::{IMU_QUEUE, PENDING_LIDAR_POINTS, PENDING_SWEEPS};
 use crate::camera::{CameraExtrinsic, FeatureObs};
 use crate::factors::TimedObs;
 use crate::frontend::{KeyframeSelector, NormalizedObs, RestDetector, TrackTable};
+use crate::inertial::covariance::MaybeCovariance;
 use crate::inertial::init::StaticInitializer;
 use crate::inertial::ins::{Ins, InsConfig};
 use crate::inertial::motion_init::MotionInitializer;
@@ -236,6 +238,8 @@ pub struct Estimator<
     counters: Counters,
     /// Rank deficiencies (marginalized block, new prior) of the last marginalization.
     last_marg: Option<(u32, u32)>,
+    /// The newest keyframe's marginal covariance ([`covariance`]), the INS's start.
+    kf_cov: MaybeCovariance,
     ins_window: InsWindow<INS_WINDOW>,
     points: PointBuffer<P>,
     /// LiDAR sweeps waiting for the IMU ([`timing`]).
@@ -423,6 +427,7 @@ impl<
             saved: Saved::new(),
             counters: Counters::ZERO,
             last_marg: None,
+            kf_cov: MaybeCovariance::NONE,
             ins_window: InsWindow::new(),
             points: PointBuffer::new(),
             sweeps_in: PendingSweeps::new(),
@@ -499,6 +504,7 @@ impl<
         self.saved.reset_to_new();
         self.counters = Counters::ZERO;
         self.last_marg = None;
+        self.kf_cov = MaybeCovariance::NONE;
         self.ins_window.clear();
         self.points.reset_to_new();
         self.sweeps_in.clear();
@@ -616,6 +622,7 @@ impl<
         self.ins_window.clear();
         self.points.clear();
         self.gap = None;
+        self.kf_cov = MaybeCovariance::NONE;
     }
 
     /// Drops everything and waits for a new initialization (counted). Does nothing while

@@ -66,6 +66,13 @@ impl<
         self.ins.as_ref().map(|i| *i.state())
     }
 
+    /// The covariance of [`Self::nav_state`]'s error state, with
+    /// [`EstimatorConfig::covariance`] (`None`: off, or unknown until the first solve after a
+    /// start or a reset; see [`crate::inertial::InsCovariance`]).
+    pub fn nav_covariance(&self) -> Option<&crate::inertial::InsCovariance> {
+        self.ins.as_ref().and_then(|i| i.covariance())
+    }
+
     /// Predicts the window's landmarks at camera time `t_cam_ns` into the estimator's own buffer
     /// ([`Self::predict_features`]; empty when it cannot predict) and lends them.
     pub fn predictions_at(&mut self, t_cam_ns: i64) -> &[FeaturePrediction] {
@@ -133,6 +140,7 @@ impl<
         };
         Ok(Some(Output {
             nav: o.nav,
+            nav_covariance: self.nav_covariance(),
             ins: o.ins,
             keyframe,
             gap_bridged_s: o.gap_bridged_s,

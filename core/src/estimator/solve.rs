@@ -54,7 +54,7 @@ impl<
         (problem, &mut self.lm, &mut self.marg_ne)
     }
 
-    fn solve_layout(&self) -> Layout<N> {
+    pub(super) fn solve_layout(&self) -> Layout<N> {
         Layout::solve(
             self.window.len(),
             self.cfg.estimate_extrinsic,

@@ -26,6 +26,7 @@
 //!
 //! Frames: the states are [`NavState`]s (`q_wb`, `p_wb`, `v_wb` of the IMU body in the world).
 
+use super::covariance::InsCovariance;
 use super::imu::ImuSample;
 use super::ins::Ins;
 use super::state::NavState;
@@ -131,6 +132,17 @@ impl<const B: usize> FastPath<B> {
     /// The current state, once an update has been applied (and no reset or failure since).
     pub fn state(&self) -> Option<&NavState> {
         self.active.then_some(self.ins.state())
+    }
+
+    /// The covariance of [`FastPath::state`], when the estimator computes one
+    /// ([`crate::estimator::EstimatorConfig::covariance`]): it arrives with each update and is
+    /// propagated with the samples after it, as the state is.
+    pub fn covariance(&self) -> Option<&InsCovariance> {
+        if self.active {
+            self.ins.covariance()
+        } else {
+            None
+        }
     }
 
     /// The counters.

@@ -14,8 +14,9 @@
 //! same one the preintegration uses, so an INS run and a preintegrated window from the same state
 //! agree to rounding. Biases in the [`NavState`] are held constant.
 
+use super::covariance::{InsCovariance, MaybeCovariance};
 use super::imu::{check_sample, ImuSample};
-use super::increment::{two_sample, Increment};
+use super::increment::{two_sample, two_sample_bias_jacobians, Increment};
 use super::state::{renormalize, state_from_full, NavState};
 use crate::math::{quat_exp, Vec3};
 use crate::Error;
@@ -68,6 +69,8 @@ pub struct Ins {
     older_sample: Option<ImuSample>,
     /// The increment of the interval that ended at `state.t_ns`, when known.
     prev_inc: Option<Increment>,
+    /// The state's error covariance, propagated with every sample when set.
+    cov: MaybeCovariance,
 }
 
 impl Ins {
@@ -83,6 +86,7 @@ impl Ins {
             prev_sample: None,
             older_sample: None,
             prev_inc: None,
+            cov: MaybeCovariance::NONE,
         })
     }
 
@@ -98,6 +102,7 @@ impl Ins {
             prev_sample: None,
             older_sample: None,
             prev_inc: None,
+            cov: MaybeCovariance::NONE,
         }
     }
 
@@ -111,11 +116,24 @@ impl Ins {
         &self.state
     }
 
+    /// The state's error covariance ([`InsCovariance`]), when the owner set one: propagated
+    /// with every sample from then on, dropped by [`Ins::set_state`].
+    pub fn covariance(&self) -> Option<&InsCovariance> {
+        self.cov.get()
+    }
+
+    /// Sets (or clears) the covariance of the current state.
+    pub fn set_covariance(&mut self, cov: Option<InsCovariance>) {
+        self.cov = MaybeCovariance::new(cov);
+    }
+
     /// Replaces the state (e.g. after an estimator update). The previous sample is kept only if
     /// it was taken at the new state's time; the two-sample history restarts either way, because
-    /// the correction changed the biases the increments were formed with.
+    /// the correction changed the biases the increments were formed with. The covariance is
+    /// dropped (it described the old state): set the new one with [`Ins::set_covariance`].
     pub fn set_state(&mut self, state: NavState) -> Result<(), Error> {
         let state = state_from_full(&state)?;
+        self.cov = MaybeCovariance::NONE;
         if self.prev_sample.is_some_and(|s| s.t_ns != state.t_ns) {
             self.prev_sample = None;
             self.older_sample = None;
@@ -152,6 +170,11 @@ impl Ins {
             &self.state.ba,
         );
         let step = two_sample(self.prev_inc.as_ref(), &inc);
+        if let Some(cov) = self.cov.get_mut() {
+            let jb = two_sample_bias_jacobians(self.prev_inc.as_ref(), &inc);
+            let r_wb = self.state.q_wb.to_rotation_matrix().into_inner();
+            cov.step(r_wb, &step, &jb, dt_s);
+        }
 
         let st = &mut self.state;
         let v_new = st.v_wb + st.q_wb * step.dv + self.cfg.gravity_w() * dt_s;

@@ -2,6 +2,7 @@
 //! interpolation, static initialization, IMU preintegration between keyframes, and the IMU-rate
 //! fast path that follows the estimator's INS from another thread ([`fast_path`]).
 
+pub mod covariance;
 pub mod fast_path;
 pub mod imu;
 pub mod increment;
@@ -13,6 +14,7 @@ pub mod smooth;
 pub mod state;
 pub mod window;
 
+pub use covariance::InsCovariance;
 pub use fast_path::{FastPath, FastPathCounters, InsUpdate};
 pub use imu::{ImuNoise, ImuSample};
 pub use init::{StaticInitConfig, StaticInitializer, StaticStats};

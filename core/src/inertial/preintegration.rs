@@ -65,12 +65,8 @@ use super::state::{renormalize, NavState};
 use crate::math::{exp_so3, jr_inv_so3, jr_so3, log_so3, quat_exp, skew, Mat3, Quat, Vec3};
 use crate::Error;
 use heapless::Vec as HVec;
-use nalgebra::{SMatrix, SVector};
 
-/// 15x15 matrix (covariance, Jacobians).
-pub type Mat15 = SMatrix<f64, 15, 15>;
-/// 15-vector (residual).
-pub type Vec15 = SVector<f64, 15>;
+pub use super::covariance::{Mat15, Vec15};
 
 /// Zero matrices and the noise, configuration and (non-unit) quaternion of
 /// [`Preintegration::empty`]: all bits zero.
@@ -91,11 +87,7 @@ const ZERO_CONFIG: PreintConfig = PreintConfig {
 const ZERO_QUAT: Quat = Quat::new_unchecked(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0));
 
 /// Residual block offsets (`[dp, dv, dtheta, dbg, dba]`).
-const RP: usize = 0;
-const RV: usize = 3;
-const RT: usize = 6;
-const RBG: usize = 9;
-const RBA: usize = 12;
+use super::covariance::{self, bias_step, StepNoise, StepTerms, RBA, RBG, RP, RT, RV};
 /// Keyframe error-state offsets (`[p, theta, v, bg, ba]`).
 const XP: usize = 0;
 const XT: usize = 3;
@@ -378,31 +370,21 @@ impl<const M: usize> Preintegration<M> {
         let step = two_sample(self.prev_inc.as_ref(), &inc);
         let jb = two_sample_bias_jacobians(self.prev_inc.as_ref(), &inc);
 
-        let r = self.dq.to_rotation_matrix().into_inner();
-        let exp_t = exp_so3(&step.phi).transpose();
-        let jr = jr_so3(&step.phi);
-        let r_dvx = r * skew(&step.dv);
+        let terms = StepTerms::new(self.dq.to_rotation_matrix().into_inner(), &step);
+        let (r, exp_t, jr, r_dvx) = (&terms.r, &terms.exp_t, &terms.jr, &terms.r_dvx);
         let half_dt = 0.5 * dt;
 
-        let (rho, q_b_g, q_b_a) = self.bias_step(dt);
-        // Error-state transition A.
-        let a = &mut self.a;
-        a.fill_with_identity();
-        a.fixed_view_mut::<3, 3>(RP, RV).fill_diagonal(dt);
-        a.fixed_view_mut::<3, 3>(RP, RT)
-            .copy_from(&(-r_dvx * half_dt));
-        a.fixed_view_mut::<3, 3>(RP, RBG)
-            .copy_from(&(r * jb.dv_bg * half_dt));
-        a.fixed_view_mut::<3, 3>(RP, RBA)
-            .copy_from(&(r * jb.dv_ba * half_dt));
-        a.fixed_view_mut::<3, 3>(RV, RT).copy_from(&(-r_dvx));
-        a.fixed_view_mut::<3, 3>(RV, RBG).copy_from(&(r * jb.dv_bg));
-        a.fixed_view_mut::<3, 3>(RV, RBA).copy_from(&(r * jb.dv_ba));
-        a.fixed_view_mut::<3, 3>(RT, RT).copy_from(&exp_t);
-        a.fixed_view_mut::<3, 3>(RT, RBG)
-            .copy_from(&(jr * jb.phi_bg));
-        a.fixed_view_mut::<3, 3>(RBG, RBG).fill_diagonal(rho);
-        a.fixed_view_mut::<3, 3>(RBA, RBA).fill_diagonal(rho);
+        let (rho, q_bg, q_ba) = bias_step(&self.noise, dt);
+        // Error-state transition A, then P <- A P A^T + G Q G^T.
+        covariance::transition(&mut self.a, &terms, &jb, dt, rho);
+        let (qa_gap, qg_gap) = self.unmeasured_var(prev.t_ns, cur.t_ns);
+        let noise = StepNoise {
+            qg: self.noise.gyro_noise_density * self.noise.gyro_noise_density * dt + qg_gap,
+            qa: self.noise.accel_noise_density * self.noise.accel_noise_density * dt + qa_gap,
+            q_bg,
+            q_ba,
+        };
+        covariance::propagate(&mut self.cov, &self.a, &mut self.tmp, jr, &noise, dt);
 
         // Bias Jacobians: the same recursion, noise-free.
         self.j_p_bg += self.j_v_bg * dt + (-r_dvx * self.j_r_bg + r * jb.dv_bg) * half_dt;
@@ -411,35 +393,6 @@ impl<const M: usize> Preintegration<M> {
         self.j_v_ba += r * jb.dv_ba;
         self.j_r_bg = exp_t * self.j_r_bg + jr * jb.phi_bg;
 
-        // P <- A P A^T, through scratch matrices (P symmetric: A P A^T = A (A P)^T).
-        self.tmp.gemm(1.0, &self.a, &self.cov, 0.0);
-        self.tmp.transpose_mut();
-        self.cov.gemm(1.0, &self.a, &self.tmp, 0.0);
-        // + G Q G^T.
-        let (qa_gap, qg_gap) = self.unmeasured_var(prev.t_ns, cur.t_ns);
-        let qg = self.noise.gyro_noise_density * self.noise.gyro_noise_density * dt + qg_gap;
-        let qa = self.noise.accel_noise_density * self.noise.accel_noise_density * dt + qa_gap;
-        let jjt = jr * jr.transpose() * qg;
-        for i in 0..3 {
-            self.cov[(RP + i, RP + i)] += qa * half_dt * half_dt;
-            self.cov[(RP + i, RV + i)] += qa * half_dt;
-            self.cov[(RV + i, RP + i)] += qa * half_dt;
-            self.cov[(RV + i, RV + i)] += qa;
-            self.cov[(RBG + i, RBG + i)] += q_b_g;
-            self.cov[(RBA + i, RBA + i)] += q_b_a;
-            for k in 0..3 {
-                self.cov[(RT + i, RT + k)] += jjt[(i, k)];
-            }
-        }
-        // Keep P exactly symmetric so results do not depend on which triangle is read.
-        for i in 0..15 {
-            for k in (i + 1)..15 {
-                let m = 0.5 * (self.cov[(i, k)] + self.cov[(k, i)]);
-                self.cov[(i, k)] = m;
-                self.cov[(k, i)] = m;
-            }
-        }
-
         // Deltas last: the Jacobians above use dR at the start of the step.
         self.dp += self.dv * dt + r * step.dv * half_dt;
         self.dv += r * step.dv;
@@ -447,19 +400,6 @@ impl<const M: usize> Preintegration<M> {
         self.dt_s += dt;
         self.bias_decay *= rho;
         self.prev_inc = Some(inc);
-    }
-
-    /// Per-step bias decay and discrete bias-noise variances `(rho, q_bg, q_ba)`.
-    fn bias_step(&self, dt: f64) -> (f64, f64, f64) {
-        let (sg, sa) = (self.noise.gyro_bias_rw, self.noise.accel_bias_rw);
-        match self.noise.bias_corr_time_s {
-            None => (1.0, sg * sg * dt, sa * sa * dt),
-            Some(tau) => {
-                let rho = libm::exp(-dt / tau);
-                let k = 0.5 * tau * (1.0 - rho * rho);
-                (rho, sg * sg * k, sa * sa * k)
-            }
-        }
     }
 
     /// True when `bg`, `ba` moved beyond the re-integration thresholds from `bg0`, `ba0`.

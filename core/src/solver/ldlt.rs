@@ -568,6 +568,70 @@ impl<const D: usize> Ldlt<D> {
         }
     }
 
+    /// The `W x W` block of `A^-1` at rows and columns `start .. start + W` of the factored
+    /// matrix, into `out` (a marginal covariance when `A` is an information matrix). With
+    /// `A = U^T D U`, the block is `Z^T D^-1 Z` for `Z = U^-T E` (`E` the block's unit columns);
+    /// `Z` is zero above `start`, so the cost is `W (n - start)^2`, not `W n^2`: the block should
+    /// sit near the end of the ordering. `scratch` holds `Z` (at least `W` rows).
+    /// [`Error::NotPositiveDefinite`] when a pivot at or after `start` was dropped (a direction
+    /// the matrix does not constrain: no finite covariance).
+    pub fn inverse_block<const W: usize>(
+        &self,
+        start: usize,
+        scratch: &mut [[f64; D]],
+        out: &mut [[f64; W]; W],
+    ) -> Result<(), Error> {
+        if !self.factored {
+            return Err(Error::NotInitialized);
+        }
+        let n = self.n;
+        if start.saturating_add(W) > n || scratch.len() < W {
+            return Err(Error::DimensionMismatch);
+        }
+        let pivots = self.d.get(start..n).unwrap_or(&[]);
+        if pivots.iter().any(|&d| d <= 0.0) {
+            return Err(Error::NotPositiveDefinite);
+        }
+        for (j, z) in scratch.iter_mut().take(W).enumerate() {
+            let z = z.get_mut(..n).ok_or(Error::DimensionMismatch)?;
+            z.fill(0.0);
+            if let Some(e) = z.get_mut(start + j) {
+                *e = 1.0;
+            }
+            forward_substitute(&self.a, n, start + j..n, z);
+        }
+        for i in 0..W {
+            for j in i..W {
+                let (Some(zi), Some(zj)) = (scratch.get(i), scratch.get(j)) else {
+                    return Err(Error::DimensionMismatch);
+                };
+                let k0 = start + j;
+                let v: f64 = zi
+                    .get(k0..n)
+                    .unwrap_or(&[])
+                    .iter()
+                    .zip(zj.get(k0..n).unwrap_or(&[]))
+                    .zip(self.d.get(k0..n).unwrap_or(&[]))
+                    .map(|((a, b), d)| a * b / d)
+                    .sum();
+                if !v.is_finite() {
+                    return Err(Error::NonFinite);
+                }
+                if let Some(row) = out.get_mut(i) {
+                    if let Some(x) = row.get_mut(j) {
+                        *x = v;
+                    }
+                }
+                if let Some(row) = out.get_mut(j) {
+                    if let Some(x) = row.get_mut(i) {
+                        *x = v;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// `y <- U^-T y` (first half of a solve), `y` with `n` entries.
     pub fn forward_substitute(&self, y: &mut [f64]) -> Result<(), Error> {
         if !self.factored {
@@ -895,5 +959,58 @@ mod tests {
         let mut fresh = Ldlt::<3>::new();
         assert_eq!(fresh.load_upper(&h, 3), Err(Error::NonFinite));
         assert_eq!(fresh.solve_in_place(&mut x), Err(Error::NotInitialized));
+    }
+
+    /// A block of the inverse against nalgebra's inverse of the whole matrix, at the end and in
+    /// the middle of the ordering; a dropped pivot in the block's range is refused.
+    #[test]
+    fn inverse_block_matches_the_full_inverse() {
+        const NN: usize = 20;
+        let mut rnd = crate::solver::test_rng(5);
+        let mut g = nalgebra::SMatrix::<f64, NN, NN>::zeros();
+        for v in g.iter_mut() {
+            *v = rnd();
+        }
+        let a = g * g.transpose() + nalgebra::SMatrix::<f64, NN, NN>::identity() * 0.1;
+        let inv = a.try_inverse().unwrap();
+        let mut h = [[0.0; NN]; NN];
+        for (i, row) in h.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = a[(i, j)];
+            }
+        }
+        let mut f = Ldlt::<NN>::new();
+        f.load_upper(&h, NN).unwrap();
+        f.factorize(PivotFloor::DEFAULT).unwrap();
+        let mut scratch = [[0.0; NN]; 4];
+        let mut out = [[0.0; 4]; 4];
+        for start in [NN - 4, 7, 0] {
+            f.inverse_block(start, &mut scratch, &mut out).unwrap();
+            for i in 0..4 {
+                for j in 0..4 {
+                    let want = inv[(start + i, start + j)];
+                    assert!(
+                        (out[i][j] - want).abs() < 1e-9 * (1.0 + want.abs()),
+                        "{start}: ({i},{j}) {} vs {want}",
+                        out[i][j]
+                    );
+                }
+            }
+        }
+        assert_eq!(
+            f.inverse_block(NN - 3, &mut scratch, &mut out),
+            Err(Error::DimensionMismatch)
+        );
+        // A singular last direction: its pivot is dropped, no covariance.
+        h[NN - 1] = [0.0; NN];
+        for row in h.iter_mut() {
+            row[NN - 1] = 0.0;
+        }
+        f.load_upper(&h, NN).unwrap();
+        f.factorize(PivotFloor::DEFAULT).unwrap();
+        assert_eq!(
+            f.inverse_block(NN - 4, &mut scratch, &mut out),
+            Err(Error::NotPositiveDefinite)
+        );
     }
 }

@@ -6,7 +6,7 @@
 //! `povins run`'s on the same input and settings, with either front end (`--frontend tracks`,
 //! or `images`: the pipeline's image front-end stage).
 
-use super::timing::{run_pipeline, PipelineArgs, TimingSummary};
+use super::timing::{run_pipeline_with, PipelineArgs, TimingSummary};
 use crate::eval::streamed::{ate_rmse, PoseStream};
 use crate::eval::{Alignment, EvalOptions};
 use anyhow::{bail, Context, Result};
@@ -158,7 +158,9 @@ pub fn run(args: Args) -> Result<()> {
     let foxglove = foxglove_sink(&args)?;
     let tum = TumSink::create(&path, FileOptions::default())?;
     let mut sinks = (((tum, mcap), mavlink), foxglove);
-    let report = run_pipeline(&args.pipeline, &*rec, &mut sinks, "replay")?;
+    // The autopilot gets the estimator's covariance with each pose.
+    let covariance = args.mavlink.is_some();
+    let report = run_pipeline_with(&args.pipeline, &*rec, &mut sinks, "replay", covariance)?;
     let (((sink, mcap), mavlink), foxglove) = sinks;
     if let Some(m) = &mcap {
         let c = m.counts();

@@ -209,7 +209,20 @@ pub fn run_pipeline<K: Sink + Send>(
     sink: &mut K,
     label: &str,
 ) -> Result<PipelineReport> {
-    let setup = RunSetup::from_args(rec, &a.run)?;
+    run_pipeline_with(a, rec, sink, label, false)
+}
+
+/// [`run_pipeline`], with the estimator's covariance computed when `covariance` (whatever
+/// the configuration says): a sink that sends it (MAVLink) asks for it.
+pub fn run_pipeline_with<K: Sink + Send>(
+    a: &PipelineArgs,
+    rec: &dyn Recording,
+    sink: &mut K,
+    label: &str,
+    covariance: bool,
+) -> Result<PipelineReport> {
+    let mut setup = RunSetup::from_args(rec, &a.run)?;
+    setup.estimator.covariance |= covariance;
     let progress = Progress::new(0, label);
     run_dataset_with(
         rec,

@@ -19,6 +19,7 @@ pub mod associate;
 pub mod ate;
 pub mod epipolar;
 pub mod lidar_assoc;
+pub mod nees;
 pub mod report;
 pub mod rte;
 pub mod stats;

@@ -11,6 +11,7 @@ use super::align::{Centering, Moments};
 use super::associate::NearestMatch;
 use super::{ate, EvalOptions, Extent};
 use anyhow::Result;
+use povins_core::math::Quat;
 use povins_platform::trajectory::StampedPose;
 
 /// One pass over a trajectory, in increasing time.
@@ -28,6 +29,8 @@ pub struct AteRmse {
     pub pos_rmse_m: f64,
     /// Rotation RMSE after the alignment, degrees.
     pub rot_rmse_deg: f64,
+    /// The alignment's rotation, from the estimate's world to the ground truth's.
+    pub q_align: Quat,
 }
 
 /// The ATE RMSE of the estimate `est` against the ground truth `gt` with `opts`' alignment,
@@ -58,6 +61,7 @@ pub fn ate_rmse(gt: Opener<'_, '_>, est: Opener<'_, '_>, opts: &EvalOptions) -> 
         matched,
         pos_rmse_m: (pos_sse / n).sqrt(),
         rot_rmse_deg: (rot_sse / n).sqrt(),
+        q_align: transform.q_wv,
     })
 }
 

@@ -5,12 +5,12 @@
 //! evaluation reads back are logged to temporary files ([`super::spill`]) and the prediction
 //! errors counted in a histogram.
 
-use super::spill::{EventLog, PoseLog};
+use super::spill::{EventLog, PoseLog, RowLog};
 use super::window_use::WindowUseDigest;
 use crate::frontend_stats::FrameDigest;
 use crate::runner::{FrameLog, RunSink};
 use povins_core::estimator::{DepthEvent, KeyframeReport};
-use povins_core::inertial::NavState;
+use povins_core::inertial::{InsCovariance, NavState};
 use povins_platform::recording::Recording;
 use povins_platform::trajectory::StampedPose;
 
@@ -47,6 +47,9 @@ pub struct RunDigest {
     pub(super) trajectory: Option<PoseLog>,
     /// The keyframe poses (kept with ground truth only).
     pub(super) keyframes: Option<PoseLog>,
+    /// The IMU-rate velocities with their covariance, for the NEES (kept with ground truth
+    /// only): see [`velocity_row`].
+    pub(super) velocity_cov: Option<RowLog<VELOCITY_ROW>>,
     /// The spans of time the IMU-rate poses cover: consecutive poses at most
     /// [`super::COVERAGE_TOLERANCE_NS`] apart, first and last stamp (one span per outage).
     pub(super) covered: Vec<(i64, i64)>,
@@ -75,6 +78,7 @@ impl RunDigest {
             },
             trajectory: gt.then(PoseLog::default),
             keyframes: gt.then(PoseLog::default),
+            velocity_cov: gt.then(RowLog::default),
             ..RunDigest::default()
         }
     }
@@ -85,11 +89,48 @@ impl RunDigest {
     }
 }
 
+/// Numbers of a [`velocity_row`].
+pub(super) const VELOCITY_ROW: usize = 29;
+
+/// The stamp (its bits), `q_wb` (x y z w), `v_wb` and the upper triangle, row by row, of the
+/// covariance of the error `[theta, v]` (body-frame rotation error, rad; world-frame velocity,
+/// m/s) of `s`: what [`crate::eval::nees`] needs for the world and the body velocity.
+pub(super) fn velocity_row(s: &NavState, cov: &InsCovariance) -> [f64; VELOCITY_ROW] {
+    let p = cov.state_order();
+    let q = s.q_wb.quaternion();
+    let mut row = [0.0; VELOCITY_ROW];
+    let head = [
+        f64::from_bits(s.t_ns as u64),
+        q.i,
+        q.j,
+        q.k,
+        q.w,
+        s.v_wb.x,
+        s.v_wb.y,
+        s.v_wb.z,
+    ];
+    row[..8].copy_from_slice(&head);
+    let mut k = 8;
+    for i in 0..6 {
+        for j in i..6 {
+            row[k] = p[(3 + i, 3 + j)];
+            k += 1;
+        }
+    }
+    row
+}
+
 impl RunSink for RunDigest {
     fn nav(&mut self, s: &NavState) {
         super::extend_spans(&mut self.covered, s.t_ns);
         if let Some(v) = &mut self.trajectory {
             v.push(&StampedPose::from(s));
+        }
+    }
+
+    fn nav_covariance(&mut self, s: &NavState, cov: &InsCovariance) {
+        if let Some(log) = &mut self.velocity_cov {
+            log.push(&velocity_row(s, cov));
         }
     }
 

@@ -20,6 +20,7 @@ pub use window_use::WindowUse;
 
 use crate::config::ldm_name;
 use crate::eval::lidar_assoc::{self, AssocQuality};
+use crate::eval::nees;
 use crate::eval::streamed::{ate_rmse, AteRmse, PoseStream};
 use crate::eval::{Alignment, EvalOptions};
 use crate::frontend_stats::FrontendSummary;
@@ -82,6 +83,9 @@ pub struct Summary {
     pub keyframe_ate_pos_rmse_m: Option<f64>,
     /// Matched poses of the IMU-rate ATE.
     pub matched_poses: Option<usize>,
+    /// The IMU-rate velocity's NEES against the ground truth (`covariance = true` only; see
+    /// [`crate::eval::nees`]).
+    pub velocity_nees: Option<nees::Nees>,
     /// LiDAR enhancement active: enabled and the dataset has LiDAR sweeps.
     pub lidar: bool,
     /// LiDAR-depth measurement model (`msc` or `direct`).
@@ -385,6 +389,7 @@ pub fn summarize_digest(
         ate_pos_rmse_m: None,
         ate_rot_rmse_deg: None,
         keyframe_ate_pos_rmse_m: None,
+        velocity_nees: None,
         matched_poses: None,
         lidar: t.lidar.enabled && t.lidar_scans > 0,
         ldm: ldm_name(t.lidar.ldm).to_string(),
@@ -485,6 +490,15 @@ fn evaluate_against_truth(
             s.ate_pos_rmse_m = Some(r.pos_rmse_m);
             s.ate_rot_rmse_deg = Some(r.rot_rmse_deg);
             s.matched_poses = Some(r.matched);
+            if let Some(log) = d.velocity_cov.as_mut().filter(|l| !l.is_empty()) {
+                log.flush();
+                let mut gt = GtCursor::new(rec.ground_truth_stream()?);
+                let n = nees::velocity_nees(log.rows()?, |t| gt.at(t), &r.q_align)?;
+                if let Some(e) = gt.error() {
+                    return Err(e.into());
+                }
+                s.velocity_nees = n;
+            }
         }
         Some(Err(e)) => eprintln!("warning: evaluation failed: {e:#}"),
         None => {}

@@ -15,9 +15,6 @@ use povins_platform::trajectory::StampedPose;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 
-/// Bytes of a pose: stamp, position, quaternion (x y z w).
-const POSE_BYTES: usize = 8 * 8;
-
 /// An append-only temporary file.
 #[derive(Debug)]
 struct Spill {
@@ -72,18 +69,18 @@ impl Spill {
     }
 }
 
-/// Poses in the order they came (see the module docs).
+/// Rows of `K` numbers in the order they came (see the module docs).
 #[derive(Debug)]
-pub struct PoseLog {
+pub struct RowLog<const K: usize> {
     spill: Spill,
     n: usize,
-    /// Poses written out ([`PoseLog::flush`]): what [`PoseLog::poses`] reads.
+    /// Rows written out ([`RowLog::flush`]): what [`RowLog::rows`] reads.
     flushed: usize,
 }
 
-impl Default for PoseLog {
+impl<const K: usize> Default for RowLog<K> {
     fn default() -> Self {
-        PoseLog {
+        RowLog {
             spill: Spill::new(),
             n: 0,
             flushed: 0,
@@ -91,29 +88,16 @@ impl Default for PoseLog {
     }
 }
 
-impl PoseLog {
-    /// Appends a pose.
-    pub fn push(&mut self, p: &StampedPose) {
-        let q = p.q_wb.quaternion();
-        let mut b = [0u8; POSE_BYTES];
-        let fields = [
-            f64::from_bits(p.t_ns as u64),
-            p.p_wb.x,
-            p.p_wb.y,
-            p.p_wb.z,
-            q.i,
-            q.j,
-            q.k,
-            q.w,
-        ];
-        for (chunk, v) in b.chunks_exact_mut(8).zip(fields) {
-            chunk.copy_from_slice(&v.to_bits().to_ne_bytes());
+impl<const K: usize> RowLog<K> {
+    /// Appends a row (its bits, exactly).
+    pub fn push(&mut self, row: &[f64; K]) {
+        for v in row {
+            self.spill.write(&v.to_bits().to_ne_bytes());
         }
-        self.spill.write(&b);
         self.n += 1;
     }
 
-    /// Poses logged.
+    /// Rows logged.
     pub fn len(&self) -> usize {
         self.n
     }
@@ -123,26 +107,69 @@ impl PoseLog {
         self.n == 0
     }
 
-    /// Writes out the poses pushed so far, for [`PoseLog::poses`].
+    /// Writes out the rows pushed so far, for [`RowLog::rows`].
     pub fn flush(&mut self) {
         self.spill.flush();
         self.flushed = self.n;
     }
 
-    /// The poses up to the last [`PoseLog::flush`], from the first: one pass (one at a time).
-    pub fn poses(&self) -> Result<impl Iterator<Item = Result<StampedPose>> + '_> {
+    /// The rows up to the last [`RowLog::flush`], from the first: one pass (one at a time).
+    pub fn rows(&self) -> Result<impl Iterator<Item = Result<[f64; K]>> + '_> {
         let n = self.flushed;
         let mut r = self.spill.reader()?;
         Ok((0..n).map(move |_| {
-            let mut b = [0u8; POSE_BYTES];
-            r.read_exact(&mut b)
-                .context("the evaluation's log of the run: cannot read a temporary file")?;
-            let mut v = [0f64; 8];
-            for (x, chunk) in v.iter_mut().zip(b.chunks_exact(8)) {
+            let mut v = [0f64; K];
+            for x in v.iter_mut() {
                 let mut c = [0u8; 8];
-                c.copy_from_slice(chunk);
+                r.read_exact(&mut c)
+                    .context("the evaluation's log of the run: cannot read a temporary file")?;
                 *x = f64::from_bits(u64::from_ne_bytes(c));
             }
+            Ok(v)
+        }))
+    }
+}
+
+/// Poses in the order they came (see the module docs): stamp (its bits), position, quaternion
+/// (x y z w).
+#[derive(Debug, Default)]
+pub struct PoseLog(RowLog<8>);
+
+impl PoseLog {
+    /// Appends a pose.
+    pub fn push(&mut self, p: &StampedPose) {
+        let q = p.q_wb.quaternion();
+        self.0.push(&[
+            f64::from_bits(p.t_ns as u64),
+            p.p_wb.x,
+            p.p_wb.y,
+            p.p_wb.z,
+            q.i,
+            q.j,
+            q.k,
+            q.w,
+        ]);
+    }
+
+    /// Poses logged.
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// Whether none are.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Writes out the poses pushed so far, for [`PoseLog::poses`].
+    pub fn flush(&mut self) {
+        self.0.flush();
+    }
+
+    /// The poses up to the last [`PoseLog::flush`], from the first: one pass (one at a time).
+    pub fn poses(&self) -> Result<impl Iterator<Item = Result<StampedPose>> + '_> {
+        Ok(self.0.rows()?.map(|v| {
+            let v = v?;
             Ok(StampedPose {
                 t_ns: v[0].to_bits() as i64,
                 p_wb: Vec3::new(v[1], v[2], v[3]),

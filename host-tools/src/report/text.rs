@@ -31,6 +31,13 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         ),
         _ => println!("ATE       n/a (no ground truth, or no estimate to compare)"),
     }
+    if let Some(n) = &s.velocity_nees {
+        println!(
+            "NEES      velocity in the body {:.2} (median {:.2}), in the aligned world {:.2} ({:.2}); \
+             3 (2.37) when the covariance is consistent; {} states",
+            n.body.mean, n.body.median, n.world.mean, n.world.median, n.samples
+        );
+    }
     let n = |k: &str| s.counters[k].as_u64().unwrap_or(0);
     let coverage = s.coverage.map_or(String::new(), |c| {
         format!(

@@ -198,6 +198,7 @@ impl<S: Source, K: Sink> ImuWorker<'_, S, K> {
             nav,
             latency_ns,
             stamp_latency_ns,
+            covariance: self.fast.covariance().copied(),
         });
     }
 

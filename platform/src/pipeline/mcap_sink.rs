@@ -369,6 +369,7 @@ mod tests {
             nav: nav(k),
             latency_ns: 10,
             stamp_latency_ns: None,
+            covariance: None,
         }
     }
 

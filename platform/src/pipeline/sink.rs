@@ -7,7 +7,7 @@
 use crate::error::IoError;
 use crate::trajectory::StampedPose;
 use povins_core::estimator::KeyframeReport;
-use povins_core::inertial::NavState;
+use povins_core::inertial::{InsCovariance, NavState};
 use povins_core::odometry::LandmarkPoint;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -22,6 +22,9 @@ pub struct PoseOut {
     /// From the wall time the sample's stamp was due to publication, ns, when the source knows
     /// it ([`super::Source::stamp_instant`]).
     pub stamp_latency_ns: Option<u64>,
+    /// The covariance of `nav`'s error state ([`InsCovariance`]; with the continuous output,
+    /// of the exact state it follows), when the estimator computes one (`covariance = true`).
+    pub covariance: Option<InsCovariance>,
 }
 
 /// One keyframe processed by the back end.
@@ -273,6 +276,7 @@ mod tests {
             },
             latency_ns: 1000,
             stamp_latency_ns: None,
+            covariance: None,
         }
     }
 

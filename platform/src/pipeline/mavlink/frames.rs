@@ -12,7 +12,7 @@
 //! - Position: of the IMU (the body origin; a lever arm to the vehicle's reference point is
 //!   the autopilot's sensor offset parameter). Velocity: in `v` (`MAV_FRAME_BODY_FRD`).
 
-use povins_core::inertial::NavState;
+use povins_core::inertial::{InsCovariance, NavState};
 use povins_core::math::{Mat3, Quat, Vec3};
 
 /// The vehicle's forward, right and down axes in the IMU frame, each a signed IMU axis.
@@ -97,6 +97,65 @@ pub fn to_frd(nav: &NavState, axes: &BodyAxes) -> FrdPose {
     }
 }
 
+/// The covariances `ODOMETRY` carries, in its order: the upper triangles, row by row, of the
+/// pose's 6x6 (`x, y, z` in `L`, then the attitude error as a rotation about `L`'s fixed x, y, z
+/// axes, as ROS's `nav_msgs/Odometry` has it: for small errors the roll, pitch and yaw errors
+/// at level attitude) and of the velocity's 6x6 (`vx, vy, vz` in `v`, then the angular
+/// speeds, which povins does not send: their rows are NaN). m^2, rad^2, (m/s)^2.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrdCovariance {
+    /// `pose_covariance` (and `VISION_POSITION_ESTIMATE`'s `covariance`).
+    pub pose: [f32; 21],
+    /// `velocity_covariance`.
+    pub velocity: [f32; 21],
+}
+
+/// The Jacobian of `[p_L, phi_L, v_v]` ([`to_frd`]; `phi_L` the attitude error about `L`'s
+/// axes) with respect to povins' error state `[p, theta, v]` (`p_wb + dp`, `R_wb Exp(theta)`,
+/// `v_wb + dv`): `dp_L = R_Lw dp`, `dphi_L = R_Lw R_wb theta`,
+/// `dv_v = R_bv^T (R_wb^T dv + [v_b]x theta)`.
+pub fn frd_jacobian(nav: &NavState, axes: &BodyAxes) -> nalgebra::SMatrix<f64, 9, 9> {
+    let r_lw = r_lw();
+    let r_wb = nav.q_wb.to_rotation_matrix().into_inner();
+    let v_b = r_wb.transpose() * nav.v_wb;
+    let r_vb = axes.r_bv.transpose();
+    let mut j = nalgebra::SMatrix::<f64, 9, 9>::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&r_lw);
+    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&(r_lw * r_wb));
+    j.fixed_view_mut::<3, 3>(6, 3)
+        .copy_from(&(r_vb * povins_core::math::skew(&v_b)));
+    j.fixed_view_mut::<3, 3>(6, 6)
+        .copy_from(&(r_vb * r_wb.transpose()));
+    j
+}
+
+/// `cov` (povins' error state of `nav`) in `ODOMETRY`'s frames and order ([`FrdCovariance`]).
+pub fn covariance_to_frd(nav: &NavState, cov: &InsCovariance, axes: &BodyAxes) -> FrdCovariance {
+    let p15 = cov.state_order();
+    let p9: nalgebra::SMatrix<f64, 9, 9> = p15.fixed_view::<9, 9>(0, 0).into_owned();
+    let j = frd_jacobian(nav, axes);
+    let c = j * p9 * j.transpose();
+    let upper = |off: usize, known: usize| {
+        let mut out = [0.0f32; 21];
+        let mut k = 0;
+        for r in 0..6 {
+            for col in r..6 {
+                out[k] = if r < known && col < known {
+                    c[(off + r, off + col)] as f32
+                } else {
+                    f32::NAN
+                };
+                k += 1;
+            }
+        }
+        out
+    };
+    FrdCovariance {
+        pose: upper(0, 6),
+        velocity: upper(6, 3),
+    }
+}
+
 /// The inverse of [`to_frd`]: `(p_wb, q_wb, v_wb)` from a pose in `L` and `v` (what a receiver
 /// does to compare with povins' trajectory).
 pub fn from_frd(f: &FrdPose, axes: &BodyAxes) -> (Vec3, Quat, Vec3) {
@@ -123,6 +182,74 @@ mod tests {
             bg: Vec3::zeros(),
             ba: Vec3::zeros(),
         }
+    }
+
+    /// The Jacobian of the conversion against central differences of [`to_frd`] over povins'
+    /// error state, with a body mounted other than the default; the covariance's unknown
+    /// angular-speed rows are NaN and the rest the Jacobian's congruence.
+    #[test]
+    fn frd_jacobian_matches_numerical() {
+        use povins_core::inertial::{ImuNoise, Mat15};
+        use povins_core::math::{log_so3, quat_exp};
+        let axes = BodyAxes::parse("y,x,-z").unwrap();
+        let x = nav();
+        let f0 = to_frd(&x, &axes);
+        let j = frd_jacobian(&x, &axes);
+        let h = 1e-6;
+        let out = |d: &[f64; 9]| {
+            let mut y = x;
+            y.p_wb += Vec3::new(d[0], d[1], d[2]);
+            y.q_wb *= quat_exp(&Vec3::new(d[3], d[4], d[5]));
+            y.v_wb += Vec3::new(d[6], d[7], d[8]);
+            let f = to_frd(&y, &axes);
+            let phi = log_so3(&(f.q_lv * f0.q_lv.inverse()));
+            let e = [f.p_l - f0.p_l, phi, f.v_v - f0.v_v];
+            let mut v = [0.0; 9];
+            for (k, e) in e.iter().enumerate() {
+                v[3 * k..3 * k + 3].copy_from_slice(e.as_slice());
+            }
+            v
+        };
+        for c in 0..9 {
+            let mut d = [0.0; 9];
+            d[c] = h;
+            let plus = out(&d);
+            d[c] = -h;
+            let minus = out(&d);
+            for r in 0..9 {
+                let num = (plus[r] - minus[r]) / (2.0 * h);
+                assert!(
+                    (num - j[(r, c)]).abs() < 1e-7,
+                    "({r},{c}): {num} vs {}",
+                    j[(r, c)]
+                );
+            }
+        }
+        let mut p = Mat15::zeros();
+        for i in 0..15 {
+            p[(i, i)] = 1e-4 * (1 + i) as f64;
+        }
+        p[(2, 7)] = 2e-5;
+        p[(7, 2)] = 2e-5;
+        let noise = ImuNoise {
+            gyro_noise_density: 1e-3,
+            accel_noise_density: 1e-2,
+            gyro_bias_rw: 1e-5,
+            accel_bias_rw: 1e-4,
+            bias_corr_time_s: None,
+        };
+        let c = covariance_to_frd(&x, &InsCovariance::new(&p, noise).unwrap(), &axes);
+        let full = j * p.fixed_view::<9, 9>(0, 0) * j.transpose();
+        // Pose: x-x, x-y (row 0), roll-roll (index 15), yaw-yaw (20).
+        assert_eq!(c.pose[0], full[(0, 0)] as f32);
+        assert_eq!(c.pose[1], full[(0, 1)] as f32);
+        assert_eq!(c.pose[15], full[(3, 3)] as f32);
+        assert_eq!(c.pose[20], full[(5, 5)] as f32);
+        // Velocity: vx-vx, vy-vz (index 7), then NaN where an angular speed is involved.
+        assert_eq!(c.velocity[0], full[(6, 6)] as f32);
+        assert_eq!(c.velocity[7], full[(7, 8)] as f32);
+        assert!(c.velocity[3].is_nan() && c.velocity[12].is_nan() && c.velocity[20].is_nan());
+        assert!(c.velocity[..3].iter().all(|v| v.is_finite()));
     }
 
     #[test]

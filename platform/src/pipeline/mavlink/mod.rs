@@ -25,10 +25,16 @@
 //! - `quality` (%): 0 before the first keyframe, then `100 * min(1, used / 50)` of the newest
 //!   keyframe's landmarks used in its solve (at least 1): a heuristic of the visual
 //!   constraint's strength, for PX4's `EKF2_EV_QMIN`.
-//! - The covariances and the angular speeds are sent as unknown (NaN first elements, NaN
-//!   rates): the autopilot then uses its own noise parameters (`EKF2_EVP_NOISE`,
-//!   `EKF2_EVV_NOISE`, `EKF2_EVA_NOISE`; ArduPilot `VISO_POS_M_NSE`, `VISO_VEL_M_NSE`,
-//!   `VISO_YAW_M_NSE`).
+//! - The covariances: the estimator's own (`EstimatorConfig::covariance`, which `povins replay
+//!   --mavlink` turns on; [`povins_core::inertial::InsCovariance`]: the newest keyframe's
+//!   marginal covariance propagated at IMU rate) in these frames ([`frames::covariance_to_frd`]):
+//!   position and attitude (about the local frame's axes) in `pose_covariance`, the body
+//!   velocity in `velocity_covariance`, whose angular-speed rows are NaN (the angular speeds
+//!   are sent as NaN: unknown). Without a covariance (off, or before the first solve) both
+//!   are sent as unknown (NaN first elements) and the autopilot uses its own noise parameters
+//!   (`EKF2_EVP_NOISE`, `EKF2_EVV_NOISE`, `EKF2_EVA_NOISE`; ArduPilot `VISO_POS_M_NSE`,
+//!   `VISO_VEL_M_NSE`, `VISO_YAW_M_NSE`). How well it describes the error: BENCHMARKS.md
+//!   ("The covariance sent").
 //!
 //! ## Threads
 //! The sink's calls run on the pipeline's IMU thread and only decimate, convert (a few
@@ -39,7 +45,7 @@
 pub mod frames;
 pub mod link;
 
-pub use frames::{from_frd, to_frd, BodyAxes, FrdPose};
+pub use frames::{covariance_to_frd, from_frd, to_frd, BodyAxes, FrdCovariance, FrdPose};
 pub use link::{Endpoint, Link};
 
 use super::sink::{KeyframeOut, PoseOut, RateDecimator, Sink};
@@ -167,6 +173,8 @@ impl Shared {
 struct Odom {
     time_usec: u64,
     pose: FrdPose,
+    /// `None`: unknown (sent as NaN first elements).
+    cov: Option<FrdCovariance>,
     reset_counter: u8,
     quality: i8,
 }
@@ -279,6 +287,10 @@ impl Sink for MavlinkSink {
         let odom = Odom {
             time_usec: u64::try_from(t_ns / 1000).unwrap_or(0),
             pose: to_frd(&p.nav, &self.opts.axes),
+            cov: p
+                .covariance
+                .as_ref()
+                .map(|c| covariance_to_frd(&p.nav, c, &self.opts.axes)),
             reset_counter: self.reset_counter,
             quality: self.quality,
         };
@@ -326,14 +338,24 @@ impl Drop for MavlinkSink {
     }
 }
 
+/// The pose and velocity covariances of `o` ([`FrdCovariance`]), NaN first elements when
+/// unknown.
+fn covariances(o: &Odom) -> ([f32; 21], [f32; 21]) {
+    match &o.cov {
+        Some(c) => (c.pose, c.velocity),
+        None => {
+            let mut unknown = [0.0f32; 21];
+            unknown[0] = f32::NAN;
+            (unknown, unknown)
+        }
+    }
+}
+
 /// The `ODOMETRY` message of `o`.
 fn odometry(o: &Odom) -> MavMessage {
     let f = &o.pose;
     let q = f.q_lv.quaternion();
-    let mut pose_covariance = [0.0f32; 21];
-    pose_covariance[0] = f32::NAN;
-    let mut velocity_covariance = [0.0f32; 21];
-    velocity_covariance[0] = f32::NAN;
+    let (pose_covariance, velocity_covariance) = covariances(o);
     MavMessage::ODOMETRY(ODOMETRY_DATA {
         time_usec: o.time_usec,
         x: f.p_l.x as f32,
@@ -361,8 +383,7 @@ fn odometry(o: &Odom) -> MavMessage {
 fn vision_position_estimate(o: &Odom) -> MavMessage {
     let f = &o.pose;
     let (roll, pitch, yaw) = f.q_lv.euler_angles();
-    let mut covariance = [0.0f32; 21];
-    covariance[0] = f32::NAN;
+    let (covariance, _) = covariances(o);
     MavMessage::VISION_POSITION_ESTIMATE(VISION_POSITION_ESTIMATE_DATA {
         usec: o.time_usec,
         x: f.p_l.x as f32,

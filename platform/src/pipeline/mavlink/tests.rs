@@ -28,7 +28,26 @@ fn pose(t_ns: i64) -> PoseOut {
         nav: nav(t_ns),
         latency_ns: 1000,
         stamp_latency_ns: Some(2000),
+        covariance: None,
     }
+}
+
+/// A covariance with every block coupled (what the estimator hands the second half's poses).
+fn covariance() -> povins_core::inertial::InsCovariance {
+    let mut p = povins_core::inertial::Mat15::zeros();
+    for i in 0..15 {
+        for j in 0..15 {
+            p[(i, j)] = if i == j { 1e-3 * (1 + i) as f64 } else { 1e-5 };
+        }
+    }
+    let noise = povins_core::inertial::ImuNoise {
+        gyro_noise_density: 1e-3,
+        accel_noise_density: 1e-2,
+        gyro_bias_rw: 1e-5,
+        accel_bias_rw: 1e-4,
+        bias_corr_time_s: None,
+    };
+    povins_core::inertial::InsCovariance::new(&p, noise).unwrap()
 }
 
 fn keyframe(decision: KeyframeDecision, used: u32) -> KeyframeOut {
@@ -73,7 +92,7 @@ fn receive(rx: &UdpSocket, n: usize) -> Vec<MavMessage> {
 }
 
 /// Sends `n` 200 Hz poses from `T0_NS` through a sink with `opts` (a first keyframe, and a
-/// re-initialization at pose `n / 2`), and returns what `rx` received until `expect` ODOMETRY
+/// re-initialization at pose `n / 2`, after which the poses carry [`covariance`]), and returns what `rx` received until `expect` ODOMETRY
 /// arrived, and the sink (finished).
 fn run_sink(
     rx: &UdpSocket,
@@ -87,7 +106,11 @@ fn run_sink(
         if i == n / 2 {
             sink.keyframe(&keyframe(KeyframeDecision::First, 80));
         }
-        sink.pose(&pose(T0_NS + i * 5_000_000));
+        let mut p = pose(T0_NS + i * 5_000_000);
+        if i >= n / 2 {
+            p.covariance = Some(covariance());
+        }
+        sink.pose(&p);
     }
     let msgs = receive(rx, expect);
     sink.finish().unwrap();
@@ -146,7 +169,15 @@ fn odometry_at_the_rate_in_frd_with_resets_and_quality() {
         let second = t_ns >= t0 + 500_000_000;
         assert_eq!(o.reset_counter, u8::from(second));
         assert_eq!(o.quality, if second { 100 } else { 20 });
-        assert!(o.pose_covariance[0].is_nan() && o.velocity_covariance[0].is_nan());
+        if second {
+            let c = covariance_to_frd(&want, &covariance(), &BodyAxes::default());
+            assert_eq!(o.pose_covariance, c.pose);
+            assert_eq!(o.velocity_covariance[..3], c.velocity[..3]);
+            assert!(o.pose_covariance.iter().all(|v| v.is_finite()));
+            assert!(o.velocity_covariance[3].is_nan());
+        } else {
+            assert!(o.pose_covariance[0].is_nan() && o.velocity_covariance[0].is_nan());
+        }
     }
     let gaps: Vec<i64> = odo
         .windows(2)
@@ -190,7 +221,11 @@ fn vision_position_estimate_follows_each_odometry() {
         ));
         let e = Quat::from_euler_angles(f64::from(v.roll), f64::from(v.pitch), f64::from(v.yaw));
         assert!(q.angle_to(&e) < 1e-6, "{q:?} vs roll/pitch/yaw {e:?}");
-        assert!(v.covariance[0].is_nan());
+        if v.reset_counter == 0 {
+            assert!(v.covariance[0].is_nan());
+        } else {
+            assert_eq!(v.covariance, o.pose_covariance);
+        }
     }
     assert!(vis.iter().any(|v| v.reset_counter == 1));
 }
