@@ -104,7 +104,9 @@ pub struct HealthConfig {
     pub max_residual_sigmas: f64,
     /// Consecutive bad keyframes that make a breakdown.
     pub bad_keyframes: u32,
-    /// Prior of the first keyframe of a re-initialized window.
+    /// Prior of the first keyframe of a re-initialized window. After a camera dropout (the open
+    /// interval full) only its position is used: attitude, velocity and biases start from the
+    /// dropped window's newest covariance propagated over the dropout.
     pub reinit_prior: FirstStatePrior,
 }
 

@@ -49,6 +49,13 @@ impl<
         if !self.cfg.covariance {
             return None;
         }
+        self.window_covariance()
+    }
+
+    /// [`Self::newest_covariance`] whether asked for or not: also what a camera dropout's new
+    /// window starts from (`imu_step`), where the solve's last linearization is still the one
+    /// of the current window (no keyframe since).
+    pub(super) fn window_covariance(&mut self) -> Option<InsCovariance> {
         let layout = self.solve_layout();
         if self.lm.ne.dim() != layout.dim() {
             return None;

@@ -7,7 +7,9 @@
 //! measurements). On a breakdown the window, its landmarks and its prior are dropped and the INS
 //! continues alone from its own prediction of the keyframe state (INS-only, as between
 //! keyframes); the next frame starts a new window from that state with a wide prior
-//! ([`super::HealthConfig::reinit_prior`]). Each re-initialization is counted
+//! ([`super::HealthConfig::reinit_prior`]); after a camera dropout, which breaks nothing, the
+//! new window starts from the dropped one's covariance propagated over the dropout instead
+//! (`imu_step`). Each re-initialization is counted
 //! ([`super::Counters::reinitializations`]) and reported with its reason
 //! ([`super::KeyframeReport::breakdown`]). Only when the INS itself is no longer finite does the
 //! estimator fall back to waiting for a static initialization.

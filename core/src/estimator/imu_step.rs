@@ -10,7 +10,7 @@ use super::{Estimator, ImuOutput, InitMode, Status, LATE_SAMPLES};
 use crate::frontend::{CameraMotion, RestVerdict};
 use crate::inertial::ins::Ins;
 use crate::inertial::motion_init::Refusal;
-use crate::inertial::{ImuSample, NavState};
+use crate::inertial::{ImuSample, InsCovariance, NavState};
 use crate::math::{Quat, Vec3};
 use crate::Error;
 use heapless::Vec as HVec;
@@ -244,11 +244,16 @@ impl<
                 Ok(()) => {}
                 // No keyframe for as long as an interval holds (a camera dropout): the window
                 // cannot take the interval, the INS can go on alone; the next frame starts a
-                // new window from it (as after a breakdown).
+                // new window from it (as after a breakdown), but with what the healthy window
+                // knew: its newest keyframe's covariance propagated over the dropout.
                 Err(Error::CapacityExceeded) => {
                     if let Some(st) = self.ins.as_ref().map(|i| *i.state()) {
                         self.counters.interval_overflows += 1;
+                        let cov = self.dropout_covariance(s);
                         self.reinitialize_from(st);
+                        if let Some(ins) = self.ins.as_mut() {
+                            ins.set_covariance(cov);
+                        }
                     }
                 }
                 // The interval cannot be bridged: start over rather than integrate a hole.
@@ -270,6 +275,24 @@ impl<
         } else {
             interpolate(a, b, t_ns)
         })
+    }
+
+    /// The covariance of the INS state at `s` (the sample the full open interval refused),
+    /// propagated from the newest keyframe's marginal covariance over the interval's samples
+    /// and `s` (the INS's own step, as [`Self::rewind_to`] replays them); `None` when the
+    /// window's covariance is unavailable.
+    fn dropout_covariance(&mut self, s: &ImuSample) -> Option<InsCovariance> {
+        let kf_state = self.window.last()?.state;
+        let kf_cov = match self.kf_cov.get() {
+            Some(c) => *c,
+            None => self.window_covariance()?,
+        };
+        let mut ins = Ins::new(self.ins_config(), kf_state).ok()?;
+        ins.set_covariance(Some(kf_cov));
+        for x in self.open()?.samples().iter().chain(core::iter::once(s)) {
+            ins.propagate(x).ok()?;
+        }
+        ins.covariance().copied()
     }
 
     /// Rewinds the INS and the open interval to `sample` (between the newest keyframe and the

@@ -198,9 +198,28 @@ impl<
             None if self.motion_started => &self.cfg.init.motion_prior,
             None => &self.cfg.first_prior,
         };
+        let mut kf0_sigma = [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2];
+        // After a camera dropout the INS carries the healthy window's covariance over it
+        // (`imu_step`): attitude, velocity and biases start from that (each block's largest
+        // standard deviation); the position stays the new window's anchor.
+        let dropout = self
+            .reinit
+            .and(self.ins.as_ref().and_then(|i| i.covariance()));
+        if let Some(c) = dropout {
+            let cov = c.state_order();
+            for (block, sigma) in kf0_sigma.iter_mut().enumerate().skip(1) {
+                let var = (0..3)
+                    .filter_map(|i| cov.get((3 * block + i, 3 * block + i)).copied())
+                    .fold(0.0, f64::max);
+                let sd = libm::sqrt(var);
+                if sd.is_finite() && sd > 0.0 {
+                    *sigma = sd;
+                }
+            }
+        }
         InitialPriors {
             kf0: *kf0,
-            kf0_sigma: [p.p_m, p.theta_rad, p.v_mps, p.bg_rps, p.ba_mps2],
+            kf0_sigma,
             td0: (td, self.cfg.td.prior_s),
             // The configured extrinsic, or the broken window's estimate after a
             // re-initialization (`Reinit`).
