@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Installs Debian's Rust toolchain with std sources (rustc-web 1.96 + rust-web-src), the aarch64
 # cross linker/libc and qemu-user, which together build povins-core for bare-metal ARM targets and run
-# its tests on aarch64 Linux under emulation. rustup cannot add targets on this machine kind, so
-# the cross builds use `-Zbuild-std` with this toolchain instead. Idempotent; needs root (or sudo).
+# its tests on aarch64 Linux under emulation, and g++ (libFuzzer's build, scripts/fuzz.sh). rustup
+# cannot add targets on this machine kind, so the cross builds use `-Zbuild-std` with this
+# toolchain instead. Idempotent; needs root (or sudo).
 set -euo pipefail
 
 need=()
-for p in rustc-web cargo-web rust-web-src gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user-static; do
+for p in rustc-web cargo-web rust-web-src gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user-static g++; do
   dpkg -s "$p" >/dev/null 2>&1 || need+=("$p")
 done
 if [ ${#need[@]} -eq 0 ]; then
