@@ -50,12 +50,15 @@ pub const TOLERANCE: f64 = 1.10;
 pub enum Sequence {
     /// A shared EuRoC-layout folder, with its initialization.
     Real {
-        /// Name in the tables.
+        /// Name in the tables (without the variant's suffix).
         name: String,
         /// The folder.
         path: PathBuf,
         /// How the run starts.
         init: InitMode,
+        /// [`Variant::Standard`], or a sensor fault injected into the data
+        /// ([`Variant::on_real_data`]).
+        variant: Variant,
     },
     /// A simulated sequence.
     Sim {
@@ -74,7 +77,7 @@ impl Sequence {
     /// Name in the tables and the baseline file.
     pub fn name(&self) -> String {
         match self {
-            Sequence::Real { name, .. } => name.clone(),
+            Sequence::Real { name, variant, .. } => format!("{name}{}", variant.suffix()),
             Sequence::Sim {
                 scenario,
                 seed,
@@ -96,11 +99,10 @@ impl Sequence {
         }
     }
 
-    /// What differs from the standard sequence ([`Variant::Standard`] for real sequences).
+    /// What differs from the standard sequence.
     pub fn variant(&self) -> Variant {
         match self {
-            Sequence::Sim { variant, .. } => *variant,
-            Sequence::Real { .. } => Variant::Standard,
+            Sequence::Sim { variant, .. } | Sequence::Real { variant, .. } => *variant,
         }
     }
 
@@ -140,27 +142,31 @@ pub fn sequences(
     first_seed: u64,
     groups: &[VariantGroup],
 ) -> Vec<Sequence> {
-    let mut v = vec![
-        Sequence::Real {
+    let variants: Vec<Variant> = std::iter::once(Variant::Standard)
+        .chain(groups.iter().flat_map(|g| g.variants().iter().copied()))
+        .collect();
+    let mut v = Vec::new();
+    for &variant in variants.iter().filter(|v| v.on_real_data()) {
+        v.push(Sequence::Real {
             name: "euroc-v101-30s".into(),
             path: data_dir.join("euroc-v101-30s-features"),
             init: InitMode::Static,
-        },
-        Sequence::Real {
+            variant,
+        });
+        v.push(Sequence::Real {
             name: "openvins-corridor".into(),
             path: data_dir.join("openvins-sim-corridor-mono"),
             init: InitMode::Groundtruth,
-        },
-    ];
+            variant,
+        });
+    }
     let (n, duration_s) = if quick {
         (QUICK_SEEDS, QUICK_DURATION_S)
     } else {
         (10, 60.0)
     };
     let seeds: Vec<u64> = (first_seed..first_seed.saturating_add(seeds.unwrap_or(n))).collect();
-    let variants =
-        std::iter::once(&Variant::Standard).chain(groups.iter().flat_map(|g| g.variants()));
-    for &variant in variants {
+    for &variant in &variants {
         for scenario in SCENARIOS {
             for &seed in &seeds {
                 v.push(Sequence::Sim {
@@ -235,7 +241,13 @@ fn load_real(path: &Path) -> Result<Dataset> {
 pub fn run_sequence(seq: &Sequence, overlay: Option<&RunConfigFile>) -> Result<RunResult> {
     let variant = seq.variant();
     let (ds, init, td_true_end_s) = match seq {
-        Sequence::Real { path, init, .. } => (load_real(path)?, *init, None),
+        Sequence::Real { path, init, .. } => {
+            let mut ds = load_real(path)?;
+            if let Variant::Fault(f) = variant {
+                f.inject(&mut ds);
+            }
+            (ds, *init, None)
+        }
         Sequence::Sim {
             scenario,
             seed,
@@ -538,6 +550,7 @@ pub(crate) mod tests {
             path: Path::new(env!("CARGO_MANIFEST_DIR"))
                 .join("../tests/data/euroc-v101-30s-features"),
             init: InitMode::Static,
+            variant: Variant::Standard,
         };
         let plain = run_sequence(&seq, None).expect("the default run");
         let same = run_sequence(&seq, Some(&RunConfigFile::parse("").expect("empty")))
@@ -614,6 +627,29 @@ pub(crate) mod tests {
             sims.iter().filter_map(|s| s.group()).collect();
         assert!(groups.contains("flight") && groups.contains("flight/delay+30ms"));
         assert_eq!(groups.len(), SCENARIOS.len() * 5);
+        // Only the standard real sequences: the delays are made by the simulator.
+        let reals: Vec<String> = seqs
+            .iter()
+            .filter(|s| s.scenario().is_none())
+            .map(|s| s.name())
+            .collect();
+        assert_eq!(reals, ["euroc-v101-30s", "openvins-corridor"]);
+        // The faults are injected into the real sequences too.
+        let seqs = sequences(Path::new("data"), true, Some(1), 1, &[VariantGroup::Faults]);
+        let reals: Vec<(String, Variant)> = seqs
+            .iter()
+            .filter(|s| s.scenario().is_none())
+            .map(|s| (s.name(), s.variant()))
+            .collect();
+        assert_eq!(reals.len(), 8);
+        assert!(reals.contains(&(
+            "euroc-v101-30s-cameradropout3s".into(),
+            Variant::Fault(Fault::CameraDropout)
+        )));
+        assert!(reals.contains(&(
+            "openvins-corridor-imugap0.2s".into(),
+            Variant::Fault(Fault::ImuGap)
+        )));
         let c = sim_config(Scenario::Flight, 1, 30.0, Variant::Delay(-10));
         assert_eq!((c.td_s, c.td_step.is_none()), (-0.010, true));
         let c = sim_config(Scenario::Flight, 1, 30.0, Variant::DelayStep);

@@ -1,13 +1,15 @@
 //! The fault variants of the suite (`povins regress --variants faults`, issue 32): sensor faults
-//! injected into the simulated sequence at half its duration, each judged like the standard
-//! sequence (median ATE against its stored figures; a reset or an output covering less than 95%
-//! of the run counts as a divergence), with the coverage of the ground truth reported.
+//! injected at half the IMU's time span into the simulated sequences and into the real ones
+//! (EuRoC, the corridor), each judged like the standard sequence (median ATE against its stored
+//! figures; a reset or an output covering less than 95% of the run counts as a divergence), with
+//! the coverage of the ground truth reported.
 //!
 //! - [`Fault::ImuGap`]: 0.2 s of IMU samples removed (bridged: no reset).
 //! - [`Fault::Spikes`]: one accelerometer sample of 150 m/s^2, one gyro sample of 34 rad/s 1 s
 //!   later and a 0.1 s burst of garbage 2 s later (dropped as spikes, the burst's hole bridged).
 //! - [`Fault::CameraDropout`]: 3 s without camera frames (the window is dropped when the open
-//!   interval is full, the INS goes on alone, the frames after the dropout start a new window).
+//!   interval is full, the INS goes on alone, the frames after the dropout start a new window
+//!   from its covariance).
 
 use povins_core::math::Vec3;
 use povins_platform::dataset::Dataset;

@@ -10,7 +10,8 @@
 //!   [`EXTRINSIC_PERTURBATION_M`] and [`EXTRINSIC_PERTURBATION_DEG`] off, in fixed directions of
 //!   the body frame (those of `scripts/extrinsic_conv.sh`: the same for every scenario and seed),
 //!   with `estimate_extrinsic = true`; judged on the ATE and the extrinsic's error at the end.
-//! - [`Variant::Fault`]: a sensor fault at half the sequence ([`super::faults`]); reports the
+//! - [`Variant::Fault`]: a sensor fault at half the sequence ([`super::faults`]), on the real
+//!   sequences too ([`Variant::on_real_data`]); reports the
 //!   coverage.
 
 use super::{Fault, RunResult};
@@ -54,8 +55,8 @@ pub enum VariantGroup {
     MotionStart,
     /// The camera-IMU extrinsic started 2 cm and 2 degrees off, estimated online.
     Extrinsic,
-    /// Sensor faults at half the sequence: a 0.2 s IMU gap, spikes and a burst, a 3 s camera
-    /// dropout.
+    /// Sensor faults at half the sequence (simulated and real): a 0.2 s IMU gap, spikes and a
+    /// burst, a 3 s camera dropout.
     Faults,
 }
 
@@ -88,6 +89,12 @@ impl Variant {
             Variant::Extrinsic => "-extrinsic".into(),
             Variant::Fault(f) => f.suffix().into(),
         }
+    }
+
+    /// Whether the variant is also run on the suite's real sequences: the sensor faults (the
+    /// others are made by the simulator).
+    pub fn on_real_data(self) -> bool {
+        matches!(self, Variant::Standard | Variant::Fault(_))
     }
 
     /// How the estimator starts: the in-motion start through the automatic choice, the others
