@@ -11,9 +11,13 @@ stops SECONDS after the last message (or at a time limit). Writes OUT.json:
    "vision": [[usec, x, y, z, roll, pitch, yaw, reset_counter], ...],  (VISION_POSITION_ESTIMATE)
    "timesync": [[tc1, ts1, recv_ns], ...], "heartbeats": N, "other": {type: count}}
 Usage: mavlink_receiver.py udpin:127.0.0.1:PORT OUT.json [IDLE_S] [LIMIT_S]
+       mavlink_receiver.py pty OUT.json [IDLE_S] [LIMIT_S]
+With `pty` it opens a pseudo-terminal pair, prints "ready SLAVE_PATH" (the serial device the
+sender opens, as it would an autopilot's UART) and talks over the master side.
 """
 import json
 import math
+import select
 import sys
 import time
 
@@ -28,16 +32,50 @@ def finite(x):
     return None if math.isnan(x) else float(x)
 
 
+class PtyMaster(mavutil.mavfile):
+    """pymavlink over the master side of a pseudo-terminal (pymavlink's serial class needs a
+    device path; the master has only a file descriptor)."""
+
+    def __init__(self, fd):
+        self.fd = fd
+        mavutil.mavfile.__init__(self, fd, "pty", source_system=1, source_component=1)
+
+    def recv(self, n=None):
+        # Wait for bytes (not a sleep-and-poll, whose delay would skew TIMESYNC's round trip).
+        if not select.select([self.fd], [], [], 0.01)[0]:
+            return b""
+        try:
+            return os.read(self.fd, n or 1024)
+        except (BlockingIOError, OSError):
+            return b""
+
+    def write(self, buf):
+        os.write(self.fd, buf)
+
+
 def main():
     url, out = sys.argv[1], sys.argv[2]
     idle_s = float(sys.argv[3]) if len(sys.argv) > 3 else 3.0
     limit_s = float(sys.argv[4]) if len(sys.argv) > 4 else 600.0
-    conn = mavutil.mavlink_connection(url, dialect="common", source_system=1, source_component=1)
+    ready = "ready"
+    if url == "pty":
+        import pty
+        import tty
+
+        master, slave = pty.openpty()
+        tty.setraw(master)
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        ready = f"ready {os.ttyname(slave)}"
+        conn = PtyMaster(master)
+    else:
+        conn = mavutil.mavlink_connection(url, dialect="common", source_system=1,
+                                          source_component=1)
     odo, vision, ts, heartbeats, other = [], [], [], 0, {}
     start = time.monotonic()
     last_msg = None
     next_sync = 0.0
-    print("ready", flush=True)
+    print(ready, flush=True)
     while time.monotonic() - start < limit_s:
         now = time.monotonic()
         if last_msg is not None and now - last_msg > idle_s:

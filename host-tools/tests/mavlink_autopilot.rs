@@ -3,7 +3,8 @@
 //! port: the ODOMETRY it decodes, converted back to povins' frames and matched by `time_usec`,
 //! equal `trajectory.tum`; the rate is the one asked for; its TIMESYNC requests are answered on
 //! a clock that maps povins' stamps onto its own; the velocity covariance it receives describes
-//! the velocity's error against the simulator's truth (NEES).
+//! the velocity's error against the simulator's truth (NEES). The same over a serial line (a
+//! pseudo-terminal).
 
 mod common;
 
@@ -21,6 +22,22 @@ fn median(v: &mut [f64]) -> f64 {
 #[test]
 #[ignore = "needs PyPI (pymavlink) and runs 15 s in real time"]
 fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
+    receive_and_check(false);
+}
+
+/// The same over a serial line (`--mavlink serial:DEVICE:BAUD`, the `mavlink` crate's serial
+/// transport, as to an autopilot's UART): the device is a pseudo-terminal whose other side the
+/// receiver reads, so the port's configuration (8N1, the baud rate) and the byte stream's framing
+/// are those of a real line, without the line.
+#[test]
+#[ignore = "needs PyPI (pymavlink) and runs 15 s in real time"]
+fn pymavlink_receives_the_trajectory_over_a_serial_line() {
+    receive_and_check(true);
+}
+
+/// Simulates 15 s, replays it in real time to the receiver (over loopback UDP, or `serial`:
+/// a pseudo-terminal) and checks what it received.
+fn receive_and_check(serial: bool) {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("seq");
     let (ok, _, err) = common::povins(&[
@@ -47,14 +64,25 @@ fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/mavlink_receiver.py");
     let mut rx = Command::new(common::pymavlink_python())
         .arg(script)
-        .arg(format!("udpin:127.0.0.1:{port}"))
+        .arg(if serial {
+            "pty".to_string()
+        } else {
+            format!("udpin:127.0.0.1:{port}")
+        })
         .arg(&json)
         .args(["3", "120"])
         .stdout(Stdio::piped())
         .spawn()
         .expect("python");
     let mut lines = BufReader::new(rx.stdout.take().unwrap()).lines();
-    assert_eq!(lines.next().unwrap().unwrap(), "ready");
+    let ready = lines.next().unwrap().unwrap();
+    let link = match ready.strip_prefix("ready ") {
+        Some(dev) if serial => format!("serial:{dev}:921600"),
+        _ => {
+            assert_eq!(ready, "ready");
+            format!("udpout:127.0.0.1:{port}")
+        }
+    };
     let out = tmp.path().join("out");
     let (ok, stdout, err) = common::povins(&[
         "replay",
@@ -64,7 +92,7 @@ fn pymavlink_receives_the_trajectory_and_timesync_maps_the_clock() {
         "--out",
         out.to_str().unwrap(),
         "--mavlink",
-        &format!("udpout:127.0.0.1:{port}"),
+        &link,
         "--mavlink-rate",
         "30",
         "--mavlink-vision-position",
