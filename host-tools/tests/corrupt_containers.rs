@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{povins, simulate_handheld};
+use common::{mcap_chunks, povins, simulate_handheld};
 use std::path::Path;
 
 fn s(p: &Path) -> &str {
@@ -41,22 +41,6 @@ fn bag_chunks(d: &[u8]) -> Vec<(usize, usize)> {
             out.push((data, dl));
         }
         pos = data + dl;
-    }
-    out
-}
-
-/// The (record offset, record length) of every chunk record of MCAP bytes `d`.
-fn mcap_chunks(d: &[u8]) -> Vec<(usize, usize)> {
-    let mut out = Vec::new();
-    let mut pos = 8;
-    while pos + 9 <= d.len() {
-        let len = u64::from_le_bytes(d[pos + 1..pos + 9].try_into().expect("8 bytes")) as usize;
-        match d[pos] {
-            0x06 => out.push((pos, 9 + len)),
-            0x02 => break,
-            _ => {}
-        }
-        pos += 9 + len;
     }
     out
 }

@@ -164,22 +164,6 @@ fn a_run_that_fails_part_way_leaves_partial_files_and_an_earlier_runs_files() {
     assert_eq!(before, after, "the earlier run's files changed");
 }
 
-/// The (offset, length) of every chunk record of the MCAP bytes `d`.
-fn mcap_chunks(d: &[u8]) -> Vec<(usize, usize)> {
-    let mut out = Vec::new();
-    let mut pos = 8;
-    while pos + 9 <= d.len() {
-        let len = u64::from_le_bytes(d[pos + 1..pos + 9].try_into().expect("8 bytes")) as usize;
-        match d[pos] {
-            0x06 => out.push((pos, len)),
-            0x02 => break,
-            _ => {}
-        }
-        pos += 9 + len;
-    }
-    out
-}
-
 /// A corrupt chunk in the middle of an MCAP recording costs its messages, not the run: the run
 /// goes on over the gap, exits 0, and says which chunk it skipped.
 #[test]
@@ -189,10 +173,10 @@ fn a_corrupt_chunk_is_skipped_and_the_run_goes_on() {
     // With the LiDAR a 1 MB chunk holds about 0.35 s: a gap the estimator bridges.
     common::simulate("handheld", "5", "10", "mcap", &rec, &[]);
     let mut d = std::fs::read(&rec).expect("the recording");
-    let cs = mcap_chunks(&d);
+    let cs = common::mcap_chunks(&d);
     assert!(cs.len() >= 4, "{} chunks", cs.len());
     let (at, len) = cs[cs.len() * 2 / 3];
-    d[at + 9 + len - 4] ^= 0x5a;
+    d[at + len - 4] ^= 0x5a;
     std::fs::write(&rec, &d).expect("write");
     let out = dir.path().join("out");
     let (ok, stdout, stderr) = povins(&["run", s(&rec), "--out", s(&out)]);
@@ -200,7 +184,7 @@ fn a_corrupt_chunk_is_skipped_and_the_run_goes_on() {
     assert!(
         stderr.contains(&format!(
             "the chunk ending at byte offset {} was skipped",
-            at + 9 + len
+            at + len
         )),
         "{stderr}"
     );

@@ -157,3 +157,20 @@ pub fn foxglove_python() -> std::path::PathBuf {
         &["websockets==15.0.1", "protobuf==6.31.1"],
     )
 }
+
+/// The (offset, length) of every chunk record (opcode, length and body) of MCAP bytes `d`.
+#[allow(dead_code)]
+pub fn mcap_chunks(d: &[u8]) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut pos = 8;
+    while pos + 9 <= d.len() {
+        let len = u64::from_le_bytes(d[pos + 1..pos + 9].try_into().expect("8 bytes")) as usize;
+        match d[pos] {
+            0x06 => out.push((pos, 9 + len)),
+            0x02 => break,
+            _ => {}
+        }
+        pos += 9 + len;
+    }
+    out
+}
