@@ -35,6 +35,10 @@ use heapless::Vec as HVec;
 
 /// Interpolated samples one bridged IMU gap is integrated with, at most.
 const MAX_BRIDGE_STEPS: i64 = 1024;
+/// How far back the samples before a gap are read for [`line_departure`], ns.
+const LINE_HISTORY_NS: i64 = 2_000_000_000;
+/// Fewest windows [`line_departure`] measures the line's error on.
+const LINE_WINDOWS: u32 = 3;
 /// IMU samples the estimator queues (2.56 s at 200 Hz): a horizon must stay well below it.
 pub const IMU_QUEUE: usize = 512;
 /// LiDAR sweeps the estimator queues.
@@ -290,11 +294,24 @@ impl<
         let gap_ns = s.t_ns.saturating_sub(last.t_ns);
         let gap_s = gap_ns as f64 * 1e-9;
         let g = self.cfg.imu_gap;
+        // The line's error: the configured bound, or less where the motion before the gap
+        // departed less from a line over the gap's length.
+        let (mut sa, mut sg) = (g.accel_sigma_mps2, g.gyro_sigma_rps);
+        let history = self
+            .keyframes()
+            .filter_map(|k| k.preint())
+            .chain(self.open())
+            .flat_map(|p| p.samples().iter())
+            .filter(|x| x.t_ns >= last.t_ns.saturating_sub(LINE_HISTORY_NS));
+        if let Some((a, w)) = line_departure(history, gap_ns) {
+            sa = sa.min(a);
+            sg = sg.min(w);
+        }
         let span = UnmeasuredSpan {
             t0_ns: last.t_ns,
             t1_ns: s.t_ns,
-            accel_var_per_s: g.accel_sigma_mps2 * g.accel_sigma_mps2 * gap_s,
-            gyro_var_per_s: g.gyro_sigma_rps * g.gyro_sigma_rps * gap_s,
+            accel_var_per_s: sa * sa * gap_s,
+            gyro_var_per_s: sg * sg * gap_s,
         };
         if let Some(open) = self.open_mut() {
             if open.add_unmeasured(span).is_err() {
@@ -382,4 +399,94 @@ enum Spike {
     Wait,
     /// A spike: drop it.
     Yes,
+}
+
+/// How far the bridge's line would have missed the motion before a gap: `samples` (time order)
+/// are cut into consecutive windows of `span_ns` (each from one sample to the first at least
+/// `span_ns` later, as a gap runs from the sample before it to the one after), and in each the
+/// mean of the samples inside is compared with the midpoint of the two end samples (what the
+/// linear interpolation between them integrates to); returns the RMS per axis of those
+/// differences for the specific force (m/s^2) and the angular rate (rad/s), `None` with fewer
+/// than [`LINE_WINDOWS`] windows. The end samples' own noise and vibration count, as they do in
+/// the bridge.
+pub(super) fn line_departure<'a>(
+    samples: impl Iterator<Item = &'a ImuSample>,
+    span_ns: i64,
+) -> Option<(f64, f64)> {
+    use crate::math::Vec3;
+    let mut start: Option<&ImuSample> = None;
+    let (mut sum_a, mut sum_g, mut n) = (Vec3::zeros(), Vec3::zeros(), 0u32);
+    let (mut acc_a, mut acc_g, mut count) = (0.0, 0.0, 0u32);
+    for x in samples {
+        let Some(a) = start else {
+            start = Some(x);
+            continue;
+        };
+        if x.t_ns < a.t_ns.saturating_add(span_ns) {
+            sum_a += x.accel_mps2;
+            sum_g += x.gyro_rps;
+            n += 1;
+            continue;
+        }
+        if n > 0 {
+            let k = f64::from(n);
+            acc_a += (sum_a / k - (a.accel_mps2 + x.accel_mps2) * 0.5).norm_squared();
+            acc_g += (sum_g / k - (a.gyro_rps + x.gyro_rps) * 0.5).norm_squared();
+            count += 1;
+        }
+        start = Some(x);
+        (sum_a, sum_g, n) = (Vec3::zeros(), Vec3::zeros(), 0);
+    }
+    (count >= LINE_WINDOWS).then(|| {
+        let c = 3.0 * f64::from(count);
+        (libm::sqrt(acc_a / c), libm::sqrt(acc_g / c))
+    })
+}
+
+#[cfg(test)]
+mod line_tests {
+    use super::line_departure;
+    use crate::inertial::ImuSample;
+    use crate::math::Vec3;
+    use heapless::Vec as HVec;
+
+    fn samples(f: impl Fn(f64) -> f64, n: i64) -> impl Iterator<Item = ImuSample> {
+        (0..n).map(move |k| {
+            let t = k as f64 * 0.005;
+            ImuSample {
+                t_ns: k * 5_000_000,
+                gyro_rps: Vec3::new(0.0, f(t) * 0.1, 0.0),
+                accel_mps2: Vec3::new(f(t), 0.0, 9.81),
+            }
+        })
+    }
+
+    #[test]
+    fn a_line_departs_by_nothing_a_parabola_by_its_curvature() {
+        // 2 s at 200 Hz; a 0.2 s span.
+        let line: HVec<ImuSample, 400> = samples(|t| 3.0 * t - 1.0, 400).collect();
+        let (a, g) = line_departure(line.iter(), 200_000_000).expect("enough windows");
+        assert!(a < 1e-12 && g < 1e-12, "{a} {g}");
+        // a = c t^2 over a window of length T from t0: the mean inside is c (t0^2 + t0 T + T^2/3)
+        // (the 39 samples strictly inside at 200 Hz: 2.5% more), the ends' midpoint c (t0^2 + t0 T
+        // + T^2/2), so every window misses by c T^2 / 6 on one of three axes: c T^2 / (6 sqrt(3))
+        // per axis.
+        let c = 2.0;
+        let par: HVec<ImuSample, 400> = samples(|t| c * t * t, 400).collect();
+        let (a, g) = line_departure(par.iter(), 200_000_000).expect("enough windows");
+        let want = c * 0.2 * 0.2 / (6.0 * 3f64.sqrt());
+        assert!((a - 1.025 * want).abs() < 0.005 * want, "{a} {want}");
+        assert!((g - 0.1025 * want).abs() < 0.005 * want, "{g}");
+        // A sample that alone jumps (vibration) at a window's end counts.
+        let mut shaken = line.clone();
+        for k in (0..400).step_by(40) {
+            if let Some(s) = shaken.get_mut(k) {
+                s.accel_mps2.x += 1.0;
+            }
+        }
+        let (a, _) = line_departure(shaken.iter(), 200_000_000).expect("enough windows");
+        assert!((a - 1.0 / 3f64.sqrt()).abs() < 1e-9, "{a}");
+        // Too little history: unknown.
+        assert!(line_departure(par[..100].iter(), 200_000_000).is_none());
+    }
 }

@@ -8,10 +8,14 @@ use crate::Error;
 /// Bridging of IMU gaps. A gap up to `bridge_max_s` is bridged: the INS and the open keyframe
 /// interval integrate samples interpolated linearly between the samples around it (at most
 /// `max_imu_dt_s / 2` apart), and the interval's covariance takes the unmeasured motion's
-/// uncertainty (a specific force wrong by `accel_sigma_mps2` and an angular rate wrong by
-/// `gyro_sigma_rps` for the whole gap: velocity and rotation standard deviations of
-/// `sigma * T_gap`, see [`crate::inertial::preintegration`]), so the images carry the window
-/// across it. The frames inside the gap are tracked but never made keyframes: a keyframe there
+/// uncertainty (a specific force and an angular rate wrong by `sigma` for the whole gap:
+/// velocity and rotation standard deviations of `sigma * T_gap`, see
+/// [`crate::inertial::preintegration`]). `sigma` is how far such a line would have missed the
+/// motion just before: over the 2 s before the gap, cut into windows of the gap's length, the
+/// mean of each window's samples against the midpoint of its two end samples (RMS per axis; the
+/// end samples' vibration counts, as in the bridge), at most `accel_sigma_mps2` and
+/// `gyro_sigma_rps` (those alone when the window holds fewer than three gap lengths of samples
+/// before it). So the images carry the window across it. The frames inside the gap are tracked but never made keyframes: a keyframe there
 /// hangs between two intervals that hardly constrain it, and on the hand-held scenario such
 /// keyframes let the window's velocity drift by 0.4 m/s after a 0.2 s gap (ATE 0.03 -> 0.8 m;
 /// 0.04 m without them, BENCHMARKS.md "Sensor faults"). A longer gap resets the estimator, which starts again (in motion when it must)
@@ -26,10 +30,10 @@ use crate::Error;
 pub struct ImuGapConfig {
     /// Longest gap bridged, s (0: none; at most [`ImuGapConfig::MAX_BRIDGE_S`]).
     pub bridge_max_s: f64,
-    /// Standard deviation of the specific force during a gap about the line between the samples
-    /// around it, m/s^2.
+    /// Largest standard deviation of the specific force during a gap about the line between the
+    /// samples around it, m/s^2 (less where the motion before the gap was smoother).
     pub accel_sigma_mps2: f64,
-    /// Standard deviation of the angular rate during a gap about that line, rad/s.
+    /// Largest standard deviation of the angular rate during a gap about that line, rad/s.
     pub gyro_sigma_rps: f64,
 }
 
@@ -40,7 +44,7 @@ impl ImuGapConfig {
 
     /// The defaults (what [`Default`] gives): holes up to 0.6 s bridged (a 0.5 s hole in a
     /// 200 Hz stream is a 0.505 s spacing), with 1 m/s^2 and 0.3 rad/s of unmeasured motion
-    /// about the interpolated line. Measured (BENCHMARKS.md, "IMU gaps"): the line's error over
+    /// about the interpolated line at most. Measured (BENCHMARKS.md, "IMU gaps"): the line's error over
     /// 0.2 s of the hand-held scenario is 0.6 m/s^2 and up to 0.35 rad/s RMS per axis; looser
     /// values (5 m/s^2, 1 rad/s) doubled the hand-held ATE after 0.5 s gaps, and bridging 1 s
     /// cost the hand-held and fast-rotation scenarios 7-300x (a reset is cheaper there).
