@@ -408,16 +408,22 @@ enum Spike {
 /// linear interpolation between them integrates to); returns the RMS per axis of those
 /// differences for the specific force (m/s^2) and the angular rate (rad/s), `None` with fewer
 /// than [`LINE_WINDOWS`] windows. The end samples' own noise and vibration count, as they do in
-/// the bridge.
+/// the bridge. A sample not later than the one before (an interval's first sample repeats the
+/// previous interval's last) is skipped.
 pub(super) fn line_departure<'a>(
     samples: impl Iterator<Item = &'a ImuSample>,
     span_ns: i64,
 ) -> Option<(f64, f64)> {
     use crate::math::Vec3;
     let mut start: Option<&ImuSample> = None;
+    let mut last_ns = i64::MIN;
     let (mut sum_a, mut sum_g, mut n) = (Vec3::zeros(), Vec3::zeros(), 0u32);
     let (mut acc_a, mut acc_g, mut count) = (0.0, 0.0, 0u32);
     for x in samples {
+        if x.t_ns <= last_ns {
+            continue;
+        }
+        last_ns = x.t_ns;
         let Some(a) = start else {
             start = Some(x);
             continue;
@@ -488,5 +494,9 @@ mod line_tests {
         assert!((a - 1.0 / 3f64.sqrt()).abs() < 1e-9, "{a}");
         // Too little history: unknown.
         assert!(line_departure(par[..100].iter(), 200_000_000).is_none());
+        // A repeated sample (intervals share their boundary sample) counts once.
+        let once = line_departure(par.iter(), 200_000_000);
+        let twice = par.iter().flat_map(|s| core::iter::repeat_n(s, 2));
+        assert_eq!(line_departure(twice, 200_000_000), once);
     }
 }
