@@ -275,12 +275,13 @@ fn ouster_meta() -> &'static povins_platform::ouster::Metadata {
 }
 
 /// `ouster_packets`: byte 0 picks a small packet layout (profile, 1-4 rows, 1-4 columns per
-/// packet, 16 columns per frame, a column window that may wrap); the rest is decoded as one
+/// packet, 16 columns per frame, a column window that may wrap, the standard or the `FUSA`
+/// header); the rest is decoded as one
 /// OS1-128 lidar packet, an IMU packet, a run of small-layout lidar packets into the sweep
 /// assembler, metadata JSON and a pcap capture.
 pub fn ouster_packets(data: &[u8]) {
     use povins_platform::ouster::{
-        decode_imu, Decoder, LidarProfile, Metadata, PcapUdp, SweepAssembler,
+        decode_imu, Decoder, HeaderType, LidarProfile, Metadata, PcapUdp, SweepAssembler,
     };
     let Some((&sel, rest)) = data.split_first() else {
         return;
@@ -300,7 +301,12 @@ pub fn ouster_packets(data: &[u8]) {
     m.pixels_per_column = 1 + (sel >> 2) % 4;
     m.columns_per_packet = 1 + (sel >> 4) % 4;
     m.columns_per_frame = 16;
-    m.column_window = [(sel >> 6) * 5, 9];
+    m.column_window = [(sel >> 6 & 1) * 5, 9];
+    m.header_type = if sel & 0x80 == 0 {
+        HeaderType::Standard
+    } else {
+        HeaderType::Fusa
+    };
     m.beam_altitude_angles_deg.truncate(m.pixels_per_column);
     m.beam_azimuth_angles_deg.truncate(m.pixels_per_column);
     m.pixel_shift_by_row.truncate(m.pixels_per_column);

@@ -306,7 +306,7 @@ fn drops_reorderings_and_garbage_are_counted() {
     // Lidar packets with their frame ids; the frames' first packets.
     let mut lidar: Vec<Item> = items.iter().filter(|i| i.0).cloned().collect();
     let mut imu: Vec<Item> = items.iter().filter(|i| !i.0).cloned().collect();
-    let fids: Vec<u16> = lidar
+    let fids: Vec<u32> = lidar
         .iter()
         .map(|i| dec.decode_lidar(&i.2).unwrap().frame_id)
         .collect();

@@ -18,7 +18,7 @@ fn live_meta() -> Metadata {
 /// Packet `k` (0..4) of frame `f`: ranges differ by frame, column and row; column times increase
 /// with the measurement id.
 fn packet(m: &Metadata, f: u16, k: u16) -> Vec<u8> {
-    build(m, f, 4 * k, true, |c, r| {
+    build(m, f.into(), 4 * k, true, |c, r| {
         1000 + 100 * u32::from(f) + 10 * c as u32 + r as u32
     })
 }

@@ -56,6 +56,47 @@ impl LidarProfile {
     }
 }
 
+/// The lidar packet header's layout (`lidar_data_format.header_type`, firmware 3.1 and later;
+/// absent before, which is [`HeaderType::Standard`]). Not used by the `LEGACY` profile, which
+/// has no packet header.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HeaderType {
+    /// `STANDARD` (firmware 2.2-3.0, and 3.1's default): packet type u16 at byte 0, frame id u16
+    /// at 2, init id u24 at 4, serial number u40 at 7.
+    #[default]
+    Standard,
+    /// `FUSA` (firmware 3.1's functional-safety header): packet type u8 at byte 0, init id u24
+    /// at 1, frame id **u32** at 4, alert flags at 8, serial number u40 at 11.
+    Fusa,
+}
+
+impl HeaderType {
+    /// The header type of a `header_type` name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "STANDARD" => Some(HeaderType::Standard),
+            "FUSA" => Some(HeaderType::Fusa),
+            _ => None,
+        }
+    }
+
+    /// Ouster's name of the header type.
+    pub fn name(self) -> &'static str {
+        match self {
+            HeaderType::Standard => "STANDARD",
+            HeaderType::Fusa => "FUSA",
+        }
+    }
+
+    /// Frame ids wrap modulo `mask + 1`: 2^16 in the standard header, 2^32 in `FUSA`.
+    pub fn frame_id_mask(self) -> u32 {
+        match self {
+            HeaderType::Standard => 0xffff,
+            HeaderType::Fusa => u32::MAX,
+        }
+    }
+}
+
 /// A 4x4 homogeneous transform, row-major, translation in mm (as in the metadata).
 pub type Mat4 = [[f64; 4]; 4];
 
@@ -72,6 +113,8 @@ pub struct Metadata {
     pub lidar_mode: String,
     /// Packet layout of the lidar packets.
     pub profile: LidarProfile,
+    /// Layout of the lidar packets' header (not used by [`LidarProfile::Legacy`]).
+    pub header_type: HeaderType,
     /// Channels (rows) per column.
     pub pixels_per_column: usize,
     /// Columns per lidar packet.
@@ -197,6 +240,15 @@ impl Metadata {
                 .and_then(LidarProfile::from_name)
                 .ok_or_else(|| bad("udp_profile_lidar", format!("unsupported profile {v}")))?,
         };
+        let header_type = match find(&root, FORMAT, "header_type") {
+            None | Some(Value::Null) => HeaderType::Standard,
+            Some(v) => v.as_str().and_then(HeaderType::from_name).ok_or_else(|| {
+                bad(
+                    "header_type",
+                    format!("unsupported header type {v} (STANDARD and FUSA are read)"),
+                )
+            })?,
+        };
         let rows = as_usize(
             required(&root, FORMAT, "pixels_per_column")?,
             "pixels_per_column",
@@ -283,6 +335,7 @@ impl Metadata {
             fw_rev: string_or_empty(&root, info, "build_rev"),
             lidar_mode: string_or_empty(&root, &["config_params"], "lidar_mode"),
             profile,
+            header_type,
             pixels_per_column: rows,
             columns_per_packet: cols_packet,
             columns_per_frame: cols_frame,
@@ -296,6 +349,16 @@ impl Metadata {
             udp_port_lidar: port(&root, "udp_port_lidar")?,
             udp_port_imu: port(&root, "udp_port_imu")?,
         })
+    }
+
+    /// Frame ids wrap modulo `mask + 1`: 2^32 with the `FUSA` header, else 2^16 (`LEGACY`
+    /// columns carry 16-bit ids whatever the header type says).
+    pub fn frame_id_mask(&self) -> u32 {
+        if self.profile == LidarProfile::Legacy {
+            0xffff
+        } else {
+            self.header_type.frame_id_mask()
+        }
     }
 
     /// Reads and parses a metadata file; errors name the file and the key.

@@ -26,9 +26,10 @@
 //! header), and the profiles with a 32-byte packet header (packet type 1, 16-bit frame id,
 //! 24-bit init id, 40-bit serial), 12-byte column headers (timestamp u64, measurement id u16,
 //! status u16 with bit 0 valid) and a 32-byte footer: `RNG19_RFL8_SIG16_NIR16`, its `_DUAL`,
-//! and `RNG15_RFL8_NIR8` (low data rate: range in units of 8 mm). That is the firmware 2.2–3.0
-//! packet header; firmware 3.1's 32-bit-frame-id header is not read. The IMU packet (`LEGACY`
-//! IMU profile) is 48 bytes ([`decode_imu`]).
+//! and `RNG15_RFL8_NIR8` (low data rate: range in units of 8 mm). The packet header is the
+//! firmware 2.2–3.0 one, or firmware 3.1's `FUSA` header (8-bit packet type, 32-bit frame id)
+//! when the metadata's `lidar_data_format.header_type` says so ([`HeaderType`]); the footer's
+//! CRC is not checked. The IMU packet (`LEGACY` IMU profile) is 48 bytes ([`decode_imu`]).
 //!
 //! Entry points: [`Metadata::from_file`], [`Decoder::decode_lidar`], [`decode_imu`],
 //! [`SweepAssembler::push`], [`pcap::PcapUdp`], [`read_pcap`] for a whole capture,
@@ -48,7 +49,7 @@ mod live_tests;
 mod tests;
 
 pub use live::{LiveCounts, LiveOptions, OusterUdp, StreamDecoder};
-pub use metadata::{LidarProfile, Metadata, XyzLut};
+pub use metadata::{HeaderType, LidarProfile, Metadata, XyzLut};
 pub use packet::{decode_imu, Column, Decoder, ImuPacket, LidarPacket, Pixel, G_MPS2};
 pub use pcap::{PcapCounts, PcapUdp, UdpDatagram};
 pub use sweep::{Counts, SweepAssembler, SweepInfo};

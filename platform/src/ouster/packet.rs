@@ -1,7 +1,7 @@
 //! Lidar and IMU UDP packet decoding. All fields little-endian; every length and index is
 //! checked, a packet of the wrong size is an [`OusterError::PacketSize`].
 
-use super::metadata::{LidarProfile, Metadata};
+use super::metadata::{HeaderType, LidarProfile, Metadata};
 use super::OusterError;
 
 /// Standard gravity, m/s^2 per g (the IMU reports accelerations in g).
@@ -36,8 +36,9 @@ pub struct Column {
     pub t_ns: i64,
     /// Measurement id: the column's index in the frame, `0..columns_per_frame`.
     pub measurement_id: u16,
-    /// Frame id of the column (in `LEGACY` each column carries its own).
-    pub frame_id: u16,
+    /// Frame id of the column (in `LEGACY` each column carries its own; 16 bits except in the
+    /// `FUSA` header's 32).
+    pub frame_id: u32,
     /// Encoder count (`LEGACY` only).
     pub encoder_count: Option<u32>,
     /// Whether the column holds data (`LEGACY` status `0xffffffff`, otherwise status bit 0);
@@ -50,8 +51,9 @@ pub struct Column {
 /// A decoded lidar packet.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LidarPacket {
-    /// Frame id of the packet (its first column's in `LEGACY`).
-    pub frame_id: u16,
+    /// Frame id of the packet (its first column's in `LEGACY`; 16 bits except in the `FUSA`
+    /// header's 32).
+    pub frame_id: u32,
     /// Initialization id (`None` in `LEGACY`): changes on every sensor re-init.
     pub init_id: Option<u32>,
     /// Serial number from the packet header (`None` in `LEGACY`).
@@ -139,6 +141,7 @@ impl Layout {
 #[derive(Debug, Clone)]
 pub struct Decoder {
     profile: LidarProfile,
+    header: HeaderType,
     layout: Layout,
     rows: usize,
     cols_packet: usize,
@@ -150,6 +153,7 @@ impl Decoder {
     pub fn new(meta: &Metadata) -> Self {
         Decoder {
             profile: meta.profile,
+            header: meta.header_type,
             layout: Layout::of(meta.profile),
             rows: meta.pixels_per_column,
             cols_packet: meta.columns_per_packet,
@@ -181,18 +185,10 @@ impl Decoder {
                 actual: buf.len(),
             });
         }
-        let (mut frame_id, mut init_id, mut prod_sn) = (0u16, None, None);
+        let (mut frame_id, mut init_id, mut prod_sn) = (0u32, None, None);
         if self.profile != LidarProfile::Legacy {
-            let ptype = u16_at(buf, 0).ok_or_else(|| short("packet header", 0))?;
-            if ptype != 1 {
-                return Err(OusterError::Packet(format!(
-                    "packet type {ptype}, expected 1 (lidar)"
-                )));
-            }
-            frame_id = u16_at(buf, 2).ok_or_else(|| short("packet header", 2))?;
-            let id = buf.get(4..12).ok_or_else(|| short("packet header", 4))?;
-            init_id = Some(u32::from(id[0]) | u32::from(id[1]) << 8 | u32::from(id[2]) << 16);
-            prod_sn = Some((0..5).fold(0u64, |acc, k| acc | u64::from(id[3 + k]) << (8 * k)));
+            let h = self.decode_header(buf)?;
+            (frame_id, init_id, prod_sn) = (h.0, Some(h.1), Some(h.2));
         }
         let mut columns = Vec::with_capacity(self.cols_packet);
         for c in 0..self.cols_packet {
@@ -214,8 +210,48 @@ impl Decoder {
         })
     }
 
+    /// The packet header's frame id, init id (24 bits) and serial number (40 bits), in the
+    /// metadata's [`HeaderType`]; a packet type other than 1 (lidar) is an error.
+    fn decode_header(&self, buf: &[u8]) -> Result<(u32, u32, u64), OusterError> {
+        let (ptype, frame_id, init_at, sn_at) = match self.header {
+            HeaderType::Standard => (
+                u16_at(buf, 0).ok_or_else(|| short("packet header", 0))?,
+                u32::from(u16_at(buf, 2).ok_or_else(|| short("packet header", 2))?),
+                4,
+                7,
+            ),
+            HeaderType::Fusa => (
+                u16::from(*buf.first().ok_or_else(|| short("packet header", 0))?),
+                u32_at(buf, 4).ok_or_else(|| short("packet header", 4))?,
+                1,
+                11,
+            ),
+        };
+        if ptype != 1 {
+            return Err(OusterError::Packet(format!(
+                "packet type {ptype}, expected 1 (lidar) in the {} header",
+                self.header.name()
+            )));
+        }
+        let id = buf
+            .get(init_at..init_at + 3)
+            .ok_or_else(|| short("packet header", init_at))?;
+        let sn = buf
+            .get(sn_at..sn_at + 5)
+            .ok_or_else(|| short("packet header", sn_at))?;
+        let init_id = id
+            .iter()
+            .rev()
+            .fold(0u32, |acc, &b| acc << 8 | u32::from(b));
+        let prod_sn = sn
+            .iter()
+            .rev()
+            .fold(0u64, |acc, &b| acc << 8 | u64::from(b));
+        Ok((frame_id, init_id, prod_sn))
+    }
+
     /// Decodes one column (`b` exactly one column's bytes; `at` its offset in the packet).
-    fn decode_column(&self, b: &[u8], packet_frame: u16, at: usize) -> Result<Column, OusterError> {
+    fn decode_column(&self, b: &[u8], packet_frame: u32, at: usize) -> Result<Column, OusterError> {
         let err = |off: usize| short("column", at + off);
         let t_ns = time_ns(u64_at(b, 0).ok_or_else(|| err(0))?, "column")?;
         let measurement_id = u16_at(b, 8).ok_or_else(|| err(8))?;
@@ -229,7 +265,7 @@ impl Decoder {
         let (frame_id, encoder_count, valid) = if self.profile == LidarProfile::Legacy {
             let status_at = b.len().checked_sub(4).ok_or_else(|| err(0))?;
             (
-                u16_at(b, 10).ok_or_else(|| err(10))?,
+                u32::from(u16_at(b, 10).ok_or_else(|| err(10))?),
                 Some(u32_at(b, 12).ok_or_else(|| err(12))?),
                 u32_at(b, status_at).ok_or_else(|| err(status_at))? == 0xffff_ffff,
             )

@@ -34,7 +34,7 @@ pub struct Counts {
 /// The frame being filled.
 #[derive(Debug)]
 struct Partial {
-    frame_id: u16,
+    frame_id: u32,
     seen: Vec<bool>,
     points: Vec<LidarPoint>,
     /// Earliest timestamp of a valid column, then of any column.
@@ -46,7 +46,7 @@ struct Partial {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SweepInfo {
     /// Its frame id.
-    pub frame_id: u16,
+    pub frame_id: u32,
     /// Columns of the window it lacks.
     pub missing_columns: usize,
 }
@@ -54,7 +54,7 @@ pub struct SweepInfo {
 /// Assembles lidar packets (in arrival order) into sweeps, one per frame id.
 ///
 /// A frame is emitted when a packet of a newer frame arrives (frame ids compared modulo 2^16,
-/// a difference below 2^15 being newer), and by [`SweepAssembler::finish`]. Points are in the
+/// 2^32 in the `FUSA` header, a difference below half of that being newer), and by [`SweepAssembler::finish`]. Points are in the
 /// **sensor** frame (m), each timed by its column's timestamp, in arrival order (column, then
 /// row); the sweep's `t_ns` is its earliest valid column's timestamp. Pixels with range 0 and
 /// invalid columns are skipped and counted in [`Counts`]. The intensity is the signal photon
@@ -101,9 +101,10 @@ impl SweepAssembler {
         self.counts.packets += 1;
         let mut emitted = None;
         if let Some(cur) = &self.current {
-            let ahead = packet.frame_id.wrapping_sub(cur.frame_id);
+            let mask = self.meta.frame_id_mask();
+            let ahead = packet.frame_id.wrapping_sub(cur.frame_id) & mask;
             let per_frame = self.meta.columns_per_frame / self.meta.columns_per_packet.max(1);
-            if ahead >= 0x8000 && self.late_run <= 2 * per_frame {
+            if ahead > mask / 2 && self.late_run <= 2 * per_frame {
                 self.counts.late_packets += 1;
                 self.late_run += 1;
                 return None;

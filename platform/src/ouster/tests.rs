@@ -23,16 +23,22 @@ pub(super) fn small_meta(profile: LidarProfile, rows: usize, cols: usize) -> Met
 /// Builds a lidar packet: columns `first_m..first_m + 4`, pixel (c, r) range `range(c, r)`.
 pub(super) fn build(
     meta: &Metadata,
-    frame_id: u16,
+    frame_id: u32,
     first_m: u16,
     valid: bool,
     range: impl Fn(usize, usize) -> u32,
 ) -> Vec<u8> {
     let legacy = meta.profile == LidarProfile::Legacy;
     let mut b = Vec::new();
-    if !legacy {
-        b.extend_from_slice(&1u16.to_le_bytes());
+    if !legacy && meta.header_type == HeaderType::Fusa {
+        // Type u8, init id u24, frame id u32, alert flags, serial number u40 at 11.
+        b.extend_from_slice(&[1, 7, 0, 0]);
         b.extend_from_slice(&frame_id.to_le_bytes());
+        b.extend_from_slice(&[0x40, 0, 0, 1, 2, 3, 4, 5]);
+        b.resize(32, 0);
+    } else if !legacy {
+        b.extend_from_slice(&1u16.to_le_bytes());
+        b.extend_from_slice(&(frame_id as u16).to_le_bytes());
         b.extend_from_slice(&[7, 0, 0, 1, 2, 3, 4, 5]);
         b.resize(32, 0);
     }
@@ -41,7 +47,7 @@ pub(super) fn build(
         b.extend_from_slice(&(1_000_000 + u64::from(m) * 1000).to_le_bytes());
         b.extend_from_slice(&m.to_le_bytes());
         if legacy {
-            b.extend_from_slice(&frame_id.to_le_bytes());
+            b.extend_from_slice(&(frame_id as u16).to_le_bytes());
             b.extend_from_slice(&(u32::from(m) * 88).to_le_bytes());
         } else {
             b.extend_from_slice(&u16::from(valid).to_le_bytes());
@@ -329,6 +335,70 @@ fn assembler_handles_frame_id_wrap_and_restart() {
     }
     assert_eq!(emitted, 1);
     assert_eq!(a.counts().late_packets, 5);
+}
+
+#[test]
+fn the_fusa_header_carries_a_32_bit_frame_id() {
+    for profile in [LidarProfile::Single, LidarProfile::LowDataRate] {
+        let mut m = small_meta(profile, 3, 16);
+        m.header_type = HeaderType::Fusa;
+        let d = Decoder::new(&m);
+        let buf = build(&m, 70_000, 8, true, |c, r| (1000 + c * 10 + r) as u32 * 8);
+        assert_eq!(buf.len(), d.lidar_packet_bytes(), "{profile:?}");
+        let p = d.decode_lidar(&buf).unwrap();
+        assert_eq!(p.frame_id, 70_000);
+        assert_eq!((p.init_id, p.prod_sn), (Some(7), Some(0x05_0403_0201)));
+        assert!(p.columns.iter().all(|c| c.frame_id == 70_000));
+        assert_eq!(p.columns[2].pixels[1].range_mm, (1000 + 20 + 1) * 8);
+        // Read as a standard header, the init id's low byte is the packet type's high byte.
+        let std = Decoder::new(&small_meta(profile, 3, 16));
+        let e = std.decode_lidar(&buf).unwrap_err().to_string();
+        assert!(
+            e.contains("packet type 1793") && e.contains("STANDARD"),
+            "{e}"
+        );
+        let mut bad = buf.clone();
+        bad[0] = 2;
+        let e = d.decode_lidar(&bad).unwrap_err().to_string();
+        assert!(e.contains("packet type 2") && e.contains("FUSA"), "{e}");
+    }
+}
+
+#[test]
+fn fusa_frame_ids_wrap_at_32_bits() {
+    let mut m = small_meta(LidarProfile::LowDataRate, 2, 8);
+    m.header_type = HeaderType::Fusa;
+    let d = Decoder::new(&m);
+    let pk = |frame, first| {
+        d.decode_lidar(&build(&m, frame, first, true, |_, _| 900))
+            .unwrap()
+    };
+    let mut a = SweepAssembler::new(&m);
+    assert!(a.push(&pk(65_535, 0)).is_none());
+    // Past 16 bits is newer, not a wrap.
+    assert!(a.push(&pk(65_536, 0)).is_some());
+    assert_eq!(a.last_sweep().unwrap().frame_id, 65_535);
+    assert!(a.push(&pk(u32::MAX, 0)).is_none()); // 2^32 - 65537 ahead: older, late
+    assert_eq!(a.counts().late_packets, 1);
+    let mut a = SweepAssembler::new(&m);
+    assert!(a.push(&pk(u32::MAX, 0)).is_none());
+    assert!(a.push(&pk(0, 0)).is_some()); // 0 follows 2^32 - 1
+    assert_eq!(a.last_sweep().unwrap().frame_id, u32::MAX);
+    // A LEGACY profile's ids stay 16-bit whatever the header type says.
+    m.profile = LidarProfile::Legacy;
+    assert_eq!(m.frame_id_mask(), 0xffff);
+}
+
+#[test]
+fn the_header_type_is_read_from_the_metadata() {
+    let mut v: serde_json::Value = serde_json::from_str(META_JSON).unwrap();
+    assert_eq!(meta().header_type, HeaderType::Standard);
+    v["data_format"]["header_type"] = "FUSA".into();
+    let m = Metadata::from_json(&v.to_string()).unwrap();
+    assert_eq!(m.header_type, HeaderType::Fusa);
+    v["data_format"]["header_type"] = "SAFE".into();
+    let e = Metadata::from_json(&v.to_string()).unwrap_err().to_string();
+    assert!(e.contains("header_type") && e.contains("SAFE"), "{e}");
 }
 
 /// Needs shared/data: the OS1-128 capture decodes into 3 full sweeps and 30 IMU packets.
