@@ -75,12 +75,21 @@ fn reference(args: &[&Path]) -> tempfile::TempDir {
         assert!(a.exists(), "missing {}", a.display());
     }
     let out = tempfile::tempdir().unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/ouster_reference.py");
+    run_script("ouster_reference.py", args, out.path());
+    out
+}
+
+/// Runs `scripts/NAME` with the SDK's Python, `args` and then `out` as arguments; panics with
+/// its standard error when it fails.
+fn run_script(name: &str, args: &[&Path], out: &Path) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../scripts")
+        .join(name);
     let py = python();
     let run = Command::new(&py)
         .arg(&script)
         .args(args)
-        .arg(out.path())
+        .arg(out)
         .output()
         .unwrap_or_else(|e| panic!("cannot run {py}: {e} "));
     assert!(
@@ -89,7 +98,6 @@ fn reference(args: &[&Path]) -> tempfile::TempDir {
         script.display(),
         String::from_utf8_lossy(&run.stderr)
     );
-    out
 }
 
 /// Asserts `ours` equals the reference in `out`: every point within 1 mm and at the same time,
@@ -195,21 +203,11 @@ fn fusa_header_capture_equals_the_ouster_sdk() {
     use povins_platform::ouster::{Decoder, HeaderType, PcapUdp};
     let dir = fixtures();
     let gen = tempfile::tempdir().unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/ouster_fusa_capture.py");
-    let py = python();
-    let run = Command::new(&py)
-        .arg(&script)
-        .arg(dir.join("OS-1-128_v2.3.0_1024x10_lb_n3.pcap"))
-        .arg(dir.join("OS-1-128_v2.3.0_1024x10.json"))
-        .arg(gen.path())
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {py}: {e}"));
-    assert!(
-        run.status.success(),
-        "{}: {}",
-        script.display(),
-        String::from_utf8_lossy(&run.stderr)
+    let (pcap_in, meta_in) = (
+        dir.join("OS-1-128_v2.3.0_1024x10_lb_n3.pcap"),
+        dir.join("OS-1-128_v2.3.0_1024x10.json"),
     );
+    run_script("ouster_fusa_capture.py", &[&pcap_in, &meta_in], gen.path());
     let (capture, meta_path) = (gen.path().join("fusa.pcap"), gen.path().join("fusa.json"));
     let out = reference(&[&capture, &meta_path]);
     let meta = Metadata::from_file(&meta_path).unwrap();
