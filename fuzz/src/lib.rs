@@ -276,9 +276,8 @@ fn ouster_meta() -> &'static povins_platform::ouster::Metadata {
 
 /// `ouster_packets`: byte 0 picks a small packet layout (profile, 1-4 rows, 1-4 columns per
 /// packet, 16 columns per frame, a column window that may wrap, the standard or the `FUSA`
-/// header); the rest is decoded as one
-/// OS1-128 lidar packet, an IMU packet, a run of small-layout lidar packets into the sweep
-/// assembler, metadata JSON and a pcap capture.
+/// header); the rest is decoded as one OS1-128 lidar packet, an IMU packet, a run of
+/// small-layout lidar packets into the sweep assembler, metadata JSON and a pcap capture.
 pub fn ouster_packets(data: &[u8]) {
     use povins_platform::ouster::{
         decode_imu, Decoder, HeaderType, LidarProfile, Metadata, PcapUdp, SweepAssembler,

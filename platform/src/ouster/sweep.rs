@@ -54,9 +54,9 @@ pub struct SweepInfo {
 /// Assembles lidar packets (in arrival order) into sweeps, one per frame id.
 ///
 /// A frame is emitted when a packet of a newer frame arrives (frame ids compared modulo 2^16,
-/// 2^32 in the `FUSA` header, a difference below half of that being newer), and by [`SweepAssembler::finish`]. Points are in the
-/// **sensor** frame (m), each timed by its column's timestamp, in arrival order (column, then
-/// row); the sweep's `t_ns` is its earliest valid column's timestamp. Pixels with range 0 and
+/// 2^32 in the `FUSA` header, a difference below half of that being newer), and by
+/// [`SweepAssembler::finish`]. Points are in the **sensor** frame (m), each timed by its
+/// column's timestamp, in arrival order (column, then row); the sweep's `t_ns` is its earliest valid column's timestamp. Pixels with range 0 and
 /// invalid columns are skipped and counted in [`Counts`]. The intensity is the signal photon
 /// count, or the reflectivity in the low-data-rate profile (which has no signal).
 #[derive(Debug)]
