@@ -20,6 +20,7 @@ pub mod images;
 pub mod kalibr;
 pub mod mcap_io;
 pub mod mcap_log;
+pub mod mcap_record;
 pub mod odometry;
 pub mod ouster;
 pub mod pipeline;

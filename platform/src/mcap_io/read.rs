@@ -128,7 +128,8 @@ impl Records {
     /// Decompresses and checks the chunk record `data` into `chunk` (its allocation reused from
     /// chunk to chunk); why not, when it cannot be read (the caller skips it).
     fn open_chunk(chunk: &mut Vec<u8>, data: &[u8]) -> Result<(), String> {
-        let rec = mcap::parse_record(mcap::records::op::CHUNK, data).map_err(|e| e.to_string())?;
+        let rec = crate::mcap_record::parse_record(mcap::records::op::CHUNK, data)
+            .map_err(|e| e.to_string())?;
         let Record::Chunk { header, data } = rec else {
             return Err("not a chunk".into());
         };
@@ -182,7 +183,7 @@ impl Records {
             if let Some((opcode, range)) = self.chunk_record()? {
                 let at = self.read_bytes;
                 let data = self.chunk.get(range).unwrap_or(&[]);
-                let rec = mcap::parse_record(opcode, data)
+                let rec = crate::mcap_record::parse_record(opcode, data)
                     .map_err(|e| record_err(&self.ctx.path, e, at))?;
                 if let Step::Item(t) = Self::take(&mut self.ctx, &rec, &mut visit)? {
                     return Ok(Some(t));
@@ -218,7 +219,7 @@ impl Records {
                     continue;
                 }
                 LinearReadEvent::Record { data, opcode } => {
-                    match mcap::parse_record(opcode, data) {
+                    match crate::mcap_record::parse_record(opcode, data) {
                         Ok(rec) => rec,
                         Err(e) if opcode == mcap::records::op::ATTACHMENT => {
                             let e = err(e);

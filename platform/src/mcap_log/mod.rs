@@ -244,7 +244,7 @@ impl McapLog {
                 op::SCHEMA | op::CHANNEL | op::STATISTICS | op::CHUNK_INDEX | op::METADATA_INDEX
             ) {
                 let body = read_at(f, &path, pos + FRAME, len)?;
-                let rec = mcap::parse_record(opcode, &body)
+                let rec = crate::mcap_record::parse_record(opcode, &body)
                     .map_err(|e| corrupt(&path, "summary record", pos, e.to_string()))?;
                 match rec {
                     Record::Schema { header, .. } => {
@@ -356,7 +356,7 @@ impl McapLog {
         schemas: &mut BTreeMap<u16, String>,
         loose: &mut Option<Part>,
     ) {
-        let rec = match mcap::parse_record(opcode, body) {
+        let rec = match crate::mcap_record::parse_record(opcode, body) {
             Ok(r) => r,
             Err(e) => {
                 self.warnings.push(format!(
@@ -535,7 +535,7 @@ fn metadata_names(path: &Path) -> Result<Vec<String>, IoError> {
     while let Some((opcode, len)) = frame_at(&mut f, path, pos, end)? {
         if opcode == wanted && len <= MAX_RECORD_BYTES {
             let body = read_at(&mut f, path, pos + FRAME, len)?;
-            match mcap::parse_record(opcode, &body) {
+            match crate::mcap_record::parse_record(opcode, &body) {
                 Ok(Record::Metadata(m)) => names.push(m.name),
                 Ok(Record::MetadataIndex(m)) => names.push(m.name),
                 _ => {}
@@ -565,7 +565,7 @@ fn summary_range(
     if tail[0] != op::FOOTER || tail[FRAME as usize + 20..] != *mcap::MAGIC {
         return Ok(None);
     }
-    match mcap::parse_record(op::FOOTER, &tail[FRAME as usize..][..20]) {
+    match crate::mcap_record::parse_record(op::FOOTER, &tail[FRAME as usize..][..20]) {
         Ok(Record::Footer(ft)) if ft.summary_start >= 8 && ft.summary_start <= footer_pos => {
             Ok(Some((ft.summary_start, footer_pos)))
         }

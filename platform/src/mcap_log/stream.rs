@@ -23,7 +23,7 @@ pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
 /// decoder would reserve it).
 pub(super) fn chunk_records(body: &[u8]) -> Result<Vec<Record<'static>>, String> {
     let Record::Chunk { header, data } =
-        mcap::parse_record(op::CHUNK, body).map_err(|e| e.to_string())?
+        crate::mcap_record::parse_record(op::CHUNK, body).map_err(|e| e.to_string())?
     else {
         return Err("not a chunk".into());
     };
@@ -58,7 +58,7 @@ pub(super) fn chunk_records(body: &[u8]) -> Result<Vec<Record<'static>>, String>
                 reader.notify_read(n);
             }
             LinearReadEvent::Record { opcode, data } => out.push(
-                mcap::parse_record(opcode, data)
+                crate::mcap_record::parse_record(opcode, data)
                     .map_err(|e| e.to_string())?
                     .into_owned(),
             ),
@@ -152,7 +152,7 @@ impl PartLoader for PartReader<'_> {
             let recs = if opcode == op::CHUNK {
                 chunk_records(body).map_err(bad)?
             } else {
-                vec![mcap::parse_record(opcode, body)
+                vec![crate::mcap_record::parse_record(opcode, body)
                     .map_err(|e| bad(e.to_string()))?
                     .into_owned()]
             };
