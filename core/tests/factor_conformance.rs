@@ -189,7 +189,7 @@ impl<const EXT: bool, const TD: bool> Case for DirectLidarDepth<EXT, TD> {
 struct Eliminated<const EXT: bool, const TD: bool>;
 
 impl<const EXT: bool, const TD: bool> Case for Eliminated<EXT, TD> {
-    const LOCAL_INVERSE_DEPTH: bool = true;
+    const LOCALS: usize = 3;
     fn scene() -> Box<Scene> {
         let mut s = landmark_scene(EXT, TD);
         s.lm.lidar = None;
@@ -198,7 +198,7 @@ impl<const EXT: bool, const TD: bool> Case for Eliminated<EXT, TD> {
     fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
         let (v, p) = s.split();
         let vs = VisualSettings::new(p.cfg).unwrap();
-        let elim = EliminatedLandmark::new(vs, p.lm, false, None, p.schur);
+        let elim = EliminatedLandmark::new(vs, p.lm, false, None);
         run(Keeps(elim), &v, f)
     }
     fn nan(s: &mut Scene) {
@@ -213,7 +213,7 @@ impl<const EXT: bool, const TD: bool> Case for Eliminated<EXT, TD> {
 struct Msc<const EXT: bool, const TD: bool>;
 
 impl<const EXT: bool, const TD: bool> Case for Msc<EXT, TD> {
-    const LOCAL_INVERSE_DEPTH: bool = true;
+    const LOCALS: usize = 1;
     fn scene() -> Box<Scene> {
         landmark_scene(EXT, TD)
     }
@@ -234,7 +234,7 @@ impl<const EXT: bool, const TD: bool> Case for Msc<EXT, TD> {
 struct InverseDepth<const EXT: bool, const TD: bool>;
 
 impl<const EXT: bool, const TD: bool> Case for InverseDepth<EXT, TD> {
-    const LOCAL_INVERSE_DEPTH: bool = true;
+    const LOCALS: usize = 1;
     fn scene() -> Box<Scene> {
         landmark_scene(EXT, TD)
     }

@@ -44,9 +44,10 @@ pub enum VisualMode {
 pub enum VisualDepth {
     /// The paper's two-view depth from the anchors `(s, e)`, exact in every residual.
     TwoView,
-    /// The inverse depth that best fits all the landmark's observations, eliminated by its Schur
-    /// complement at every linearization (no landmark state either). With the direct LDM the
-    /// two-view form is used (see [`EstimatorConfig::depth_eliminated`]).
+    /// The inverse depth and the anchor observation's bearing that best fit all the landmark's
+    /// observations, the anchor's included, eliminated by their Schur complement at every
+    /// linearization (no landmark state either; `estimator::problem::visual`). With the direct
+    /// LDM the two-view form is used (see [`EstimatorConfig::depth_eliminated`]).
     Eliminated,
 }
 

@@ -64,9 +64,10 @@ impl<
             .filter(|(j, _)| *j != s)
             .filter_map(|(j, (o, pf))| o.as_ref().map(|o| (j, to(o), pf)));
         // Under the model the landmark was solved with. The inverse-depth residuals on the
-        // landmark's rays at its inverse depth (the last solve's, or for a LiDAR landmark the
-        // depth-only optimization's, paper V.D): the anchor's ray formed once, a few flops per
-        // observation instead of the whole factor chain.
+        // landmark's rays at its inverse depth and anchor bearing correction (the last solve's,
+        // zero where it keeps the bearing exact; or for a LiDAR landmark the depth-only
+        // optimization's, paper V.D): the anchor's ray formed once, a few flops per observation
+        // instead of the whole factor chain.
         if LandmarkModel::of(&self.cfg, lm).uses_inverse_depth() {
             let m = TauLandmark::new(&lm.obs, s, None, sqrt_info, self.window.len());
             let mut rays = heapless::Vec::new();
@@ -74,7 +75,11 @@ impl<
             if let (Some(m), Some(Ok(()))) = (m, ok) {
                 for ((j, _), ray) in m.obs.iter().zip(rays.iter()) {
                     if let Some(o) = out.get_mut(*j) {
-                        *o = ray.residual_and_d_tau(lm.inv_depth).ok().map(|(r, _)| r);
+                        let (delta, tau) = (lm.bearing_delta, lm.inv_depth);
+                        *o = ray
+                            .residual_and_d_bearing_tau(delta, tau)
+                            .ok()
+                            .map(|(r, _)| r);
                     }
                 }
             }
@@ -147,6 +152,7 @@ impl<
                 if s != lm.anchor_s as usize {
                     lm.anchor_s = s as u8;
                     lm.inv_depth = 0.0;
+                    lm.bearing_delta = [0.0; 2];
                     lm.lidar = None;
                 }
             }

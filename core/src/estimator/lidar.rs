@@ -116,7 +116,8 @@ impl<
                 continue;
             };
             if let Ok((tau, _)) = m.solve(&poses, &frames, lm.inv_depth) {
-                lm.inv_depth = tau;
+                // (Solved with the anchor's bearing exact, as the LiDAR measurements take it.)
+                (lm.inv_depth, lm.bearing_delta) = (tau, [0.0; 2]);
             }
         }
     }

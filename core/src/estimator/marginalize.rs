@@ -82,6 +82,7 @@ impl<
             match max_parallax(&rel, count, s1, obs_after_0) {
                 Some((e1, theta, _)) if ok(theta) => {
                     lm.anchor_s = s1 as u8;
+                    lm.bearing_delta = [0.0; 2];
                     lm.anchor_e = Some(e1 as u8);
                     // Depth state of the old anchor: re-initialized at the new one. An
                     // eliminated depth is solved again from the old value (a close start).

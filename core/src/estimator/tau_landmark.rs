@@ -140,6 +140,9 @@ impl<const N: usize> TauLandmark<N> {
             let r_jw = fj.r_wc.transpose();
             let a = r_jw * ray_s;
             let b = r_jw * (fs.p_wc - fj.p_wc);
+            // `R_js`'s first two columns: how the anchor bearing's correction moves the ray.
+            let r_js = r_jw * fs.r_wc;
+            let a_d = [r_js.column(0).into_owned(), r_js.column(1).into_owned()];
             let ok = a
                 .iter()
                 .chain(b.iter())
@@ -150,6 +153,7 @@ impl<const N: usize> TauLandmark<N> {
             }
             let _ = out.push(Ray {
                 a,
+                a_d,
                 b,
                 x_j: Vec2::new(x_j.x, x_j.y),
                 w: f.sqrt_info,
@@ -266,6 +270,9 @@ impl<const N: usize> TauLandmark<N> {
 pub(super) struct Ray {
     /// `R_jw R_ws x_s`.
     pub(super) a: Vec3,
+    /// `R_js e_x`, `R_js e_y`: the derivatives of `a` in a correction `delta` of the anchor's
+    /// bearing `x_s + (delta, 0)` (`estimator::problem::visual`).
+    pub(super) a_d: [Vec3; 2],
     /// `R_jw (p_ws - p_wj)`.
     pub(super) b: Vec3,
     /// The delay-corrected observation in camera `j` (z = 1).
@@ -293,13 +300,40 @@ impl Ray {
         Ok((r, d))
     }
 
-    /// [`Self::residual_and_d_tau`] and the ray's curvature `kappa = b_z / q_z`: the second
-    /// derivative is `d2r/dtau2 = -2 kappa dr/dtau` (`u'' = -2 u' b_z / q_z` for
-    /// `u = q_x / q_z`, `q = a + tau b`).
+    /// Whitened residual `w (pi(a + R_js (delta, 0) + tau b) - x_j)` with the anchor's bearing
+    /// corrected by `delta`, and its derivatives in `delta.x`, `delta.y` and `tau`.
     #[inline]
-    pub(super) fn residual_d_tau_curvature(&self, tau: f64) -> Result<(Vec2, Vec2, f64), Error> {
-        let (r, d) = self.residual_and_d_tau(tau)?;
-        let q_z = self.a.z + self.b.z * tau;
-        Ok((r, d, self.b.z / q_z))
+    pub(super) fn residual_and_d_bearing_tau(
+        &self,
+        delta: [f64; 2],
+        tau: f64,
+    ) -> Result<(Vec2, [Vec2; 3]), Error> {
+        let [dx, dy] = self.a_d;
+        let q = self.a + dx * delta[0] + dy * delta[1] + self.b * tau;
+        if q.z <= MIN_Z_REL * q.norm() || tau <= 0.0 {
+            return Err(Error::Degenerate);
+        }
+        let iz = 1.0 / q.z;
+        let (u, v) = (q.x * iz, q.y * iz);
+        let r = Vec2::new((u - self.x_j.x) * self.w.x, (v - self.x_j.y) * self.w.y);
+        // d pi / d q applied to a direction `e` of `q`.
+        let d = |e: &Vec3| {
+            Vec2::new(
+                (e.x - u * e.z) * iz * self.w.x,
+                (e.y - v * e.z) * iz * self.w.y,
+            )
+        };
+        Ok((r, [d(&dx), d(&dy), d(&self.b)]))
+    }
+
+    /// The ray's curvatures `kappa_k = e_k.z / q_z` in `(delta.x, delta.y, tau)` (`e_k` the
+    /// direction each moves `q` in): the residual's second derivatives are
+    /// `d2r/du_k du_l = -(kappa_l dr/du_k + kappa_k dr/du_l)` (for `u = q_x / q_z`,
+    /// `u_kl = -(u_k e_l.z + u_l e_k.z) / q_z`).
+    #[inline]
+    pub(super) fn curvatures(&self, delta: [f64; 2], tau: f64) -> [f64; 3] {
+        let [dx, dy] = self.a_d;
+        let q_z = self.a.z + dx.z * delta[0] + dy.z * delta[1] + self.b.z * tau;
+        [dx.z / q_z, dy.z / q_z, self.b.z / q_z]
     }
 }

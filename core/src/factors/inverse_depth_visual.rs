@@ -40,6 +40,19 @@ pub struct InverseDepthJacobians {
     pub d_td: [Vec2; 2],
 }
 
+impl InverseDepthJacobians {
+    /// The Jacobians without the extrinsic's.
+    pub fn poses(&self) -> PoseJacobians {
+        PoseJacobians {
+            r: self.r,
+            d_pose_s: self.d_pose_s,
+            d_pose_j: self.d_pose_j,
+            d_tau: self.d_tau,
+            d_td: self.d_td,
+        }
+    }
+}
+
 /// Observation `j` of a landmark parameterized by its inverse depth in anchor keyframe `s`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InverseDepthVisualFactor {

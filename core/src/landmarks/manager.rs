@@ -55,6 +55,10 @@ pub struct Landmark<const N: usize> {
     pub anchor_e: Option<u8>,
     /// Inverse depth in the anchor camera (inverse-depth mode state, and depth-only results), 1/m.
     pub inv_depth: f64,
+    /// Correction `(dx, dy)` of the anchor observation's normalized bearing, solved with the
+    /// inverse depth where the depth is eliminated (`estimator::problem::visual`; a warm start,
+    /// zero after every change of anchor).
+    pub bearing_delta: [f64; 2],
     /// True once the landmark passed the parallax gate and may enter the optimization.
     pub usable: bool,
     /// Associated LiDAR depth in the anchor frame, if any.
@@ -234,6 +238,7 @@ impl<const N: usize, const L: usize, const H: usize, const F: usize> LandmarkMan
             anchor_s: 0,
             anchor_e: None,
             inv_depth: 0.0,
+            bearing_delta: [0.0; 2],
             usable: false,
             lidar: None,
             marg: MargPlan::None,
@@ -386,6 +391,7 @@ impl<const N: usize, const L: usize, const H: usize, const F: usize> LandmarkMan
                     .find(lm.anchor_s as usize, lm.id)
                     .and_then(|o| o.lidar);
                 lm.inv_depth = lm.lidar.map_or(0.0, |d| 1.0 / d.depth_m);
+                lm.bearing_delta = [0.0; 2];
             }
         }
         self.retain(|lm| lm.first_obs().is_some(), false)

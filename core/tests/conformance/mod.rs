@@ -229,6 +229,7 @@ impl Scene {
             anchor_s: 0,
             anchor_e: Some(3),
             inv_depth: 1.0 / depth0,
+            bearing_delta: [0.0; 2],
             usable: true,
             lidar: Some(LidarDepth {
                 depth_m: depth0,
@@ -297,9 +298,9 @@ impl Scene {
     }
 
     /// Moves the variables by `dx` on the layout's columns as the LM applies a step
-    /// (`p += dp`, `R <- R Exp(dtheta)`, ...); with `local`, the entry after them moves the
-    /// landmark's inverse depth.
-    pub fn apply(&mut self, dx: &[f64], local: bool) {
+    /// (`p += dp`, `R <- R Exp(dtheta)`, ...); `locals` entries after them move the landmark's
+    /// own parameters: 1, its inverse depth; 3, its anchor bearing correction and inverse depth.
+    pub fn apply(&mut self, dx: &[f64], locals: usize) {
         let l = self.layout;
         let get3 = |c: usize| Vec3::new(dx[c], dx[c + 1], dx[c + 2]);
         for k in 0..self.window.len() {
@@ -321,8 +322,16 @@ impl Scene {
             self.ext.p_bc += get3(c);
             self.ext.q_bc *= quat_exp(&get3(c + 3));
         }
-        if local {
-            self.lm.inv_depth += dx[l.dim()];
+        let n = l.dim();
+        match locals {
+            0 => {}
+            1 => self.lm.inv_depth += dx[n],
+            3 => {
+                self.lm.bearing_delta[0] += dx[n];
+                self.lm.bearing_delta[1] += dx[n + 1];
+                self.lm.inv_depth += dx[n + 2];
+            }
+            _ => panic!("{locals} local parameters"),
         }
     }
 
@@ -342,16 +351,17 @@ impl Scene {
         let dx: Vec<f64> = (0..s.layout.dim())
             .map(|_| rng.range(-3e-4, 3e-4))
             .collect();
-        s.apply(&dx, false);
+        s.apply(&dx, 0);
         s
     }
 }
 
 /// One factor under the suite: how to build it on a scene and how to break it.
 pub trait Case {
-    /// The factor is a landmark's measurement with the landmark's inverse depth (eliminated in
-    /// its linearization, moved by [`Scene::apply`] with `local`).
-    const LOCAL_INVERSE_DEPTH: bool = false;
+    /// The landmark's own parameters the factor eliminates in its linearization (moved by
+    /// [`Scene::apply`]): 0; 1, the inverse depth; 3, the anchor bearing correction and the
+    /// inverse depth.
+    const LOCALS: usize = 0;
     /// The exact scene.
     fn scene() -> Box<Scene>;
     /// Builds the factor on `s` and runs `f` on it.
@@ -375,6 +385,10 @@ pub trait Eval {
     fn inverse_depth(&self) -> Option<f64> {
         None
     }
+    /// The anchor bearing correction the landmark keeps after the last evaluation, if any.
+    fn bearing_delta(&self) -> Option<[f64; 2]> {
+        None
+    }
 }
 
 /// A landmark's measurement as an [`Eval`] that reports the inverse depth it keeps.
@@ -396,6 +410,9 @@ impl<F: LandmarkFactor<N, D>> Eval for Keeps<F> {
     }
     fn inverse_depth(&self) -> Option<f64> {
         LandmarkFactor::<N, D>::inverse_depth(&self.0)
+    }
+    fn bearing_delta(&self) -> Option<[f64; 2]> {
+        LandmarkFactor::<N, D>::bearing_delta(&self.0)
     }
 }
 
@@ -440,12 +457,15 @@ fn linearize<C: Case>(s: &mut Scene) -> Result<(Box<NormalEquations<D>>, f64), E
 fn settle<C: Case>(s: &mut Scene) {
     let mut ne = Box::new(NormalEquations::<D>::new());
     ne.reset(s.layout.dim()).unwrap();
-    let tau = C::with(s, |f, v| {
+    let (tau, delta) = C::with(s, |f, v| {
         f.linearize(v, &mut ne).unwrap();
-        f.inverse_depth()
+        (f.inverse_depth(), f.bearing_delta())
     });
     if let Some(tau) = tau {
         s.lm.inv_depth = tau;
+    }
+    if let Some(delta) = delta {
+        s.lm.bearing_delta = delta;
     }
 }
 
@@ -464,14 +484,14 @@ fn noisy<C: Case>() -> Box<Scene> {
 }
 
 /// The Gauss–Newton system `(H, b)` of the residual rows at `s` by central differences over the
-/// layout's columns (and the local variable), the local variable eliminated.
+/// layout's columns (and the local variables), the local variables eliminated.
 fn reference<C: Case>(s: &Scene) -> (Vec<Vec<f64>>, Vec<f64>) {
     let nx = s.layout.dim();
-    let n = nx + usize::from(C::LOCAL_INVERSE_DEPTH);
+    let n = nx + C::LOCALS;
     let r0 = residuals::<C>(&mut s.clone()).expect("residuals at the scene");
     let (m, jac) = central_differences(n, H, |dx| {
         let mut t = Box::new(s.clone());
-        t.apply(dx, C::LOCAL_INVERSE_DEPTH);
+        t.apply(dx, C::LOCALS);
         residuals::<C>(&mut t).expect("residuals near the scene")
     });
     assert_eq!(m, r0.len());
@@ -484,12 +504,13 @@ fn reference<C: Case>(s: &Scene) -> (Vec<Vec<f64>>, Vec<f64>) {
             h[a][c] = (0..m).map(|r| j(r, a) * j(r, c)).sum();
         }
     }
-    if C::LOCAL_INVERSE_DEPTH {
-        let l = nx;
-        assert!(h[l][l] > 0.0, "the inverse depth is observed");
-        for a in 0..nx {
+    // The local variables eliminated one after the other (a block Schur complement).
+    for l in nx..n {
+        assert!(h[l][l] > 0.0, "the local variable {} is observed", l - nx);
+        let rest = || (0..nx).chain(l + 1..n);
+        for a in rest() {
             b[a] -= h[a][l] * b[l] / h[l][l];
-            for c in 0..nx {
+            for c in rest() {
                 h[a][c] -= h[a][l] * h[l][c] / h[l][l];
             }
         }

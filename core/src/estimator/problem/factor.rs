@@ -145,6 +145,11 @@ pub trait LandmarkFactor<const N: usize, const D: usize>: WindowFactor<N, D> {
     fn inverse_depth(&self) -> Option<f64> {
         None
     }
+    /// The correction of the anchor's bearing the landmark keeps after the last `add` (where the
+    /// measurement solves for it with the depth), if any.
+    fn bearing_delta(&self) -> Option<[f64; 2]> {
+        None
+    }
 }
 
 /// How a landmark's observations enter the window's problem: the one choice of a landmark's
@@ -160,7 +165,8 @@ pub enum LandmarkModel {
     /// [`LandmarkModel::TwoView`] with the direct LiDAR-depth measurement beside it (a LiDAR
     /// landmark with [`LdmMode::Direct`], `estimator::problem::lidar`).
     DirectLidar,
-    /// Pose-only reprojections with the inverse depth that fits all observations eliminated
+    /// Pose-only reprojections with the inverse depth and anchor bearing that fit all
+    /// observations eliminated
     /// ([`VisualDepth::Eliminated`](super::VisualDepth::Eliminated),
     /// `estimator::problem::visual`).
     Eliminated,

@@ -73,6 +73,7 @@ struct Added {
     observations: u32,
     ldm: u32,
     inverse_depth: Option<f64>,
+    bearing_delta: Option<[f64; 2]>,
 }
 
 /// Adds `f` and reports what it contributed.
@@ -87,6 +88,7 @@ fn add<const N: usize, const D: usize>(
         observations: f.observations(),
         ldm: f.depth_measurements(),
         inverse_depth: f.inverse_depth(),
+        bearing_delta: f.bearing_delta(),
     })
 }
 
@@ -148,11 +150,13 @@ impl<const N: usize, const L: usize> LandmarkPass<'_, N, L> {
                 }
                 (_, LandmarkModel::Eliminated, Part::Whole | Part::WithoutObsZero) => {
                     let cached = self.saved.tau_ok.get(li).copied().unwrap_or(false);
-                    let cached_tau = (self.tau_fresh && linearize && cached)
-                        .then(|| self.saved.tau.get(li).copied())
-                        .flatten();
+                    let saved = (self.saved.delta.get(li), self.saved.tau.get(li));
+                    let cached = match (self.tau_fresh && linearize && cached, saved) {
+                        (true, (Some(d), Some(t))) => Some((*d, *t)),
+                        _ => None,
+                    };
                     let rest = part == Part::WithoutObsZero;
-                    add(EliminatedLandmark::new(vs, lm, rest, cached_tau, sc), v, ne)
+                    add(EliminatedLandmark::new(vs, lm, rest, cached), v, ne)
                 }
                 (_, LandmarkModel::DirectLidar, Part::Whole) => {
                     let Some(f) = DirectLidarLandmark::new(vs, lm) else {
@@ -177,7 +181,8 @@ impl<const N: usize, const L: usize> LandmarkPass<'_, N, L> {
                     }
                     self.counts.ldm += a.ldm;
                     if let Some(tau) = a.inverse_depth {
-                        self.keep_inverse_depth(li, tau, model, linearize);
+                        let delta = a.bearing_delta.unwrap_or([0.0; 2]);
+                        self.keep_inverse_depth(li, tau, delta, model, linearize);
                     }
                 }
                 Err(_) if linearize => {
@@ -192,17 +197,30 @@ impl<const N: usize, const L: usize> LandmarkPass<'_, N, L> {
         Ok(cost)
     }
 
-    /// Landmark `li` keeps the inverse depth `tau` its factor solved for; an eliminated depth of
-    /// a cost evaluation is also kept for the linearization at the same state.
-    fn keep_inverse_depth(&mut self, li: usize, tau: f64, model: LandmarkModel, linearize: bool) {
+    /// Landmark `li` keeps the inverse depth `tau` (and anchor bearing correction `delta`) its
+    /// factor solved for; an eliminated depth of a cost evaluation is also kept for the
+    /// linearization at the same state.
+    fn keep_inverse_depth(
+        &mut self,
+        li: usize,
+        tau: f64,
+        delta: [f64; 2],
+        model: LandmarkModel,
+        linearize: bool,
+    ) {
         if model == LandmarkModel::Eliminated && !linearize {
-            if let (Some(t), Some(ok)) = (self.saved.tau.get_mut(li), self.saved.tau_ok.get_mut(li))
-            {
-                (*t, *ok) = (tau, true);
+            let saved = &mut *self.saved;
+            if let (Some(t), Some(d), Some(ok)) = (
+                saved.tau.get_mut(li),
+                saved.delta.get_mut(li),
+                saved.tau_ok.get_mut(li),
+            ) {
+                (*t, *d, *ok) = (tau, delta, true);
             }
         }
         if let Some(lm) = self.lms.landmarks_mut().get_mut(li) {
             lm.inv_depth = tau;
+            lm.bearing_delta = delta;
         }
     }
 }

@@ -101,9 +101,11 @@ pub struct AssemblyCounts {
 pub struct Saved<const N: usize, const L: usize> {
     states: [(NavState, f64); N],
     ext: CameraExtrinsic,
-    inv_depth: [f64; L],
+    inv_depth: [(f64, [f64; 2]); L],
     /// Eliminated landmarks' `tau*` of the last cost evaluation (where `tau_ok`).
     pub(super) tau: [f64; L],
+    /// ... and their anchor bearing corrections `delta*`.
+    pub(super) delta: [[f64; 2]; L],
     pub(super) tau_ok: [bool; L],
 }
 
@@ -117,8 +119,9 @@ impl<const N: usize, const L: usize> Saved<N, L> {
                 p_bc: crate::math::VEC3_ZERO,
                 q_bc: NavState::ZERO.q_wb,
             },
-            inv_depth: [0.0; L],
+            inv_depth: [(0.0, [0.0; 2]); L],
             tau: [0.0; L],
+            delta: [[0.0; 2]; L],
             tau_ok: [false; L],
         }
     }
@@ -130,8 +133,9 @@ impl<const N: usize, const L: usize> Saved<N, L> {
             p_bc: Vec3::zeros(),
             q_bc: NavState::ZERO.q_wb,
         };
-        self.inv_depth.fill(0.0);
+        self.inv_depth.fill((0.0, [0.0; 2]));
         self.tau.fill(0.0);
+        self.delta.fill([0.0; 2]);
         self.tau_ok.fill(false);
     }
 }
@@ -344,7 +348,7 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
             .iter()
             .zip(self.saved.inv_depth.iter_mut())
         {
-            *s = lm.inv_depth;
+            *s = (lm.inv_depth, lm.bearing_delta);
         }
     }
 
@@ -363,7 +367,7 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
             .iter_mut()
             .zip(self.saved.inv_depth.iter())
         {
-            lm.inv_depth = *s;
+            (lm.inv_depth, lm.bearing_delta) = *s;
         }
     }
 }

@@ -6,36 +6,52 @@
 //! two-view depth costs about a quarter of the accuracy the same observations give when the depth
 //! is estimated from all of them (the inverse-depth baseline: 0.055 vs 0.075 m median ATE over ten
 //! seeds): the depth's error enters every residual of the landmark alike, and a noisy second
-//! anchor picks the depth. So the depth is eliminated instead, still without being a state: at
-//! each evaluation the inverse depth `tau*` that minimizes the landmark's robust reprojection
-//! cost is solved for the current poses (one or two 1-D Newton steps on the rays
-//! `P_j ~ a_j + tau b_j`, from the last solution: [`newton_tau`]), and the linearization projects
-//! `tau` out by its Schur complement (variable projection), exactly as the MSC-based LiDAR-depth
-//! measurement does without its depth row (`estimator::problem::lidar`):
+//! anchor picks the depth. So the depth is eliminated instead, still without being a state.
+//!
+//! The same holds for the anchor's own observation: every residual `j != s` is predicted from
+//! the anchor's bearing `x_s`, so taking `x_s` as exact puts the anchor's pixel error into all of
+//! a track's residuals alike, counted once per observation instead of once. Measured on 15
+//! simulated LiDAR flights (session 50, BENCHMARKS "The pixel noise against the NEES"), the
+//! window's covariance was overconfident by about a factor 2 from it. So the anchor's bearing
+//! is a nuisance parameter too: `x_s + (delta, 0)`, with the anchor's observation a residual
+//! `r_s = W delta` like the others. The rays stay linear in the three parameters
+//! `u = (delta.x, delta.y, tau)`: camera `j` sees the landmark along
 //!
 //! ```text
-//! H += sum_j J_j^T W_j J_j - v v^T / c,   v = sum_j J_j^T W_j g_j,   c = sum_j g_j^T W_j g_j
+//! P_j ~ a_j + R_js (delta, 0) + tau b_j
 //! ```
 //!
-//! with `J_j` the residual's Jacobian on the poses (of `s` and `j` only) and `g_j` on `tau`,
-//! `W_j` the observation's Huber weight. The measurement is a function of the poses alone: the
-//! landmark has no state, its cost is `min_tau` of the reprojection cost, so the LM's gain ratio
+//! At each evaluation the `u*` that minimizes the landmark's robust reprojection cost is solved
+//! for the current poses (IRLS Gauss–Newton on the rays from the last solution, a few 3x3 solves:
+//! [`solve_bearing_tau`]), and the linearization projects `u` out by its Schur complement
+//! (variable projection), as the MSC-based LiDAR-depth measurement does with its depth alone
+//! (`estimator::problem::lidar`):
+//!
+//! ```text
+//! H += sum_j J_j^T W_j J_j - V C^-1 V^T,   V = sum_j J_j^T W_j G_j,   C = sum_j G_j^T W_j G_j
+//! ```
+//!
+//! with `J_j` the residual's Jacobian on the window's variables (the poses of `s` and `j`, their
+//! delays, the extrinsic), `G_j` (2x3) on `u` (the anchor's residual: `G_s = [W 0]`, no `J`),
+//! `W_j` the observation's Huber weight; `V C^-1 V^T` is folded in as three rank-one updates of
+//! `V L^-T` (`C = L L^T`). The measurement is a function of the window's variables alone: the
+//! landmark has no state, its cost is `min_u` of the reprojection cost, so the LM's gain ratio
 //! compares what the linear model predicts.
 #![deny(clippy::too_many_lines)]
 
-use super::factor::{put_rows, LandmarkFactor, VisualSettings, WindowFactor, WindowVars};
-use super::lidar::add_inverse_depth_obs;
-use super::SCHUR_COLS;
+use super::factor::{
+    put_rows, row_major, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
+};
+use crate::camera::Vec2;
 use crate::estimator::tau_landmark::{Ray, TauLandmark};
-use crate::estimator::window::{Block, Layout};
-use crate::factors::inverse_depth_visual::WindowRotations;
+use crate::estimator::window::Block;
+use crate::factors::inverse_depth_visual::{InverseDepthVisualFactor, WindowRotations};
 use crate::factors::robust::Huber;
-use crate::factors::KeyframePose;
 use crate::landmarks::Landmark;
-use crate::solver::{LandmarkSchur, NormalEquations};
+use crate::solver::{JacobianBlock, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
-use nalgebra::Vector6;
+use nalgebra::Matrix2x6;
 
 /// The pose-only measurement of a landmark with its inverse depth eliminated (module docs).
 pub struct EliminatedLandmark<'a, const N: usize> {
@@ -44,32 +60,30 @@ pub struct EliminatedLandmark<'a, const N: usize> {
     /// Without the observation at position 0 (what stays of a re-anchored landmark after the
     /// marginalization, `FactorSet::OldestRest`).
     without_obs_zero: bool,
-    /// `tau*` of a cost evaluation at the same state, for the linearization to take.
-    cached_tau: Option<f64>,
-    schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+    /// `(delta*, tau*)` of a cost evaluation at the same state, for the linearization to take.
+    cached: Option<([f64; 2], f64)>,
     tau: Option<f64>,
+    delta: Option<[f64; 2]>,
     n_obs: u32,
 }
 
 impl<'a, const N: usize> EliminatedLandmark<'a, N> {
-    /// The measurement of `lm` (`without_obs_zero`: without its observation at position 0),
-    /// with `schur` as its accumulator when the extrinsic is estimated. A linearization takes
-    /// `cached_tau` as `tau*` when given (the state has not changed since the cost evaluation
-    /// that solved for it: bit-identical).
+    /// The measurement of `lm` (`without_obs_zero`: without its observation at position 0). A
+    /// linearization takes `cached` as `(delta*, tau*)` when given (the state has not changed
+    /// since the cost evaluation that solved for them: bit-identical).
     pub fn new(
         vs: VisualSettings<'a>,
         lm: &'a Landmark<N>,
         without_obs_zero: bool,
-        cached_tau: Option<f64>,
-        schur: &'a mut LandmarkSchur<SCHUR_COLS>,
+        cached: Option<([f64; 2], f64)>,
     ) -> Self {
         EliminatedLandmark {
             vs,
             lm,
             without_obs_zero,
-            cached_tau,
-            schur,
+            cached,
             tau: None,
+            delta: None,
             n_obs: 0,
         }
     }
@@ -91,68 +105,55 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
         v: &WindowVars<'_, N>,
         ne: Option<&mut NormalEquations<D>>,
     ) -> Result<f64, Error> {
-        self.tau = None;
+        (self.tau, self.delta) = (None, None);
         let (lm, huber) = (self.lm, &self.vs.huber);
-        let s = lm.anchor_s as usize;
         let m = self.tau_landmark(v.count)?;
         self.n_obs = m.obs.len() as u32;
-        let tau = match (self.cached_tau, &ne) {
-            (Some(tau), Some(_)) => tau,
+        let (delta, tau) = match (self.cached, &ne) {
+            (Some(c), Some(_)) => c,
             _ => {
                 let mut rays = HVec::new();
                 m.rays_into(&v.poses, &v.frames, &mut rays)?;
-                let (tau, cost) = newton_tau(&rays, lm.inv_depth, huber)?;
+                let w_s = self.vs.sqrt_info;
+                let (delta, tau, cost) =
+                    solve_bearing_tau(&rays, w_s, lm.bearing_delta, lm.inv_depth, huber)?;
                 if ne.is_none() {
                     // The next solve (the linearization or the marginalization at this state,
                     // the next trial near it) starts from here; a rejected LM trial restores
-                    // the depth with the state.
-                    self.tau = Some(tau);
+                    // them with the state.
+                    (self.tau, self.delta) = (Some(tau), Some(delta));
                     return Ok(cost);
                 }
-                tau
+                (delta, tau)
             }
         };
         let Some(ne) = ne else {
             return Err(Error::DimensionMismatch);
         };
-        let poses = &v.poses;
-        let ps = poses.get(s).ok_or(Error::DimensionMismatch)?;
-        let l = &v.layout;
-        if !v.est_ext {
-            let cost = match v.rotations() {
-                Some(rot) => accumulate_eliminated(&m, poses, rot, tau, huber, l, ne)?,
-                None => {
-                    let rot = WindowRotations::new(poses, v.count, v.ext);
-                    accumulate_eliminated(&m, poses, &rot, tau, huber, l, ne)?
-                }
-            };
-            self.tau = Some(tau);
-            return Ok(cost);
-        }
-        let sc = &mut *self.schur;
-        sc.clear();
-        let mut cost = 0.0;
-        for (j, f) in m.obs.iter() {
-            let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
-            let jac = f.evaluate(ps, pj, v.ext, tau)?;
-            let sq = jac.r.norm_squared();
-            cost += huber.rho(sq)[0];
-            let (est_td, est_ext) = (v.est_td, v.est_ext);
-            let w = huber.sqrt_weight(sq);
-            add_inverse_depth_obs(sc, ne, &jac, w, s, *j, l, est_td, est_ext)?;
-        }
-        sc.fold_into(ne, 0.0)?;
-        self.tau = Some(tau);
+        let at = Solved {
+            delta,
+            tau,
+            w_s: self.vs.sqrt_info,
+        };
+        let cost = match v.rotations() {
+            Some(rot) => accumulate_eliminated(&m, v, rot, &at, huber, ne)?,
+            None => {
+                let rot = WindowRotations::new(&v.poses, v.count, v.ext);
+                accumulate_eliminated(&m, v, &rot, &at, huber, ne)?
+            }
+        };
+        (self.tau, self.delta) = (Some(tau), Some(delta));
         Ok(cost)
     }
 
     fn residuals(&mut self, v: &WindowVars<'_, N>, out: &mut [f64]) -> Result<usize, Error> {
         let m = self.tau_landmark(v.count)?;
         let rays = m.rays(&v.poses, &v.frames)?;
-        let tau = self.lm.inv_depth;
-        let mut rows = 0;
+        let (lm, w) = (self.lm, self.vs.sqrt_info);
+        let delta = lm.bearing_delta;
+        let mut rows = put_rows(&[w.x * delta[0], w.y * delta[1]], out)?;
         for ray in rays.iter() {
-            let (r, _) = ray.residual_and_d_tau(tau)?;
+            let (r, _) = ray.residual_and_d_bearing_tau(delta, lm.inv_depth)?;
             rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
         }
         Ok(rows)
@@ -167,157 +168,446 @@ impl<const N: usize, const D: usize> LandmarkFactor<N, D> for EliminatedLandmark
     fn inverse_depth(&self) -> Option<f64> {
         self.tau
     }
+
+    fn bearing_delta(&self) -> Option<[f64; 2]> {
+        self.delta
+    }
 }
 
-/// Most passes over the rays of [`newton_tau`] (it stops long before: one or two from the last
-/// solution; the Gauss–Newton fallback converges linearly).
-const NEWTON_PASSES: usize = 60;
-/// A Newton step of at most this fraction of `tau` is the last one: Newton converges
-/// quadratically, so the error it leaves is of the order of `(step / tau)^2` times the ray's
-/// relative curvature `tau b_z / q_z` (the baseline over the depth) and the Huber weights'
-/// change: about 1e-8 of `tau` (1.6e-8 in the unit test with an outlier), under the 1e-7 the
-/// linearly converging Gauss–Newton stopped at.
-const NEWTON_LAST_STEP: f64 = 1e-4;
-/// Relative step at which a Gauss–Newton step (the fallback where the cost is not clearly convex
-/// in `tau`) is the last one.
-const GN_LAST_STEP: f64 = 1e-7;
+/// Most passes over the rays of [`solve_bearing_tau`] (it stops after one to three from the
+/// last solution; the Gauss–Newton fallback converges linearly).
+const BEARING_PASSES: usize = 60;
+/// A Newton step of at most this fraction of `tau` (and of this many normalized units, about
+/// 5e-5 px, in the bearing) is the last one: Newton converges quadratically, so what it leaves
+/// is of the order of the step squared times the rays' curvature, far below the noise; the
+/// cost returned is the last pass's plus the step's quadratic model (exact to third order).
+const NEWTON_LAST_STEP: [f64; 2] = [1e-7, 1e-5];
+/// The same for a Gauss–Newton step (where the cost is not clearly convex), which converges
+/// linearly.
+const GN_LAST_STEP: f64 = 1e-9;
+/// Newton steps are taken where the Gauss–Newton step is at most this (bearing, fraction of
+/// `tau`): near the minimum, as a warm start from the last solution is.
+const NEWTON_FROM: [f64; 2] = [1e-3, 0.05];
 
-/// `tau*` of an eliminated landmark and its robust cost `sum_j rho(|r_j(tau*)|^2)`: Newton's
-/// method on the 1-D robust cost from `tau0` (the last solution). Each pass over the rays forms
-/// the cost, its derivative `2 g` and its exact second derivative `2 h` with the rays' curvature
-/// (`r'' = -2 kappa r'`) and the Huber kernel's `rho''`:
+/// Cholesky factor `L` (lower, `L L^T = h`) of a symmetric 3x3 matrix, and whether its last
+/// pivot is positive (the first two must be: [`Error::NonFinite`] otherwise).
+fn chol3(h: &[[f64; 3]; 3]) -> Result<([[f64; 3]; 3], bool), Error> {
+    let mut l = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..=i {
+            let mut sum = h[i][j];
+            for (a, b) in l[i].iter().zip(l[j].iter()).take(j) {
+                sum -= a * b;
+            }
+            if i == j {
+                if !(sum > 1e-12 && sum.is_finite()) {
+                    if i == 2 && sum.is_finite() {
+                        return Ok((l, false));
+                    }
+                    return Err(Error::NonFinite);
+                }
+                l[i][i] = libm::sqrt(sum);
+            } else {
+                l[i][j] = sum / l[j][j];
+            }
+        }
+    }
+    Ok((l, true))
+}
+
+/// `L^-1 v` by forward substitution over the first `n` rows.
+fn forward3(l: &[[f64; 3]; 3], v: [f64; 3], n: usize) -> [f64; 3] {
+    let mut u = [0.0; 3];
+    for i in 0..n {
+        let mut sum = v[i];
+        for k in 0..i {
+            sum -= l[i][k] * u[k];
+        }
+        u[i] = sum / l[i][i];
+    }
+    u
+}
+
+/// The solution of `h x = v` for a full-rank Cholesky factor of `h` ([`chol3`]).
+fn solve3(l: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    let y = forward3(l, v, 3);
+    let mut x = [0.0; 3];
+    for i in (0..3).rev() {
+        let mut sum = y[i];
+        for k in i + 1..3 {
+            sum -= l[k][i] * x[k];
+        }
+        x[i] = sum / l[i][i];
+    }
+    x
+}
+
+/// What [`bearing_pass`] returns: `(cost, g, h, h_gn)`.
+type BearingPass = (f64, [f64; 3], [[f64; 3]; 3], [[f64; 3]; 3]);
+
+/// One pass of [`solve_bearing_tau`] at `(delta, tau)` in `u = (delta.x, delta.y, tau)`: the
+/// robust cost, half its gradient `g`, half its exact Hessian `h` and the Gauss–Newton part
+/// of the latter `h_gn` (the anchor's residual `w_s delta` included):
 ///
 /// ```text
-/// g = sum rho' r.r',   h = sum rho' (|r'|^2 + r.r'') + 2 rho'' (r.r')^2
+/// g = sum rho' J^T r,   h_gn = sum rho' J^T J,
+/// h = sum rho' (J^T J + sum_c r_c d2r_c) + 2 rho'' (J^T r)(J^T r)^T
 /// ```
 ///
-/// (where `h` is not clearly positive, a Gauss–Newton step with `h_gn = sum rho' |r'|^2`). The
-/// cost at the final `tau` is the last pass's cost plus its quadratic model's change over the
-/// last step (exact to third order in a step of at most 1e-4 of `tau`), so no pass is spent on
-/// it. Errors: [`Error::NotEnoughData`] without a positive start, [`Error::NonFinite`],
-/// [`Error::Degenerate`] for a ray behind its camera.
-pub(super) fn newton_tau(rays: &[Ray], tau0: f64, huber: &Huber) -> Result<(f64, f64), Error> {
+/// with the rays' second derivatives from their curvatures ([`Ray::curvatures`]).
+fn bearing_pass(
+    rays: &[Ray],
+    w_s: Vec2,
+    delta: [f64; 2],
+    tau: f64,
+    huber: &Huber,
+) -> Result<BearingPass, Error> {
+    let r_s = Vec2::new(w_s.x * delta[0], w_s.y * delta[1]);
+    let [rho, w, w2] = huber.rho(r_s.norm_squared());
+    let mut cost = rho;
+    let mut g = [w * w_s.x * r_s.x, w * w_s.y * r_s.y, 0.0];
+    let (mut h, mut h_gn) = ([[0.0; 3]; 3], [[0.0; 3]; 3]);
+    h_gn[0][0] = w * w_s.x * w_s.x;
+    h_gn[1][1] = w * w_s.y * w_s.y;
+    for a in 0..2 {
+        for b in 0..2 {
+            h[a][b] = h_gn[a][b] + 2.0 * w2 * g[a] * g[b] / (w * w);
+        }
+    }
+    for ray in rays {
+        let (r, d) = ray.residual_and_d_bearing_tau(delta, tau)?;
+        let kappa = ray.curvatures(delta, tau);
+        let [rho, w, w2] = huber.rho(r.norm_squared());
+        let rd = d.map(|dk| r.dot(&dk));
+        cost += rho;
+        for a in 0..3 {
+            g[a] += w * rd[a];
+            for b in 0..=a {
+                let gn = d[a].dot(&d[b]);
+                h_gn[a][b] += w * gn;
+                let curv = -(rd[a] * kappa[b] + rd[b] * kappa[a]);
+                h[a][b] += w * (gn + curv) + 2.0 * w2 * rd[a] * rd[b];
+            }
+        }
+    }
+    for a in 0..3 {
+        for b in 0..a {
+            h[b][a] = h[a][b];
+            h_gn[b][a] = h_gn[a][b];
+        }
+    }
+    let finite = cost.is_finite()
+        && g.iter()
+            .chain(h.iter().flatten())
+            .chain(h_gn.iter().flatten())
+            .all(|v| v.is_finite());
+    if !finite {
+        return Err(Error::NonFinite);
+    }
+    Ok((cost, g, h, h_gn))
+}
+
+/// `(delta*, tau*)` of an eliminated landmark with its anchor's bearing free (module docs) and
+/// the robust cost `rho(|w_s delta|^2) + sum_j rho(|r_j(delta, tau)|^2)` there, from
+/// `(delta0, tau0)` (the last solution): Newton's method on the exact Hessian of
+/// [`bearing_pass`] near the minimum, Gauss–Newton steps farther away or where the Hessian is
+/// not positive definite. Errors:
+/// [`Error::NotEnoughData`] without a positive `tau0`, [`Error::Degenerate`] for a ray behind
+/// its camera, [`Error::NonFinite`] for non-finite input or where the depth is unobserved (no
+/// parallax).
+pub(super) fn solve_bearing_tau(
+    rays: &[Ray],
+    w_s: Vec2,
+    delta0: [f64; 2],
+    tau0: f64,
+    huber: &Huber,
+) -> Result<([f64; 2], f64, f64), Error> {
     if !(tau0 > 0.0 && tau0.is_finite()) {
         return Err(Error::NotEnoughData);
     }
+    let mut delta = if delta0.iter().all(|d| d.is_finite()) {
+        delta0
+    } else {
+        [0.0; 2]
+    };
     let mut tau = tau0;
-    for _ in 0..NEWTON_PASSES {
-        let [cost, g, h, h_gn] = robust_pass(rays, tau, huber)?;
-        let newton = h > 0.1 * h_gn;
-        let step = -g / if newton { h } else { h_gn };
-        let next = tau + step;
-        if next <= 0.0 {
+    for _ in 0..BEARING_PASSES {
+        let (cost, g, h, h_gn) = bearing_pass(rays, w_s, delta, tau, huber)?;
+        let minus_g = [-g[0], -g[1], -g[2]];
+        let (l_gn, full) = chol3(&h_gn)?;
+        if !full {
+            return Err(Error::NonFinite);
+        }
+        let step_gn = solve3(&l_gn, minus_g);
+        // Newton near the minimum only (far from it the exact Hessian can lead elsewhere).
+        let near = libm::fabs(step_gn[2]) <= NEWTON_FROM[1] * tau
+            && libm::fabs(step_gn[0]) <= NEWTON_FROM[0]
+            && libm::fabs(step_gn[1]) <= NEWTON_FROM[0];
+        let (newton, step) = match chol3(&h) {
+            Ok((l, true)) if near => (true, solve3(&l, minus_g)),
+            _ => (false, step_gn),
+        };
+        if tau + step[2] <= 0.0 {
             // The inverse depth stays positive: halve toward zero instead of crossing it.
             tau *= 0.5;
             continue;
         }
-        tau = next;
-        let last = if newton {
+        delta = [delta[0] + step[0], delta[1] + step[1]];
+        tau += step[2];
+        let [last_delta, last_tau] = if newton {
             NEWTON_LAST_STEP
         } else {
-            GN_LAST_STEP
+            [GN_LAST_STEP; 2]
         };
-        if libm::fabs(step) <= last * tau {
-            return Ok((tau, cost + step * (2.0 * g + h * step)));
+        let small = libm::fabs(step[2]) <= last_tau * tau
+            && libm::fabs(step[0]) <= last_delta
+            && libm::fabs(step[1]) <= last_delta;
+        if small {
+            let hm = if newton { &h } else { &h_gn };
+            let mut model = 0.0;
+            for a in 0..3 {
+                let hs: f64 = (0..3).map(|b| hm[a][b] * step[b]).sum();
+                model += step[a] * (2.0 * g[a] + hs);
+            }
+            return Ok((delta, tau, cost + model));
         }
     }
-    let mut cost = 0.0;
-    for ray in rays {
-        cost += huber.rho(ray.residual_and_d_tau(tau)?.0.norm_squared())[0];
-    }
-    Ok((tau, cost))
+    let (cost, _, _, _) = bearing_pass(rays, w_s, delta, tau, huber)?;
+    Ok((delta, tau, cost))
 }
 
-/// One pass over the rays at `tau`: `[cost, g, h, h_gn]` of [`newton_tau`] (half the cost's
-/// first and second derivatives in `tau`, and the Gauss–Newton part of the latter).
-fn robust_pass(rays: &[Ray], tau: f64, huber: &Huber) -> Result<[f64; 4], Error> {
-    let (mut cost, mut g, mut h, mut h_gn) = (0.0, 0.0, 0.0, 0.0);
-    for ray in rays {
-        let (r, d, kappa) = ray.residual_d_tau_curvature(tau)?;
-        let [rho, w, w2] = huber.rho(r.norm_squared());
-        let (rd, dd) = (r.dot(&d), d.norm_squared());
-        cost += rho;
-        g += w * rd;
-        h_gn += w * dd;
-        h += w * (dd - 2.0 * kappa * rd) + 2.0 * w2 * rd * rd;
-    }
-    let finite = [cost, g, h, h_gn].iter().all(|v| v.is_finite());
-    if !(h_gn > 0.0 && finite) {
-        return Err(Error::NonFinite);
-    }
-    Ok([cost, g, h, h_gn])
-}
-
-/// The landmark's linearization with `tau` eliminated, extrinsic fixed (module docs): every
-/// observation's 2x6 pose blocks and delay columns go into `ne` as usual, and the landmark's
-/// coupling to `tau` (`v`, `c`, `beta`) is folded in once at the end. Returns the robust cost.
-#[inline(never)]
-fn accumulate_eliminated<const N: usize, const D: usize>(
-    m: &TauLandmark<N>,
-    poses: &[KeyframePose; N],
-    rot: &WindowRotations<N>,
+/// Where a landmark's linearization is taken: the solved bearing correction and inverse depth,
+/// and the anchor observation's whitening.
+struct Solved {
+    delta: [f64; 2],
     tau: f64,
-    huber: &Huber,
-    l: &Layout<N>,
-    ne: &mut NormalEquations<D>,
-) -> Result<f64, Error> {
-    let ps = poses.get(m.s).ok_or(Error::DimensionMismatch)?;
-    // The anchor's side of the chain is the same for every observation (same `s`, `x_s`, `tau`).
-    let (_, f0) = m.obs.first().ok_or(Error::NotEnoughData)?;
-    let anchor = f0.anchor_point(ps, rot, tau);
-    let col = |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
-    let td_col = |k: usize| l.col(Block::Td(k as u8));
-    let (cs, ts) = (col(m.s)?, td_col(m.s));
-    // `v = sum J^T g` on the anchor's pose and delay, and per observing keyframe.
-    let mut v_s = Vector6::zeros();
-    let mut v_ts = 0.0;
-    let mut v_j: HVec<(usize, Vector6<f64>, Option<usize>, f64), N> = HVec::new();
-    let (mut c, mut beta, mut cost) = (0.0, 0.0, 0.0);
-    for (j, f) in m.obs.iter() {
-        let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
-        let jac = f.evaluate_poses(ps, pj, rot, &anchor)?;
-        let sq = jac.r.norm_squared();
-        cost += huber.rho(sq)[0];
-        let w = huber.sqrt_weight(sq);
-        let (r, a, b, g) = (jac.r * w, jac.d_pose_s * w, jac.d_pose_j * w, jac.d_tau * w);
-        let cj = col(*j)?;
-        let tj = td_col(*j);
-        let (t_s, t_j) = (jac.d_td[0] * w, jac.d_td[1] * w);
-        let delays = ts.map(|ts| [(Some(ts), t_s), (tj, t_j)]);
-        ne.add_2x6_pair(&r, &a, &b, cs, cj, delays)?;
-        c += g.norm_squared();
-        beta -= g.dot(&r);
-        v_s += a.transpose() * g;
-        v_ts += t_s.dot(&g);
-        let _ = v_j.push((cj, b.transpose() * g, tj, t_j.dot(&g)));
+    w_s: Vec2,
+}
+
+/// Most columns of the fold's single-column list: the delays and, when it is estimated, the
+/// extrinsic's six (a window of up to 58 keyframes; beyond, the landmark is refused with
+/// [`Error::CapacityExceeded`]).
+const FOLD_SCALARS: usize = 64;
+
+/// One landmark's `(delta.x, delta.y, tau)` block accumulated over its residuals (module docs):
+/// `C = sum G^T G`, `beta = -sum G^T r` and the couplings `V = sum J^T G` per keyframe pose
+/// block (six rows each), per delay column and the extrinsic's six columns.
+struct Elimination<const N: usize> {
+    c: [[f64; 3]; 3],
+    beta: [f64; 3],
+    poses: HVec<(usize, [[f64; 3]; 6]), N>,
+    scalars: HVec<(usize, [f64; 3]), FOLD_SCALARS>,
+}
+
+impl<const N: usize> Elimination<N> {
+    /// The accumulator with the anchor's own residual `w_s delta` (no pose or delay in it) and
+    /// its robust cost.
+    fn new(at: &Solved, huber: &Huber) -> (Self, f64) {
+        let r_s = Vec2::new(at.w_s.x * at.delta[0], at.w_s.y * at.delta[1]);
+        let sq = r_s.norm_squared();
+        let w = huber.weight(sq);
+        let mut c = [[0.0; 3]; 3];
+        c[0][0] = w * at.w_s.x * at.w_s.x;
+        c[1][1] = w * at.w_s.y * at.w_s.y;
+        let beta = [-c[0][0] * at.delta[0], -c[1][1] * at.delta[1], 0.0];
+        let e = Elimination {
+            c,
+            beta,
+            poses: HVec::new(),
+            scalars: HVec::new(),
+        };
+        (e, huber.rho(sq)[0])
     }
-    if !(c > 1e-12 && c.is_finite() && beta.is_finite()) {
-        return Ok(cost);
-    }
-    // The segments of v in column order: pose blocks (6 wide) and delays (1 wide).
-    let mut poses6: HVec<(usize, [f64; 6]), N> = HVec::new();
-    let mut scalars: HVec<(usize, f64), N> = HVec::new();
-    let _ = poses6.push((cs, v_s.into()));
-    for (cj, x, _, _) in v_j.iter() {
-        let _ = poses6.push((*cj, (*x).into()));
-    }
-    if let Some(ts) = ts {
-        let _ = scalars.push((ts, v_ts));
-        for (_, _, tj, xt) in v_j.iter() {
-            if let Some(tj) = tj {
-                let _ = scalars.push((*tj, *xt));
+
+    /// Adds one (weighted) residual `r` with derivatives `g` in `(delta, tau)`: to `C`, `beta`.
+    fn add_residual(&mut self, r: &Vec2, g: &[Vec2; 3]) {
+        for p in 0..3 {
+            self.beta[p] -= g[p].dot(r);
+            for q in 0..3 {
+                self.c[p][q] += g[p].dot(&g[q]);
             }
         }
     }
-    let finite = poses6.iter().all(|(_, x)| x.iter().all(|v| v.is_finite()))
-        && scalars.iter().all(|(_, x)| x.is_finite());
-    if !finite {
-        return Err(Error::NonFinite);
+
+    /// `V += J^T g` for a 2x6 block `jac` at column `col`.
+    fn couple6(&mut self, col: usize, jac: &Matrix2x6<f64>, g: &[Vec2; 3]) -> Result<(), Error> {
+        let idx = match self.poses.iter().position(|(c, _)| *c == col) {
+            Some(i) => i,
+            None => {
+                self.poses
+                    .push((col, [[0.0; 3]; 6]))
+                    .map_err(|_| Error::CapacityExceeded)?;
+                self.poses.len() - 1
+            }
+        };
+        let Some((_, acc)) = self.poses.get_mut(idx) else {
+            return Err(Error::DimensionMismatch);
+        };
+        for (i, row) in acc.iter_mut().enumerate() {
+            let ji = Vec2::new(jac[(0, i)], jac[(1, i)]);
+            for (x, gk) in row.iter_mut().zip(g) {
+                *x += ji.dot(gk);
+            }
+        }
+        Ok(())
     }
-    poses6.sort_unstable_by_key(|p| p.0);
-    scalars.sort_unstable_by_key(|p| p.0);
-    ne.fold_rank_one(&poses6, &scalars, 1.0 / c, beta);
+
+    /// `V += j^T g` for the single column `col` with derivative `j`.
+    fn couple1(&mut self, col: usize, j: &Vec2, g: &[Vec2; 3]) -> Result<(), Error> {
+        let add = g.map(|gk| j.dot(&gk));
+        match self.scalars.iter_mut().find(|(c, _)| *c == col) {
+            Some((_, x)) => x.iter_mut().zip(add).for_each(|(x, a)| *x += a),
+            None => self
+                .scalars
+                .push((col, add))
+                .map_err(|_| Error::CapacityExceeded)?,
+        }
+        Ok(())
+    }
+
+    /// `H -= V C^-1 V^T`, `b -= V C^-1 beta` into `ne`: three rank-one folds of the whitened
+    /// couplings `U = V L^-T` (`C = L L^T`), two when the depth is unobserved.
+    fn fold<const D: usize>(mut self, ne: &mut NormalEquations<D>) -> Result<(), Error> {
+        let (lc, full) = chol3(&self.c)?;
+        let rank = if full { 3 } else { 2 };
+        let beta_w = forward3(&lc, self.beta, rank);
+        for (_, x) in self.poses.iter_mut() {
+            for row in x.iter_mut() {
+                *row = forward3(&lc, *row, rank);
+            }
+        }
+        for (_, x) in self.scalars.iter_mut() {
+            *x = forward3(&lc, *x, rank);
+        }
+        let finite = self
+            .poses
+            .iter()
+            .all(|(_, x)| x.iter().flatten().all(|v| v.is_finite()))
+            && self
+                .scalars
+                .iter()
+                .all(|(_, x)| x.iter().all(|v| v.is_finite()))
+            && beta_w.iter().all(|v| v.is_finite());
+        if !finite {
+            return Err(Error::NonFinite);
+        }
+        self.poses.sort_unstable_by_key(|p| p.0);
+        self.scalars.sort_unstable_by_key(|p| p.0);
+        for (k, beta) in beta_w.iter().enumerate().take(rank) {
+            let p6: HVec<(usize, [f64; 6]), N> = self
+                .poses
+                .iter()
+                .map(|(c, x)| (*c, x.map(|r| r[k])))
+                .collect();
+            let sc: HVec<(usize, f64), FOLD_SCALARS> =
+                self.scalars.iter().map(|(c, x)| (*c, x[k])).collect();
+            ne.fold_rank_one(&p6, &sc, 1.0, *beta);
+        }
+        Ok(())
+    }
+}
+
+/// The landmark's linearization with its anchor bearing and depth eliminated (module docs):
+/// every observation's pose blocks, delay and extrinsic columns go into `ne` as usual, and the
+/// landmark's coupling to `(delta, tau)` is folded in at the end ([`Elimination::fold`]).
+/// Returns the robust cost.
+#[inline(never)]
+fn accumulate_eliminated<const N: usize, const D: usize>(
+    m: &TauLandmark<N>,
+    v: &WindowVars<'_, N>,
+    rot: &WindowRotations<N>,
+    at: &Solved,
+    huber: &Huber,
+    ne: &mut NormalEquations<D>,
+) -> Result<f64, Error> {
+    let (poses, l) = (&v.poses, &v.layout);
+    let ps = poses.get(m.s).ok_or(Error::DimensionMismatch)?;
+    let mut rays: HVec<Ray, N> = HVec::new();
+    m.rays_into(poses, &v.frames, &mut rays)?;
+    // The factors at the corrected anchor bearing `x_s + delta`.
+    let shifted = |f: &InverseDepthVisualFactor| {
+        let mut f = *f;
+        f.obs_s.x_n += Vec2::new(at.delta[0], at.delta[1]);
+        f
+    };
+    let (_, f0) = m.obs.first().ok_or(Error::NotEnoughData)?;
+    let anchor = shifted(f0).anchor_point(ps, rot, at.tau);
+    let col = |k: usize| l.col(Block::Kf(k as u8)).ok_or(Error::DimensionMismatch);
+    let td_col = |k: usize| l.col(Block::Td(k as u8));
+    let (cs, ts) = (col(m.s)?, td_col(m.s));
+    let ext_col = l.col(Block::Ext);
+    let (mut e, mut cost) = Elimination::<N>::new(at, huber);
+    for ((j, f), ray) in m.obs.iter().zip(rays.iter()) {
+        let pj = poses.get(*j).ok_or(Error::DimensionMismatch)?;
+        let (jac, d_ext) = match ext_col {
+            None => (shifted(f).evaluate_poses(ps, pj, rot, &anchor)?, None),
+            Some(_) => {
+                let full = shifted(f).evaluate(ps, pj, v.ext, at.tau)?;
+                (full.poses(), Some(full.d_ext))
+            }
+        };
+        let (_, d) = ray.residual_and_d_bearing_tau(at.delta, at.tau)?;
+        let sq = jac.r.norm_squared();
+        cost += huber.rho(sq)[0];
+        let w = huber.sqrt_weight(sq);
+        let (r, a, b) = (jac.r * w, jac.d_pose_s * w, jac.d_pose_j * w);
+        let g = d.map(|x| x * w);
+        let (cj, tj) = (col(*j)?, td_col(*j));
+        let (t_s, t_j) = (jac.d_td[0] * w, jac.d_td[1] * w);
+        match (ext_col, d_ext) {
+            (Some(cx), Some(d_ext)) => {
+                let x = d_ext * w;
+                add_with_extrinsic(
+                    ne,
+                    &r,
+                    [(cs, &a), (cj, &b), (cx, &x)],
+                    [(ts, t_s), (tj, t_j)],
+                )?;
+                for i in 0..6 {
+                    e.couple1(cx + i, &x.column(i).into_owned(), &g)?;
+                }
+            }
+            _ => {
+                let delays = ts.map(|ts| [(Some(ts), t_s), (tj, t_j)]);
+                ne.add_2x6_pair(&r, &a, &b, cs, cj, delays)?;
+            }
+        }
+        e.add_residual(&r, &g);
+        e.couple6(cs, &a, &g)?;
+        e.couple6(cj, &b, &g)?;
+        for (tc, t) in [(ts, &t_s), (tj, &t_j)] {
+            if let Some(tc) = tc {
+                e.couple1(tc, t, &g)?;
+            }
+        }
+    }
+    e.fold(ne)?;
     Ok(cost)
+}
+
+/// Adds one weighted reprojection with its extrinsic block: the 2x6 blocks `(column, J)` and the
+/// delays `(column, j)` (where the delays have columns) through [`NormalEquations::add_blocks`].
+fn add_with_extrinsic<const D: usize>(
+    ne: &mut NormalEquations<D>,
+    r: &Vec2,
+    blocks6: [(usize, &Matrix2x6<f64>); 3],
+    delays: [(Option<usize>, Vec2); 2],
+) -> Result<(), Error> {
+    let mut rows = [[0.0; 12]; 3];
+    for (out, (_, m)) in rows.iter_mut().zip(blocks6.iter()) {
+        row_major(*m, out);
+    }
+    let tds = delays.map(|(_, t)| [t.x, t.y]);
+    let mut blocks: HVec<JacobianBlock<'_>, 5> = HVec::new();
+    for ((c, _), jac) in blocks6.iter().zip(rows.iter()) {
+        let _ = blocks.push(JacobianBlock::new(*c, 6, jac));
+    }
+    for ((c, _), jac) in delays.iter().zip(tds.iter()) {
+        if let Some(c) = c {
+            let _ = blocks.push(JacobianBlock::new(*c, 1, jac));
+        }
+    }
+    ne.add_blocks(&[r.x, r.y], &blocks)
 }
 
 #[cfg(test)]
@@ -325,8 +615,7 @@ mod tests {
     use super::*;
     use crate::camera::CameraExtrinsic;
     use crate::camera::Vec2;
-    use crate::factors::inverse_depth_visual::InverseDepthVisualFactor;
-    use crate::factors::{CamFrame, TimedObs};
+    use crate::factors::{CamFrame, KeyframePose, TimedObs};
     use crate::math::{quat_exp, Vec3};
 
     /// A landmark 4 m away seen from four keyframes with pixel noise; with `outlier`, the last
@@ -382,58 +671,124 @@ mod tests {
         (m.rays(&poses, &frames).unwrap(), tau_true)
     }
 
-    fn robust_cost(rays: &[Ray], tau: f64, huber: &Huber) -> f64 {
-        rays.iter()
-            .map(|r| huber.rho(r.residual_and_d_tau(tau).unwrap().0.norm_squared())[0])
-            .sum()
+    /// The robust cost [`solve_bearing_tau`] minimizes, evaluated directly.
+    fn bearing_cost(rays: &[Ray], w_s: Vec2, delta: [f64; 2], tau: f64, huber: &Huber) -> f64 {
+        let anchor = Vec2::new(w_s.x * delta[0], w_s.y * delta[1]).norm_squared();
+        let rows: f64 = rays
+            .iter()
+            .map(|r| {
+                let (r, _) = r.residual_and_d_bearing_tau(delta, tau).unwrap();
+                huber.rho(r.norm_squared())[0]
+            })
+            .sum();
+        huber.rho(anchor)[0] + rows
     }
 
     #[test]
-    fn newton_pass_derivatives_match_numerical_differentiation() {
-        let huber = Huber::new(1.0).unwrap();
-        for outlier in [false, true] {
-            let (rays, tau_true) = tau_scene(outlier);
-            for tau in [0.8 * tau_true, tau_true, 1.3 * tau_true] {
-                let [cost, g, h, h_gn] = robust_pass(&rays, tau, &huber).unwrap();
-                assert!((cost - robust_cost(&rays, tau, &huber)).abs() <= 1e-12 * cost);
-                let e = 1e-5 * tau;
-                let f = |t: f64| robust_cost(&rays, t, &huber);
-                let d1 = (f(tau + e) - f(tau - e)) / (2.0 * e);
-                let d2 = (f(tau + e) - 2.0 * cost + f(tau - e)) / (e * e);
+    fn bearing_ray_derivatives_match_numerical_differentiation() {
+        let (rays, tau_true) = tau_scene(false);
+        let x0 = [3e-3, -2e-3, 1.1 * tau_true];
+        let at = |x: [f64; 3]| move |ray: &Ray| ray.residual_and_d_bearing_tau([x[0], x[1]], x[2]);
+        for ray in rays.iter() {
+            let (r, d) = at(x0)(ray).unwrap();
+            // The same residual as the depth-only form at delta = 0.
+            let (r0, d0) = ray.residual_and_d_tau(x0[2]).unwrap();
+            let (r1, d1) = at([0.0, 0.0, x0[2]])(ray).unwrap();
+            assert!((r0 - r1).norm() <= 1e-12 && (d0 - d1[2]).norm() <= 1e-12 * d0.norm());
+            assert!((r - r0).norm() > 1e-3, "delta moves the residual");
+            for (k, dk) in d.iter().enumerate() {
+                let h = 1e-6 * x0[k].abs().max(1e-3);
+                let (mut xp, mut xm) = (x0, x0);
+                xp[k] += h;
+                xm[k] -= h;
+                let num = (at(xp)(ray).unwrap().0 - at(xm)(ray).unwrap().0) / (2.0 * h);
                 assert!(
-                    (2.0 * g - d1).abs() <= 1e-6 * d1.abs().max(1.0),
-                    "{g} vs {d1}"
+                    (num - dk).norm() <= 1e-6 * dk.norm().max(1.0),
+                    "{k}: {num} vs {dk}"
                 );
-                assert!((2.0 * h - d2).abs() <= 1e-4 * d2.abs(), "{h} vs {d2}");
-                assert!(h_gn > 0.0);
             }
         }
     }
 
     #[test]
-    fn newton_tau_finds_the_robust_minimum_and_its_cost() {
+    fn bearing_pass_derivatives_match_numerical_differentiation() {
         let huber = Huber::new(1.0).unwrap();
+        // A bearing correction of 2 px on x: past the Huber threshold (1.5 px), so the anchor's
+        // `rho''` term is exercised too.
+        let w_s = Vec2::new(460.0, 460.0) / 1.5;
         for outlier in [false, true] {
             let (rays, tau_true) = tau_scene(outlier);
-            // (Three rays of short baseline: with the outlier the minimum is far from the truth,
-            // so only the minimum itself is checked.)
-            let (tau, cost) = newton_tau(&rays, 0.6 * tau_true, &huber).unwrap();
-            // From a start next to it: the same minimum.
-            let (tau2, cost2) = newton_tau(&rays, tau * (1.0 + 1e-3), &huber).unwrap();
-            // (Both stop after a Newton step of at most 1e-4 of `tau`: about 1e-8 left, 1.6e-8
-            // here with the outlier's weight changing; the Gauss–Newton solve stopped at 1e-7.)
-            assert!((tau - tau2).abs() <= 1e-7 * tau, "{tau} vs {tau2}");
-            for (t, c) in [(tau, cost), (tau2, cost2)] {
-                let exact = robust_cost(&rays, t, &huber);
+            for x0 in [[3e-3, -1e-3, tau_true], [4e-3, 2e-3, 0.8 * tau_true]] {
+                let (cost, g, h, h_gn) =
+                    bearing_pass(&rays, w_s, [x0[0], x0[1]], x0[2], &huber).unwrap();
+                let f = |x: [f64; 3]| bearing_cost(&rays, w_s, [x[0], x[1]], x[2], &huber);
+                assert!((cost - f(x0)).abs() <= 1e-12 * cost);
+                let e = [1e-6, 1e-6, 1e-5 * x0[2]];
+                let at = |k: usize, sk: f64, l: usize, sl: f64| {
+                    let mut x = x0;
+                    x[k] += sk * e[k];
+                    x[l] += sl * e[l];
+                    f(x)
+                };
+                for k in 0..3 {
+                    let d1 = (at(k, 1.0, k, 0.0) - at(k, -1.0, k, 0.0)) / (2.0 * e[k]);
+                    assert!((2.0 * g[k] - d1).abs() <= 1e-6 * d1.abs().max(1.0), "g{k}");
+                    for l in 0..3 {
+                        let d2 = (at(k, 1.0, l, 1.0) - at(k, 1.0, l, -1.0) - at(k, -1.0, l, 1.0)
+                            + at(k, -1.0, l, -1.0))
+                            / (4.0 * e[k] * e[l]);
+                        let scale = (h[k][k] * h[l][l]).sqrt();
+                        assert!(
+                            (2.0 * h[k][l] - d2).abs() <= 1e-4 * scale,
+                            "h{k}{l}: {} vs {d2}",
+                            2.0 * h[k][l]
+                        );
+                        assert!(h_gn[k][l].is_finite());
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn solve_bearing_tau_finds_the_robust_minimum_and_its_cost() {
+        let huber = Huber::new(1.0).unwrap();
+        let w_s = Vec2::new(460.0, 460.0) / 1.5;
+        for outlier in [false, true] {
+            let (rays, tau_true) = tau_scene(outlier);
+            let (delta, tau, cost) =
+                solve_bearing_tau(&rays, w_s, [0.0; 2], 0.6 * tau_true, &huber).unwrap();
+            // From another start: the same minimum.
+            let (d2, t2, c2) =
+                solve_bearing_tau(&rays, w_s, [1e-3, -1e-3], 1.2 * tau, &huber).unwrap();
+            assert!(
+                (tau - t2).abs() <= 1e-8 * tau,
+                "{outlier}: {tau} vs {t2}, {delta:?} {d2:?} {cost} {c2} true {tau_true}"
+            );
+            assert!((delta[0] - d2[0]).abs() + (delta[1] - d2[1]).abs() <= 1e-8);
+            for (d, t, c) in [(delta, tau, cost), (d2, t2, c2)] {
+                let exact = bearing_cost(&rays, w_s, d, t, &huber);
                 assert!((c - exact).abs() <= 1e-10 * exact, "{c} vs {exact}");
             }
-            for d in [1e-4, -1e-4, 1e-3, -1e-3] {
-                assert!(robust_cost(&rays, tau * (1.0 + d), &huber) > cost);
+            // A minimum in each of the three directions, below the depth-only solve's cost
+            // (which is this cost at delta = 0).
+            for k in 0..3 {
+                for e in [1e-5, -1e-5] {
+                    let mut x = [delta[0], delta[1], tau];
+                    x[k] += if k == 2 { e * tau } else { e };
+                    assert!(bearing_cost(&rays, w_s, [x[0], x[1]], x[2], &huber) > cost);
+                }
             }
+            let exact_anchor = bearing_cost(&rays, w_s, [0.0; 2], tau, &huber);
+            assert!(cost < exact_anchor, "{cost} vs {exact_anchor}");
+            assert!(
+                delta.iter().any(|d| d.abs() > 1e-6),
+                "the anchor's noise shows"
+            );
         }
         let (rays, _) = tau_scene(false);
         assert_eq!(
-            newton_tau(&rays, 0.0, &huber).err(),
+            solve_bearing_tau(&rays, w_s, [0.0; 2], 0.0, &huber).err(),
             Some(Error::NotEnoughData)
         );
     }
