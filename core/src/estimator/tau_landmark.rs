@@ -1,10 +1,12 @@
-//! One landmark's inverse-depth reprojections as functions of its inverse depth `tau` alone
-//! ([`TauLandmark`]: the factors of its observations `j != s`, and the LiDAR depth row of an
-//! MSC-based LDM; [`Ray`]: one observation as `P_j ~ a + tau b`), and the 1-D Gauss-Newton solve
-//! for the `tau*` that minimizes their stacked cost. Shared by the MSC-based LiDAR-depth
-//! measurement (`estimator::problem::lidar`), the eliminated-depth visual measurement
-//! (`estimator::problem::visual`), the depth-only optimization (`estimator::lidar`) and the
-//! culling residuals (`estimator::cull`).
+//! One landmark's inverse-depth reprojections as functions of its inverse depth `tau` (and of a
+//! correction `delta` of its anchor's bearing) ([`TauLandmark`]: the factors of its observations
+//! `j != s`, and the LiDAR depth row of an MSC-based LDM; [`Ray`]: one observation as
+//! `P_j ~ a + R_js (delta, 0) + tau b`), and the 1-D Gauss-Newton solve for the `tau*` that
+//! minimizes their stacked cost with the anchor's bearing exact. Shared by the MSC-based
+//! LiDAR-depth measurement (`estimator::problem::lidar`) and the depth-only optimization
+//! (`estimator::lidar`), which take the bearing as exact, the eliminated visual measurement
+//! (`estimator::problem::visual`, which solves for it too) and the culling residuals
+//! (`estimator::cull`).
 
 use super::problem::factor::timed;
 #[cfg(test)]
