@@ -123,11 +123,12 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
         let (lm, huber) = (self.lm, &self.vs.huber);
         let m = self.tau_landmark(v.count)?;
         self.n_obs = m.obs.len() as u32;
+        // The rays at this state: for the solve and the linearization alike (built once).
+        let mut rays: HVec<Ray, N> = HVec::new();
+        m.rays_into(&v.poses, &v.frames, &mut rays)?;
         let (delta, tau) = match (self.cached, &ne) {
             (Some(c), Some(_)) => c,
             _ => {
-                let mut rays = HVec::new();
-                m.rays_into(&v.poses, &v.frames, &mut rays)?;
                 let w_s = self.vs.sqrt_info;
                 let (delta, tau, cost) = solve_bearing_tau(
                     &rays,
@@ -156,10 +157,10 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
             w_s: self.vs.sqrt_info,
         };
         let cost = match v.rotations() {
-            Some(rot) => accumulate_eliminated(&m, v, rot, &at, huber, ne)?,
+            Some(rot) => accumulate_eliminated(&m, &rays, v, rot, &at, huber, ne)?,
             None => {
                 let rot = WindowRotations::new(&v.poses, v.count, v.ext);
-                accumulate_eliminated(&m, v, &rot, &at, huber, ne)?
+                accumulate_eliminated(&m, &rays, v, &rot, &at, huber, ne)?
             }
         };
         (self.tau, self.delta) = (Some(tau), Some(delta));
@@ -549,10 +550,11 @@ impl<const N: usize> Elimination<N> {
 /// The landmark's linearization with its anchor bearing and depth eliminated (module docs):
 /// every observation's pose blocks, delay and extrinsic columns go into `ne` as usual, and the
 /// landmark's coupling to `(delta, tau)` is folded in at the end ([`Elimination::fold`]).
-/// Returns the robust cost.
+/// `rays` are `m`'s rays at `v` ([`TauLandmark::rays_into`]). Returns the robust cost.
 #[inline(never)]
 fn accumulate_eliminated<const N: usize, const D: usize>(
     m: &TauLandmark<N>,
+    rays: &[Ray],
     v: &WindowVars<'_, N>,
     rot: &WindowRotations<N>,
     at: &Solved,
@@ -561,8 +563,6 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
 ) -> Result<f64, Error> {
     let (poses, l) = (&v.poses, &v.layout);
     let ps = poses.get(m.s).ok_or(Error::DimensionMismatch)?;
-    let mut rays: HVec<Ray, N> = HVec::new();
-    m.rays_into(poses, &v.frames, &mut rays)?;
     // The factors at the corrected anchor bearing `x_s + delta`.
     let shifted = |f: &InverseDepthVisualFactor| {
         let mut f = *f;
