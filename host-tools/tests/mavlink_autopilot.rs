@@ -285,5 +285,8 @@ fn check_velocity_covariance(odo: Vec<Vec<f64>>, data: &std::path::Path) {
         median(&mut nees),
         nees.len()
     );
-    assert!((1.0..60.0).contains(&mean), "NEES {mean}");
+    // Measured 7.77 (BENCHMARKS, session 52; 21.5 before the anchors' bearings were solved
+    // for): a covariance in the wrong frame or units misses by orders of magnitude, and the
+    // window's overcounted visual information (2x the squared error) would be back above 20.
+    assert!((1.0..20.0).contains(&mean), "NEES {mean}");
 }
