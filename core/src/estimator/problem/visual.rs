@@ -57,7 +57,6 @@ use crate::estimator::tau_landmark::{Ray, TauLandmark};
 use crate::estimator::window::Block;
 use crate::factors::inverse_depth_visual::{InverseDepthVisualFactor, WindowRotations};
 use crate::factors::robust::Huber;
-use crate::factors::{CamFrame, KeyframePose};
 use crate::landmarks::{Landmark, LidarDepth};
 use crate::solver::{JacobianBlock, NormalEquations};
 use crate::Error;
@@ -100,30 +99,6 @@ impl<'a, const N: usize> EliminatedLandmark<'a, N> {
             delta: None,
             n_obs: 0,
         }
-    }
-
-    /// `(delta*, tau*)` at `poses` (the measurement's own solve, from the landmark's last values):
-    /// what the depth-only optimization (paper V.D) keeps under this model.
-    pub fn solve_at(
-        &self,
-        poses: &[KeyframePose; N],
-        frames: &[CamFrame; N],
-        count: usize,
-    ) -> Result<([f64; 2], f64), Error> {
-        let m = self.tau_landmark(count)?;
-        let mut rays: HVec<Ray, N> = HVec::new();
-        m.rays_into(poses, frames, &mut rays)?;
-        let (lm, vs) = (self.lm, &self.vs);
-        let depth = m.depth.as_ref();
-        let (delta, tau, _) = solve_bearing_tau(
-            &rays,
-            vs.sqrt_info,
-            depth,
-            lm.bearing_delta,
-            lm.inv_depth,
-            &vs.huber,
-        )?;
-        Ok((delta, tau))
     }
 
     /// The landmark's reprojections in `tau` over the first `count` positions.
