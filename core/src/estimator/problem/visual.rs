@@ -37,27 +37,17 @@
 //! `V L^-T` (`C = L L^T`). The measurement is a function of the window's variables alone: the
 //! landmark has no state, its cost is `min_u` of the reprojection cost, so the LM's gain ratio
 //! compares what the linear model predicts.
-//!
-//! **A LiDAR landmark** (the MSC-based LDM, [`LdmMode::Msc`](crate::lidar::LdmMode::Msc)) adds
-//! its depth row `r_d = (1/tau - d_r) / sigma_dr` to these residuals: the depth is `z` in the
-//! anchor camera, `1/tau` whatever `delta` (the anchor's ray is `(x_s + delta, 1) / tau`), so
-//! the row has `G = (0, 0, dr_d/dtau)` and no window variable; its Huber weight is its own. This
-//! is the paper's MSC measurement (`estimator::problem::lidar`: the reprojections and the depth
-//! row with the inverse depth projected out) with the anchor's bearing freed as above and the
-//! robust kernel per residual instead of on the stacked block, so that a LiDAR landmark's
-//! reprojections count as much as a visual one's and a wrong depth loses its weight alone. The
-//! paper's block stays for the two-view visual depth ([`super::LandmarkModel::MscLidar`]).
 #![deny(clippy::too_many_lines)]
 
 use super::factor::{
-    lidar_depth, put_rows, row_major, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
+    put_rows, row_major, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
 };
 use crate::camera::Vec2;
 use crate::estimator::tau_landmark::{Ray, TauLandmark};
 use crate::estimator::window::Block;
 use crate::factors::inverse_depth_visual::{InverseDepthVisualFactor, WindowRotations};
 use crate::factors::robust::Huber;
-use crate::landmarks::{Landmark, LidarDepth};
+use crate::landmarks::Landmark;
 use crate::solver::{JacobianBlock, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
@@ -67,8 +57,6 @@ use nalgebra::Matrix2x6;
 pub struct EliminatedLandmark<'a, const N: usize> {
     vs: VisualSettings<'a>,
     lm: &'a Landmark<N>,
-    /// The LiDAR depth whose row joins the residuals (MSC-based LDM), if any.
-    depth: Option<LidarDepth>,
     /// Without the observation at position 0 (what stays of a re-anchored landmark after the
     /// marginalization, `FactorSet::OldestRest`).
     without_obs_zero: bool,
@@ -92,7 +80,6 @@ impl<'a, const N: usize> EliminatedLandmark<'a, N> {
         EliminatedLandmark {
             vs,
             lm,
-            depth: lidar_depth(vs.cfg, lm),
             without_obs_zero,
             cached,
             tau: None,
@@ -108,8 +95,7 @@ impl<'a, const N: usize> EliminatedLandmark<'a, N> {
         // What stays in the window after the marginalization: the factor without position 0.
         let skip = self.without_obs_zero.then_some(0);
         let (s, sqrt_info) = (lm.anchor_s as usize, self.vs.sqrt_info);
-        TauLandmark::without(&lm.obs, s, skip, self.depth, sqrt_info, count)
-            .ok_or(Error::NotEnoughData)
+        TauLandmark::without(&lm.obs, s, skip, None, sqrt_info, count).ok_or(Error::NotEnoughData)
     }
 }
 
@@ -130,14 +116,8 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
             (Some(c), Some(_)) => c,
             _ => {
                 let w_s = self.vs.sqrt_info;
-                let (delta, tau, cost) = solve_bearing_tau(
-                    &rays,
-                    w_s,
-                    m.depth.as_ref(),
-                    lm.bearing_delta,
-                    lm.inv_depth,
-                    huber,
-                )?;
+                let (delta, tau, cost) =
+                    solve_bearing_tau(&rays, w_s, lm.bearing_delta, lm.inv_depth, huber)?;
                 if ne.is_none() {
                     // The next solve (the linearization or the marginalization at this state,
                     // the next trial near it) starts from here; a rejected LM trial restores
@@ -177,10 +157,6 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
             let (r, _) = ray.residual_and_d_bearing_tau(delta, lm.inv_depth)?;
             rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
         }
-        if let Some(d) = &m.depth {
-            let r = d.row(lm.inv_depth)[0];
-            rows += put_rows(&[r], out.get_mut(rows..).unwrap_or(&mut []))?;
-        }
         Ok(rows)
     }
 }
@@ -188,10 +164,6 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
 impl<const N: usize, const D: usize> LandmarkFactor<N, D> for EliminatedLandmark<'_, N> {
     fn observations(&self) -> u32 {
         self.n_obs
-    }
-
-    fn depth_measurements(&self) -> u32 {
-        u32::from(self.depth.is_some())
     }
 
     fn inverse_depth(&self) -> Option<f64> {
@@ -287,7 +259,6 @@ type BearingPass = (f64, [f64; 3], [[f64; 3]; 3], [[f64; 3]; 3]);
 fn bearing_pass(
     rays: &[Ray],
     w_s: Vec2,
-    depth: Option<&LidarDepth>,
     delta: [f64; 2],
     tau: f64,
     huber: &Huber,
@@ -320,15 +291,6 @@ fn bearing_pass(
             }
         }
     }
-    if let Some(d) = depth {
-        // The depth row depends on `tau` alone.
-        let [r, d1, d2] = d.row(tau);
-        let [rho, w, w2] = huber.rho(r * r);
-        cost += rho;
-        g[2] += w * r * d1;
-        h_gn[2][2] += w * d1 * d1;
-        h[2][2] += w * (d1 * d1 + r * d2) + 2.0 * w2 * (r * d1) * (r * d1);
-    }
     for a in 0..3 {
         for b in 0..a {
             h[b][a] = h[a][b];
@@ -357,7 +319,6 @@ fn bearing_pass(
 pub(super) fn solve_bearing_tau(
     rays: &[Ray],
     w_s: Vec2,
-    depth: Option<&LidarDepth>,
     delta0: [f64; 2],
     tau0: f64,
     huber: &Huber,
@@ -372,7 +333,7 @@ pub(super) fn solve_bearing_tau(
     };
     let mut tau = tau0;
     for _ in 0..BEARING_PASSES {
-        let (cost, g, h, h_gn) = bearing_pass(rays, w_s, depth, delta, tau, huber)?;
+        let (cost, g, h, h_gn) = bearing_pass(rays, w_s, delta, tau, huber)?;
         let minus_g = [-g[0], -g[1], -g[2]];
         let (l_gn, full) = chol3(&h_gn)?;
         if !full {
@@ -412,7 +373,7 @@ pub(super) fn solve_bearing_tau(
             return Ok((delta, tau, cost + model));
         }
     }
-    let (cost, _, _, _) = bearing_pass(rays, w_s, depth, delta, tau, huber)?;
+    let (cost, _, _, _) = bearing_pass(rays, w_s, delta, tau, huber)?;
     Ok((delta, tau, cost))
 }
 
@@ -620,18 +581,6 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
             }
         }
     }
-    if let Some(d) = &m.depth {
-        // The depth row: on `tau` alone, nothing of the window's variables.
-        let [r, d1, _] = d.row(at.tau);
-        let sq = r * r;
-        cost += huber.rho(sq)[0];
-        let w = huber.sqrt_weight(sq);
-        let zero = Vec2::zeros();
-        e.add_residual(
-            &Vec2::new(r * w, 0.0),
-            &[zero, zero, Vec2::new(d1 * w, 0.0)],
-        );
-    }
     e.fold(ne)?;
     Ok(cost)
 }
@@ -722,31 +671,8 @@ mod tests {
         (m.rays(&poses, &frames).unwrap(), tau_true)
     }
 
-    /// The LiDAR depths the tests run with beside none: one within the Huber threshold of the
-    /// true depth, one 4 sigma off (its `rho''` exercised).
-    fn depths(tau_true: f64) -> [Option<LidarDepth>; 3] {
-        let d = |k: f64| {
-            Some(LidarDepth {
-                depth_m: 1.0 / tau_true + k * 0.05,
-                sigma_m: 0.05,
-            })
-        };
-        [None, d(0.4), d(4.0)]
-    }
-
     /// The robust cost [`solve_bearing_tau`] minimizes, evaluated directly.
-    fn bearing_cost(
-        rays: &[Ray],
-        w_s: Vec2,
-        depth: Option<&LidarDepth>,
-        delta: [f64; 2],
-        tau: f64,
-        huber: &Huber,
-    ) -> f64 {
-        let depth_row = depth.map_or(0.0, |d| {
-            let r = (1.0 / tau - d.depth_m) / d.sigma_m;
-            huber.rho(r * r)[0]
-        });
+    fn bearing_cost(rays: &[Ray], w_s: Vec2, delta: [f64; 2], tau: f64, huber: &Huber) -> f64 {
         let anchor = Vec2::new(w_s.x * delta[0], w_s.y * delta[1]).norm_squared();
         let rows: f64 = rays
             .iter()
@@ -755,7 +681,7 @@ mod tests {
                 huber.rho(r.norm_squared())[0]
             })
             .sum();
-        huber.rho(anchor)[0] + rows + depth_row
+        huber.rho(anchor)[0] + rows
     }
 
     #[test]
@@ -792,15 +718,10 @@ mod tests {
         let w_s = Vec2::new(460.0, 460.0) / 1.5;
         for outlier in [false, true] {
             let (rays, tau_true) = tau_scene(outlier);
-            let cases = [[3e-3, -1e-3, tau_true], [4e-3, 2e-3, 0.8 * tau_true]];
-            for (x0, depth) in cases
-                .into_iter()
-                .flat_map(|x| depths(tau_true).map(|d| (x, d)))
-            {
-                let depth = depth.as_ref();
+            for x0 in [[3e-3, -1e-3, tau_true], [4e-3, 2e-3, 0.8 * tau_true]] {
                 let (cost, g, h, h_gn) =
-                    bearing_pass(&rays, w_s, depth, [x0[0], x0[1]], x0[2], &huber).unwrap();
-                let f = |x: [f64; 3]| bearing_cost(&rays, w_s, depth, [x[0], x[1]], x[2], &huber);
+                    bearing_pass(&rays, w_s, [x0[0], x0[1]], x0[2], &huber).unwrap();
+                let f = |x: [f64; 3]| bearing_cost(&rays, w_s, [x[0], x[1]], x[2], &huber);
                 assert!((cost - f(x0)).abs() <= 1e-12 * cost);
                 let e = [1e-6, 1e-6, 1e-5 * x0[2]];
                 let at = |k: usize, sk: f64, l: usize, sl: f64| {
@@ -816,8 +737,7 @@ mod tests {
                         let d2 = (at(k, 1.0, l, 1.0) - at(k, 1.0, l, -1.0) - at(k, -1.0, l, 1.0)
                             + at(k, -1.0, l, -1.0))
                             / (4.0 * e[k] * e[l]);
-                        // (The exact Hessian's diagonal can vanish on a Huber-linear row.)
-                        let scale = (h_gn[k][k] * h_gn[l][l]).sqrt();
+                        let scale = (h[k][k] * h[l][l]).sqrt();
                         assert!(
                             (2.0 * h[k][l] - d2).abs() <= 1e-4 * scale,
                             "h{k}{l}: {} vs {d2}",
@@ -834,25 +754,20 @@ mod tests {
     fn solve_bearing_tau_finds_the_robust_minimum_and_its_cost() {
         let huber = Huber::new(1.0).unwrap();
         let w_s = Vec2::new(460.0, 460.0) / 1.5;
-        for (outlier, k) in [false, true]
-            .into_iter()
-            .flat_map(|o| (0..3).map(move |k| (o, k)))
-        {
+        for outlier in [false, true] {
             let (rays, tau_true) = tau_scene(outlier);
-            let depth = depths(tau_true)[k];
-            let depth = depth.as_ref();
             let (delta, tau, cost) =
-                solve_bearing_tau(&rays, w_s, depth, [0.0; 2], 0.6 * tau_true, &huber).unwrap();
+                solve_bearing_tau(&rays, w_s, [0.0; 2], 0.6 * tau_true, &huber).unwrap();
             // From another start: the same minimum.
             let (d2, t2, c2) =
-                solve_bearing_tau(&rays, w_s, depth, [1e-3, -1e-3], 1.2 * tau, &huber).unwrap();
+                solve_bearing_tau(&rays, w_s, [1e-3, -1e-3], 1.2 * tau, &huber).unwrap();
             assert!(
                 (tau - t2).abs() <= 1e-8 * tau,
                 "{outlier}: {tau} vs {t2}, {delta:?} {d2:?} {cost} {c2} true {tau_true}"
             );
             assert!((delta[0] - d2[0]).abs() + (delta[1] - d2[1]).abs() <= 1e-8);
             for (d, t, c) in [(delta, tau, cost), (d2, t2, c2)] {
-                let exact = bearing_cost(&rays, w_s, depth, d, t, &huber);
+                let exact = bearing_cost(&rays, w_s, d, t, &huber);
                 assert!((c - exact).abs() <= 1e-10 * exact, "{c} vs {exact}");
             }
             // A minimum in each of the three directions, below the depth-only solve's cost
@@ -861,10 +776,10 @@ mod tests {
                 for e in [1e-5, -1e-5] {
                     let mut x = [delta[0], delta[1], tau];
                     x[k] += if k == 2 { e * tau } else { e };
-                    assert!(bearing_cost(&rays, w_s, depth, [x[0], x[1]], x[2], &huber) > cost);
+                    assert!(bearing_cost(&rays, w_s, [x[0], x[1]], x[2], &huber) > cost);
                 }
             }
-            let exact_anchor = bearing_cost(&rays, w_s, depth, [0.0; 2], tau, &huber);
+            let exact_anchor = bearing_cost(&rays, w_s, [0.0; 2], tau, &huber);
             assert!(cost < exact_anchor, "{cost} vs {exact_anchor}");
             assert!(
                 delta.iter().any(|d| d.abs() > 1e-6),
@@ -873,7 +788,7 @@ mod tests {
         }
         let (rays, _) = tau_scene(false);
         assert_eq!(
-            solve_bearing_tau(&rays, w_s, None, [0.0; 2], 0.0, &huber).err(),
+            solve_bearing_tau(&rays, w_s, [0.0; 2], 0.0, &huber).err(),
             Some(Error::NotEnoughData)
         );
     }
