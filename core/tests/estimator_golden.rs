@@ -31,11 +31,13 @@ use vision_common::{data_dir, euroc_extrinsic};
 
 /// Blessed on x86-64 (see the module docs). Last re-blessed on 2026-12-04: the eliminated
 /// landmarks solve for the anchor observation's bearing with the depth
-/// (`estimator::problem::visual`).
-const GOLDEN_DEFAULT: u64 = 0x4cb4_a980_0f52_7278;
-const GOLDEN_EXTRINSIC: u64 = 0xfd37_2e42_123b_552f;
+/// (`estimator::problem::visual`); the LiDAR case on 2026-12-04 again: a LiDAR landmark's depth
+/// row joins its eliminated measurement (the MSC-based LDM with the anchor's bearing free), and
+/// the depth-only optimization solves such a landmark as its measurement does.
+const GOLDEN_DEFAULT: u64 = 0xc095_cbdd_76c0_c9df;
+const GOLDEN_EXTRINSIC: u64 = 0x5447_d530_f594_61bd;
 #[cfg(feature = "lidar")]
-const GOLDEN_LIDAR: u64 = 0x3649_4440_145f_45f1;
+const GOLDEN_LIDAR: u64 = 0xd47a_7f2c_08e3_9c48;
 
 struct Fnv(u64);
 

@@ -17,8 +17,9 @@ use conformance::{Case, Eval, Keeps, Scene, D, N};
 use counting_alloc::count_allocs;
 use povins_core::estimator::problem::{
     DirectDepth, DirectLidarLandmark, EliminatedLandmark, ExtPrior, FirstStatePrior, ImuFactor,
-    InverseDepthLandmark, MargPriorFactor, MscLandmark, TdHold, TdPrior, TdRandomWalkFactor,
-    TwoViewLandmark, VisualSettings, WindowVars, ZuptPosition, ZuptRotation, ZuptVelocity,
+    InverseDepthLandmark, LandmarkFactor, MargPriorFactor, MscLandmark, TdHold, TdPrior,
+    TdRandomWalkFactor, TwoViewLandmark, VisualSettings, WindowVars, ZuptPosition, ZuptRotation,
+    ZuptVelocity,
 };
 use povins_core::factors::robust::Huber;
 use povins_core::inertial::ImuNoise;
@@ -209,7 +210,37 @@ impl<const EXT: bool, const TD: bool> Case for Eliminated<EXT, TD> {
     }
 }
 
-/// The MSC-based LiDAR-depth measurement.
+/// The eliminated measurement of a LiDAR landmark: its depth row beside the reprojections (the
+/// MSC-based LDM with the anchor's bearing free).
+struct EliminatedLidar<const EXT: bool, const TD: bool>;
+
+impl<const EXT: bool, const TD: bool> Case for EliminatedLidar<EXT, TD> {
+    const LOCALS: usize = 3;
+    fn scene() -> Box<Scene> {
+        let mut s = landmark_scene(EXT, TD);
+        s.cfg.lidar.enabled = true;
+        assert!(
+            s.lm.lidar.is_some(),
+            "the scene's landmark has a LiDAR depth"
+        );
+        s
+    }
+    fn with<R>(s: &mut Scene, f: impl FnOnce(&mut dyn Eval, &WindowVars<'_, N>) -> R) -> R {
+        let (v, p) = s.split();
+        let vs = VisualSettings::new(p.cfg).unwrap();
+        let elim = EliminatedLandmark::new(vs, p.lm, false, None);
+        assert_eq!(LandmarkFactor::<N, D>::depth_measurements(&elim), 1);
+        run(Keeps(elim), &v, f)
+    }
+    fn nan(s: &mut Scene) {
+        nan_position(s, 1);
+    }
+    fn degenerate(s: &mut Scene) {
+        turn_around(s, 2);
+    }
+}
+
+/// The paper's MSC-based LiDAR-depth measurement (the anchor's bearing exact).
 struct Msc<const EXT: bool, const TD: bool>;
 
 impl<const EXT: bool, const TD: bool> Case for Msc<EXT, TD> {
@@ -449,6 +480,9 @@ factor_conformance! {
     eliminated_delays: Eliminated<false, true>;
     eliminated_extrinsic: Eliminated<true, false>;
     eliminated_extrinsic_delays: Eliminated<true, true>;
+    eliminated_lidar: EliminatedLidar<false, false>;
+    eliminated_lidar_delays: EliminatedLidar<false, true>;
+    eliminated_lidar_extrinsic_delays: EliminatedLidar<true, true>;
     msc_lidar: Msc<false, false>;
     msc_lidar_delays: Msc<false, true>;
     msc_lidar_extrinsic_delays: Msc<true, true>;

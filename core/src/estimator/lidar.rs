@@ -14,6 +14,7 @@ use crate::camera::Vec2;
 use crate::inertial::NavState;
 use crate::landmarks::LidarDepth;
 
+use super::problem::{EliminatedLandmark, LandmarkModel, VisualSettings};
 use super::tau_landmark::TauLandmark;
 
 impl<
@@ -101,15 +102,27 @@ impl<
     }
 
     /// Depth-only optimization (paper V.D): the inverse depth of every LiDAR landmark re-solved
-    /// for the optimized poses (poses and extrinsic fixed).
+    /// for the optimized poses (poses and extrinsic fixed), under the landmark's model: with
+    /// the depth eliminated, its measurement's own solve (the anchor's bearing correction with
+    /// it, [`EliminatedLandmark::solve_at`]); the paper's MSC form, the bearing exact.
     pub(super) fn depth_only_optimization(&mut self) {
         let count = self.window.len();
         let (poses, frames) = self.window_frames();
         let sqrt_info = Vec2::new(self.cfg.camera.fx, self.cfg.camera.fy) / self.cfg.sigma_px;
+        let cfg = &self.cfg;
+        let vs = VisualSettings::new(cfg).ok();
         for lm in self.lms.landmarks_mut() {
             let (Some(d), true) = (lm.lidar, lm.usable) else {
                 continue;
             };
+            if let (LandmarkModel::Eliminated, Some(vs)) = (LandmarkModel::of(cfg, lm), vs) {
+                let solved =
+                    EliminatedLandmark::new(vs, lm, false, None).solve_at(&poses, &frames, count);
+                if let Ok((delta, tau)) = solved {
+                    (lm.inv_depth, lm.bearing_delta) = (tau, delta);
+                }
+                continue;
+            }
             let Some(m) =
                 TauLandmark::<N>::new(&lm.obs, lm.anchor_s as usize, Some(d), sqrt_info, count)
             else {

@@ -16,7 +16,9 @@
 //!    (inverse-depth mode: initialize the inverse depth), the uncertainty-based rejection of
 //!    LiDAR depths (paper IV.C, tested in inverse depth: `lidar::rejection`);
 //! 4. LM pass 1, chi-square cull of observations, LM pass 2 when the cull removed enough; LiDAR
-//!    landmarks enter as MSC (or direct) LiDAR-depth measurements (`estimator/problem::lidar.rs`);
+//!    landmarks enter as MSC (or direct) LiDAR-depth measurements (`estimator/problem::lidar.rs`;
+//!    with the depth eliminated, the default, the MSC one is the eliminated measurement with a
+//!    depth row, `estimator/problem/visual.rs`);
 //! 5. depth-only optimization of the LiDAR landmarks (paper V.D), then outlier culling by
 //!    reprojection (paper V.E);
 //! 6. restart the INS from the newest optimized keyframe (moving the de-skew window with it).

@@ -2,11 +2,11 @@
 //! correction `delta` of its anchor's bearing) ([`TauLandmark`]: the factors of its observations
 //! `j != s`, and the LiDAR depth row of an MSC-based LDM; [`Ray`]: one observation as
 //! `P_j ~ a + R_js (delta, 0) + tau b`), and the 1-D Gauss-Newton solve for the `tau*` that
-//! minimizes their stacked cost with the anchor's bearing exact. Shared by the MSC-based
+//! minimizes their stacked cost with the anchor's bearing exact. Shared by the paper's MSC-based
 //! LiDAR-depth measurement (`estimator::problem::lidar`) and the depth-only optimization
-//! (`estimator::lidar`), which take the bearing as exact, the eliminated visual measurement
-//! (`estimator::problem::visual`, which solves for it too) and the culling residuals
-//! (`estimator::cull`).
+//! (`estimator::lidar`), which take the bearing as exact, the eliminated measurement of visual
+//! and LiDAR landmarks (`estimator::problem::visual`, which solves for it too) and the culling
+//! residuals (`estimator::cull`).
 
 use super::problem::factor::timed;
 #[cfg(test)]
@@ -98,8 +98,8 @@ impl<const N: usize> TauLandmark<N> {
         let Some(d) = self.depth else {
             return (0.0, 0.0);
         };
-        let sd = d.sigma_m;
-        ((1.0 / tau - d.depth_m) / sd, -1.0 / (tau * tau * sd))
+        let [r, d1, _] = d.row(tau);
+        (r, d1)
     }
 
     /// The observations as rays in `tau`: camera `j` sees the landmark at `P_j ~ a + tau b`

@@ -24,3 +24,13 @@ pub struct LidarDepth {
     /// Its standard deviation, m.
     pub sigma_m: f64,
 }
+
+impl LidarDepth {
+    /// The whitened depth row of a landmark at inverse depth `tau` in its anchor camera,
+    /// `(1/tau - depth_m) / sigma_m`, and its first and second derivatives in `tau`.
+    pub fn row(&self, tau: f64) -> [f64; 3] {
+        let s = self.sigma_m;
+        let d1 = -1.0 / (tau * tau * s);
+        [(1.0 / tau - self.depth_m) / s, d1, -2.0 * d1 / tau]
+    }
+}

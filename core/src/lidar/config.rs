@@ -42,7 +42,8 @@ impl LidarExtrinsic {
 )]
 pub enum LdmMode {
     /// MSC-based LDM (eq. 25-30): the landmark's observations and depth in one measurement with
-    /// the inverse depth projected out; no separate visual measurement (PO-VINS).
+    /// the inverse depth projected out; no separate visual measurement (PO-VINS). With the
+    /// visual depth eliminated (the default) the anchor's bearing is projected out with it.
     Msc,
     /// Direct LDM (eq. 24): `d_s(poses) - d_r` beside the landmark's visual measurements.
     Direct,

@@ -24,8 +24,8 @@ use crate::factors::inverse_depth_visual::WindowRotations;
 use crate::factors::pose_only_visual::PoseOnlyAnchors;
 use crate::factors::robust::Huber;
 use crate::factors::{CamFrame, KeyframePose, TimedObs};
-use crate::landmarks::KfObs;
 use crate::landmarks::Landmark;
+use crate::landmarks::{KfObs, LidarDepth};
 use crate::lidar::LdmMode;
 use crate::math::{Mat3, Vec3};
 use crate::solver::{JacobianBlock, NormalEquations};
@@ -168,9 +168,11 @@ pub enum LandmarkModel {
     /// Pose-only reprojections with the inverse depth and anchor bearing that fit all
     /// observations eliminated
     /// ([`VisualDepth::Eliminated`](super::VisualDepth::Eliminated),
-    /// `estimator::problem::visual`).
+    /// `estimator::problem::visual`); a LiDAR landmark with [`LdmMode::Msc`] adds its depth
+    /// row to them (the MSC-based LDM with the anchor's bearing free).
     Eliminated,
-    /// The MSC-based LiDAR-depth measurement (a LiDAR landmark with [`LdmMode::Msc`],
+    /// The paper's MSC-based LiDAR-depth measurement, the anchor's bearing exact (a LiDAR
+    /// landmark with [`LdmMode::Msc`] under the two-view visual depth,
     /// `estimator::problem::lidar`).
     MscLidar,
     /// The inverse depth as a state, eliminated by its Schur accumulator
@@ -178,17 +180,26 @@ pub enum LandmarkModel {
     InverseDepth,
 }
 
+/// The LiDAR depth landmark `lm`'s measurement takes under `cfg`: its associated depth while the
+/// LiDAR is enabled (what makes it a LiDAR landmark for [`LandmarkModel::of`]).
+pub fn lidar_depth<const N: usize>(cfg: &EstimatorConfig, lm: &Landmark<N>) -> Option<LidarDepth> {
+    lm.lidar.filter(|_| cfg.lidar.enabled)
+}
+
 impl LandmarkModel {
     /// The model of landmark `lm` under `cfg`: the inverse-depth mode takes every landmark's
     /// depth as a state; otherwise a LiDAR landmark (with the LiDAR enabled) takes the configured
-    /// LiDAR-depth measurement, and a visual one the configured pose-only depth (with the direct
-    /// LDM every landmark keeps the two-view form, see [`EstimatorConfig::depth_eliminated`]).
+    /// LiDAR-depth measurement (the MSC-based one as the eliminated measurement with a depth row
+    /// where the visual depth is eliminated, the paper's block under the two-view depth), and a
+    /// visual one the configured pose-only depth (with the direct LDM every landmark keeps the
+    /// two-view form, see [`EstimatorConfig::depth_eliminated`]).
     pub fn of<const N: usize>(cfg: &EstimatorConfig, lm: &Landmark<N>) -> Self {
         if cfg.mode == VisualMode::InverseDepth {
             return LandmarkModel::InverseDepth;
         }
-        let lidar = lm.lidar.is_some() && cfg.lidar.enabled;
+        let lidar = lidar_depth(cfg, lm).is_some();
         match (lidar, cfg.lidar.ldm) {
+            (true, LdmMode::Msc) if cfg.depth_eliminated() => LandmarkModel::Eliminated,
             (true, LdmMode::Msc) => LandmarkModel::MscLidar,
             (true, LdmMode::Direct) => LandmarkModel::DirectLidar,
             (false, _) if cfg.depth_eliminated() => LandmarkModel::Eliminated,

@@ -1,6 +1,8 @@
 //! LiDAR-depth measurements of the window's problem (paper V.C).
 //!
-//! **MSC-based LDM.** A landmark with an accepted LiDAR depth `d_r` (z in its anchor camera `s`)
+//! **MSC-based LDM** (the paper's, under the two-view visual depth; with the depth eliminated,
+//! the default, a LiDAR landmark's depth row joins its eliminated measurement instead, the
+//! anchor's bearing free: `estimator::problem::visual`). A landmark with an accepted LiDAR depth `d_r` (z in its anchor camera `s`)
 //! contributes one measurement made of its whitened inverse-depth reprojections `j != s`
 //! (LE-VINS form, [`InverseDepthVisualFactor`]) and the depth row `(1/tau - d_r) / sigma_dr`, with
 //! the inverse depth `tau` projected out (math notes sec. 5). At each linearization `tau*` is

@@ -37,17 +37,28 @@
 //! `V L^-T` (`C = L L^T`). The measurement is a function of the window's variables alone: the
 //! landmark has no state, its cost is `min_u` of the reprojection cost, so the LM's gain ratio
 //! compares what the linear model predicts.
+//!
+//! **A LiDAR landmark** (the MSC-based LDM, [`LdmMode::Msc`](crate::lidar::LdmMode::Msc)) adds
+//! its depth row `r_d = (1/tau - d_r) / sigma_dr` to these residuals: the depth is `z` in the
+//! anchor camera, `1/tau` whatever `delta` (the anchor's ray is `(x_s + delta, 1) / tau`), so
+//! the row has `G = (0, 0, dr_d/dtau)` and no window variable; its Huber weight is its own. This
+//! is the paper's MSC measurement (`estimator::problem::lidar`: the reprojections and the depth
+//! row with the inverse depth projected out) with the anchor's bearing freed as above and the
+//! robust kernel per residual instead of on the stacked block, so that a LiDAR landmark's
+//! reprojections count as much as a visual one's and a wrong depth loses its weight alone. The
+//! paper's block stays for the two-view visual depth ([`super::LandmarkModel::MscLidar`]).
 #![deny(clippy::too_many_lines)]
 
 use super::factor::{
-    put_rows, row_major, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
+    lidar_depth, put_rows, row_major, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
 };
 use crate::camera::Vec2;
 use crate::estimator::tau_landmark::{Ray, TauLandmark};
 use crate::estimator::window::Block;
 use crate::factors::inverse_depth_visual::{InverseDepthVisualFactor, WindowRotations};
 use crate::factors::robust::Huber;
-use crate::landmarks::Landmark;
+use crate::factors::{CamFrame, KeyframePose};
+use crate::landmarks::{Landmark, LidarDepth};
 use crate::solver::{JacobianBlock, NormalEquations};
 use crate::Error;
 use heapless::Vec as HVec;
@@ -57,6 +68,8 @@ use nalgebra::Matrix2x6;
 pub struct EliminatedLandmark<'a, const N: usize> {
     vs: VisualSettings<'a>,
     lm: &'a Landmark<N>,
+    /// The LiDAR depth whose row joins the residuals (MSC-based LDM), if any.
+    depth: Option<LidarDepth>,
     /// Without the observation at position 0 (what stays of a re-anchored landmark after the
     /// marginalization, `FactorSet::OldestRest`).
     without_obs_zero: bool,
@@ -80,12 +93,41 @@ impl<'a, const N: usize> EliminatedLandmark<'a, N> {
         EliminatedLandmark {
             vs,
             lm,
+            depth: lidar_depth(vs.cfg, lm),
             without_obs_zero,
             cached,
             tau: None,
             delta: None,
             n_obs: 0,
         }
+    }
+
+    /// `(delta*, tau*)` at `poses` (the measurement's own solve, from the landmark's last values):
+    /// what the depth-only optimization (paper V.D) keeps under this model;
+    /// [`Error::Degenerate`] where the solve does not converge.
+    pub fn solve_at(
+        &self,
+        poses: &[KeyframePose; N],
+        frames: &[CamFrame; N],
+        count: usize,
+    ) -> Result<([f64; 2], f64), Error> {
+        let m = self.tau_landmark(count)?;
+        let mut rays: HVec<Ray, N> = HVec::new();
+        m.rays_into(poses, frames, &mut rays)?;
+        let (lm, vs) = (self.lm, &self.vs);
+        let depth = m.depth.as_ref();
+        let s = solve_bearing_tau(
+            &rays,
+            vs.sqrt_info,
+            depth,
+            lm.bearing_delta,
+            lm.inv_depth,
+            &vs.huber,
+        )?;
+        if !s.converged {
+            return Err(Error::Degenerate);
+        }
+        Ok((s.delta, s.tau))
     }
 
     /// The landmark's reprojections in `tau` over the first `count` positions.
@@ -95,7 +137,8 @@ impl<'a, const N: usize> EliminatedLandmark<'a, N> {
         // What stays in the window after the marginalization: the factor without position 0.
         let skip = self.without_obs_zero.then_some(0);
         let (s, sqrt_info) = (lm.anchor_s as usize, self.vs.sqrt_info);
-        TauLandmark::without(&lm.obs, s, skip, None, sqrt_info, count).ok_or(Error::NotEnoughData)
+        TauLandmark::without(&lm.obs, s, skip, self.depth, sqrt_info, count)
+            .ok_or(Error::NotEnoughData)
     }
 }
 
@@ -116,16 +159,30 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
             (Some(c), Some(_)) => c,
             _ => {
                 let w_s = self.vs.sqrt_info;
-                let (delta, tau, cost) =
-                    solve_bearing_tau(&rays, w_s, lm.bearing_delta, lm.inv_depth, huber)?;
-                if ne.is_none() {
+                let s = solve_bearing_tau(
+                    &rays,
+                    w_s,
+                    m.depth.as_ref(),
+                    lm.bearing_delta,
+                    lm.inv_depth,
+                    huber,
+                )?;
+                match (ne.is_none(), s.converged) {
                     // The next solve (the linearization or the marginalization at this state,
                     // the next trial near it) starts from here; a rejected LM trial restores
                     // them with the state.
-                    (self.tau, self.delta) = (Some(tau), Some(delta));
-                    return Ok(cost);
+                    (true, true) => {
+                        (self.tau, self.delta) = (Some(s.tau), Some(s.delta));
+                        return Ok(s.cost);
+                    }
+                    // Not the minimum: its cost bounds the measurement's from above (a trial
+                    // is judged on it); nothing is kept, so the linearization solves again.
+                    (true, false) => return Ok(s.cost),
+                    // Linearized off its minimum the gradient would be wrong to first order:
+                    // the landmark is left out of this solve (disabled and counted).
+                    (false, false) => return Err(Error::Degenerate),
+                    (false, true) => (s.delta, s.tau),
                 }
-                (delta, tau)
             }
         };
         let Some(ne) = ne else {
@@ -157,6 +214,10 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
             let (r, _) = ray.residual_and_d_bearing_tau(delta, lm.inv_depth)?;
             rows += put_rows(&[r.x, r.y], out.get_mut(rows..).unwrap_or(&mut []))?;
         }
+        if let Some(d) = &m.depth {
+            let r = d.row(lm.inv_depth)[0];
+            rows += put_rows(&[r], out.get_mut(rows..).unwrap_or(&mut []))?;
+        }
         Ok(rows)
     }
 }
@@ -164,6 +225,10 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
 impl<const N: usize, const D: usize> LandmarkFactor<N, D> for EliminatedLandmark<'_, N> {
     fn observations(&self) -> u32 {
         self.n_obs
+    }
+
+    fn depth_measurements(&self) -> u32 {
+        u32::from(self.depth.is_some())
     }
 
     fn inverse_depth(&self) -> Option<f64> {
@@ -176,7 +241,8 @@ impl<const N: usize, const D: usize> LandmarkFactor<N, D> for EliminatedLandmark
 }
 
 /// Most passes over the rays of [`solve_bearing_tau`] (it stops after one to three from the
-/// last solution; the Gauss–Newton fallback converges linearly).
+/// last solution; the Gauss–Newton fallback converges linearly, a few landmarks in a thousand
+/// need more than ten).
 const BEARING_PASSES: usize = 60;
 /// A Newton step of at most this fraction of `tau` (and of this many normalized units, about
 /// 5e-5 px, in the bearing) is the last one: Newton converges quadratically, so what it leaves
@@ -186,6 +252,18 @@ const NEWTON_LAST_STEP: [f64; 2] = [1e-7, 1e-5];
 /// The same for a Gauss–Newton step (where the cost is not clearly convex), which converges
 /// linearly.
 const GN_LAST_STEP: f64 = 1e-9;
+/// A Gauss–Newton step rejected (uphill) is shortened fourfold; below this fraction of it no
+/// descent is left at the cost's rounding: the point is the minimum.
+const MIN_STEP_FRACTION: f64 = 1e-6;
+/// After this many Gauss–Newton steps accepted in a row, each next one is twice as long (up to
+/// [`MAX_STEP_FRACTION`] times the step): the run is crawling along a flat valley.
+const GN_RUN_BEFORE_LONGER: u32 = 4;
+/// The longest of those steps, in Gauss–Newton steps.
+const MAX_STEP_FRACTION: f64 = 1024.0;
+/// The smallest inverse depth (1/m, a depth of 1000 km) [`solve_bearing_tau`] goes to: a cost
+/// still falling there has its minimum at infinite depth or behind the cameras (not
+/// converged).
+const MIN_INV_DEPTH: f64 = 1e-6;
 /// Newton steps are taken where the Gauss–Newton step is at most this (bearing, fraction of
 /// `tau`): near the minimum, as a warm start from the last solution is.
 const NEWTON_FROM: [f64; 2] = [1e-3, 0.05];
@@ -259,6 +337,7 @@ type BearingPass = (f64, [f64; 3], [[f64; 3]; 3], [[f64; 3]; 3]);
 fn bearing_pass(
     rays: &[Ray],
     w_s: Vec2,
+    depth: Option<&LidarDepth>,
     delta: [f64; 2],
     tau: f64,
     huber: &Huber,
@@ -291,6 +370,15 @@ fn bearing_pass(
             }
         }
     }
+    if let Some(d) = depth {
+        // The depth row depends on `tau` alone.
+        let [r, d1, d2] = d.row(tau);
+        let [rho, w, w2] = huber.rho(r * r);
+        cost += rho;
+        g[2] += w * r * d1;
+        h_gn[2][2] += w * d1 * d1;
+        h[2][2] += w * (d1 * d1 + r * d2) + 2.0 * w2 * (r * d1) * (r * d1);
+    }
     for a in 0..3 {
         for b in 0..a {
             h[b][a] = h[a][b];
@@ -312,17 +400,23 @@ fn bearing_pass(
 /// the robust cost `rho(|w_s delta|^2) + sum_j rho(|r_j(delta, tau)|^2)` there, from
 /// `(delta0, tau0)` (the last solution): Newton's method on the exact Hessian of
 /// [`bearing_pass`] near the minimum, Gauss–Newton steps farther away or where the Hessian is
-/// not positive definite. Errors:
-/// [`Error::NotEnoughData`] without a positive `tau0`, [`Error::Degenerate`] for a ray behind
-/// its camera, [`Error::NonFinite`] for non-finite input or where the depth is unobserved (no
-/// parallax).
+/// not positive definite. A step is taken only downhill: an uphill Newton step (the exact
+/// Hessian of a Huber-linear residual is flat along it, so the step can be huge) gives way to
+/// the Gauss–Newton step, an uphill (or behind-the-camera) Gauss–Newton step is shortened.
+/// Where the passes run out first (a flat, curved valley: two observations both past the Huber
+/// threshold) or the cost falls toward infinite depth, the result says it has not converged
+/// (its cost is then an upper bound of the minimum's): the variable projection's gradient holds
+/// at the minimum only. Errors: [`Error::NotEnoughData`] without a positive `tau0`,
+/// [`Error::Degenerate`] for a ray behind its camera at the start, [`Error::NonFinite`] for
+/// non-finite input or where the depth is unobserved (no parallax).
 pub(super) fn solve_bearing_tau(
     rays: &[Ray],
     w_s: Vec2,
+    depth: Option<&LidarDepth>,
     delta0: [f64; 2],
     tau0: f64,
     huber: &Huber,
-) -> Result<([f64; 2], f64, f64), Error> {
+) -> Result<BearingTau, Error> {
     if !(tau0 > 0.0 && tau0.is_finite()) {
         return Err(Error::NotEnoughData);
     }
@@ -332,49 +426,138 @@ pub(super) fn solve_bearing_tau(
         [0.0; 2]
     };
     let mut tau = tau0;
+    let mut at = bearing_pass(rays, w_s, depth, delta, tau, huber)?;
+    // After a rejected step: no Newton step until one is accepted, and the fraction of the
+    // Gauss-Newton step taken; the Gauss-Newton steps accepted in a row.
+    let (mut newton_ok, mut fraction, mut gn_run) = (true, 1.0, 0);
     for _ in 0..BEARING_PASSES {
-        let (cost, g, h, h_gn) = bearing_pass(rays, w_s, delta, tau, huber)?;
-        let minus_g = [-g[0], -g[1], -g[2]];
-        let (l_gn, full) = chol3(&h_gn)?;
-        if !full {
-            return Err(Error::NonFinite);
+        let (newton, step) = bearing_step(&at, tau, newton_ok)?;
+        if let Some(done) = converged_at(&at, delta, tau, newton, step) {
+            return Ok(done);
         }
-        let step_gn = solve3(&l_gn, minus_g);
-        // Newton near the minimum only (far from it the exact Hessian can lead elsewhere).
-        let near = libm::fabs(step_gn[2]) <= NEWTON_FROM[1] * tau
-            && libm::fabs(step_gn[0]) <= NEWTON_FROM[0]
-            && libm::fabs(step_gn[1]) <= NEWTON_FROM[0];
-        let (newton, step) = match chol3(&h) {
-            Ok((l, true)) if near => (true, solve3(&l, minus_g)),
-            _ => (false, step_gn),
-        };
-        if tau + step[2] <= 0.0 {
-            // The inverse depth stays positive: halve toward zero instead of crossing it.
-            tau *= 0.5;
-            continue;
+        let cost = at.0;
+        // A shortened Gauss-Newton step after a rejection; the inverse depth at most halved (it
+        // stays positive).
+        let mut k = if newton { 1.0 } else { fraction };
+        if tau + k * step[2] < 0.5 * tau {
+            k = -0.5 * tau / step[2];
         }
-        delta = [delta[0] + step[0], delta[1] + step[1]];
-        tau += step[2];
-        let [last_delta, last_tau] = if newton {
-            NEWTON_LAST_STEP
-        } else {
-            [GN_LAST_STEP; 2]
-        };
-        let small = libm::fabs(step[2]) <= last_tau * tau
-            && libm::fabs(step[0]) <= last_delta
-            && libm::fabs(step[1]) <= last_delta;
-        if small {
-            let hm = if newton { &h } else { &h_gn };
-            let mut model = 0.0;
-            for a in 0..3 {
-                let hs: f64 = (0..3).map(|b| hm[a][b] * step[b]).sum();
-                model += step[a] * (2.0 * g[a] + hs);
+        let next = (
+            [delta[0] + k * step[0], delta[1] + k * step[1]],
+            tau + k * step[2],
+        );
+        if next.1 < MIN_INV_DEPTH {
+            // The cost falls toward infinite depth (or behind the cameras): no parallax holds
+            // the depth, no minimum.
+            break;
+        }
+        match bearing_pass(rays, w_s, depth, next.0, next.1, huber) {
+            Ok(p) if p.0 <= cost => {
+                (delta, tau, at) = (next.0, next.1, p);
+                newton_ok = true;
+                if newton {
+                    (fraction, gn_run) = (1.0, 0);
+                } else {
+                    // A long run of accepted Gauss-Newton steps crawls along a flat valley
+                    // (residuals past the Huber threshold pulling apart): longer steps.
+                    gn_run += 1;
+                    if gn_run >= GN_RUN_BEFORE_LONGER {
+                        fraction = libm::fmin(2.0 * fraction, MAX_STEP_FRACTION);
+                    }
+                }
             }
-            return Ok((delta, tau, cost + model));
+            // Uphill, or a ray behind its camera: a Gauss-Newton step, then shorter ones.
+            Ok(_) | Err(Error::Degenerate) => {
+                if newton {
+                    newton_ok = false;
+                } else if fraction < MIN_STEP_FRACTION {
+                    // No descent left at the rounding of the cost: a minimum.
+                    return Ok(BearingTau {
+                        delta,
+                        tau,
+                        cost,
+                        converged: true,
+                    });
+                } else {
+                    (fraction, gn_run) = (0.25 * libm::fmin(fraction, 1.0), 0);
+                }
+            }
+            Err(e) => return Err(e),
         }
     }
-    let (cost, _, _, _) = bearing_pass(rays, w_s, delta, tau, huber)?;
-    Ok((delta, tau, cost))
+    Ok(BearingTau {
+        delta,
+        tau,
+        cost: at.0,
+        converged: false,
+    })
+}
+
+/// The step of [`solve_bearing_tau`] from a pass `at` (at inverse depth `tau`): Newton's on the
+/// exact Hessian near the minimum where it is positive definite (and `newton_ok`), Gauss–Newton's
+/// otherwise; whether it is Newton's.
+fn bearing_step(at: &BearingPass, tau: f64, newton_ok: bool) -> Result<(bool, [f64; 3]), Error> {
+    let (_, g, h, h_gn) = at;
+    let minus_g = [-g[0], -g[1], -g[2]];
+    let (l_gn, full) = chol3(h_gn)?;
+    if !full {
+        return Err(Error::NonFinite);
+    }
+    let step_gn = solve3(&l_gn, minus_g);
+    // Newton near the minimum only (far from it the exact Hessian can lead elsewhere).
+    let near = libm::fabs(step_gn[2]) <= NEWTON_FROM[1] * tau
+        && libm::fabs(step_gn[0]) <= NEWTON_FROM[0]
+        && libm::fabs(step_gn[1]) <= NEWTON_FROM[0];
+    Ok(match chol3(h) {
+        Ok((l, true)) if near && newton_ok => (true, solve3(&l, minus_g)),
+        _ => (false, step_gn),
+    })
+}
+
+/// The converged solution when `step` (from the pass `at` at `(delta, tau)`) is small enough to
+/// be the last ([`NEWTON_LAST_STEP`], [`GN_LAST_STEP`]): the step's end, its cost from the
+/// step's quadratic model.
+fn converged_at(
+    at: &BearingPass,
+    delta: [f64; 2],
+    tau: f64,
+    newton: bool,
+    step: [f64; 3],
+) -> Option<BearingTau> {
+    let (cost, g, h, h_gn) = at;
+    let [last_delta, last_tau] = if newton {
+        NEWTON_LAST_STEP
+    } else {
+        [GN_LAST_STEP; 2]
+    };
+    let small = libm::fabs(step[2]) <= last_tau * tau
+        && libm::fabs(step[0]) <= last_delta
+        && libm::fabs(step[1]) <= last_delta;
+    if !small {
+        return None;
+    }
+    let hm = if newton { h } else { h_gn };
+    let mut model = 0.0;
+    for a in 0..3 {
+        let hs: f64 = (0..3).map(|b| hm[a][b] * step[b]).sum();
+        model += step[a] * (2.0 * g[a] + hs);
+    }
+    Some(BearingTau {
+        delta: [delta[0] + step[0], delta[1] + step[1]],
+        tau: tau + step[2],
+        cost: cost + model,
+        converged: true,
+    })
+}
+
+/// What [`solve_bearing_tau`] found: the bearing correction and inverse depth, the robust cost
+/// there, and whether it is the minimum (the pass cap [`BEARING_PASSES`] not reached).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct BearingTau {
+    pub delta: [f64; 2],
+    pub tau: f64,
+    pub cost: f64,
+    pub converged: bool,
 }
 
 /// Where a landmark's linearization is taken: the solved bearing correction and inverse depth,
@@ -389,6 +572,10 @@ struct Solved {
 /// extrinsic's six (a window of up to 58 keyframes; beyond, the landmark is refused with
 /// [`Error::CapacityExceeded`]).
 const FOLD_SCALARS: usize = 64;
+/// The least fraction of a landmark's inverse-depth information left given its bearing
+/// correction (the last Cholesky pivot squared over `C[2][2]`) its elimination is folded with;
+/// below it the landmark is refused ([`Error::Degenerate`]: disabled for the solve, counted).
+const MIN_DEPTH_INFORMATION: f64 = 1e-8;
 
 /// One landmark's `(delta.x, delta.y, tau)` block accumulated over its residuals (module docs):
 /// `C = sum G^T G`, `beta = -sum G^T r` and the couplings `V = sum J^T G` per keyframe pose
@@ -470,6 +657,12 @@ impl<const N: usize> Elimination<N> {
     /// couplings `U = V L^-T` (`C = L L^T`), two when the depth is unobserved.
     fn fold<const D: usize>(mut self, ne: &mut NormalEquations<D>) -> Result<(), Error> {
         let (lc, full) = chol3(&self.c)?;
+        if full && lc[2][2] * lc[2][2] < MIN_DEPTH_INFORMATION * self.c[2][2] {
+            // The depth is all but unobserved given the bearing (an anchor given up by a
+            // landmark of two or three observations): its elimination would divide by the
+            // rounding of the information, and the fold cancel catastrophically.
+            return Err(Error::Degenerate);
+        }
         let rank = if full { 3 } else { 2 };
         let beta_w = forward3(&lc, self.beta, rank);
         for (_, x) in self.poses.iter_mut() {
@@ -581,6 +774,18 @@ fn accumulate_eliminated<const N: usize, const D: usize>(
             }
         }
     }
+    if let Some(d) = &m.depth {
+        // The depth row: on `tau` alone, nothing of the window's variables.
+        let [r, d1, _] = d.row(at.tau);
+        let sq = r * r;
+        cost += huber.rho(sq)[0];
+        let w = huber.sqrt_weight(sq);
+        let zero = Vec2::zeros();
+        e.add_residual(
+            &Vec2::new(r * w, 0.0),
+            &[zero, zero, Vec2::new(d1 * w, 0.0)],
+        );
+    }
     e.fold(ne)?;
     Ok(cost)
 }
@@ -611,185 +816,5 @@ fn add_with_extrinsic<const D: usize>(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::camera::CameraExtrinsic;
-    use crate::camera::Vec2;
-    use crate::factors::{CamFrame, KeyframePose, TimedObs};
-    use crate::math::{quat_exp, Vec3};
-
-    /// A landmark 4 m away seen from four keyframes with pixel noise; with `outlier`, the last
-    /// observation is 30 px off (outside the Huber threshold).
-    fn tau_scene(outlier: bool) -> (HVec<Ray, 4>, f64) {
-        let ext = CameraExtrinsic {
-            p_bc: Vec3::new(0.05, -0.02, 0.01),
-            q_bc: quat_exp(&Vec3::new(-1.5, 0.02, -1.55)),
-        };
-        let poses: [KeyframePose; 4] = core::array::from_fn(|k| {
-            let t = k as f64;
-            KeyframePose {
-                p_wb: Vec3::new(0.25 * t, 0.05 * t * t, -0.01 * t),
-                q_wb: quat_exp(&Vec3::new(0.01 * t, -0.02 * t, 0.04 * t)),
-                td: 0.0,
-            }
-        });
-        let frames: [CamFrame; 4] = core::array::from_fn(|k| CamFrame::new(&poses[k], &ext));
-        let p_w = Vec3::new(4.0, 1.0, 0.5);
-        let noise = [
-            [0.0, 0.0],
-            [0.002, -0.001],
-            [-0.0015, 0.0025],
-            [0.001, 0.0005],
-        ];
-        let mut obs: [Vec2; 4] = core::array::from_fn(|k| {
-            let c = ext.camera_pose(&poses[k].p_wb, &poses[k].q_wb);
-            let p_c = c.q_wc.inverse() * (p_w - c.p_wc);
-            Vec2::new(p_c.x / p_c.z + noise[k][0], p_c.y / p_c.z + noise[k][1])
-        });
-        if outlier {
-            obs[3].x += 30.0 / 460.0;
-        }
-        let sqrt_info = Vec2::new(460.0, 460.0) / 1.5;
-        let obs_s = TimedObs::still(obs[0]);
-        let mut m = TauLandmark::<4> {
-            s: 0,
-            obs: HVec::new(),
-            depth: None,
-        };
-        for (j, o) in obs.iter().enumerate().skip(1) {
-            let f = InverseDepthVisualFactor {
-                kf_s: 0,
-                kf_j: j,
-                obs_s,
-                obs_j: TimedObs::still(*o),
-                sqrt_info,
-            };
-            m.obs.push((j, f)).unwrap();
-        }
-        let c0 = ext.camera_pose(&poses[0].p_wb, &poses[0].q_wb);
-        let tau_true = 1.0 / (c0.q_wc.inverse() * (p_w - c0.p_wc)).z;
-        (m.rays(&poses, &frames).unwrap(), tau_true)
-    }
-
-    /// The robust cost [`solve_bearing_tau`] minimizes, evaluated directly.
-    fn bearing_cost(rays: &[Ray], w_s: Vec2, delta: [f64; 2], tau: f64, huber: &Huber) -> f64 {
-        let anchor = Vec2::new(w_s.x * delta[0], w_s.y * delta[1]).norm_squared();
-        let rows: f64 = rays
-            .iter()
-            .map(|r| {
-                let (r, _) = r.residual_and_d_bearing_tau(delta, tau).unwrap();
-                huber.rho(r.norm_squared())[0]
-            })
-            .sum();
-        huber.rho(anchor)[0] + rows
-    }
-
-    #[test]
-    fn bearing_ray_derivatives_match_numerical_differentiation() {
-        let (rays, tau_true) = tau_scene(false);
-        let x0 = [3e-3, -2e-3, 1.1 * tau_true];
-        let at = |x: [f64; 3]| move |ray: &Ray| ray.residual_and_d_bearing_tau([x[0], x[1]], x[2]);
-        for ray in rays.iter() {
-            let (r, d) = at(x0)(ray).unwrap();
-            // The same residual as the depth-only form at delta = 0.
-            let (r0, d0) = ray.residual_and_d_tau(x0[2]).unwrap();
-            let (r1, d1) = at([0.0, 0.0, x0[2]])(ray).unwrap();
-            assert!((r0 - r1).norm() <= 1e-12 && (d0 - d1[2]).norm() <= 1e-12 * d0.norm());
-            assert!((r - r0).norm() > 1e-3, "delta moves the residual");
-            for (k, dk) in d.iter().enumerate() {
-                let h = 1e-6 * x0[k].abs().max(1e-3);
-                let (mut xp, mut xm) = (x0, x0);
-                xp[k] += h;
-                xm[k] -= h;
-                let num = (at(xp)(ray).unwrap().0 - at(xm)(ray).unwrap().0) / (2.0 * h);
-                assert!(
-                    (num - dk).norm() <= 1e-6 * dk.norm().max(1.0),
-                    "{k}: {num} vs {dk}"
-                );
-            }
-        }
-    }
-
-    #[test]
-    fn bearing_pass_derivatives_match_numerical_differentiation() {
-        let huber = Huber::new(1.0).unwrap();
-        // A bearing correction of 2 px on x: past the Huber threshold (1.5 px), so the anchor's
-        // `rho''` term is exercised too.
-        let w_s = Vec2::new(460.0, 460.0) / 1.5;
-        for outlier in [false, true] {
-            let (rays, tau_true) = tau_scene(outlier);
-            for x0 in [[3e-3, -1e-3, tau_true], [4e-3, 2e-3, 0.8 * tau_true]] {
-                let (cost, g, h, h_gn) =
-                    bearing_pass(&rays, w_s, [x0[0], x0[1]], x0[2], &huber).unwrap();
-                let f = |x: [f64; 3]| bearing_cost(&rays, w_s, [x[0], x[1]], x[2], &huber);
-                assert!((cost - f(x0)).abs() <= 1e-12 * cost);
-                let e = [1e-6, 1e-6, 1e-5 * x0[2]];
-                let at = |k: usize, sk: f64, l: usize, sl: f64| {
-                    let mut x = x0;
-                    x[k] += sk * e[k];
-                    x[l] += sl * e[l];
-                    f(x)
-                };
-                for k in 0..3 {
-                    let d1 = (at(k, 1.0, k, 0.0) - at(k, -1.0, k, 0.0)) / (2.0 * e[k]);
-                    assert!((2.0 * g[k] - d1).abs() <= 1e-6 * d1.abs().max(1.0), "g{k}");
-                    for l in 0..3 {
-                        let d2 = (at(k, 1.0, l, 1.0) - at(k, 1.0, l, -1.0) - at(k, -1.0, l, 1.0)
-                            + at(k, -1.0, l, -1.0))
-                            / (4.0 * e[k] * e[l]);
-                        let scale = (h[k][k] * h[l][l]).sqrt();
-                        assert!(
-                            (2.0 * h[k][l] - d2).abs() <= 1e-4 * scale,
-                            "h{k}{l}: {} vs {d2}",
-                            2.0 * h[k][l]
-                        );
-                        assert!(h_gn[k][l].is_finite());
-                    }
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn solve_bearing_tau_finds_the_robust_minimum_and_its_cost() {
-        let huber = Huber::new(1.0).unwrap();
-        let w_s = Vec2::new(460.0, 460.0) / 1.5;
-        for outlier in [false, true] {
-            let (rays, tau_true) = tau_scene(outlier);
-            let (delta, tau, cost) =
-                solve_bearing_tau(&rays, w_s, [0.0; 2], 0.6 * tau_true, &huber).unwrap();
-            // From another start: the same minimum.
-            let (d2, t2, c2) =
-                solve_bearing_tau(&rays, w_s, [1e-3, -1e-3], 1.2 * tau, &huber).unwrap();
-            assert!(
-                (tau - t2).abs() <= 1e-8 * tau,
-                "{outlier}: {tau} vs {t2}, {delta:?} {d2:?} {cost} {c2} true {tau_true}"
-            );
-            assert!((delta[0] - d2[0]).abs() + (delta[1] - d2[1]).abs() <= 1e-8);
-            for (d, t, c) in [(delta, tau, cost), (d2, t2, c2)] {
-                let exact = bearing_cost(&rays, w_s, d, t, &huber);
-                assert!((c - exact).abs() <= 1e-10 * exact, "{c} vs {exact}");
-            }
-            // A minimum in each of the three directions, below the depth-only solve's cost
-            // (which is this cost at delta = 0).
-            for k in 0..3 {
-                for e in [1e-5, -1e-5] {
-                    let mut x = [delta[0], delta[1], tau];
-                    x[k] += if k == 2 { e * tau } else { e };
-                    assert!(bearing_cost(&rays, w_s, [x[0], x[1]], x[2], &huber) > cost);
-                }
-            }
-            let exact_anchor = bearing_cost(&rays, w_s, [0.0; 2], tau, &huber);
-            assert!(cost < exact_anchor, "{cost} vs {exact_anchor}");
-            assert!(
-                delta.iter().any(|d| d.abs() > 1e-6),
-                "the anchor's noise shows"
-            );
-        }
-        let (rays, _) = tau_scene(false);
-        assert_eq!(
-            solve_bearing_tau(&rays, w_s, [0.0; 2], 0.0, &huber).err(),
-            Some(Error::NotEnoughData)
-        );
-    }
-}
+#[path = "visual_tests.rs"]
+mod tests;
