@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs the cargo-fuzz targets of fuzz/ (issue 32 item 5) with Debian's rustc-web (rustup's
 # stable cannot build sanitizer-instrumented code; RUSTC_BOOTSTRAP=1 allows the -Z flags
-# cargo-fuzz passes). One target at a time, one job, one worker (the machine is shared).
+# cargo-fuzz passes). One target at a time, one worker (the machine is shared).
 # Usage: scripts/fuzz.sh TARGET [SECONDS]   one target (default 60 s)
 #        scripts/fuzz.sh all [SECONDS]      every target in turn
 #        scripts/fuzz.sh list               the targets
@@ -28,7 +28,9 @@ export RUSTC=/usr/bin/rustc
 export RUSTC_BOOTSTRAP=1
 export CARGO=/usr/bin/cargo
 export CARGO_TARGET_DIR="$root/target/fuzz"
-export CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-1}"
+# One build job beside other work; CI's form (nothing else runs then) uses every core: the cold
+# build of the instrumented targets is one of its longest steps.
+export CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-$([ "${1:-}" = ci ] && nproc || echo 1)}"
 unset RUSTFLAGS
 [ -x "$RUSTC" ] && [ -x "$CARGO" ] || { echo "fuzz: Debian rustc-web/cargo-web missing: run scripts/setup-cross.sh" >&2; exit 1; }
 local_fuzz="$root/target/cargo-fuzz/bin/cargo-fuzz"
