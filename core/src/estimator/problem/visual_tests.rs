@@ -1,4 +1,7 @@
-//! Tests of the eliminated landmark's inner solve and linearization (`problem::visual`).
+//! Tests of the eliminated landmark's inner solve and linearization (`visual.rs` includes this
+//! file as its `#[cfg(test)]` module; the attribute below repeats that for readers of this file
+//! alone).
+#![cfg(test)]
 use super::*;
 use crate::camera::CameraExtrinsic;
 use crate::camera::Vec2;
