@@ -19,6 +19,8 @@ struct FnProblem {
     residual: VecFn,
     jacobian: VecFn,
     linearizations: usize,
+    /// Work units counted: 3 per linearization, 1 per cost evaluation.
+    work: u32,
 }
 
 impl FnProblem {
@@ -29,6 +31,7 @@ impl FnProblem {
             residual,
             jacobian,
             linearizations: 0,
+            work: 0,
         }
     }
 }
@@ -39,12 +42,14 @@ impl LmProblem<D> for FnProblem {
     }
     fn linearize(&mut self, ne: &mut NormalEquations<D>) -> Result<(), Error> {
         self.linearizations += 1;
+        self.work += LINEARIZATION_WORK;
         let r = (self.residual)(&self.x);
         let j = (self.jacobian)(&self.x);
         let cols: Vec<usize> = (0..self.x.len()).collect();
         ne.add_residual(&r, &j, &cols, r.len(), cols.len())
     }
     fn cost(&mut self) -> Result<f64, Error> {
+        self.work += TRIAL_WORK;
         let c: f64 = (self.residual)(&self.x).iter().map(|v| v * v).sum();
         if c.is_finite() {
             Ok(c)
@@ -61,7 +66,14 @@ impl LmProblem<D> for FnProblem {
     fn restore(&mut self) {
         self.x.clone_from(&self.saved);
     }
+    fn work(&self) -> u32 {
+        self.work
+    }
 }
+
+/// [`FnProblem`]'s work units per linearization and per cost evaluation.
+const LINEARIZATION_WORK: u32 = 3;
+const TRIAL_WORK: u32 = 1;
 
 fn rosenbrock(x: &[f64]) -> Vec<f64> {
     vec![10.0 * (x[1] - x[0] * x[0]), 1.0 - x[0]]
@@ -332,4 +344,59 @@ fn the_trial_budget_ends_the_solve_at_its_best_state() {
         let cost: f64 = rosenbrock(&p.x).iter().map(|r| r * r).sum();
         assert_eq!(cost, s.final_cost, "the state is the one reported");
     }
+}
+
+/// The work budget in the problem's own units: a step is not started when the last one's work
+/// would pass `max_work`, the first iteration always runs, and the best state is kept. With
+/// constant units the solve's work is therefore at most the budget, or one iteration's.
+#[test]
+fn the_work_budget_ends_the_solve_within_its_units() {
+    let mut ws = Box::new(LmWorkspace::<D>::new());
+    let free = LmConfig {
+        max_iterations: 50,
+        ..LmConfig::DEFAULT
+    };
+    let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+    let unlimited = ws.solve(&mut p, &free).unwrap();
+    assert_eq!(
+        unlimited.work, p.work,
+        "the summary's work is the problem's"
+    );
+    assert!(unlimited.work > 20, "{unlimited:?}");
+    let first_iteration = LINEARIZATION_WORK + TRIAL_WORK;
+    for budget in [1, 3, 4, 5, 7, 8, 9, 12, 20] {
+        let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+        let cfg = LmConfig {
+            max_work: budget,
+            ..free
+        };
+        let s = ws.solve(&mut p, &cfg).unwrap();
+        assert_eq!(s.termination, Termination::Budget, "{budget}: {s:?}");
+        assert_eq!(s.work, p.work);
+        assert!(s.work <= budget.max(first_iteration), "{budget}: {s:?}");
+        // Stopped because the next step would not fit: a trial (1) or a linearization and its
+        // trial (4).
+        assert!(
+            s.work + LINEARIZATION_WORK + TRIAL_WORK > budget,
+            "{budget}: stopped with room left: {s:?}"
+        );
+        assert!(
+            s.accepted + s.rejected >= 1,
+            "{budget}: the first trial runs"
+        );
+        assert!(s.final_cost <= s.initial_cost, "{s:?}");
+        let cost: f64 = rosenbrock(&p.x).iter().map(|r| r * r).sum();
+        assert_eq!(cost, s.final_cost, "the state is the one reported");
+    }
+    // A budget with room for every step the solve takes changes nothing.
+    let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+    let cfg = LmConfig {
+        max_work: unlimited.work + LINEARIZATION_WORK + TRIAL_WORK,
+        ..free
+    };
+    let s = ws.solve(&mut p, &cfg).unwrap();
+    assert_eq!(
+        (s.termination, s.final_cost, s.work),
+        (unlimited.termination, unlimited.final_cost, unlimited.work)
+    );
 }

@@ -69,6 +69,7 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         iterations,
         // Always false without a budget (the golden runs have none).
         budget_hit: _,
+        solve_work: _,
         cost,
         termination,
         culled_chi2,

@@ -402,6 +402,7 @@ impl EstimatorConfig {
             max_iterations: 0,
             max_retries: 0,
             max_trials: 0,
+            max_work: 0,
             initial_lambda: 0.0,
             lambda_min: 0.0,
             lambda_max: 0.0,
@@ -543,6 +544,8 @@ impl EstimatorConfig {
             solve_budget: SolveBudget {
                 max_linearizations: 0,
                 max_trials: 0,
+                max_work: 0,
+                max_work_ratio: 0.0,
             },
             marginalize_visual: false,
             reuse_marginalized_landmarks: false,

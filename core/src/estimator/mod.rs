@@ -258,6 +258,8 @@ pub struct Estimator<
     events: HVec<DepthEvent, MAX_EVENTS>,
     /// The delay is held in the current solve (too few landmarks to estimate it).
     td_hold: bool,
+    /// The work of the last keyframes' solves (a ring; `max_work_ratio` of [`SolveBudget`]).
+    work_history: heapless::Deque<u32, { SolveBudget::HISTORY }>,
     /// Consecutive keyframes with large residuals (health monitor).
     bad_keyframes: u32,
     /// Set by a re-initialization: the calibration the new window starts from (and its first
@@ -428,6 +430,7 @@ impl<
             schur: [const { LandmarkSchur::new() }; L],
             saved: Saved::new(),
             counters: Counters::ZERO,
+            work_history: heapless::Deque::new(),
             last_marg: None,
             kf_cov: MaybeCovariance::NONE,
             ins_window: InsWindow::new(),

@@ -27,6 +27,9 @@ pub struct KeyframeReport {
     pub iterations: u32,
     /// The work budget (`solve_budget`) ended the solve early (or left no second pass).
     pub budget_hit: bool,
+    /// The work of the solve over both passes (the unit of `SolveBudget::max_work`: one
+    /// observation's residual evaluated).
+    pub solve_work: u32,
     /// Robust cost before and after the solve.
     pub cost: (f64, f64),
     /// Why the last LM pass stopped.

@@ -48,6 +48,7 @@ impl<
             schur: &mut self.schur,
             saved: &mut self.saved,
             counts: Default::default(),
+            work: 0,
             td_hold,
             tau_fresh: false,
         };
@@ -69,12 +70,14 @@ impl<
         pass: &crate::solver::LmConfig,
         left: &mut SolveBudget,
         report: &mut KeyframeReport,
+        demand: &mut u32,
     ) -> bool {
         let cfg = crate::solver::LmConfig {
             max_iterations: pass
                 .max_iterations
                 .min(usize::try_from(left.max_linearizations).unwrap_or(usize::MAX)),
             max_trials: pass.max_trials.min(left.max_trials),
+            max_work: pass.max_work.min(left.max_work),
             ..*pass
         };
         let layout = self.solve_layout();
@@ -99,6 +102,9 @@ impl<
                 left.max_trials = left
                     .max_trials
                     .saturating_sub(spend(sum.accepted + sum.rejected));
+                left.max_work = left.max_work.saturating_sub(sum.work);
+                report.solve_work = report.solve_work.saturating_add(sum.work);
+                *demand = demand.saturating_add(sum.work.saturating_add(sum.refused_work));
                 if sum.termination == Termination::Budget
                     || (sum.termination == Termination::MaxIterations
                         && cfg.max_iterations < pass.max_iterations)
@@ -135,24 +141,15 @@ impl<
         report.td_info_per_s2 = self.td_information();
         self.td_hold = report.td_info_per_s2 < self.cfg.td.min_info_per_s2;
         let mut left = self.cfg.solve_budget;
+        left.max_work = self.work_limit();
         let first = self.cfg.lm_first;
-        if !self.run_lm(&first, &mut left, report) {
+        // What the solve would have taken without the budget, at least (the history's entry).
+        let mut demand = 0;
+        if !self.run_lm(&first, &mut left, report, &mut demand) {
             return;
         }
-        report.culled_chi2 = self.chi2_cull();
-        let min_culled =
-            self.cfg.cull.second_pass_min_culled_frac * f64::from(report.observations_used);
-        if report.culled_chi2 > 0 && f64::from(report.culled_chi2) >= min_culled {
-            if left.max_linearizations == 0 || left.max_trials == 0 {
-                // The budget is spent: the culled observations are out, the first pass's
-                // state stays.
-                report.budget_hit = true;
-            } else {
-                self.prepare_landmarks(false);
-                let second = self.cfg.lm_second;
-                self.run_lm(&second, &mut left, report);
-            }
-        }
+        self.second_pass(&mut left, report, &mut demand);
+        self.remember_work(demand);
         if report.budget_hit {
             self.counters.solve_budget_hits += 1;
         }
@@ -166,6 +163,57 @@ impl<
         report.culled_observations = obs;
         report.culled_landmarks = lms;
         report.residual_rms_px = rms;
+    }
+
+    /// The chi-square cull after the first pass, and the second pass when it culled enough and
+    /// the budget leaves room.
+    fn second_pass(
+        &mut self,
+        left: &mut SolveBudget,
+        report: &mut KeyframeReport,
+        demand: &mut u32,
+    ) {
+        report.culled_chi2 = self.chi2_cull();
+        let min_culled =
+            self.cfg.cull.second_pass_min_culled_frac * f64::from(report.observations_used);
+        if report.culled_chi2 > 0 && f64::from(report.culled_chi2) >= min_culled {
+            // The second pass's first iteration runs whatever its budget: it needs about what
+            // the first pass's took.
+            let per_iteration = report.solve_work / report.iterations.max(1);
+            if left.max_linearizations == 0 || left.max_trials == 0 || left.max_work < per_iteration
+            {
+                // The budget is spent: the culled observations are out, the first pass's
+                // state stays.
+                report.budget_hit = true;
+                *demand = demand.saturating_add(per_iteration);
+            } else {
+                self.prepare_landmarks(false);
+                let second = self.cfg.lm_second;
+                self.run_lm(&second, left, report, demand);
+            }
+        }
+    }
+
+    /// The work this keyframe's solve may take ([`SolveBudget::work_limit`] over the last
+    /// keyframes' work).
+    fn work_limit(&self) -> u32 {
+        let mut h = [0u32; SolveBudget::HISTORY];
+        let mut n = 0;
+        for (d, s) in h.iter_mut().zip(self.work_history.iter()) {
+            *d = *s;
+            n += 1;
+        }
+        self.cfg.solve_budget.work_limit(h.get(..n).unwrap_or(&[]))
+    }
+
+    /// Adds what a keyframe's solve took, or would have taken at least without the budget, to
+    /// the ring [`Self::work_limit`] reads (the work done would ratchet: a cut keyframe lowers
+    /// the median, which cuts the next ones harder).
+    fn remember_work(&mut self, work: u32) {
+        if self.work_history.is_full() {
+            self.work_history.pop_front();
+        }
+        let _ = self.work_history.push_back(work);
     }
 
     /// One Levenberg-Marquardt iteration on the current window (landmark preparation,

@@ -17,8 +17,11 @@
 //! step `|dx| <= step_tolerance` (nothing applied), relative cost decrease of an accepted step
 //! `<= function_tolerance`, the iteration bound, the retry bound, `lambda > lambda_max`, or the
 //! work budget (`max_trials` trial steps in the solve; with `max_iterations` it bounds the
-//! linearizations and factorizations, hence the time, of a solve whatever the data). Every stop
-//! but an error leaves the best state found: a step is applied only when it lowers the cost.
+//! linearizations and factorizations of a solve whatever the data; `max_work` bounds the work
+//! the problem reports ([`LmProblem::work`]), which grows with the data: a trial or a
+//! linearization is not started when the last one's work would pass it, so a solve does at most
+//! `max_work` plus one trial's misprediction, or its first iteration). Every stop but an error
+//! leaves the best state found: a step is applied only when it lowers the cost.
 
 use super::ldlt::{FactorReport, Ldlt, PivotFloor};
 use super::normal_equations::NormalEquations;
@@ -41,6 +44,12 @@ pub trait LmProblem<const D: usize> {
     fn save(&mut self);
     /// Returns to the state of the last [`LmProblem::save`].
     fn restore(&mut self);
+    /// The work the problem's linearizations and cost evaluations have done so far, in its own
+    /// units (a count that only grows; `max_work` of [`LmConfig`] is in the same units). The
+    /// default, 0, leaves a solve unbounded by work.
+    fn work(&self) -> u32 {
+        0
+    }
 }
 
 /// Tuning of [`LmWorkspace::solve`].
@@ -59,6 +68,11 @@ pub struct LmConfig {
     /// evaluation) in the whole solve: with `max_iterations` a work budget
     /// ([`Termination::Budget`]). `u32::MAX`: no limit.
     pub max_trials: u32,
+    /// Most work ([`LmProblem::work`]'s units) of the whole solve: a trial or a linearization
+    /// (with the trial it needs) is not started when the work it is predicted to take (the last
+    /// one's) would pass this ([`Termination::Budget`]); the first trial after the first
+    /// linearization always runs. `u32::MAX`: no limit.
+    pub max_work: u32,
     /// Initial damping `lambda` (relative to the clamped diagonal).
     pub initial_lambda: f64,
     /// Lower bound of `lambda` after successful steps.
@@ -87,6 +101,7 @@ impl LmConfig {
         max_iterations: 10,
         max_retries: 10,
         max_trials: u32::MAX,
+        max_work: u32::MAX,
         initial_lambda: 1e-4,
         lambda_min: 1e-12,
         lambda_max: 1e16,
@@ -144,8 +159,8 @@ pub enum Termination {
     RetriesExhausted,
     /// Rejections pushed `lambda` above `lambda_max`; the state is the last accepted one.
     DampingLimit,
-    /// `max_trials` trial steps were made (the work budget ended); the state is the last
-    /// accepted one.
+    /// `max_trials` trial steps were made or the next step would pass `max_work` (the work
+    /// budget ended); the state is the last accepted one.
     Budget,
 }
 
@@ -168,6 +183,11 @@ pub struct LmSummary {
     pub lambda: f64,
     /// Why it stopped.
     pub termination: Termination,
+    /// Work done ([`LmProblem::work`]'s units), from the first linearization on.
+    pub work: u32,
+    /// The predicted work of the step `max_work` refused (0 when the solve ended otherwise):
+    /// with `work`, a lower bound of what the solve would have taken without the budget.
+    pub refused_work: u32,
 }
 
 /// Caller-owned buffers of the LM driver: normal equations, the damped factor and the step
@@ -224,7 +244,12 @@ impl<const D: usize> LmWorkspace<D> {
             return Err(Error::CapacityExceeded);
         }
         self.ne.reset(n)?;
+        let work0 = problem.work();
         problem.linearize(&mut self.ne)?;
+        // The work of the last linearization and of the last trial: the next ones' predictions.
+        let mut lin_work = problem.work().saturating_sub(work0);
+        let mut trial_work = lin_work;
+        let spent = |p: &P| p.work().saturating_sub(work0);
         let mut cost = self.ne.cost;
         if !cost.is_finite() {
             return Err(Error::NonFinite);
@@ -238,6 +263,8 @@ impl<const D: usize> LmWorkspace<D> {
             last_factor_report: None,
             lambda: cfg.initial_lambda,
             termination: Termination::MaxIterations,
+            work: 0,
+            refused_work: 0,
         };
         let mut lambda = cfg.initial_lambda;
         let mut nu = 2.0_f64;
@@ -251,7 +278,12 @@ impl<const D: usize> LmWorkspace<D> {
             summary.iterations += 1;
             let mut retries = 0;
             loop {
-                if summary.accepted + summary.rejected >= cfg.max_trials as usize {
+                let trials = summary.accepted + summary.rejected;
+                if trials >= cfg.max_trials as usize {
+                    break 'outer Termination::Budget;
+                }
+                if trials > 0 && spent(problem).saturating_add(trial_work) > cfg.max_work {
+                    summary.refused_work = trial_work;
                     break 'outer Termination::Budget;
                 }
                 let dx = self.dx.get_mut(..n).ok_or(Error::CapacityExceeded)?;
@@ -268,7 +300,9 @@ impl<const D: usize> LmWorkspace<D> {
                 let predicted = 2.0 * self.ne.dot_b(dx)? - self.ne.quadratic_form(dx)?;
                 problem.save();
                 problem.apply(dx);
+                let before = problem.work();
                 let new_cost = problem.cost().ok().filter(|c| c.is_finite());
+                trial_work = problem.work().saturating_sub(before);
                 let gain = match new_cost {
                     Some(c) if predicted > 0.0 => (cost - c) / predicted,
                     _ => f64::NEG_INFINITY,
@@ -302,17 +336,25 @@ impl<const D: usize> LmWorkspace<D> {
                 break Termination::MaxIterations;
             }
             // No linearization the budget leaves no trial for.
+            let next = lin_work.saturating_add(trial_work);
             if summary.accepted + summary.rejected >= cfg.max_trials as usize {
                 break Termination::Budget;
             }
+            if spent(problem).saturating_add(next) > cfg.max_work {
+                summary.refused_work = next;
+                break Termination::Budget;
+            }
             self.ne.reset(n)?;
+            let before = problem.work();
             problem.linearize(&mut self.ne)?;
+            lin_work = problem.work().saturating_sub(before);
             if !self.ne.cost.is_finite() {
                 return Err(Error::NonFinite);
             }
         };
         summary.lambda = lambda;
         summary.termination = termination;
+        summary.work = spent(problem);
         log_debug!(
             "lm: {} it, cost {} -> {}",
             summary.iterations,

@@ -23,6 +23,8 @@ use povins_platform::trajectory::StampedPose;
 pub struct RunDigest {
     /// Back-end time per keyframe, ms.
     pub(super) backend_ms: Vec<f64>,
+    /// The work of each keyframe's solve (`KeyframeReport::solve_work`).
+    pub(super) solve_work: Vec<u32>,
     /// Depth association time per keyframe, ms.
     pub(super) association_ms: Vec<f64>,
     /// Rejection time per keyframe, ms.
@@ -137,6 +139,7 @@ impl RunSink for RunDigest {
     fn report(&mut self, r: &KeyframeReport, lidar_events: &[DepthEvent]) {
         let ms = |ns: u64| ns as f64 * 1e-6;
         self.backend_ms.push(ms(r.backend_ns()));
+        self.solve_work.push(r.solve_work);
         self.association_ms.push(ms(r.association_ns));
         self.rejection_ms.push(ms(r.rejection_ns));
         self.depth_opt_ms.push(ms(r.depth_opt_ns));

@@ -54,7 +54,7 @@ pub const STATS_EXTRINSIC_COLUMNS: &str = "p_bc_x_m,p_bc_y_m,p_bc_z_m,q_bc_w,q_b
 /// The header of `stats.csv` (a row per keyframe).
 fn stats_header() -> String {
     format!(
-        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS},{STATS_ADMISSION_COLUMNS},{STATS_EXTRINSIC_COLUMNS}"
+        "t_s,backend_ms,solve_ms,marginalization_ms,window,landmarks_total,landmarks_used,observations,residual_rms_px,iterations,culled_chi2,culled_observations,culled_landmarks,disabled_landmarks,marginalized_rank_deficiency,prior_rank_deficiency,cost_initial,cost_final,decision,termination,{STATS_LIDAR_COLUMNS},{STATS_ADMISSION_COLUMNS},{STATS_EXTRINSIC_COLUMNS},solve_work"
     )
 }
 
@@ -128,10 +128,10 @@ fn write_stats_row(
             for v in [e.p_bc.x, e.p_bc.y, e.p_bc.z, q.w, q.i, q.j, q.k] {
                 write!(f, ",{v:.9}")?;
             }
-            writeln!(f)
         }
-        None => writeln!(f, ",,,,,,,"),
+        None => write!(f, ",,,,,,,")?,
     }
+    writeln!(f, ",{}", r.solve_work)
 }
 
 /// Writes the files of a collected run into `dir`: [`OutputFiles`] fed with `out`.

@@ -58,6 +58,11 @@ pub struct Summary {
     pub backend_ms_mean: f64,
     /// Back-end time summed over the run divided by the camera frames, ms.
     pub backend_ms_per_camera_frame: f64,
+    /// The work of a keyframe's solve (`solve_work` of `stats.csv`, the unit of
+    /// `[solve_budget] max_work`), median.
+    pub solve_work_median: u32,
+    /// Maximum.
+    pub solve_work_max: u32,
     /// Whole estimator (INS, front-end bookkeeping, back end) per camera frame, ms.
     pub estimator_ms_per_camera_frame: f64,
     /// Median landmarks in the final solve of a keyframe.
@@ -350,6 +355,12 @@ pub fn summarize_digest(
         sorted(v);
     }
     d.landmarks_used.sort_unstable();
+    d.solve_work.sort_unstable();
+    let work_at = |q: usize| d.solve_work.get(q).copied().unwrap_or(0);
+    let (solve_work_median, solve_work_max) = (
+        work_at(d.solve_work.len() / 2),
+        work_at(d.solve_work.len().saturating_sub(1)),
+    );
     let pred = &d.prediction_px;
     // `sum` of no f64 is -0.0; start from +0.0 so an empty run prints 0.000.
     let total_ms: f64 = 0.0 + ms.iter().sum::<f64>();
@@ -378,6 +389,8 @@ pub fn summarize_digest(
             total_ms / ms.len() as f64
         },
         backend_ms_per_camera_frame: total_ms / frames,
+        solve_work_median,
+        solve_work_max,
         estimator_ms_per_camera_frame: t.estimator_wall_s * 1e3 / frames,
         landmarks_used_median: percentile(&d.landmarks_used, 50.0),
         window_use: d.window_use.figures(),

@@ -57,6 +57,17 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "back end  median {:.3} ms, p99 {:.3} ms, max {:.3} ms per keyframe; {:.3} ms per camera frame",
         s.backend_ms_median, s.backend_ms_p99, s.backend_ms_max, s.backend_ms_per_camera_frame
     );
+    let hits = n("solve_budget_hits");
+    println!(
+        "solve     work median {}, max {} per keyframe ([solve_budget] max_work's unit){}",
+        s.solve_work_median,
+        s.solve_work_max,
+        if hits > 0 {
+            format!("; {hits} keyframes ended by the budget")
+        } else {
+            String::new()
+        }
+    );
     if let Some(line) = s.window_use.line() {
         println!("{line}");
     }

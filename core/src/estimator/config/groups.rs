@@ -183,12 +183,22 @@ impl Default for CullConfig {
 
 /// The work budget of one keyframe's solve (`[solve_budget]`), for a bounded time per keyframe:
 /// the Levenberg-Marquardt passes (the first, and the second after the chi-square cull) share
-/// at most `max_linearizations` linearizations and `max_trials` trial steps (each a damped
-/// factorization and a cost evaluation). When it runs out, the solve keeps its best state (a
-/// step is applied only when it lowers the cost) and the keyframe goes on: the culls, the
-/// depth-only optimization and the marginalization always complete. The budget counts work,
-/// not time, so the output stays bit-identical from run to run and across machines.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// at most `max_linearizations` linearizations, `max_trials` trial steps (each a damped
+/// factorization and a cost evaluation) and a work of `max_work` units, or `max_work_ratio`
+/// times the median work of the last keyframes' solves, whichever is least. The work grows with
+/// the data where a count of iterations does not: its unit is one observation's residual
+/// evaluated, an eliminated depth's inner solve counting each of its passes, a linearization
+/// each observation's Jacobians and the fold of each pair of a landmark's observations
+/// (`problem::factor::linearization_work`); `KeyframeReport::solve_work` reports each
+/// keyframe's. A step is not started when the work it is predicted to take (the last one's)
+/// would pass the budget, and the first iteration always runs, so the solve's work is at most
+/// the budget plus one misprediction, or its first iteration.
+///
+/// When it runs out, the solve keeps its best state (a step is applied only when it lowers the
+/// cost) and the keyframe goes on: the culls, the depth-only optimization and the
+/// marginalization always complete. The budget counts work, not time, so the output stays
+/// bit-identical from run to run and across machines.
+#[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(
     feature = "serde",
@@ -200,6 +210,17 @@ pub struct SolveBudget {
     pub max_linearizations: u32,
     /// Trial steps over both passes (`u32::MAX`: no budget).
     pub max_trials: u32,
+    /// Work over both passes, in units of one observation's residual evaluated (`u32::MAX`: no
+    /// budget). A platform's figure: `povins run`'s `stats.csv` gives each keyframe's
+    /// `solve_work` beside its `solve_ms`.
+    pub max_work: u32,
+    /// Work over both passes relative to the median of what the last
+    /// [`SolveBudget::HISTORY`] keyframes' solves took, or would have taken without the budget
+    /// (the work done plus the step the budget refused: the work done alone would ratchet down),
+    /// applied once [`SolveBudget::HISTORY_MIN`] keyframes have been solved since the estimator
+    /// started (`inf`: no budget). A bound that follows the data: the worst keyframe's solve at
+    /// about this many times the typical one's.
+    pub max_work_ratio: f64,
 }
 
 impl SolveBudget {
@@ -207,12 +228,20 @@ impl SolveBudget {
     pub const UNLIMITED: SolveBudget = SolveBudget {
         max_linearizations: u32::MAX,
         max_trials: u32::MAX,
+        max_work: u32::MAX,
+        max_work_ratio: f64::INFINITY,
     };
 
     /// The defaults (what [`Default`] gives).
     pub const DEFAULT: SolveBudget = SolveBudget::UNLIMITED;
 
-    /// The range checks (`[solve_budget]`): at least one of each.
+    /// Keyframes whose solve's work the median of `max_work_ratio` is taken over.
+    pub const HISTORY: usize = 16;
+
+    /// Keyframes solved before `max_work_ratio` applies.
+    pub const HISTORY_MIN: usize = 4;
+
+    /// The range checks (`[solve_budget]`): at least one of each, a ratio of at least 1.
     pub fn check_ranges(&self, r: &mut Ranges<'_>) {
         r.check(
             "solve_budget.max_linearizations",
@@ -226,11 +255,104 @@ impl SolveBudget {
             ">= 1",
             self.max_trials >= 1,
         );
+        r.check(
+            "solve_budget.max_work",
+            f64::from(self.max_work),
+            ">= 1",
+            self.max_work >= 1,
+        );
+        r.check(
+            "solve_budget.max_work_ratio",
+            self.max_work_ratio,
+            ">= 1 (inf: no budget)",
+            self.max_work_ratio >= 1.0,
+        );
+    }
+
+    /// The work this keyframe's solve may take, given the `history` of the last solves' work
+    /// (any order; at most [`SolveBudget::HISTORY`] are read).
+    pub fn work_limit(&self, history: &[u32]) -> u32 {
+        let mut h = [0u32; Self::HISTORY];
+        let n = history.len().min(Self::HISTORY);
+        for (d, s) in h.iter_mut().zip(history.iter()) {
+            *d = *s;
+        }
+        let h = h.get_mut(..n).unwrap_or(&mut []);
+        if n < Self::HISTORY_MIN || !self.max_work_ratio.is_finite() {
+            return self.max_work;
+        }
+        h.sort_unstable();
+        // The upper median: deterministic, an observed value.
+        let median = f64::from(h.get(n / 2).copied().unwrap_or(0));
+        let rel = self.max_work_ratio * median;
+        let rel = if rel >= f64::from(u32::MAX) {
+            u32::MAX
+        } else {
+            // Truncation toward zero of a finite, non-negative value below u32::MAX.
+            rel as u32
+        };
+        self.max_work.min(rel.max(1))
     }
 }
 
 impl Default for SolveBudget {
     fn default() -> Self {
         Self::DEFAULT
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SolveBudget;
+
+    fn budget(max_work: u32, max_work_ratio: f64) -> SolveBudget {
+        SolveBudget {
+            max_work,
+            max_work_ratio,
+            ..SolveBudget::UNLIMITED
+        }
+    }
+
+    #[test]
+    fn the_work_limit_is_the_least_of_the_absolute_and_the_relative_budget() {
+        let h = [40, 10, 30, 20, 50];
+        // The upper median of five is the third smallest: 30.
+        assert_eq!(budget(u32::MAX, 1.5).work_limit(&h), 45);
+        assert_eq!(budget(40, 1.5).work_limit(&h), 40);
+        assert_eq!(budget(100, f64::INFINITY).work_limit(&h), 100);
+        assert_eq!(SolveBudget::UNLIMITED.work_limit(&h), u32::MAX);
+        // Too short a history: the absolute budget only.
+        let short = [10, 20, 30];
+        assert!(short.len() < SolveBudget::HISTORY_MIN);
+        assert_eq!(budget(100, 1.5).work_limit(&short), 100);
+        // Only the last HISTORY entries count; the order does not.
+        let mut long = [1000u32; SolveBudget::HISTORY + 4];
+        for (i, w) in long.iter_mut().enumerate().take(SolveBudget::HISTORY) {
+            *w = 10 + i as u32;
+        }
+        let mut rev = long;
+        if let Some(s) = rev.get_mut(..SolveBudget::HISTORY) {
+            s.reverse();
+        }
+        let a = budget(u32::MAX, 2.0).work_limit(&long);
+        assert_eq!(a, 2 * (10 + SolveBudget::HISTORY as u32 / 2));
+        assert_eq!(budget(u32::MAX, 2.0).work_limit(&rev), a);
+        // A zero median still leaves one unit; a huge one saturates.
+        assert_eq!(budget(u32::MAX, 1.0).work_limit(&[0; 8]), 1);
+        assert_eq!(budget(u32::MAX, 4.0).work_limit(&[u32::MAX; 8]), u32::MAX);
+    }
+
+    #[test]
+    fn the_ranges_refuse_an_empty_budget_and_a_ratio_below_one() {
+        for b in [
+            budget(0, f64::INFINITY),
+            budget(1, 0.5),
+            budget(1, f64::NAN),
+        ] {
+            let bad = crate::ranges::first_invalid(|r| b.check_ranges(r));
+            assert!(bad.is_some(), "{b:?}");
+        }
+        let bad = crate::ranges::first_invalid(|r| budget(1, 1.0).check_ranges(r));
+        assert_eq!(bad, None);
     }
 }

@@ -74,6 +74,7 @@ struct Added {
     ldm: u32,
     inverse_depth: Option<f64>,
     bearing_delta: Option<[f64; 2]>,
+    work: u32,
 }
 
 /// Adds `f` and reports what it contributed.
@@ -82,8 +83,10 @@ fn add<const N: usize, const D: usize>(
     v: &WindowVars<'_, N>,
     ne: Option<&mut NormalEquations<D>>,
 ) -> Result<Added, Error> {
+    let linearized = ne.is_some();
     let cost = f.add(v, ne)?;
     Ok(Added {
+        work: f.work(linearized),
         cost,
         observations: f.observations(),
         ldm: f.depth_measurements(),
@@ -180,6 +183,7 @@ impl<const N: usize, const L: usize> LandmarkPass<'_, N, L> {
                         self.counts.observations += a.observations;
                     }
                     self.counts.ldm += a.ldm;
+                    self.counts.work = self.counts.work.saturating_add(a.work);
                     if let Some(tau) = a.inverse_depth {
                         let delta = a.bearing_delta.unwrap_or([0.0; 2]);
                         self.keep_inverse_depth(li, tau, delta, model, linearize);

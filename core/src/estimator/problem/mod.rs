@@ -94,6 +94,8 @@ pub struct AssemblyCounts {
     pub disabled: u32,
     /// LiDAR-depth measurements (MSC blocks or direct depth rows).
     pub ldm: u32,
+    /// The landmarks' work ([`factor::LandmarkFactor::work`]).
+    pub work: u32,
 }
 
 /// Saved copy of the optimized variables (for LM trial steps).
@@ -170,6 +172,8 @@ pub struct Problem<'a, const N: usize, const L: usize, const D: usize> {
     pub saved: &'a mut Saved<N, L>,
     /// Counts of the last assembly.
     pub counts: AssemblyCounts,
+    /// The landmarks' work over every assembly so far ([`crate::solver::LmProblem::work`]).
+    pub work: u32,
     /// Hold every keyframe's delay at these values (a tight factor): too little information to
     /// estimate it ([`super::TdConfig::min_info_per_s2`]).
     pub td_hold: Option<[f64; N]>,
@@ -240,6 +244,7 @@ impl<const N: usize, const L: usize, const D: usize> Problem<'_, N, L, D> {
             // The normal equations summed IRLS-weighted squares; the LM compares robust costs.
             ne.cost = cost;
         }
+        self.work = self.work.saturating_add(self.counts.work);
         Ok(cost)
     }
 }
@@ -350,6 +355,10 @@ impl<const N: usize, const L: usize, const D: usize> LmProblem<D> for Problem<'_
         {
             *s = (lm.inv_depth, lm.bearing_delta);
         }
+    }
+
+    fn work(&self) -> u32 {
+        self.work
     }
 
     fn restore(&mut self) {

@@ -50,7 +50,8 @@
 #![deny(clippy::too_many_lines)]
 
 use super::factor::{
-    lidar_depth, put_rows, row_major, LandmarkFactor, VisualSettings, WindowFactor, WindowVars,
+    lidar_depth, linearization_work, put_rows, row_major, LandmarkFactor, VisualSettings,
+    WindowFactor, WindowVars,
 };
 use crate::camera::Vec2;
 use crate::estimator::tau_landmark::{Ray, TauLandmark};
@@ -78,6 +79,8 @@ pub struct EliminatedLandmark<'a, const N: usize> {
     tau: Option<f64>,
     delta: Option<[f64; 2]>,
     n_obs: u32,
+    /// The work of the last `add` ([`LandmarkFactor::work`]).
+    work: u32,
 }
 
 impl<'a, const N: usize> EliminatedLandmark<'a, N> {
@@ -99,6 +102,7 @@ impl<'a, const N: usize> EliminatedLandmark<'a, N> {
             tau: None,
             delta: None,
             n_obs: 0,
+            work: 0,
         }
     }
 
@@ -148,7 +152,7 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
         v: &WindowVars<'_, N>,
         ne: Option<&mut NormalEquations<D>>,
     ) -> Result<f64, Error> {
-        (self.tau, self.delta) = (None, None);
+        (self.tau, self.delta, self.work) = (None, None, 0);
         let (lm, huber) = (self.lm, &self.vs.huber);
         let m = self.tau_landmark(v.count)?;
         self.n_obs = m.obs.len() as u32;
@@ -167,6 +171,8 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
                     lm.inv_depth,
                     huber,
                 )?;
+                let rays_n = u32::try_from(rays.len()).unwrap_or(u32::MAX);
+                self.work = s.passes.saturating_mul(rays_n);
                 match (ne.is_none(), s.converged) {
                     // The next solve (the linearization or the marginalization at this state,
                     // the next trial near it) starts from here; a rejected LM trial restores
@@ -201,6 +207,7 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
             }
         };
         (self.tau, self.delta) = (Some(tau), Some(delta));
+        self.work = self.work.saturating_add(linearization_work(self.n_obs));
         Ok(cost)
     }
 
@@ -225,6 +232,10 @@ impl<const N: usize, const D: usize> WindowFactor<N, D> for EliminatedLandmark<'
 impl<const N: usize, const D: usize> LandmarkFactor<N, D> for EliminatedLandmark<'_, N> {
     fn observations(&self) -> u32 {
         self.n_obs
+    }
+
+    fn work(&self, _linearized: bool) -> u32 {
+        self.work
     }
 
     fn depth_measurements(&self) -> u32 {
@@ -427,13 +438,14 @@ pub(super) fn solve_bearing_tau(
     };
     let mut tau = tau0;
     let mut at = bearing_pass(rays, w_s, depth, delta, tau, huber)?;
+    let mut passes = 1;
     // After a rejected step: no Newton step until one is accepted, and the fraction of the
     // Gauss-Newton step taken; the Gauss-Newton steps accepted in a row.
     let (mut newton_ok, mut fraction, mut gn_run) = (true, 1.0, 0);
     for _ in 0..BEARING_PASSES {
         let (newton, step) = bearing_step(&at, tau, newton_ok)?;
         if let Some(done) = converged_at(&at, delta, tau, newton, step) {
-            return Ok(done);
+            return Ok(BearingTau { passes, ..done });
         }
         let cost = at.0;
         // A shortened Gauss-Newton step after a rejection; the inverse depth at most halved (it
@@ -451,6 +463,7 @@ pub(super) fn solve_bearing_tau(
             // the depth, no minimum.
             break;
         }
+        passes += 1;
         match bearing_pass(rays, w_s, depth, next.0, next.1, huber) {
             Ok(p) if p.0 <= cost => {
                 (delta, tau, at) = (next.0, next.1, p);
@@ -477,6 +490,7 @@ pub(super) fn solve_bearing_tau(
                         tau,
                         cost,
                         converged: true,
+                        passes,
                     });
                 } else {
                     (fraction, gn_run) = (0.25 * libm::fmin(fraction, 1.0), 0);
@@ -490,6 +504,7 @@ pub(super) fn solve_bearing_tau(
         tau,
         cost: at.0,
         converged: false,
+        passes,
     })
 }
 
@@ -547,6 +562,7 @@ fn converged_at(
         tau: tau + step[2],
         cost: cost + model,
         converged: true,
+        passes: 0,
     })
 }
 
@@ -558,6 +574,8 @@ pub(super) struct BearingTau {
     pub tau: f64,
     pub cost: f64,
     pub converged: bool,
+    /// Passes over the rays ([`bearing_pass`] evaluations) it took.
+    pub passes: u32,
 }
 
 /// Where a landmark's linearization is taken: the solved bearing correction and inverse depth,
