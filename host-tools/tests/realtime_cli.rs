@@ -94,6 +94,13 @@ fn timing_json_reports_no_drop_and_replay_needs_realtime() {
     assert!(c["keyframes"].as_u64().unwrap_or(0) > 40, "{c}");
     assert_eq!(v["stages"].as_array().map(Vec::len), Some(11));
     assert_eq!(v["frontend"], "tracks");
+    // The solve's work (p50, p99, p99.9, max): counted for every keyframe, ordered.
+    let w: Vec<u64> = v["solve_work"]
+        .as_array()
+        .map(|a| a.iter().filter_map(serde_json::Value::as_u64).collect())
+        .unwrap_or_default();
+    assert_eq!(w.len(), 4, "{}", v["solve_work"]);
+    assert!(w[0] > 100 && w.windows(2).all(|p| p[0] <= p[1]), "{w:?}");
     let (ok, _, err) = povins(&["replay", EUROC]);
     assert!(!ok);
     assert!(err.contains("--realtime"), "{err}");

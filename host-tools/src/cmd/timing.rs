@@ -75,6 +75,9 @@ pub struct TimingSummary {
     pub keyframe_period_ms: Option<f64>,
     /// Per stage, in the order of the table.
     pub stages: Vec<(String, StageSummary)>,
+    /// The keyframes' solve work (`[solve_budget] max_work`'s unit; machine- and
+    /// load-independent): p50, p99, p99.9, max.
+    pub solve_work: [u64; 4],
     /// Drops, misses.
     pub counters: PipelineCounters,
     /// Real-time settings granted.
@@ -103,6 +106,19 @@ impl TimingSummary {
                 .zip(report.timing.stages())
                 .map(|(n, h)| (n.to_string(), h.summary_ms()))
                 .collect(),
+            solve_work: {
+                let w = &report.timing.solve_work;
+                if w.count() == 0 {
+                    [0; 4]
+                } else {
+                    [
+                        w.percentile_ns(50.0),
+                        w.percentile_ns(99.0),
+                        w.percentile_ns(99.9),
+                        w.max_ns(),
+                    ]
+                }
+            },
             counters: report.counters,
             rt: report.rt.clone(),
             wall_s: report.wall_s,
@@ -147,6 +163,12 @@ impl TimingSummary {
                 s.count, s.p50_ms, s.p99_ms, s.p999_ms, s.max_ms
             ));
         }
+        let [w50, w99, w999, wmax] = self.solve_work;
+        v.push(format!(
+            "solve work per keyframe (machine-independent units of [solve_budget] max_work): p50 \
+             {w50}, p99 {w99}, p99.9 {w999}, max {wmax} ({:.2}x the median)",
+            wmax as f64 / w50.max(1) as f64
+        ));
         v.push(format!(
             "samples   {} IMU, {} frames, {} images, {} sweeps in; {} poses out, {} keyframes",
             c.imu_in, c.frames_in, c.images_in, c.sweeps_in, c.poses_out, c.keyframes

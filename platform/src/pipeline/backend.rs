@@ -91,6 +91,9 @@ pub(crate) fn run(
                 if keyframe {
                     timing.backend_keyframe.record(dt);
                     keyframes.push(s.t_ns);
+                    if let Some(k) = &reply.keyframe {
+                        timing.solve_work.record(u64::from(k.report.solve_work));
+                    }
                 } else {
                     timing.backend_imu.record(dt);
                 }

@@ -134,6 +134,10 @@ pub struct Timing {
     /// Image stamp's wall time (paced or live sources) to its track frame in the estimator:
     /// `STAGES[10]`.
     pub image_stamp_to_frame: LatencyHist,
+    /// The work of each keyframe's solve (`KeyframeReport::solve_work`, the unit of
+    /// `[solve_budget] max_work`; counts, not ns): what the time does not show, independent of
+    /// the machine and its load. Not one of [`STAGES`].
+    pub solve_work: LatencyHist,
 }
 
 impl Timing {
@@ -168,6 +172,7 @@ impl Timing {
         self.image_arrival_to_frame
             .merge(&other.image_arrival_to_frame);
         self.image_stamp_to_frame.merge(&other.image_stamp_to_frame);
+        self.solve_work.merge(&other.solve_work);
     }
 }
 
