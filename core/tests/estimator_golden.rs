@@ -33,11 +33,12 @@ use vision_common::{data_dir, euroc_extrinsic};
 /// landmarks solve for the anchor observation's bearing with the depth
 /// (`estimator::problem::visual`); the LiDAR case on 2026-12-04 again: a LiDAR landmark's depth
 /// row joins its eliminated measurement (the MSC-based LDM with the anchor's bearing free), and
-/// the depth-only optimization solves such a landmark as its measurement does.
-const GOLDEN_DEFAULT: u64 = 0xc095_cbdd_76c0_c9df;
-const GOLDEN_EXTRINSIC: u64 = 0x5447_d530_f594_61bd;
+/// the depth-only optimization solves such a landmark as its measurement does. Re-blessed on
+/// 2026-12-05 for the reports' new `solve_work` (the states unchanged).
+const GOLDEN_DEFAULT: u64 = 0x43a6_49d5_f58c_b9d8;
+const GOLDEN_EXTRINSIC: u64 = 0x9c83_e2d9_ffd6_1666;
 #[cfg(feature = "lidar")]
-const GOLDEN_LIDAR: u64 = 0xd47a_7f2c_08e3_9c48;
+const GOLDEN_LIDAR: u64 = 0xb043_e772_654e_21f2;
 
 struct Fnv(u64);
 
