@@ -4,7 +4,9 @@ mod numdiff;
 mod solver_support;
 
 use numdiff::central_differences;
-use povins_core::solver::{LmConfig, LmProblem, LmWorkspace, NormalEquations, Termination};
+use povins_core::solver::{
+    LmConfig, LmProblem, LmSummary, LmWorkspace, NormalEquations, Termination,
+};
 use povins_core::Error;
 use solver_support::*;
 
@@ -315,34 +317,45 @@ fn already_optimal_stops_on_gradient_without_iterating() {
     assert_eq!((s.iterations, s.final_cost), (0, 0.0));
 }
 
+/// A budget test's setting: Rosenbrock from its classic start, and a solve free to take 50
+/// linearizations.
+fn rosenbrock_start() -> FnProblem {
+    FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac)
+}
+
+const FREE: LmConfig = LmConfig {
+    max_iterations: 50,
+    ..LmConfig::DEFAULT
+};
+
+/// Checks a budgeted solve ended by its budget at its best state, the one it reports.
+fn assert_ended_by_budget_at_best(s: &LmSummary, p: &FnProblem) {
+    assert_eq!(s.termination, Termination::Budget, "{s:?}");
+    assert!(s.final_cost <= s.initial_cost, "{s:?}");
+    let cost: f64 = rosenbrock(&p.x).iter().map(|r| r * r).sum();
+    assert_eq!(cost, s.final_cost, "the state is the one reported");
+}
+
 /// The work budget: at most `max_trials` trial steps in the solve, no linearization without a
 /// trial left for it, and the best state found kept (the state a shorter solve reaches).
 #[test]
 fn the_trial_budget_ends_the_solve_at_its_best_state() {
     let mut ws = Box::new(LmWorkspace::<D>::new());
-    let free = LmConfig {
-        max_iterations: 50,
-        ..LmConfig::DEFAULT
-    };
-    let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
-    let unlimited = ws.solve(&mut p, &free).unwrap();
+    let unlimited = ws.solve(&mut rosenbrock_start(), &FREE).unwrap();
     assert!(unlimited.accepted + unlimited.rejected > 3, "{unlimited:?}");
     for budget in 1..=3u32 {
-        let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+        let mut p = rosenbrock_start();
         let cfg = LmConfig {
             max_trials: budget,
-            ..free
+            ..FREE
         };
         let s = ws.solve(&mut p, &cfg).unwrap();
-        assert_eq!(s.termination, Termination::Budget, "{s:?}");
+        assert_ended_by_budget_at_best(&s, &p);
         assert_eq!(s.accepted + s.rejected, budget as usize, "{s:?}");
         assert_eq!(
             p.linearizations, s.iterations,
             "no linearization after the budget's last trial"
         );
-        assert!(s.final_cost <= s.initial_cost, "{s:?}");
-        let cost: f64 = rosenbrock(&p.x).iter().map(|r| r * r).sum();
-        assert_eq!(cost, s.final_cost, "the state is the one reported");
     }
 }
 
@@ -352,12 +365,8 @@ fn the_trial_budget_ends_the_solve_at_its_best_state() {
 #[test]
 fn the_work_budget_ends_the_solve_within_its_units() {
     let mut ws = Box::new(LmWorkspace::<D>::new());
-    let free = LmConfig {
-        max_iterations: 50,
-        ..LmConfig::DEFAULT
-    };
-    let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
-    let unlimited = ws.solve(&mut p, &free).unwrap();
+    let mut p = rosenbrock_start();
+    let unlimited = ws.solve(&mut p, &FREE).unwrap();
     assert_eq!(
         unlimited.work, p.work,
         "the summary's work is the problem's"
@@ -365,13 +374,13 @@ fn the_work_budget_ends_the_solve_within_its_units() {
     assert!(unlimited.work > 20, "{unlimited:?}");
     let first_iteration = LINEARIZATION_WORK + TRIAL_WORK;
     for budget in [1, 3, 4, 5, 7, 8, 9, 12, 20] {
-        let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+        let mut p = rosenbrock_start();
         let cfg = LmConfig {
             max_work: budget,
-            ..free
+            ..FREE
         };
         let s = ws.solve(&mut p, &cfg).unwrap();
-        assert_eq!(s.termination, Termination::Budget, "{budget}: {s:?}");
+        assert_ended_by_budget_at_best(&s, &p);
         assert_eq!(s.work, p.work);
         assert!(s.work <= budget.max(first_iteration), "{budget}: {s:?}");
         // Stopped because the next step would not fit: a trial (1) or a linearization and its
@@ -389,10 +398,10 @@ fn the_work_budget_ends_the_solve_within_its_units() {
         assert_eq!(cost, s.final_cost, "the state is the one reported");
     }
     // A budget with room for every step the solve takes changes nothing.
-    let mut p = FnProblem::new(&[-1.2, 1.0], rosenbrock, rosenbrock_jac);
+    let mut p = rosenbrock_start();
     let cfg = LmConfig {
         max_work: unlimited.work + LINEARIZATION_WORK + TRIAL_WORK,
-        ..free
+        ..FREE
     };
     let s = ws.solve(&mut p, &cfg).unwrap();
     assert_eq!(

@@ -188,11 +188,10 @@ impl Default for CullConfig {
 /// times the median work of the last keyframes' solves, whichever is least. The work grows with
 /// the data where a count of iterations does not: its unit is one observation's residual
 /// evaluated, an eliminated depth's inner solve counting each of its passes, a linearization
-/// each observation's Jacobians and the fold of each pair of a landmark's observations
-/// (`problem::factor::linearization_work`); `KeyframeReport::solve_work` reports each
-/// keyframe's. A step is not started when the work it is predicted to take (the last one's)
-/// would pass the budget, and the first iteration always runs, so the solve's work is at most
-/// the budget plus one misprediction, or its first iteration.
+/// 12 per observation (`problem::factor::linearization_work`); `KeyframeReport::solve_work`
+/// reports each keyframe's. A step is not started when the work it is predicted to take (the
+/// last one's) would pass the budget, and the first iteration always runs, so the solve's work
+/// is at most the budget plus one misprediction, or its first iteration.
 ///
 /// When it runs out, the solve keeps its best state (a step is applied only when it lowers the
 /// cost) and the keyframe goes on: the culls, the depth-only optimization and the
@@ -270,7 +269,7 @@ impl SolveBudget {
     }
 
     /// The work this keyframe's solve may take, given the `history` of the last solves' work
-    /// (any order; at most [`SolveBudget::HISTORY`] are read).
+    /// (any order; only its first [`SolveBudget::HISTORY`] entries are read).
     pub fn work_limit(&self, history: &[u32]) -> u32 {
         let mut h = [0u32; Self::HISTORY];
         let n = history.len().min(Self::HISTORY);
@@ -325,7 +324,7 @@ mod tests {
         let short = [10, 20, 30];
         assert!(short.len() < SolveBudget::HISTORY_MIN);
         assert_eq!(budget(100, 1.5).work_limit(&short), 100);
-        // Only the last HISTORY entries count; the order does not.
+        // Only the first HISTORY entries count; their order does not.
         let mut long = [1000u32; SolveBudget::HISTORY + 4];
         for (i, w) in long.iter_mut().enumerate().take(SolveBudget::HISTORY) {
             *w = 10 + i as u32;
