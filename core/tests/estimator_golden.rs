@@ -38,7 +38,7 @@ use vision_common::{data_dir, euroc_extrinsic};
 const GOLDEN_DEFAULT: u64 = 0x43a6_49d5_f58c_b9d8;
 const GOLDEN_EXTRINSIC: u64 = 0x9c83_e2d9_ffd6_1666;
 #[cfg(feature = "lidar")]
-const GOLDEN_LIDAR: u64 = 0xb043_e772_654e_21f2;
+const GOLDEN_LIDAR: u64 = 0x80dd_3b9d_fb7f_7e98;
 
 struct Fnv(u64);
 

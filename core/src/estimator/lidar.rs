@@ -77,22 +77,19 @@ impl<
         // its observation in the store, and a landmark anchored here takes it on promotion.
         let mut n = 0u32;
         let prev = pos.checked_sub(1);
-        let sigma = |d: f64| cfg.sigma_dr(d);
-        let mut found: heapless::Vec<(u64, f64), { super::MAX_FEATURES }> = heapless::Vec::new();
+        let mut found: heapless::Vec<(u64, f64, f64), { super::MAX_FEATURES }> =
+            heapless::Vec::new();
         for o in self.lms.store().at(pos) {
             if prev.is_some_and(|p| self.lms.store().find(p, o.id).is_some()) {
                 continue;
             }
             let x_n = Vec2::new(o.obs.x_n[0], o.obs.x_n[1]);
             if let Ok(d) = self.grid.associate(&x_n, &cfg.association) {
-                let _ = found.push((o.id, d.depth_m));
+                let _ = found.push((o.id, d.depth_m, cfg.sigma_dr(d.depth_m, d.incidence_cos)));
             }
         }
-        for &(id, depth_m) in found.iter() {
-            let depth = LidarDepth {
-                depth_m,
-                sigma_m: sigma(depth_m),
-            };
+        for &(id, depth_m, sigma_m) in found.iter() {
+            let depth = LidarDepth { depth_m, sigma_m };
             self.lms.set_lidar(pos, id, depth);
             self.push_event(id, DepthEventKind::Associated, depth_m);
             n += 1;

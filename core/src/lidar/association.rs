@@ -84,6 +84,9 @@ pub struct DepthMeasurement {
     pub neighbours: u8,
     /// RMS distance of the neighbours from the plane, m.
     pub plane_rms_m: f64,
+    /// `|n . b|`: cosine of the angle between the ray and the fitted plane's normal (1 head-on,
+    /// at least [`AssociationConfig::min_incidence_cos`]).
+    pub incidence_cos: f64,
 }
 
 /// Why a bearing got no depth.
@@ -363,6 +366,7 @@ impl<const W: usize, const H: usize> SphereGrid<W, H> {
             range_m,
             neighbours: k as u8,
             plane_rms_m: plane.rms_m,
+            incidence_cos: n_dot_b.abs(),
         })
     }
 
@@ -568,12 +572,16 @@ mod tests {
             assert_eq!((st.points, st.in_view), (50_000, 50_000));
             assert!(st.cells_filled > 20_000, "{st:?}");
             let cfg = AssociationConfig::default();
+            let n_c = rig.camera(t_kf).1.inverse_transform_vector(&n_w);
             let mut worst = 0.0f64;
             for (i, j) in grid_cells(6) {
                 let x_n = Vec2::new(0.1 * i, 0.07 * j);
                 let d = grid.associate(&x_n, &cfg).unwrap();
                 let truth = rig.true_depth(&wall, t_kf, &x_n).unwrap();
                 worst = worst.max((d.depth_m - truth).abs());
+                // The incidence is the ray's against the wall's normal.
+                let b = Vec3::new(x_n.x, x_n.y, 1.0).normalize();
+                assert!((d.incidence_cos - n_c.dot(&b).abs()).abs() < 1e-3, "{d:?}");
                 // Range along the ray = depth |(x_n, 1)|.
                 let k = Vec3::new(x_n.x, x_n.y, 1.0).norm();
                 assert!((d.range_m - d.depth_m * k).abs() < 1e-9);
