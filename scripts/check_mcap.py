@@ -4,9 +4,12 @@
 Usage: check_mcap.py FILE
 
 Reads FILE with PyPI `mcap` and decodes every message with `mcap-ros2-support`'s ROS 2 decoder
-(which parses the `ros2msg` schema text stored in the file), then prints one line per topic:
+(which parses the `ros2msg` schema text stored in the file), or, on a schemaless `json` channel
+(the simulator's truth, `/povins/sim_truth/landmarks`), with Python's `json` (each message's
+`t_ns` must be its log time, each landmark must have the documented keys), then prints one line
+per topic:
 
-    topic <name> <schema> <message count> <first header stamp, ns>
+    topic <name> <schema, or the message encoding without one> <message count> <first stamp, ns>
 
 and one line per metadata record and attachment:
 
@@ -16,6 +19,7 @@ and one line per metadata record and attachment:
 Exits non-zero when any message fails to decode.
 Install: pip install mcap mcap-ros2-support
 """
+import json
 import sys
 from collections import OrderedDict
 
@@ -36,9 +40,25 @@ def main(argv):
         return 2
     topics = OrderedDict()
     with open(argv[1], "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for schema, channel, _message, decoded in reader.iter_decoded_messages():
-            entry = topics.setdefault(channel.topic, [schema.name, 0, stamp_ns(decoded)])
+        reader = make_reader(f)
+        ros2 = DecoderFactory()
+        decoders = {}
+        for schema, channel, message in reader.iter_messages():
+            if channel.message_encoding == "json" and schema is None:
+                decoded = json.loads(message.data)
+                assert decoded["t_ns"] == message.log_time, (channel.topic, message.sequence)
+                for lm in decoded["landmarks"]:
+                    assert set(lm) == {"id", "p_w", "last_ns", "wrong", "edge"}, lm
+                    assert lm["p_w"] is None or len(lm["p_w"]) == 3, lm
+                name, stamp = "json", decoded["t_ns"]
+            else:
+                if channel.id not in decoders:
+                    decoders[channel.id] = ros2.decoder_for(channel.message_encoding, schema)
+                decoder = decoders[channel.id]
+                if decoder is None:
+                    raise SystemExit(f"{channel.topic}: no decoder for {channel.message_encoding}")
+                name, stamp = schema.name, stamp_ns(decoder(message.data))
+            entry = topics.setdefault(channel.topic, [name, 0, stamp])
             entry[1] += 1
         for topic, (schema, count, first) in sorted(topics.items()):
             print(f"topic {topic} {schema} {count} {first}")

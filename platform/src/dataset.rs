@@ -112,6 +112,95 @@ pub struct SimTruth {
     pub lidar_edge_points: Vec<Vec<bool>>,
 }
 
+/// One feature id of the simulator's truth, as the evaluation reads it one at a time
+/// ([`crate::recording::Recording::sim_landmarks`]): increasing `first_ns`, so that a check over
+/// a run holds only the tracks alive at its keyframe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimLandmark {
+    /// Feature id.
+    pub id: u64,
+    /// True landmark position in `w`, m (`None`: the id has flags but no landmark).
+    pub p_w: Option<Vec3>,
+    /// Camera stamp of the id's first observation, ns (`i64::MIN`: held from the start).
+    pub first_ns: i64,
+    /// Camera stamp of its last observation, ns (`i64::MAX`: held to the end).
+    pub last_ns: i64,
+    /// In [`SimTruth::wrong_tracks`].
+    pub wrong: bool,
+    /// In [`SimTruth::edge_features`].
+    pub edge: bool,
+}
+
+impl SimTruth {
+    /// Every id of the truth (landmarks and flags) with its span of observations in `frames`,
+    /// by increasing first observation, then id; ids never observed come first, spanning the
+    /// first frame only (`first_ns = last_ns`), or everything when there are no frames.
+    pub fn landmarks(&self, frames: &[FeatureFrame]) -> Vec<SimLandmark> {
+        use std::collections::BTreeMap;
+        let mut by_id: BTreeMap<u64, SimLandmark> = BTreeMap::new();
+        fn entry(m: &mut BTreeMap<u64, SimLandmark>, id: u64) -> &mut SimLandmark {
+            m.entry(id).or_insert(SimLandmark {
+                id,
+                p_w: None,
+                first_ns: i64::MAX,
+                last_ns: i64::MIN,
+                wrong: false,
+                edge: false,
+            })
+        }
+        for &(id, p) in &self.landmarks_w {
+            entry(&mut by_id, id).p_w = Some(p);
+        }
+        for &id in &self.wrong_tracks {
+            entry(&mut by_id, id).wrong = true;
+        }
+        for &id in &self.edge_features {
+            entry(&mut by_id, id).edge = true;
+        }
+        for f in frames {
+            for o in &f.obs {
+                if let Some(l) = by_id.get_mut(&o.id) {
+                    l.first_ns = l.first_ns.min(f.t_ns);
+                    l.last_ns = l.last_ns.max(f.t_ns);
+                }
+            }
+        }
+        let t0 = frames.first().map(|f| f.t_ns);
+        let mut v: Vec<SimLandmark> = by_id
+            .into_values()
+            .map(|mut l| {
+                if l.first_ns > l.last_ns {
+                    (l.first_ns, l.last_ns) = t0.map_or((i64::MIN, i64::MAX), |t| (t, t));
+                }
+                l
+            })
+            .collect();
+        v.sort_by_key(|l| (l.first_ns, l.id));
+        v
+    }
+
+    /// The truth rebuilt from [`SimTruth::landmarks`] (each list by increasing id; no LiDAR
+    /// edge flags).
+    pub fn from_landmarks(ls: impl IntoIterator<Item = SimLandmark>) -> SimTruth {
+        let mut t = SimTruth::default();
+        for l in ls {
+            if let Some(p) = l.p_w {
+                t.landmarks_w.push((l.id, p));
+            }
+            if l.wrong {
+                t.wrong_tracks.push(l.id);
+            }
+            if l.edge {
+                t.edge_features.push(l.id);
+            }
+        }
+        t.landmarks_w.sort_by_key(|l| l.0);
+        t.wrong_tracks.sort_unstable();
+        t.edge_features.sort_unstable();
+        t
+    }
+}
+
 /// A whole sequence in memory.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Dataset {

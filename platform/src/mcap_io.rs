@@ -22,8 +22,13 @@
 //! `gyroscope_random_walk`, `accelerometer_noise_density`, `accelerometer_random_walk`,
 //! `bias_correlation_time_s` (`none` for a random walk), `gravity_mps2`, `name`, and `readout_s`
 //! (a rolling shutter's readout time, s; only when not 0). A simulator's truth for evaluation
-//! ([`crate::dataset::SimTruth`] without its per-point LiDAR edge flags) is the JSON attachment
-//! [`SIM_TRUTH_ATTACHMENT`].
+//! ([`crate::dataset::SimTruth`] without its per-point LiDAR edge flags) is the topic
+//! [`TOPIC_SIM_TRUTH`] (message encoding `json`, no schema): one message at the camera stamp at
+//! which ids are first observed, `{"t_ns": T, "landmarks": [{"id": N, "p_w": [x, y, z] | null,
+//! "last_ns": T, "wrong": bool, "edge": bool}, ...]}` (`p_w` the true landmark in `world`, m;
+//! `last_ns` the stamp of the id's last observation), so that an evaluation holds only the
+//! tracks alive at its keyframe ([`crate::dataset::SimLandmark`]). Files written before it hold the
+//! whole truth in the JSON attachment [`SIM_TRUTH_ATTACHMENT`], still read.
 //!
 //! Reading ignores topics it does not know, orders each topic by header stamp and rejects
 //! repeated stamps. Images come from `/cam0/image_raw` (`sensor_msgs/msg/Image`, or a
@@ -34,7 +39,7 @@
 //! message's sequence number and the byte offset inside the message.
 
 use crate::cdr::CdrError;
-use crate::dataset::{Calibration, Dataset, Extrinsic};
+use crate::dataset::{Calibration, Dataset, Extrinsic, SimTruth};
 use crate::error::IoError;
 use crate::euroc::read_png_mono8;
 use crate::ros2;
@@ -42,7 +47,6 @@ use crate::ros2::convert::{self, quat_from_xyzw, quat_to_xyzw};
 use povins_core::camera::{Distortion, PinholeCamera, MAX_READOUT_S};
 use povins_core::inertial::ImuNoise;
 use povins_core::math::Vec3;
-use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write as _;
 use std::path::Path;
@@ -63,7 +67,10 @@ pub const TOPIC_GROUND_TRUTH: &str = "/groundtruth";
 pub const TOPIC_GROUND_TRUTH_BIAS: &str = "/groundtruth/imu_bias";
 /// Name of the calibration metadata record.
 pub const CALIBRATION_METADATA: &str = "povins.calibration";
-/// Name of the simulator-truth attachment.
+/// The simulator's truth, one message per camera stamp at which ids are first observed (module
+/// docs).
+pub const TOPIC_SIM_TRUTH: &str = "/povins/sim_truth/landmarks";
+/// Name of the simulator-truth attachment (files written before [`TOPIC_SIM_TRUTH`]; read only).
 pub const SIM_TRUTH_ATTACHMENT: &str = "povins.sim_truth.json";
 
 const IMU_TYPE: &str = "sensor_msgs/msg/Imu";
@@ -93,11 +100,28 @@ fn mcap_err(path: &Path, e: mcap::McapError) -> IoError {
 /// per-point LiDAR edge flags ([`SimTruth::lidar_edge_points`], the simulator's own statistics,
 /// a flag per point: 5 MB a minute) are not written, and skipped unread (as any key povins does
 /// not read) in files that have them.
-#[derive(serde::Serialize, serde::Deserialize)]
+#[derive(serde::Deserialize)]
+#[cfg_attr(test, derive(serde::Serialize))]
 struct SimTruthJson {
     landmarks_w: Vec<(u64, [f64; 3])>,
     wrong_tracks: Vec<u64>,
     edge_features: Vec<u64>,
+}
+
+/// One [`TOPIC_SIM_TRUTH`] message (module docs).
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SimTruthMsg {
+    t_ns: i64,
+    landmarks: Vec<SimLandmarkJson>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SimLandmarkJson {
+    id: u64,
+    p_w: Option<[f64; 3]>,
+    last_ns: i64,
+    wrong: bool,
+    edge: bool,
 }
 
 fn num(v: f64) -> String {
@@ -269,11 +293,23 @@ enum Kind {
     Lidar,
     Features,
     GroundTruth,
+    SimTruth,
 }
 
 /// Writes a [`Dataset`] as MCAP (ROS 2 CDR messages, calibration as metadata, zstd chunks).
 /// Images without pixels are loaded from their PNG file.
 pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
+    write_dataset_as(path, ds, false)
+}
+
+/// [`write_dataset`] as files were written before [`TOPIC_SIM_TRUTH`]: the truth in the
+/// attachment [`SIM_TRUTH_ATTACHMENT`] (tests of the reader's compatibility).
+#[cfg(test)]
+pub(crate) fn write_dataset_legacy_truth(path: &Path, ds: &Dataset) -> Result<(), IoError> {
+    write_dataset_as(path, ds, true)
+}
+
+fn write_dataset_as(path: &Path, ds: &Dataset, legacy_truth: bool) -> Result<(), IoError> {
     let cdr = |topic: &str, e: CdrError| invalid(path, format!("{topic}: {e}"));
     let conv = |topic: &str, e: String| invalid(path, format!("{topic}: {e}"));
     // Everything is checked and encoded lazily in time order; features need the whole sequence
@@ -360,6 +396,44 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
             .enumerate()
             .map(|(i, s)| (s.t_ns, Kind::GroundTruth, i)),
     );
+    // The truth's ids grouped by first observation, one message each (ids held from the start
+    // at the first event).
+    let mut truth_msgs: Vec<SimTruthMsg> = Vec::new();
+    if let Some(st) = ds.sim_truth.as_ref().filter(|_| !legacy_truth) {
+        let t0 = i64::try_from(events_start(ds)).unwrap_or(0);
+        for l in st.landmarks(&ds.features) {
+            let t = if l.first_ns == i64::MIN {
+                t0
+            } else {
+                l.first_ns
+            };
+            if truth_msgs.last().is_none_or(|m| m.t_ns != t) {
+                truth_msgs.push(SimTruthMsg {
+                    t_ns: t,
+                    landmarks: Vec::new(),
+                });
+            }
+            if let Some(m) = truth_msgs.last_mut() {
+                m.landmarks.push(SimLandmarkJson {
+                    id: l.id,
+                    p_w: l.p_w.map(|p| [p.x, p.y, p.z]),
+                    last_ns: l.last_ns,
+                    wrong: l.wrong,
+                    edge: l.edge,
+                });
+            }
+        }
+        let id = w
+            .add_channel(0, TOPIC_SIM_TRUTH, "json", &no_meta)
+            .map_err(me)?;
+        ch.insert(Kind::SimTruth, id);
+    }
+    events.extend(
+        truth_msgs
+            .iter()
+            .enumerate()
+            .map(|(i, m)| (m.t_ns, Kind::SimTruth, i)),
+    );
     events.sort_unstable();
 
     let mut seq: HashMap<u16, u32> = HashMap::new();
@@ -441,6 +515,11 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
                 let b = bias.encode().map_err(|e| cdr(TOPIC_GROUND_TRUTH_BIAS, e))?;
                 put(&mut w, bias_ch, t, &b)?;
             }
+            Kind::SimTruth => {
+                let m = serde_json::to_vec(&truth_msgs[i])
+                    .map_err(|e| conv(TOPIC_SIM_TRUTH, e.to_string()))?;
+                put(&mut w, cid, t, &m)?;
+            }
         }
     }
 
@@ -449,7 +528,8 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
         metadata: calibration_metadata(ds),
     })
     .map_err(me)?;
-    if let Some(st) = &ds.sim_truth {
+    #[cfg(test)]
+    if let Some(st) = ds.sim_truth.as_ref().filter(|_| legacy_truth) {
         let j = SimTruthJson {
             landmarks_w: st
                 .landmarks_w
@@ -460,13 +540,12 @@ pub fn write_dataset(path: &Path, ds: &Dataset) -> Result<(), IoError> {
             edge_features: st.edge_features.clone(),
         };
         let data = serde_json::to_vec(&j).map_err(|e| invalid(path, e.to_string()))?;
-        let t0 = events_start(ds);
         w.attach(&mcap::Attachment {
-            log_time: t0,
-            create_time: t0,
+            log_time: events_start(ds),
+            create_time: events_start(ds),
             name: SIM_TRUTH_ATTACHMENT.into(),
             media_type: "application/json".into(),
-            data: Cow::Owned(data),
+            data: std::borrow::Cow::Owned(data),
         })
         .map_err(me)?;
     }
@@ -543,6 +622,10 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
     let images = r.images()?.collect::<Result<_, _>>()?;
     let lidar = r.sweeps()?.collect::<Result<_, _>>()?;
     let ground_truth = r.ground_truth()?;
+    let sim_truth = match r.sim_landmarks()? {
+        Some(ls) => Some(SimTruth::from_landmarks(ls.collect::<Result<Vec<_>, _>>()?)),
+        None => None,
+    };
     Ok(Dataset {
         name: r.name().to_string(),
         calib: r.calibration().clone(),
@@ -551,6 +634,6 @@ pub fn read_dataset(path: &Path) -> Result<Dataset, IoError> {
         images,
         lidar,
         ground_truth,
-        sim_truth: r.sim_truth().cloned(),
+        sim_truth,
     })
 }

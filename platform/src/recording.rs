@@ -10,7 +10,9 @@
 //! in raw distorted pixels, LiDAR points in the LiDAR frame `l`, ground truth the body in the
 //! world `w` (z up).
 
-use crate::dataset::{Calibration, Dataset, FeatureFrame, ImageFrame, LidarScan, SimTruth};
+use crate::dataset::{
+    Calibration, Dataset, FeatureFrame, ImageFrame, LidarScan, SimLandmark, SimTruth,
+};
 use crate::error::IoError;
 use povins_core::inertial::{ImuSample, NavState};
 
@@ -61,9 +63,23 @@ pub trait Recording: Send + Sync {
     fn ground_truth(&self) -> Result<Vec<NavState>, IoError> {
         self.ground_truth_stream()?.collect()
     }
-    /// What only a simulator knows (for evaluation), when the recording carries it.
+    /// What only a simulator knows (for evaluation), when the recording holds it in memory
+    /// (a file streams it: [`Recording::sim_landmarks`]).
     fn sim_truth(&self) -> Option<&SimTruth> {
         None
+    }
+    /// Whether the recording carries a simulator's truth ([`Recording::sim_landmarks`]).
+    fn has_sim_truth(&self) -> bool {
+        self.sim_truth().is_some()
+    }
+    /// The simulator's truth one id at a time, by increasing first observation (`None` when
+    /// the recording carries none): an evaluation passes over it beside the run's keyframes and
+    /// holds only the ids alive at each. By default [`Recording::sim_truth`]'s ids, each held
+    /// for the whole run.
+    fn sim_landmarks(&self) -> Result<Option<Stream<'_, SimLandmark>>, IoError> {
+        Ok(self
+            .sim_truth()
+            .map(|t| -> Stream<'_, SimLandmark> { Box::new(t.landmarks(&[]).into_iter().map(Ok)) }))
     }
     /// What was wrong in the recording but read past (samples dropped for their stamps, parts
     /// skipped, a missing index): complete once the streams have ended. A line that starts with

@@ -37,15 +37,26 @@ fn raw_topics(path: &std::path::Path) -> BTreeMap<String, (String, String, Vec<V
     let mut out: BTreeMap<String, (String, String, Vec<Vec<u8>>)> = BTreeMap::new();
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
-        let schema = m.channel.schema.as_ref().unwrap();
-        assert_eq!(schema.encoding, "ros2msg");
-        let e = out.entry(m.channel.topic.clone()).or_insert_with(|| {
-            (
-                schema.name.clone(),
-                m.channel.message_encoding.clone(),
-                Vec::new(),
-            )
-        });
+        // Every topic but the simulator's truth (JSON, schemaless) has a ROS 2 schema.
+        let name = match m.channel.schema.as_ref() {
+            Some(schema) => {
+                assert_eq!(schema.encoding, "ros2msg");
+                schema.name.clone()
+            }
+            None => {
+                assert_eq!(
+                    (
+                        m.channel.topic.as_str(),
+                        m.channel.message_encoding.as_str()
+                    ),
+                    (povins_platform::mcap_io::TOPIC_SIM_TRUTH, "json")
+                );
+                String::new()
+            }
+        };
+        let e = out
+            .entry(m.channel.topic.clone())
+            .or_insert_with(|| (name, m.channel.message_encoding.clone(), Vec::new()));
         e.2.push(m.data.into_owned());
     }
     out
@@ -61,10 +72,19 @@ fn messages_follow_the_documented_ros_conventions() {
     let names: Vec<(&str, &str, usize)> = topics
         .iter()
         .map(|(t, (s, e, m))| {
-            assert_eq!(e, "cdr");
+            assert_eq!(e, if s.is_empty() { "json" } else { "cdr" });
             (t.as_str(), s.as_str(), m.len())
         })
         .collect();
+    let mut truth_stamps: Vec<i64> = ds
+        .sim_truth
+        .as_ref()
+        .unwrap()
+        .landmarks(&ds.features)
+        .iter()
+        .map(|l| l.first_ns)
+        .collect();
+    truth_stamps.dedup();
     assert_eq!(
         names,
         vec![
@@ -74,6 +94,7 @@ fn messages_follow_the_documented_ros_conventions() {
             ("/groundtruth/imu_bias", "sensor_msgs/msg/Imu", 10),
             ("/imu0", "sensor_msgs/msg/Imu", 100),
             ("/lidar0/points", "sensor_msgs/msg/PointCloud2", 2),
+            ("/povins/sim_truth/landmarks", "", truth_stamps.len()),
         ]
     );
     // Features: normalized undistorted points that project back to the raw pixels in u/v.
@@ -142,8 +163,8 @@ fn messages_follow_the_documented_ros_conventions() {
         ("mono8", 16, 192)
     );
     assert_eq!(im.data, ds.images[2].mono8);
-    // Every message starts with the little-endian CDR header.
-    for (_, _, ms) in topics.values() {
+    // Every CDR message starts with the little-endian CDR header.
+    for (_, _, ms) in topics.values().filter(|t| t.1 == "cdr") {
         for m in ms {
             assert!(CdrReader::new(m).is_ok());
         }

@@ -37,6 +37,12 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--camera needs --calib (a Kalibr camchain)");
     }
     let log = open_log(&a.recording)?;
+    if !povins_platform::containers::is_ros_recording(&a.recording) {
+        // povins' own MCAP: fixed topics and the calibration in the file (docs/formats.md).
+        let rec = povins_platform::mcap_io::McapRecording::open(&a.recording)?;
+        print!("{}{}", table(log.as_ref()), own_mcap(&rec));
+        return Ok(());
+    }
     let all = log.topics();
     let (choice, calib) = match input.calibration_files(log.as_ref()) {
         Ok(found) => {
@@ -56,6 +62,50 @@ pub fn run(a: Args) -> Result<()> {
         print!("{}", read_all(log.as_ref(), &choice)?);
     }
     Ok(())
+}
+
+/// What `povins run` reads of povins' own MCAP file.
+fn own_mcap(rec: &povins_platform::mcap_io::McapRecording) -> String {
+    use povins_platform::recording::Recording;
+    let c = rec.contents();
+    let calib = rec.calibration();
+    let cam = &calib.camera;
+    let yes = |b: bool, what: &str| {
+        if b {
+            what.to_string()
+        } else {
+            format!("no {what}")
+        }
+    };
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "run uses  povins' own MCAP layout: {}, {}, {}, {}, {}{}",
+        yes(c.imu, "IMU"),
+        yes(c.frames, "feature tracks"),
+        yes(c.images, "images"),
+        yes(c.lidar, "LiDAR"),
+        yes(c.ground_truth, "ground truth"),
+        if rec.has_sim_truth() {
+            ", simulator truth (evaluation only)"
+        } else {
+            ""
+        }
+    );
+    let _ = writeln!(
+        s,
+        "calib     the file's povins.calibration metadata: camera {}x{} fx {} fy {} cx {} cy {}, \
+         td_s {} s{}",
+        cam.width,
+        cam.height,
+        cam.fx,
+        cam.fy,
+        cam.cx,
+        cam.cy,
+        calib.td_s,
+        if calib.t_bl.is_some() { ", T_bl" } else { "" }
+    );
+    s
 }
 
 /// Bytes of a file, or of the files of a folder.
@@ -79,7 +129,8 @@ fn secs(ns: i64) -> f64 {
 }
 
 /// The summary of a recording, as `info` prints it.
-pub fn summary(log: &dyn MessageLog, choice: &TopicChoice) -> String {
+/// The file, its format, time span and topics.
+fn table(log: &dyn MessageLog) -> String {
     let mut s = String::new();
     let path = log.path();
     let _ = writeln!(s, "file      {} ({} bytes)", path.display(), size_of(path));
@@ -129,6 +180,13 @@ pub fn summary(log: &dyn MessageLog, choice: &TopicChoice) -> String {
         );
     }
     let _ = writeln!(s);
+    s
+}
+
+/// What `povins info` says of a recording: [`table`], then the topics `povins run` would read.
+pub fn summary(log: &dyn MessageLog, choice: &TopicChoice) -> String {
+    let mut s = table(log);
+    let all = log.topics();
     match topics::select_with(&all, choice) {
         Ok(sel) => {
             let name = |t: &Option<TopicInfo>| {
@@ -244,6 +302,30 @@ mod tests {
         Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../tests/data")
             .join(rel)
+    }
+
+    #[test]
+    fn povins_own_mcap_is_described_not_chosen_from() {
+        use crate::sim::{self, Scenario, SimConfig};
+        let mut c = SimConfig::new(Scenario::Handheld, 1, 2.0);
+        c.threads = 1;
+        let ds = sim::simulate(&c, &|_, _, _| {}).unwrap().dataset;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("h.mcap");
+        povins_platform::mcap_io::write_dataset(&path, &ds).unwrap();
+        assert!(!povins_platform::containers::is_ros_recording(&path));
+        let rec = povins_platform::mcap_io::McapRecording::open(&path).unwrap();
+        let s = own_mcap(&rec);
+        assert!(
+            s.contains("run uses  povins' own MCAP layout: IMU, feature tracks, no images, LiDAR")
+                && s.contains("simulator truth (evaluation only)")
+                && s.contains("camera 752x480"),
+            "{s}"
+        );
+        // The ROS view of the same file cannot choose its IMU (the truth's biases are an Imu).
+        let log = open_log(&path).unwrap();
+        let ros = summary(log.as_ref(), &TopicChoice::default());
+        assert!(ros.contains("cannot choose: 2 IMU topics"), "{ros}");
     }
 
     #[test]

@@ -22,9 +22,11 @@ use crate::runner::{interpolate_state, GtCursor, KeyframeDepthEvents};
 use povins_core::estimator::{DepthEvent, DepthEventKind};
 use povins_core::inertial::NavState;
 use povins_core::math::Vec3;
-use povins_platform::dataset::{Dataset, Extrinsic, SimTruth};
-use std::borrow::Cow;
-use std::collections::BTreeMap;
+use povins_platform::dataset::{Dataset, Extrinsic, SimLandmark, SimTruth};
+use povins_platform::error::IoError;
+use povins_platform::recording::Stream;
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap, VecDeque};
 
 /// Counts of the association check; shares via the methods.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
@@ -147,113 +149,114 @@ pub fn assess_with(
     sigma_dr_m: f64,
 ) -> AssocQuality {
     let mut gt = GtCursor::new(gt.iter().copied().map(Ok::<_, std::convert::Infallible>));
-    let mut a = Assessor::new(truth, t_bc, td_s, sigma_dr_m);
+    let ids: Stream<'_, SimLandmark> = Box::new(truth.landmarks(&[]).into_iter().map(Ok));
+    let mut a = Assessor::new(ids, t_bc, td_s, sigma_dr_m);
     for step in steps {
         a.step(step.t_cam_ns, &step.events, |t| gt.at(t));
     }
-    a.finish()
+    // The truth is in memory: its stream cannot fail.
+    a.finish().unwrap_or_default()
 }
 
+/// An id is taken from the truth's stream this long before its first observation and dropped
+/// this long after its last (stamps of the same camera: a margin, not a model).
+const LIVE_MARGIN_NS: i64 = 1_000_000_000;
+
+/// A checked association waits this long for a rejection of its landmark before it is counted
+/// as kept (a landmark stays in the window after its last observation until its anchor is
+/// marginalized: seconds, or as long as the platform stands still).
+const PENDING_NS: i64 = 120_000_000_000;
+
 /// [`assess`] one keyframe at a time, in the order of the run (for a run that does not hold
-/// its events): [`Assessor::step`] per keyframe, then [`Assessor::finish`]. It reads the truth
-/// in place (a copy only when its ids are not sorted).
+/// its events or its truth): [`Assessor::step`] per keyframe, then [`Assessor::finish`]. It
+/// reads the truth as a stream by first observation ([`Recording::sim_landmarks`]) and holds
+/// only the ids alive at the keyframe and the associations still open to a rejection, so its
+/// memory does not grow with the run.
+///
+/// [`Recording::sim_landmarks`]: povins_platform::recording::Recording::sim_landmarks
 pub struct Assessor<'t> {
-    /// `truth.landmarks_w` and `truth.edge_features` sorted by id.
-    landmarks: Cow<'t, [(u64, Vec3)]>,
-    edges: Cow<'t, [u64]>,
+    truth: std::iter::Peekable<Stream<'t, SimLandmark>>,
+    /// Ids taken from the stream and not yet past their last observation.
+    live: BTreeMap<u64, SimLandmark>,
+    /// `(last_ns, id)` of `live`, the earliest end first.
+    ends: BinaryHeap<Reverse<(i64, u64)>>,
     t_bc: Extrinsic,
     td_s: f64,
     sigma_dr_m: f64,
-    /// One entry per checked association: (within 3 sigma, on an edge, rejected later).
-    samples: Vec<(bool, bool, bool)>,
-    /// Newest checked association per landmark id, as an index into `samples`.
-    newest: BTreeMap<u64, usize>,
-    associated: usize,
+    /// Newest checked association per landmark id, not yet counted: (within 3 sigma, on an
+    /// edge, keyframe stamp).
+    open: BTreeMap<u64, (bool, bool, i64)>,
+    /// `(keyframe stamp, id)` of `open` in the order checked.
+    opened: VecDeque<(i64, u64)>,
+    q: AssocQuality,
+    error: Option<IoError>,
 }
 
 impl<'t> Assessor<'t> {
-    /// An assessment against `truth`, with the calibration's camera extrinsic and delay.
-    pub fn new(truth: &'t SimTruth, t_bc: &Extrinsic, td_s: f64, sigma_dr_m: f64) -> Self {
-        // A repeated id keeps its last position, as a map built in order would.
-        let mut landmarks = Cow::Borrowed(truth.landmarks_w.as_slice());
-        if !landmarks.windows(2).all(|w| w[0].0 < w[1].0) {
-            let v = landmarks.to_mut();
-            v.reverse();
-            v.sort_by_key(|l| l.0);
-            v.dedup_by_key(|l| l.0);
-        }
-        let mut edges = Cow::Borrowed(truth.edge_features.as_slice());
-        if !edges.windows(2).all(|w| w[0] < w[1]) {
-            let v = edges.to_mut();
-            v.sort_unstable();
-            v.dedup();
-        }
+    /// An assessment against the truth's ids (by increasing first observation), with the
+    /// calibration's camera extrinsic and delay.
+    pub fn new(
+        truth: Stream<'t, SimLandmark>,
+        t_bc: &Extrinsic,
+        td_s: f64,
+        sigma_dr_m: f64,
+    ) -> Self {
         Assessor {
-            landmarks,
-            edges,
+            truth: truth.peekable(),
+            live: BTreeMap::new(),
+            ends: BinaryHeap::new(),
             t_bc: *t_bc,
             td_s,
             sigma_dr_m,
-            samples: Vec::new(),
-            newest: BTreeMap::new(),
-            associated: 0,
+            open: BTreeMap::new(),
+            opened: VecDeque::new(),
+            q: AssocQuality::default(),
+            error: None,
         }
     }
 
-    /// The events of the keyframe at camera time `t_cam_ns`; `gt_at` gives the ground truth at
-    /// an IMU time (`None` outside its span), asked with stamps that do not decrease.
-    pub fn step(
-        &mut self,
-        t_cam_ns: i64,
-        events: &[DepthEvent],
-        mut gt_at: impl FnMut(i64) -> Option<NavState>,
-    ) {
-        // The ground truth at the keyframe, asked once (and only when a depth needs it).
-        let mut x: Option<Option<NavState>> = None;
-        for e in events {
-            match e.kind {
-                DepthEventKind::Associated => {
-                    self.associated += 1;
-                    let landmark = self.landmarks.binary_search_by_key(&e.id, |l| l.0).ok();
-                    let d_true = landmark.and_then(|k| {
-                        let p_w = &self.landmarks[k].1;
-                        let x = *x.get_or_insert_with(|| gt_at(imu_time_ns(t_cam_ns, self.td_s)));
-                        Some(depth_in_camera(&x?, &self.t_bc, p_w))
-                    });
-                    match d_true {
-                        Some(d) => {
-                            let within = (e.depth_m - d).abs() <= 3.0 * self.sigma_dr_m;
-                            self.newest.insert(e.id, self.samples.len());
-                            let edge = self.edges.binary_search(&e.id).is_ok();
-                            self.samples.push((within, edge, false));
-                        }
-                        // A later rejection must not hit an older, checked association.
-                        None => {
-                            self.newest.remove(&e.id);
-                        }
-                    }
+    /// Ids into `live` up to `t_cam_ns`, out of it after their last observation.
+    fn advance(&mut self, t_cam_ns: i64) {
+        let admit_to = t_cam_ns.saturating_add(LIVE_MARGIN_NS);
+        while self.error.is_none() {
+            match self
+                .truth
+                .next_if(|l| l.as_ref().map_or(true, |l| l.first_ns <= admit_to))
+            {
+                Some(Ok(l)) => {
+                    // A repeated id keeps its last position.
+                    self.live.insert(l.id, l);
+                    self.ends.push(Reverse((l.last_ns, l.id)));
                 }
-                DepthEventKind::Rejected => {
-                    if let Some(s) = self
-                        .newest
-                        .remove(&e.id)
-                        .and_then(|k| self.samples.get_mut(k))
-                    {
-                        s.2 = true;
-                    }
-                }
-                DepthEventKind::Culled => {}
+                Some(Err(e)) => self.error = Some(e),
+                None => break,
+            }
+        }
+        let drop_before = t_cam_ns.saturating_sub(LIVE_MARGIN_NS);
+        while let Some(&Reverse((end, id))) = self.ends.peek() {
+            if end >= drop_before {
+                break;
+            }
+            self.ends.pop();
+            if self.live.get(&id).is_some_and(|l| l.last_ns == end) {
+                self.live.remove(&id);
+            }
+        }
+        while let Some(&(t, id)) = self.opened.front() {
+            if t >= t_cam_ns.saturating_sub(PENDING_NS) {
+                break;
+            }
+            self.opened.pop_front();
+            if self.open.get(&id).is_some_and(|o| o.2 == t) {
+                self.close(id, false);
             }
         }
     }
 
-    /// The counts.
-    pub fn finish(self) -> AssocQuality {
-        let mut q = AssocQuality {
-            associated: self.associated,
-            ..AssocQuality::default()
-        };
-        for &(within, edge, rejected) in &self.samples {
+    /// Counts the open association of `id`, if any.
+    fn close(&mut self, id: u64, rejected: bool) {
+        if let Some((within, edge, _)) = self.open.remove(&id) {
+            let q = &mut self.q;
             q.checked += 1;
             q.within_before += usize::from(within);
             q.edge_before += usize::from(edge);
@@ -263,7 +266,53 @@ impl<'t> Assessor<'t> {
                 q.edge_after += usize::from(edge);
             }
         }
-        q
+    }
+
+    /// The events of the keyframe at camera time `t_cam_ns` (not decreasing from step to step);
+    /// `gt_at` gives the ground truth at an IMU time (`None` outside its span), asked with
+    /// stamps that do not decrease.
+    pub fn step(
+        &mut self,
+        t_cam_ns: i64,
+        events: &[DepthEvent],
+        mut gt_at: impl FnMut(i64) -> Option<NavState>,
+    ) {
+        self.advance(t_cam_ns);
+        // The ground truth at the keyframe, asked once (and only when a depth needs it).
+        let mut x: Option<Option<NavState>> = None;
+        for e in events {
+            match e.kind {
+                DepthEventKind::Associated => {
+                    self.q.associated += 1;
+                    let landmark = self.live.get(&e.id).and_then(|l| Some((l.p_w?, l.edge)));
+                    let truth = landmark.and_then(|(p_w, edge)| {
+                        let x = *x.get_or_insert_with(|| gt_at(imu_time_ns(t_cam_ns, self.td_s)));
+                        Some((depth_in_camera(&x?, &self.t_bc, &p_w), edge))
+                    });
+                    // A later rejection hits only the newest checked association of the id.
+                    self.close(e.id, false);
+                    if let Some((d, edge)) = truth {
+                        let within = (e.depth_m - d).abs() <= 3.0 * self.sigma_dr_m;
+                        self.open.insert(e.id, (within, edge, t_cam_ns));
+                        self.opened.push_back((t_cam_ns, e.id));
+                    }
+                }
+                DepthEventKind::Rejected => self.close(e.id, true),
+                DepthEventKind::Culled => {}
+            }
+        }
+    }
+
+    /// The counts; an error when the truth's stream failed (the counts would be partial).
+    pub fn finish(mut self) -> Result<AssocQuality, IoError> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        let ids: Vec<u64> = self.open.keys().copied().collect();
+        for id in ids {
+            self.close(id, false);
+        }
+        Ok(self.q)
     }
 }
 
@@ -409,5 +458,109 @@ mod tests {
         let q = assess_with(&truth, &gt, &ext, 0.0, &steps, 0.1);
         assert_eq!((q.checked, q.within_before), (2, 1));
         assert_eq!((q.kept, q.within_after), (1, 1));
+    }
+
+    #[test]
+    fn the_streamed_truth_holds_only_the_live_tracks_and_counts_the_same() {
+        // A camera still at the origin looking along +x; 2000 tracks, each seen for 2 s from
+        // its start (one a second ... ), at 4 m + a little; every keyframe (10 Hz over 200 s)
+        // associates the tracks it sees, every tenth badly, and rejects some of them later.
+        let gt = [
+            state(0, Vec3::zeros(), 0.0),
+            state(300_000_000_000, Vec3::zeros(), 0.0),
+        ];
+        let ext = camera_forward();
+        let s = 1_000_000_000i64;
+        let n = 2000u64;
+        let lm = |id: u64| SimLandmark {
+            id,
+            p_w: Some(Vec3::new(4.1 + 0.001 * id as f64, 0.0, 0.0)),
+            first_ns: (id as i64) * s / 10,
+            last_ns: (id as i64) * s / 10 + 2 * s,
+            wrong: false,
+            edge: id.is_multiple_of(7),
+        };
+        let steps: Vec<KeyframeDepthEvents> = (0..2000i64)
+            .map(|k| {
+                let t = k * s / 10;
+                let mut events = Vec::new();
+                for id in (0..n).filter(|&id| lm(id).first_ns <= t && t <= lm(id).last_ns) {
+                    let d = 4.0
+                        + 0.001 * id as f64
+                        + if (id + k as u64).is_multiple_of(10) {
+                            1.0
+                        } else {
+                            0.0
+                        };
+                    events.push(ev(id, DepthEventKind::Associated, d));
+                }
+                if let Some(id) = (k as u64).checked_sub(5).filter(|id| id.is_multiple_of(3)) {
+                    events.push(ev(id, DepthEventKind::Rejected, 0.0));
+                }
+                KeyframeDepthEvents {
+                    t_cam_ns: t,
+                    events,
+                }
+            })
+            .collect();
+        let run = |ids: Vec<SimLandmark>| {
+            let mut cursor =
+                GtCursor::new(gt.iter().copied().map(Ok::<_, std::convert::Infallible>));
+            let mut a = Assessor::new(Box::new(ids.into_iter().map(Ok)), &ext, 0.0, 0.1);
+            let mut most = 0;
+            for st in &steps {
+                a.step(st.t_cam_ns, &st.events, |t| cursor.at(t));
+                most = most.max(a.live.len());
+            }
+            (a.finish().unwrap(), most)
+        };
+        let (streamed, most) = run((0..n).map(lm).collect());
+        // The same ids held the whole run (the in-memory truth's form).
+        let held = (0..n)
+            .map(|id| SimLandmark {
+                first_ns: i64::MIN,
+                last_ns: i64::MAX,
+                ..lm(id)
+            })
+            .collect();
+        let (whole, all) = run(held);
+        assert_eq!(streamed, whole);
+        assert_eq!(all, n as usize);
+        // Tracks live 2 s, one starts every 0.1 s: about 20 (+ the 1 s margins: 40) at a time.
+        assert!(most <= 45, "{most} ids held");
+        assert!(
+            streamed.checked > 30_000 && streamed.kept < streamed.checked,
+            "{streamed:?}"
+        );
+        assert!(streamed.within_before < streamed.checked && streamed.edge_before > 0);
+        // The open associations are bounded too: none older than PENDING_NS is held.
+        let mut cursor = GtCursor::new(gt.iter().copied().map(Ok::<_, std::convert::Infallible>));
+        let mut a = Assessor::new(Box::new((0..n).map(lm).map(Ok)), &ext, 0.0, 0.1);
+        for (k, st) in steps.iter().enumerate() {
+            a.step(st.t_cam_ns, &st.events, |t| cursor.at(t));
+            let recent: usize = steps[..=k]
+                .iter()
+                .filter(|o| o.t_cam_ns >= st.t_cam_ns - PENDING_NS)
+                .map(|o| o.events.len())
+                .sum();
+            assert!(a.opened.len() <= recent, "{} open at {k}", a.opened.len());
+        }
+        assert!(a.opened.len() < 30_000, "{}", a.opened.len());
+    }
+
+    #[test]
+    fn a_failed_truth_stream_is_an_error_not_partial_counts() {
+        let ext = camera_forward();
+        let ids: Stream<'_, SimLandmark> = Box::new(
+            [Err(IoError::Invalid {
+                path: "x.mcap".into(),
+                msg: "broken".into(),
+            })]
+            .into_iter(),
+        );
+        let mut a = Assessor::new(ids, &ext, 0.0, 0.1);
+        a.step(0, &[ev(1, DepthEventKind::Associated, 1.0)], |_| None);
+        let e = a.finish().expect_err("the stream failed");
+        assert!(e.to_string().contains("broken"), "{e}");
     }
 }

@@ -73,7 +73,7 @@ impl RunDigest {
     pub fn for_recording(rec: &dyn Recording) -> Self {
         let gt = rec.contents().ground_truth;
         RunDigest {
-            lidar_events: if gt && rec.sim_truth().is_some() {
+            lidar_events: if gt && rec.has_sim_truth() {
                 EventLog::new()
             } else {
                 EventLog::default()

@@ -98,7 +98,7 @@ fn an_unreadable_sim_truth_attachment_is_ignored_with_a_warning() {
         wrong_tracks: vec![7],
         ..Default::default()
     });
-    write_dataset(&path, &ds).unwrap();
+    write_dataset_legacy_truth(&path, &ds).unwrap();
     let clean = McapRecording::open(&path).unwrap();
     assert!(clean.sim_truth().is_some());
     assert!(clean.warnings().is_empty());
@@ -118,4 +118,99 @@ fn an_unreadable_sim_truth_attachment_is_ignored_with_a_warning() {
     assert_eq!(w.len(), 1, "{w:?}");
     assert!(w[0].contains(SIM_TRUTH_ATTACHMENT), "{w:?}");
     assert_eq!(r.imu().unwrap().count(), ds.imu.len());
+}
+
+#[test]
+fn an_older_files_truth_attachment_is_still_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let (old, new) = (dir.path().join("old.mcap"), dir.path().join("new.mcap"));
+    let mut ds = dataset();
+    ds.sim_truth = Some(SimTruth {
+        landmarks_w: vec![
+            (7, Vec3::new(1.0, 2.0, 3.0)),
+            (9, Vec3::new(-1.0, 0.5, 8.0)),
+        ],
+        wrong_tracks: vec![9],
+        edge_features: vec![7, 11],
+        ..Default::default()
+    });
+    write_dataset_legacy_truth(&old, &ds).unwrap();
+    write_dataset(&new, &ds).unwrap();
+    let ids = |p: &std::path::Path| -> Vec<(u64, Option<Vec3>, bool, bool)> {
+        let r = McapRecording::open(p).unwrap();
+        assert!(r.has_sim_truth());
+        let mut v: Vec<_> = r
+            .sim_landmarks()
+            .unwrap()
+            .expect("a truth")
+            .map(|l| l.map(|l| (l.id, l.p_w, l.wrong, l.edge)))
+            .collect::<Result<_, _>>()
+            .unwrap();
+        v.sort_by_key(|l| l.0);
+        v
+    };
+    // The same ids, positions and flags either way (the attachment holds no spans).
+    assert_eq!(ids(&old), ids(&new));
+    assert_eq!(ids(&new).len(), 3);
+    assert_eq!(read_dataset(&old).unwrap().sim_truth, ds.sim_truth);
+    assert_eq!(read_dataset(&new).unwrap().sim_truth, ds.sim_truth);
+}
+
+#[test]
+fn a_broken_truth_message_fails_only_the_truths_stream() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t.mcap");
+    let ds = dataset();
+    // Written by hand, uncompressed: the IMU, the calibration and one truth message that is
+    // not JSON.
+    let f = std::fs::File::create(&path).unwrap();
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .compression(None)
+        .create(std::io::BufWriter::new(f))
+        .unwrap();
+    let no_meta = BTreeMap::new();
+    let sid = w
+        .add_schema(IMU_TYPE, "ros2msg", ros2::imu_schema().as_bytes())
+        .unwrap();
+    let imu = w.add_channel(sid, TOPIC_IMU, "cdr", &no_meta).unwrap();
+    let truth = w.add_channel(0, TOPIC_SIM_TRUTH, "json", &no_meta).unwrap();
+    let msg = |channel_id, sequence, t: i64| mcap::records::MessageHeader {
+        channel_id,
+        sequence,
+        log_time: t as u64,
+        publish_time: t as u64,
+    };
+    for (k, s) in ds.imu.iter().enumerate() {
+        let m = convert::imu_to_msg(s).encode().unwrap();
+        w.write_to_known_channel(&msg(imu, k as u32 + 1, s.t_ns), &m)
+            .unwrap();
+        if k == 3 {
+            let t = s.t_ns + 1;
+            let body = format!("{{\"t_ns\": {t}, \"landmarks\": [#]}}");
+            w.write_to_known_channel(&msg(truth, 1, t), body.as_bytes())
+                .unwrap();
+        }
+    }
+    w.write_metadata(&mcap::records::Metadata {
+        name: CALIBRATION_METADATA.into(),
+        metadata: calibration_metadata(&ds),
+    })
+    .unwrap();
+    w.finish().unwrap();
+    drop(w);
+    let r = McapRecording::open(&path).expect("the evaluation-only truth blocked the open");
+    assert!(r.has_sim_truth());
+    assert_eq!(r.imu().unwrap().count(), ds.imu.len());
+    let err = r
+        .sim_landmarks()
+        .unwrap()
+        .expect("a truth")
+        .find_map(Result::err)
+        .expect("the broken message is an error")
+        .to_string();
+    assert!(
+        err.contains(TOPIC_SIM_TRUTH) && err.contains("message 1"),
+        "{err}"
+    );
 }

@@ -11,13 +11,14 @@
 //! order, is an error naming the topic and the stamps.
 
 use super::{
-    calibration_from_metadata, check_chunk_sizes, invalid, SimTruthJson, CALIBRATION_METADATA,
-    COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE, MAX_CHUNK_BYTES, ODOMETRY_TYPE, POINT_CLOUD2_TYPE,
-    POINT_CLOUD_TYPE, SIM_TRUTH_ATTACHMENT, TOPIC_FEATURES, TOPIC_GROUND_TRUTH,
-    TOPIC_GROUND_TRUTH_BIAS, TOPIC_IMAGE, TOPIC_IMAGE_COMPRESSED, TOPIC_IMU, TOPIC_LIDAR,
+    calibration_from_metadata, check_chunk_sizes, invalid, SimTruthJson, SimTruthMsg,
+    CALIBRATION_METADATA, COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, IMU_TYPE, MAX_CHUNK_BYTES,
+    ODOMETRY_TYPE, POINT_CLOUD2_TYPE, POINT_CLOUD_TYPE, SIM_TRUTH_ATTACHMENT, TOPIC_FEATURES,
+    TOPIC_GROUND_TRUTH, TOPIC_GROUND_TRUTH_BIAS, TOPIC_IMAGE, TOPIC_IMAGE_COMPRESSED, TOPIC_IMU,
+    TOPIC_LIDAR, TOPIC_SIM_TRUTH,
 };
 use crate::cdr::CdrError;
-use crate::dataset::{Calibration, FeatureFrame, ImageFrame, LidarScan, SimTruth};
+use crate::dataset::{Calibration, FeatureFrame, ImageFrame, LidarScan, SimLandmark, SimTruth};
 use crate::error::IoError;
 use crate::recording::{Contents, Recording, Stream};
 use crate::ros2::{convert, msgs};
@@ -283,6 +284,8 @@ impl RecordCtx {
             TOPIC_FEATURES => POINT_CLOUD_TYPE,
             TOPIC_LIDAR => POINT_CLOUD2_TYPE,
             TOPIC_GROUND_TRUTH => ODOMETRY_TYPE,
+            // Evaluation-only: in another encoding it is not povins' and is not read.
+            TOPIC_SIM_TRUTH if enc == "json" => return Ok(Some((topic.as_str(), ""))),
             _ => return Ok(None),
         };
         if ty != want || enc != "cdr" {
@@ -334,7 +337,7 @@ pub struct McapRecording {
 }
 
 /// The povins topics, as `&'static str`.
-const TOPICS: [&str; 7] = [
+const TOPICS: [&str; 8] = [
     TOPIC_IMU,
     TOPIC_IMAGE,
     TOPIC_IMAGE_COMPRESSED,
@@ -342,6 +345,7 @@ const TOPICS: [&str; 7] = [
     TOPIC_LIDAR,
     TOPIC_GROUND_TRUTH,
     TOPIC_GROUND_TRUTH_BIAS,
+    TOPIC_SIM_TRUTH,
 ];
 
 impl McapRecording {
@@ -687,6 +691,49 @@ impl Recording for McapRecording {
     fn sim_truth(&self) -> Option<&SimTruth> {
         self.sim_truth.as_ref()
     }
+
+    fn has_sim_truth(&self) -> bool {
+        self.has(TOPIC_SIM_TRUTH) || self.sim_truth.is_some()
+    }
+
+    fn sim_landmarks(&self) -> Result<Option<Stream<'_, SimLandmark>>, IoError> {
+        if !self.has(TOPIC_SIM_TRUTH) {
+            return Ok(self.sim_truth.as_ref().map(|t| -> Stream<'_, SimLandmark> {
+                Box::new(t.landmarks(&[]).into_iter().map(Ok))
+            }));
+        }
+        let msgs = self.topic_stream(TOPIC_SIM_TRUTH, decode_sim_truth, |m| m.t_ns)?;
+        Ok(Some(Box::new(msgs.flat_map(
+            |m| -> Vec<Result<SimLandmark, IoError>> {
+                match m {
+                    Ok(m) => m
+                        .landmarks
+                        .into_iter()
+                        .map(|l| {
+                            Ok(SimLandmark {
+                                id: l.id,
+                                p_w: l.p_w.map(Vec3::from),
+                                first_ns: m.t_ns,
+                                last_ns: l.last_ns,
+                                wrong: l.wrong,
+                                edge: l.edge,
+                            })
+                        })
+                        .collect(),
+                    Err(e) => vec![Err(e)],
+                }
+            },
+        ))))
+    }
+}
+
+fn decode_sim_truth(m: &Msg<'_>) -> Result<SimTruthMsg, IoError> {
+    serde_json::from_slice(m.data).map_err(|e| IoError::Corrupt {
+        file: m.path.into(),
+        what: format!("{} message {}", m.topic, m.seq),
+        offset: e.column() as u64,
+        msg: e.to_string(),
+    })
 }
 
 /// The ground truth of an MCAP file, one state at a time: each odometry message joined with the
