@@ -76,15 +76,7 @@ fn messages_follow_the_documented_ros_conventions() {
             (t.as_str(), s.as_str(), m.len())
         })
         .collect();
-    let mut truth_stamps: Vec<i64> = ds
-        .sim_truth
-        .as_ref()
-        .unwrap()
-        .landmarks(&ds.features)
-        .iter()
-        .map(|l| l.first_ns)
-        .collect();
-    truth_stamps.dedup();
+    let truth_stamps = common::sim_truth_stamps(&ds);
     assert_eq!(
         names,
         vec![

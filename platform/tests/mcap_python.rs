@@ -76,15 +76,7 @@ fn official_python_tools_decode_every_message() {
     let lines: Vec<&str> = out.lines().collect();
     let t0 = ds.imu[0].t_ns;
     let f0 = ds.features[0].t_ns;
-    let mut truth_stamps: Vec<i64> = ds
-        .sim_truth
-        .as_ref()
-        .unwrap()
-        .landmarks(&ds.features)
-        .iter()
-        .map(|l| l.first_ns)
-        .collect();
-    truth_stamps.dedup();
+    let truth_stamps = common::sim_truth_stamps(&ds);
     let expected = [
         format!("topic /cam0/features sensor_msgs/msg/PointCloud 5 {f0}"),
         format!(

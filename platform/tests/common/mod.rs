@@ -144,6 +144,19 @@ pub fn synthetic(name: &str) -> Dataset {
     }
 }
 
+/// The stamps of the simulator's truth messages povins writes for `ds` (one per stamp at which
+/// ids are first observed), in order.
+pub fn sim_truth_stamps(ds: &Dataset) -> Vec<i64> {
+    let truth = ds.sim_truth.as_ref().expect("a simulator truth");
+    let mut stamps: Vec<i64> = truth
+        .landmarks(&ds.features)
+        .iter()
+        .map(|l| l.first_ns)
+        .collect();
+    stamps.dedup();
+    stamps
+}
+
 /// Angle between two rotations, rad (exactly 0 only for bit-identical quaternions).
 pub fn angle(a: &Quat, b: &Quat) -> f64 {
     if a == b {
