@@ -9,11 +9,12 @@ use std::sync::Mutex;
 
 const README: &str = include_str!("../../README.md");
 /// First and last line of the table in the README.
-const TABLE_HEAD: &str = "| type | keyframes | landmarks | LiDAR points, grid, queue | bytes |";
+const TABLE_HEAD: &str =
+    "| type | keyframes | landmarks | LiDAR points, grid, queue, thinning cells | bytes |";
 
 /// The LiDAR capacities of the default build (the `lidar` feature).
 type WithLidar<const N: usize, const L: usize, const D: usize> =
-    Estimator<N, L, D, 131_072, 256, 192, 65_536>;
+    Estimator<N, L, D, 131_072, 256, 192, 65_536, 194_400>;
 
 /// Every type the table lists, by the name written in its first cell (the README describes the
 /// default build; without the `lidar` feature the types that take its defaults are skipped).
@@ -24,20 +25,20 @@ fn footprints() -> Vec<(&'static str, usize)> {
             size_of::<WithLidar<10, 200, 166>>(),
         ),
         (
-            "Estimator<10, 200, 166, 0, 0, 0, 0>",
-            size_of::<Estimator<10, 200, 166, 0, 0, 0, 0>>(),
+            "Estimator<10, 200, 166, 0, 0, 0, 0, 0>",
+            size_of::<Estimator<10, 200, 166, 0, 0, 0, 0, 0>>(),
         ),
         (
-            "Estimator<5, 100, 86, 0, 0, 0, 0>",
-            size_of::<Estimator<5, 100, 86, 0, 0, 0, 0>>(),
+            "Estimator<5, 100, 86, 0, 0, 0, 0, 0>",
+            size_of::<Estimator<5, 100, 86, 0, 0, 0, 0, 0>>(),
         ),
         (
             "Estimator<15, 300, 246>",
             size_of::<WithLidar<15, 300, 246>>(),
         ),
         (
-            "Estimator<15, 300, 246, 0, 0, 0, 0>",
-            size_of::<Estimator<15, 300, 246, 0, 0, 0, 0>>(),
+            "Estimator<15, 300, 246, 0, 0, 0, 0, 0>",
+            size_of::<Estimator<15, 300, 246, 0, 0, 0, 0, 0>>(),
         ),
         (
             "FeatureTracker<256, { pyramid_bytes(752, 480, 4) }, 4>",
@@ -108,10 +109,10 @@ fn readme_footprint_table_is_what_size_of_says() {
 #[test]
 fn lidar_storage_is_what_the_lidar_feature_adds() {
     let with = size_of::<WithLidar<10, 200, 166>>();
-    let without = size_of::<Estimator<10, 200, 166, 0, 0, 0, 0>>();
-    // 16-byte points and 16-byte grid cells, at least.
+    let without = size_of::<Estimator<10, 200, 166, 0, 0, 0, 0, 0>>();
+    // 16-byte points, 16-byte grid cells and 4-byte thinning cells, at least.
     assert!(
-        with - without >= 131_072 * 16 + 256 * 192 * 16,
+        with - without >= 131_072 * 16 + 256 * 192 * 16 + 194_400 * 4,
         "{with} - {without}"
     );
     let default = size_of::<Estimator<10, 200, 166>>();
@@ -147,7 +148,7 @@ fn an_estimator_without_lidar_storage_refuses_a_lidar_configuration() {
     };
     let mut cfg = EstimatorConfig::new(camera, ext, ImuNoise::EUROC_ADIS16448);
     // In statics: never on the test thread's stack.
-    static WITHOUT: Mutex<Estimator<5, 100, 86, 0, 0, 0, 0>> = Mutex::new(Estimator::empty());
+    static WITHOUT: Mutex<Estimator<5, 100, 86, 0, 0, 0, 0, 0>> = Mutex::new(Estimator::empty());
     static WITH: Mutex<WithLidar<5, 100, 86>> = Mutex::new(Estimator::empty());
     let mut without = WITHOUT.lock().expect("not poisoned");
     without.configure(cfg).expect("a camera-only configuration");

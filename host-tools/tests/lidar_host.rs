@@ -393,7 +393,8 @@ fn run_writes_the_lidar_columns_and_summary_keys() {
             "rejection_ms",
             "depth_opt_ms",
             "lidar_cropped",
-            "lidar_lost"
+            "lidar_lost",
+            "lidar_thinned"
         ]
     );
     let rows: Vec<&str> = stats.lines().skip(1).collect();
@@ -609,4 +610,41 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
         &quiet()
     )
     .is_err());
+}
+
+/// An OS1-128 (1024 x 128 at 10 Hz: about 56,000 points a sweep inside the crop to the camera's
+/// view, 280,000 in the association's 0.5 s against the buffer's 131,072) is thinned, not
+/// evicted: nothing younger than the span is lost, the depths are still associated, and each
+/// keyframe's `lidar_points_thinned_total` counts what its sweeps dropped. The robot's Livox
+/// (below the rate the buffer holds) is not thinned.
+#[test]
+fn a_lidar_faster_than_the_buffer_is_thinned_not_evicted() {
+    big_stack(thinned_not_evicted);
+}
+
+fn thinned_not_evicted() {
+    let ds = simulate(Scenario::Robot, 3.0, Some(LidarKind::Os1_128));
+    let out = replay(&ds, config_for(&ds), InitMode::Groundtruth, &quiet()).unwrap();
+    let c = &out.counters;
+    assert!(c.lidar_points_thinned > c.lidar_points_accepted, "{c:?}");
+    assert_eq!(c.lidar_points_evicted_in_span, 0, "{c:?}");
+    assert!(
+        c.lidar_points_outside_view + c.lidar_points_thinned + c.lidar_points_accepted
+            <= c.lidar_points_received,
+        "{c:?}"
+    );
+    let depths: u32 = out.reports.iter().map(|r| r.depths_associated).sum();
+    assert!(
+        depths as usize > 10 * out.reports.len(),
+        "{depths} depths over {} keyframes",
+        out.reports.len()
+    );
+    let last = out.reports.last().unwrap();
+    assert!(last.lidar_points_thinned_total > 0);
+    assert!(last.lidar_points_thinned_total <= c.lidar_points_thinned);
+
+    let livox = simulate(Scenario::Robot, 3.0, None);
+    let out = replay(&livox, config_for(&livox), InitMode::Groundtruth, &quiet()).unwrap();
+    assert_eq!(out.counters.lidar_points_thinned, 0, "{:?}", out.counters);
+    assert!(out.counters.lidar_points_accepted > 0);
 }

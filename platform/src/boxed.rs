@@ -30,13 +30,14 @@ pub fn boxed_estimator<
     const GW: usize,
     const GH: usize,
     const Q: usize,
->() -> Box<Estimator<N, L, D, P, GW, GH, Q>> {
-    let layout = std::alloc::Layout::new::<Estimator<N, L, D, P, GW, GH, Q>>();
+    const TC: usize,
+>() -> Box<Estimator<N, L, D, P, GW, GH, Q, TC>> {
+    let layout = std::alloc::Layout::new::<Estimator<N, L, D, P, GW, GH, Q, TC>>();
     // The estimator always holds buffers (`alloc_zeroed` needs a non-zero size).
     assert!(layout.size() > 0);
     // SAFETY: `layout` has a non-zero size.
     let ptr =
-        unsafe { std::alloc::alloc_zeroed(layout) }.cast::<Estimator<N, L, D, P, GW, GH, Q>>();
+        unsafe { std::alloc::alloc_zeroed(layout) }.cast::<Estimator<N, L, D, P, GW, GH, Q, TC>>();
     if ptr.is_null() {
         std::alloc::handle_alloc_error(layout);
     }

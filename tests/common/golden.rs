@@ -89,6 +89,7 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         // Running counters, outside the goldens (hashed before they were reported).
         lidar_points_cropped_total: _,
         lidar_points_lost_total: _,
+        lidar_points_thinned_total: _,
         depths_associated,
         depths_rejected,
         ldm_count,

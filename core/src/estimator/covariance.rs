@@ -40,7 +40,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// The newest keyframe's marginal covariance from the solve's last linearization (module
     /// docs), with the IMU noise the INS propagates it with; `None` when off or unavailable.

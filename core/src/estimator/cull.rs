@@ -20,7 +20,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// Body poses and camera frames of the window, computed once for a pass over landmarks.
     pub(super) fn window_frames(&self) -> ([KeyframePose; N], [CamFrame; N]) {

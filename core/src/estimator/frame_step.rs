@@ -17,7 +17,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// Moves the oldest pending frame into `self.frame` (swapped in place: a frame is too large
     /// to pass through the stack of the processing path). False when none is pending.

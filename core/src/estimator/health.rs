@@ -26,7 +26,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// Checks the window after a solve (`predicted`: the INS state the newest keyframe started
     /// from; `report`: the solve's residuals, landmarks and window correction; `window_path_m`:

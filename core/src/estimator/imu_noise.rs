@@ -184,7 +184,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// Measures the oldest IMU factor of a full window against the last solve's factored normal
     /// matrix and updates the noise scales. Does nothing unless the window is full, adaptation is

@@ -23,7 +23,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// The open keyframe interval's preintegration, if one is open.
     pub(super) fn open(&self) -> Option<&Preint> {

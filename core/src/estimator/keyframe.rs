@@ -19,7 +19,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// The keyframe step (steps 1-6 of the module docs of [`super`]) for the frame in
     /// `self.frame_obs` at camera time `t_cam_ns`, with the INS state `nav` at its `sample`.
@@ -40,6 +41,7 @@ impl<
             decision,
             lidar_points_cropped_total: self.counters.lidar_points_outside_view,
             lidar_points_lost_total: self.counters.lidar_points_evicted_in_span,
+            lidar_points_thinned_total: self.counters.lidar_points_thinned,
             ..Default::default()
         };
         self.events.clear();

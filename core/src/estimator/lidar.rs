@@ -25,7 +25,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// LiDAR-depth events of the last keyframe step.
     pub fn lidar_events(&self) -> &[DepthEvent] {

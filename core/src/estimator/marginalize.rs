@@ -39,7 +39,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// Sets the marginalization plan of every landmark (module docs) and re-anchors the ones
     /// that stay. Positions are those before the window shifts.

@@ -181,12 +181,20 @@ pub const LIDAR_GRID_H: usize = GRID_H;
 #[cfg(not(feature = "lidar"))]
 pub const LIDAR_GRID_H: usize = 0;
 
+/// Cells of the LiDAR thinning grid by default (`THIN_CELLS` with `lidar`, else 0).
+#[cfg(feature = "lidar")]
+pub const LIDAR_THIN_CELLS: usize = crate::lidar::thin::THIN_CELLS;
+/// Cells of the LiDAR thinning grid by default (0: built without `lidar`).
+#[cfg(not(feature = "lidar"))]
+pub const LIDAR_THIN_CELLS: usize = 0;
+
 /// The sliding-window estimator (see the module docs for the order of the steps).
 ///
 /// Capacities: `N` keyframes, `L` landmarks, `D = 16 N + 6` error-state dimensions, and for
-/// LiDAR `P` buffered points, a `GW` x `GH` association grid and `Q` queued raw points
-/// (defaults from the `lidar` feature: [`LIDAR_POINTS`], [`LIDAR_GRID_W`], [`LIDAR_GRID_H`],
-/// [`PENDING_LIDAR_POINTS`]; all 0 leaves the LiDAR out of the footprint, and a configuration
+/// LiDAR `P` buffered points, a `GW` x `GH` association grid, `Q` queued raw points and `TC`
+/// cells of the thinning grid ([`crate::lidar::thin`]) (defaults from the `lidar` feature:
+/// [`LIDAR_POINTS`], [`LIDAR_GRID_W`], [`LIDAR_GRID_H`], [`PENDING_LIDAR_POINTS`],
+/// [`LIDAR_THIN_CELLS`]; all 0 leaves the LiDAR out of the footprint, and a configuration
 /// with LiDAR enabled is then refused). The README's
 /// footprint table lists `size_of` for a few choices (checked by `core/tests/footprint.rs`).
 #[derive(Clone)]
@@ -198,6 +206,7 @@ pub struct Estimator<
     const GW: usize = LIDAR_GRID_W,
     const GH: usize = LIDAR_GRID_H,
     const Q: usize = PENDING_LIDAR_POINTS,
+    const TC: usize = LIDAR_THIN_CELLS,
 > {
     cfg: EstimatorConfig,
     selector: KeyframeSelector,
@@ -249,6 +258,10 @@ pub struct Estimator<
     /// The crop of pushed sweeps to the camera's view (`lidar.crop_to_view`), made from the
     /// configuration once: `None` when off or when the lens cannot be inverted.
     view_crop: Option<crate::lidar::ViewCrop>,
+    /// Thinning of a LiDAR faster than the buffer's span ([`crate::lidar::thin`]).
+    thin: crate::lidar::ThinGrid<TC>,
+    /// Due time of the last sweep de-skewed (its rate decides the thinning), ns.
+    last_sweep_due_ns: Option<i64>,
     /// IMU samples waiting for [`Estimator::update`] ([`timing`]).
     imu_in: heapless::Deque<ImuSample, IMU_QUEUE>,
     /// The newest gyro readings `(t_ns, rad/s)`, for the angular acceleration a rolling
@@ -363,7 +376,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     const LAYOUT_OK: () = assert!(D == 16 * N + 6 && N >= 2 && N < 128 && 7 * N + 6 <= SCHUR_COLS);
 
@@ -437,6 +451,8 @@ impl<
             points: PointBuffer::new(),
             sweeps_in: PendingSweeps::new(),
             view_crop: None,
+            thin: crate::lidar::ThinGrid::new(),
+            last_sweep_due_ns: None,
             imu_in: heapless::Deque::new(),
             gyro_recent: heapless::Deque::new(),
             grid: SphereGrid::new(),
@@ -513,6 +529,8 @@ impl<
         self.ins_window.clear();
         self.points.reset_to_new();
         self.sweeps_in.clear();
+        self.thin.configure();
+        self.last_sweep_due_ns = None;
         let l = &cfg.lidar;
         self.view_crop = l
             .crop_to_view
@@ -626,6 +644,8 @@ impl<
         // Buffered INS states and points belong to the INS run that ends here.
         self.ins_window.clear();
         self.points.clear();
+        self.thin.clear();
+        self.last_sweep_due_ns = None;
         self.gap = None;
         self.kf_cov = MaybeCovariance::NONE;
     }

@@ -58,7 +58,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// The current INS state (the IMU-rate state after the last processed sample), once
     /// initialized.
@@ -156,7 +157,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Odometry for Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Odometry for Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     fn config(&self) -> &EstimatorConfig {
         &self.cfg

@@ -90,7 +90,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// The camera-IMU delay the estimator currently uses, s (`t_imu = t_cam + td`): the newest
     /// keyframe's estimate, or the configured one before the first keyframe. An image front end

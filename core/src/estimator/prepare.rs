@@ -20,7 +20,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// Chooses anchors and gates every landmark for the coming solve. With `reject`, also runs
     /// the uncertainty-based test on LiDAR depths (see [`crate::lidar::rejection`]); returns (depths rejected,

@@ -82,6 +82,8 @@ pub struct KeyframeReport {
     /// LiDAR points lost younger than the association's span since the start, at this keyframe
     /// (`Counters::lidar_points_evicted_in_span`).
     pub lidar_points_lost_total: u64,
+    /// LiDAR points thinned since the start, at this keyframe (`Counters::lidar_points_thinned`).
+    pub lidar_points_thinned_total: u64,
     /// Features of this keyframe given a LiDAR depth.
     pub depths_associated: u32,
     /// LiDAR depths removed by the uncertainty-based rejection (paper IV.C) in this step.
@@ -273,6 +275,10 @@ pub struct Counters {
     /// LiDAR points dropped when pushed: they cannot reach the camera's image
     /// ([`crate::lidar::crop`]).
     pub lidar_points_outside_view: u64,
+    /// LiDAR points dropped by the thinning of a LiDAR whose rate would overflow the buffer
+    /// within the association's span ([`crate::lidar::thin`]: a direction that took a point
+    /// less than a quarter of the span before).
+    pub lidar_points_thinned: u64,
 }
 
 impl Counters {
@@ -318,5 +324,6 @@ impl Counters {
         lidar_points_evicted: 0,
         lidar_points_evicted_in_span: 0,
         lidar_points_outside_view: 0,
+        lidar_points_thinned: 0,
     };
 }

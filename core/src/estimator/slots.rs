@@ -87,7 +87,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     pub(super) fn window_cams(&self) -> [CameraPose; N] {
         let poses = self.window.poses();

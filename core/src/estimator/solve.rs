@@ -20,7 +20,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// The window's least-squares problem over `layout`, beside the LM workspace and the
     /// marginalization system (disjoint borrows of the estimator).

@@ -29,7 +29,7 @@ use super::{Estimator, ImuOutput, PendingFrame, Status, MAX_FEATURES};
 use crate::camera::FeatureObs;
 use crate::inertial::preintegration::UnmeasuredSpan;
 use crate::inertial::{ImuSample, InsUpdate};
-use crate::lidar::{LidarPoint, Queued};
+use crate::lidar::{LidarPoint, Queued, ThinGrid};
 use crate::Error;
 use heapless::Vec as HVec;
 
@@ -61,7 +61,8 @@ impl<
         const GW: usize,
         const GH: usize,
         const Q: usize,
-    > Estimator<N, L, D, P, GW, GH, Q>
+        const TC: usize,
+    > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// Queues one IMU sample (processed by [`Self::update`]). Refused and counted, nothing
     /// changed: [`Error::NonFinite`], [`Error::OutOfRange`] (at or beyond the full scale
@@ -367,11 +368,27 @@ impl<
 
     /// De-skews and stores the queued sweeps whose last point the IMU has reached (`t_ns`).
     fn deskew_due_sweeps(&mut self, t_ns: i64) {
-        while self.sweeps_in.next_trigger_ns().is_some_and(|t| t <= t_ns) {
+        while let Some(due_ns) = self.sweeps_in.next_trigger_ns().filter(|&t| t <= t_ns) {
             let running = self.status == Status::Running;
             let (points, ins, cfg) = (&mut self.points, &self.ins_window, &self.cfg.lidar);
+            let dt_ns = self.last_sweep_due_ns.map(|t| due_ns.saturating_sub(t));
+            self.last_sweep_due_ns = Some(due_ns);
+            let span_ns = crate::lidar::buffer::seconds_to_ns(cfg.association.span_s);
+            let hold_ns = crate::lidar::buffer::seconds_to_ns(
+                cfg.association.span_s / crate::lidar::thin::THIN_PER_SPAN,
+            );
+            let thin = &mut self.thin;
             let done = self.sweeps_in.pop_with(|it, received, dropped| {
-                running.then(|| (points.push_points(it, ins, cfg), received, dropped))
+                running.then(|| {
+                    let st = if ThinGrid::<TC>::wanted(it.len(), dt_ns, P, span_ns) {
+                        points.push_points_thinned(it, ins, cfg, |p_l, r, t| {
+                            thin.keeps(p_l, r, t, hold_ns)
+                        })
+                    } else {
+                        points.push_points(it, ins, cfg)
+                    };
+                    (st, received, dropped)
+                })
             });
             let c = &mut self.counters;
             match done {
@@ -383,6 +400,7 @@ impl<
                         + u64::from(dropped);
                     c.lidar_points_evicted += u64::from(st.evicted);
                     c.lidar_points_evicted_in_span += u64::from(st.evicted_in_span);
+                    c.lidar_points_thinned += u64::from(st.thinned);
                 }
                 Some(None) => c.lidar_scans_refused += 1,
                 None => break,

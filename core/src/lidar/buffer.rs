@@ -52,8 +52,8 @@ pub struct WorldPoint {
 }
 
 /// What one [`PointBuffer::push_scan`] did with the points it was given.
-/// `received = accepted + rejected_nonfinite + rejected_range + rejected_time` (saturating at
-/// `u32::MAX`); `evicted` counts stored points dropped to make room, including points of this
+/// `received = accepted + rejected_nonfinite + rejected_range + rejected_time + thinned`
+/// (saturating at `u32::MAX`); `evicted` counts stored points dropped to make room, including points of this
 /// very scan when it holds more than the capacity.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -75,6 +75,8 @@ pub struct ScanStats {
     /// pushed them out: lost before a keyframe could use them all (a buffer too small for the
     /// LiDAR's rate).
     pub evicted_in_span: u32,
+    /// Valid points the caller's thinning dropped ([`PointBuffer::push_points_thinned`]).
+    pub thinned: u32,
 }
 
 /// One stored point: offset from its segment's origin (`w` axes, m) and time offset from the
@@ -183,6 +185,19 @@ impl<const P: usize> PointBuffer<P> {
         ins: &InsWindow<K>,
         cfg: &LidarConfig,
     ) -> ScanStats {
+        self.push_points_thinned(points, ins, cfg, |_, _, _| true)
+    }
+
+    /// [`Self::push_points`] keeping only the valid points (finite, inside the range gate) for
+    /// which `keep(p_l, range_m, t_ns)` is true (the others counted in
+    /// [`ScanStats::thinned`]); see [`super::thin`].
+    pub fn push_points_thinned<const K: usize>(
+        &mut self,
+        points: impl ExactSizeIterator<Item = LidarPoint>,
+        ins: &InsWindow<K>,
+        cfg: &LidarConfig,
+        mut keep: impl FnMut([f32; 3], f64, i64) -> bool,
+    ) -> ScanStats {
         let mut st = ScanStats {
             received: sat_u32(points.len()),
             ..ScanStats::default()
@@ -204,6 +219,10 @@ impl<const P: usize> PointBuffer<P> {
             let r2 = p_l.norm_squared();
             if !((MIN_RANGE_M * MIN_RANGE_M..=MAX_RANGE_M * MAX_RANGE_M).contains(&r2)) {
                 st.rejected_range = st.rejected_range.saturating_add(1);
+                continue;
+            }
+            if !keep(pt.p_l, libm::sqrt(r2), pt.t_ns) {
+                st.thinned = st.thinned.saturating_add(1);
                 continue;
             }
             let Some((p_wb, q_wb)) = cursor.pose_at(ins, pt.t_ns.saturating_add(td_ns)) else {
@@ -569,11 +588,26 @@ mod tests {
             rejected_time: 4,
             evicted: 0,
             evicted_in_span: 0,
+            thinned: 0,
         };
         assert_eq!(st, want);
         assert_eq!(buf.len(), 7);
         let times: Vec<i64> = buf.iter_since(i64::MIN).map(|w| w.t_ns / MS).collect();
         assert_eq!(times, [12, 312, 150, 150, 150, 150, 120]);
+        // A thinning that drops the valid points at 150 ms: counted apart, the rest as before.
+        let mut thinned = PointBuffer::<64>::new();
+        let st = thinned.push_points_thinned(pts.iter().copied(), &ins, &cfg, |_, r, t| {
+            assert!((MIN_RANGE_M..=MAX_RANGE_M).contains(&r));
+            t / MS != 150
+        });
+        let want = ScanStats {
+            accepted: 3,
+            thinned: 4,
+            ..want
+        };
+        assert_eq!(st, want);
+        let times: Vec<i64> = thinned.iter_since(i64::MIN).map(|w| w.t_ns / MS).collect();
+        assert_eq!(times, [12, 312, 120]);
         assert_eq!(buf.iter_since(150 * MS).count(), 5);
         assert_eq!(buf.iter_since(313 * MS).count(), 0);
 

@@ -7,6 +7,8 @@
 //! 1. [`PointBuffer::push_scan`]: every point of a sweep is de-skewed with the INS pose at its
 //!    own time (`t_imu = t_lidar + td_l_s`) and the LiDAR-IMU extrinsic `T_bl`, and stored in the
 //!    INS world frame `w`. The buffer keeps the latest points up to its capacity and time span.
+//!    A LiDAR whose rate would overflow the buffer within the association's span is thinned
+//!    first by [`ThinGrid`] (one point per direction per quarter span, counted).
 //! 2. At a keyframe, [`SphereGrid::build`] expresses the buffered points in the keyframe camera
 //!    and keeps the nearest point per angular cell (foreground only).
 //! 3. [`SphereGrid::associate`] gives a feature's LiDAR depth: neighbours of its bearing, plane
@@ -28,6 +30,7 @@ mod plane;
 pub mod rejection;
 #[cfg(test)]
 mod testutil;
+pub mod thin;
 
 pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
 pub use buffer::{PointBuffer, ScanStats, WorldPoint};
@@ -35,6 +38,7 @@ pub use config::{AssociationConfig, LdmMode, LidarConfig, LidarExtrinsic};
 pub use crop::ViewCrop;
 pub use pending::{PendingSweeps, Queued};
 pub use rejection::DepthPair;
+pub use thin::ThinGrid;
 
 /// One LiDAR return in the LiDAR frame `l`, with its own timestamp (so motion distortion can be
 /// removed). Stored as `f32` to keep point buffers small; the math converts to `f64`.

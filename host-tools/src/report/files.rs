@@ -35,12 +35,14 @@ fn write_state_row(f: &mut impl Write, s: &NavState) -> std::io::Result<()> {
     writeln!(f)
 }
 
-/// The LiDAR columns appended to `stats.csv` (one row per keyframe): `lidar_cropped` and
-/// `lidar_lost` are the points of the sweeps since the previous keyframe that the crop to the
-/// camera's view dropped and that were lost younger than the association's span
-/// (`KeyframeReport::lidar_points_cropped_total`, `lidar_points_lost_total`).
+/// The LiDAR columns appended to `stats.csv` (one row per keyframe): `lidar_cropped`,
+/// `lidar_lost` and `lidar_thinned` are the points of the sweeps since the previous keyframe
+/// that the crop to the camera's view dropped, that were lost younger than the association's
+/// span, and that the thinning of a LiDAR too fast for the buffer dropped
+/// (`KeyframeReport::lidar_points_cropped_total`, `lidar_points_lost_total`,
+/// `lidar_points_thinned_total`).
 pub const STATS_LIDAR_COLUMNS: &str =
-    "lidar_points,depths_associated,depths_rejected,ldm_count,association_ms,rejection_ms,depth_opt_ms,lidar_cropped,lidar_lost";
+    "lidar_points,depths_associated,depths_rejected,ldm_count,association_ms,rejection_ms,depth_opt_ms,lidar_cropped,lidar_lost,lidar_thinned";
 
 /// The landmark-admission columns appended to `stats.csv` (see `core::estimator::Admission`).
 pub const STATS_ADMISSION_COLUMNS: &str =
@@ -68,7 +70,7 @@ fn write_stats_row(
     let since = |now: u64, then: Option<u64>| now.saturating_sub(then.unwrap_or(0));
     write!(
         f,
-        "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{},{:.4e}",
+        "{},{:.4},{:.4},{:.4},{},{},{},{},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:?},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{:.4},{},{},{},{},{:.4},{:.6e},{:.6e},{:.6e},{},{:.4e}",
         povins_platform::trajectory::ns_to_seconds_string(r.t_ns),
         r.backend_ns() as f64 * 1e-6,
         r.solve_ns as f64 * 1e-6,
@@ -104,6 +106,10 @@ fn write_stats_row(
         since(
             r.lidar_points_lost_total,
             prev.map(|p| p.lidar_points_lost_total)
+        ),
+        since(
+            r.lidar_points_thinned_total,
+            prev.map(|p| p.lidar_points_thinned_total)
         ),
         r.admission.admitted,
         r.admission.single_view,

@@ -143,12 +143,14 @@ pub fn lidar_lines(s: &Summary) -> Vec<String> {
             .unwrap_or(0)
     };
     v.push(format!(
-        "points    {} received: {} stored, {} outside the camera's view (cropped), {} rejected \
-         (non-finite, range, time); {} evicted younger than the association's span (buffer \
-         too small for the LiDAR's rate)",
+        "points    {} received: {} stored, {} outside the camera's view (cropped), {} thinned \
+         (a direction that took a point within a quarter of the association's span: the \
+         LiDAR's rate overflows the buffer), {} rejected (non-finite, range, time); {} evicted younger than \
+         the association's span (buffer too small for the LiDAR's rate)",
         c("lidar_points_received"),
         c("lidar_points_accepted"),
         c("lidar_points_outside_view"),
+        c("lidar_points_thinned"),
         c("lidar_points_rejected"),
         c("lidar_points_evicted_in_span"),
     ));
