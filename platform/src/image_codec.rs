@@ -6,11 +6,15 @@
 //! ...) does not matter; a payload that is neither is rejected naming the format. Colour is
 //! converted to luma with OpenCV's BT.601 integer weights (`(4899 R + 9617 G + 1868 B + 8192) >>
 //! 14`, as `cv::cvtColor(..., COLOR_RGB2GRAY)`), alpha is dropped, 16-bit samples keep their high
-//! byte, CMYK is converted through RGB. Images larger than [`MAX_PIXELS`] are refused before
-//! decoding. Decoders are well-kept crates (`jpeg-decoder`, `png`); a panic inside one is caught
-//! and reported as an error, so corrupt input never takes the process down.
+//! byte, CMYK is converted through RGB. Images larger than [`MAX_PIXELS`], or with a side over the
+//! front end's [`MAX_IMAGE_SIDE`], are refused before decoding. Decoders are well-kept crates
+//! (`jpeg-decoder`, `png`); a panic inside one is caught and reported as an error, so corrupt
+//! input never takes the process down.
 
-/// Largest image accepted, pixels (64 Mpx).
+use povins_core::frontend::image::MAX_IMAGE_SIDE;
+
+/// Largest image accepted, pixels (64 Mpx); neither side may exceed the front end's
+/// [`MAX_IMAGE_SIDE`] (8192 px).
 pub const MAX_PIXELS: u64 = 1 << 26;
 
 /// A decoded grayscale image.
@@ -58,6 +62,13 @@ fn check_size(w: u32, h: u32) -> Result<(), String> {
     }
     if u64::from(w) * u64::from(h) > MAX_PIXELS {
         return Err(format!("{w}x{h} image exceeds {MAX_PIXELS} pixels"));
+    }
+    // The front end refuses a longer side after decoding anyway: a corrupt 2 kB JPEG declaring
+    // 4108 x 10256 px took 2.5 s to decode (the image fuzz target's corpus).
+    if w.max(h) as usize > MAX_IMAGE_SIDE {
+        return Err(format!(
+            "{w}x{h} image has a side over the front end's {MAX_IMAGE_SIDE} px"
+        ));
     }
     Ok(())
 }
@@ -265,5 +276,12 @@ mod tests {
         big[16..20].copy_from_slice(&100_000u32.to_be_bytes());
         big[20..24].copy_from_slice(&100_000u32.to_be_bytes());
         assert!(decode_mono8("png", &big).is_err());
+        // A side over the front end's limit is refused before decoding, naming the limit; the
+        // limit itself is decoded.
+        let long = |w: u32| png_bytes(w, 1, png::ColorType::Grayscale, &vec![7; w as usize]);
+        let e = decode_mono8("png", &long(8193)).unwrap_err();
+        assert!(e.contains("8193x1") && e.contains("8192 px"), "{e}");
+        let m = decode_mono8("png", &long(8192)).unwrap();
+        assert_eq!((m.width, m.height), (8192, 1));
     }
 }
