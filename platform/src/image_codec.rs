@@ -63,8 +63,8 @@ fn check_size(w: u32, h: u32) -> Result<(), String> {
     if u64::from(w) * u64::from(h) > MAX_PIXELS {
         return Err(format!("{w}x{h} image exceeds {MAX_PIXELS} pixels"));
     }
-    // The front end refuses a longer side after decoding anyway: a corrupt 2 kB JPEG declaring
-    // 4108 x 10256 px took 2.5 s to decode (the image fuzz target's corpus).
+    // The front end refuses a longer side after decoding anyway: a corrupt 1.6 kB JPEG declaring
+    // 10256 x 4108 px took 2.6 s to decode (the image fuzz target's corpus).
     if w.max(h) as usize > MAX_IMAGE_SIDE {
         return Err(format!(
             "{w}x{h} image has a side over the front end's {MAX_IMAGE_SIDE} px"
