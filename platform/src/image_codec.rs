@@ -6,16 +6,18 @@
 //! ...) does not matter; a payload that is neither is rejected naming the format. Colour is
 //! converted to luma with OpenCV's BT.601 integer weights (`(4899 R + 9617 G + 1868 B + 8192) >>
 //! 14`, as `cv::cvtColor(..., COLOR_RGB2GRAY)`), alpha is dropped, 16-bit samples keep their high
-//! byte, CMYK is converted through RGB. Images larger than [`MAX_PIXELS`], or with a side over the
-//! front end's [`MAX_IMAGE_SIDE`], are refused before decoding. Decoders are well-kept crates
-//! (`jpeg-decoder`, `png`); a panic inside one is caught and reported as an error, so corrupt
-//! input never takes the process down.
+//! byte, CMYK is converted through RGB. An image wider or taller than the largest the front end
+//! takes ([`LARGEST_IMAGE`], 1920x1200) is refused from its header, before decoding: no odometry
+//! povins builds could use it, and a corrupt 1.6 kB JPEG declaring 10,256 x 4,108 px took 2.6 s to
+//! decode in full (the image fuzz target's corpus; a size within the old 8192 px, 64 Mpx limits,
+//! such as 8000 x 8000, still took 2.5 s). Decoders are well-kept crates (`jpeg-decoder`, `png`);
+//! a panic inside one is caught and reported as an error, so corrupt input never takes the
+//! process down.
 
-use povins_core::frontend::image::MAX_IMAGE_SIDE;
+pub use crate::odometry::LARGEST_IMAGE;
 
-/// Largest image accepted, pixels (64 Mpx); neither side may exceed the front end's
-/// [`MAX_IMAGE_SIDE`] (8192 px).
-pub const MAX_PIXELS: u64 = 1 << 26;
+/// Largest image accepted, pixels: [`LARGEST_IMAGE`]'s (2.3 Mpx).
+pub const MAX_PIXELS: u64 = LARGEST_IMAGE.0 as u64 * LARGEST_IMAGE.1 as u64;
 
 /// A decoded grayscale image.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -56,18 +58,16 @@ pub fn decode_mono8(format: &str, data: &[u8]) -> Result<Mono8, String> {
     result.unwrap_or_else(|_| Err("decoder panicked on a corrupt payload".into()))
 }
 
-fn check_size(w: u32, h: u32) -> Result<(), String> {
+/// Refuses an empty image or one larger than [`LARGEST_IMAGE`] (see the module docs), before any
+/// pixel is decoded or converted; the error names the size and the limit.
+pub(crate) fn check_size(w: u32, h: u32) -> Result<(), String> {
     if w == 0 || h == 0 {
         return Err(format!("{w}x{h} image is empty"));
     }
-    if u64::from(w) * u64::from(h) > MAX_PIXELS {
-        return Err(format!("{w}x{h} image exceeds {MAX_PIXELS} pixels"));
-    }
-    // The front end refuses a longer side after decoding anyway: a corrupt 1.6 kB JPEG declaring
-    // 10256 x 4108 px took 2.6 s to decode (the image fuzz target's corpus).
-    if w.max(h) as usize > MAX_IMAGE_SIDE {
+    let (max_w, max_h) = LARGEST_IMAGE;
+    if w > max_w || h > max_h {
         return Err(format!(
-            "{w}x{h} image has a side over the front end's {MAX_IMAGE_SIDE} px"
+            "{w}x{h} image is larger than the front end's largest capacity ({max_w}x{max_h})"
         ));
     }
     Ok(())
@@ -276,12 +276,26 @@ mod tests {
         big[16..20].copy_from_slice(&100_000u32.to_be_bytes());
         big[20..24].copy_from_slice(&100_000u32.to_be_bytes());
         assert!(decode_mono8("png", &big).is_err());
-        // A side over the front end's limit is refused before decoding, naming the limit; the
-        // limit itself is decoded.
-        let long = |w: u32| png_bytes(w, 1, png::ColorType::Grayscale, &vec![7; w as usize]);
-        let e = decode_mono8("png", &long(8193)).unwrap_err();
-        assert!(e.contains("8193x1") && e.contains("8192 px"), "{e}");
-        let m = decode_mono8("png", &long(8192)).unwrap();
-        assert_eq!((m.width, m.height), (8192, 1));
+        // A side over the front end's largest capacity is refused before decoding, naming the
+        // size and the limit; the limit itself is decoded, in either codec.
+        let gray = |w: u32, h: u32| vec![7; w as usize * h as usize];
+        let png_of = |w, h| png_bytes(w, h, png::ColorType::Grayscale, &gray(w, h));
+        for (w, h) in [(1921, 1), (1, 1201), (8192, 1)] {
+            let e = decode_mono8("png", &png_of(w, h)).unwrap_err();
+            assert!(
+                e.contains(&format!("{w}x{h}")) && e.contains("1920x1200"),
+                "{e}"
+            );
+        }
+        let m = decode_mono8("png", &png_of(1920, 1200)).unwrap();
+        assert_eq!(
+            (m.width, m.height, m.pixels.len()),
+            (1920, 1200, 1920 * 1200)
+        );
+        let jpeg_of = |w, h| jpeg_bytes(w, h, image::ColorType::L8, &gray(w, h));
+        let e = decode_mono8("jpeg", &jpeg_of(1921, 8)).unwrap_err();
+        assert!(e.contains("1921x8") && e.contains("1920x1200"), "{e}");
+        let m = decode_mono8("jpeg", &jpeg_of(1920, 1200)).unwrap();
+        assert_eq!((m.width, m.height), (1920, 1200));
     }
 }

@@ -16,7 +16,8 @@
 
 use crate::image_codec::luma;
 
-/// Largest image accepted, pixels (as for compressed images).
+/// Largest image accepted, pixels (as for compressed images: no side over
+/// [`crate::image_codec::LARGEST_IMAGE`]).
 pub use crate::image_codec::MAX_PIXELS;
 
 /// Pixels of `width x height` gray bytes from a raw image (see the module docs).
@@ -29,14 +30,7 @@ pub fn mono8_from_raw(
     data: &[u8],
 ) -> Result<Vec<u8>, String> {
     let (w, h, step) = (width as usize, height as usize, step as usize);
-    if w == 0 || h == 0 {
-        return Err(format!("{width}x{height} image is empty"));
-    }
-    if u64::from(width) * u64::from(height) > MAX_PIXELS {
-        return Err(format!(
-            "{width}x{height} image exceeds {MAX_PIXELS} pixels"
-        ));
-    }
+    crate::image_codec::check_size(width, height)?;
     let bpp = match encoding {
         "mono8" | "8UC1" | "bayer_rggb8" | "bayer_bggr8" | "bayer_gbrg8" | "bayer_grbg8" => 1,
         "mono16" | "yuv422" | "uyvy" | "yuv422_yuy2" | "yuyv" => 2,

@@ -47,8 +47,8 @@ pub enum BuildError {
     /// No front-end capacity fits the camera's images.
     #[error(
         "{width}x{height} images are larger than the front end's largest capacity ({}x{})",
-        LARGEST.0,
-        LARGEST.1
+        LARGEST_IMAGE.0,
+        LARGEST_IMAGE.1
     )]
     ImagesTooLarge {
         /// The camera's width, px.
@@ -79,8 +79,10 @@ const CAPACITIES: [(Capacity, (u32, u32)); 3] = [
     (Capacity::Wuxga, (1920, 1200)),
 ];
 
-/// The largest image any capacity takes (in [`BuildError::ImagesTooLarge`]).
-const LARGEST: (u32, u32) = CAPACITIES[CAPACITIES.len() - 1].1;
+/// The largest image any capacity takes, `(width, height)` px: 1920x1200. No front end povins
+/// builds uses a larger image, so [`crate::image_codec`] and [`crate::image_raw`] refuse one
+/// before decoding it (and [`BuildError::ImagesTooLarge`] a camera calibrated larger).
+pub const LARGEST_IMAGE: (u32, u32) = CAPACITIES[CAPACITIES.len() - 1].1;
 
 /// The capacity `fe` needs for `cfg`'s camera: the smallest that holds its images.
 fn capacity(cfg: &EstimatorConfig, fe: &FrontEnd) -> Result<Capacity, BuildError> {
