@@ -176,6 +176,7 @@ pub fn config_for(rec: &dyn Recording) -> EstimatorConfig {
             q_bl: t_bl.q_ab,
             p_bl: t_bl.p_ab,
         };
+        cfg.lidar.td_l_s = c.td_l_s;
     }
     cfg
 }

@@ -85,6 +85,7 @@ fn fake_dataset() -> Dataset {
                 q_ab: Quat::from_euler_angles(0.0, 0.0, 0.5),
                 p_ab: Vec3::new(0.1, 0.2, 0.3),
             }),
+            td_l_s: 0.0,
         },
         imu,
         features: Vec::new(),
@@ -647,4 +648,61 @@ fn thinned_not_evicted() {
     let out = replay(&livox, config_for(&livox), InitMode::Groundtruth, &quiet()).unwrap();
     assert_eq!(out.counters.lidar_points_thinned, 0, "{:?}", out.counters);
     assert!(out.counters.lidar_points_accepted > 0);
+}
+
+/// A LiDAR whose clock runs 40 ms behind the IMU's (`povins simulate --lidar-td-ms 40`): the
+/// recording's calibration carries the offset (MCAP `td_l_s`), the run applies it, and the
+/// estimate is the one of the same sequence without an offset, bit for bit (every point is on
+/// the same IMU-clock instant); the offset ignored (`[lidar] td_l_s = 0`), it is not.
+#[test]
+fn a_lidar_time_offset_in_the_recording_is_applied() {
+    big_stack(lidar_time_offset);
+}
+
+fn lidar_time_offset() {
+    let sim = |td_l_s: f64| {
+        let mut cfg = SimConfig::new(Scenario::Robot, 5, 6.0);
+        cfg.lidar_td_s = td_l_s;
+        sim::simulate(&cfg, &|_, _, _| {})
+            .expect("simulate")
+            .dataset
+    };
+    let (zero, late) = (sim(0.0), sim(0.04));
+    assert_eq!(late.calib.td_l_s, 0.04);
+    let stamps = |ds: &Dataset| ds.lidar.iter().map(|s| s.t_ns).collect::<Vec<_>>();
+    let shifted: Vec<i64> = stamps(&zero).iter().map(|t| t - 40 * MS).collect();
+    assert_eq!(stamps(&late), shifted);
+    // Both through MCAP (feature pixels travel as float32).
+    let dir = tempfile::tempdir().unwrap();
+    let through_mcap = |ds: &Dataset, name: &str| {
+        let path = dir.path().join(name);
+        povins_platform::mcap_io::write_dataset(&path, ds).unwrap();
+        povins_platform::mcap_io::read_dataset(&path).unwrap()
+    };
+    let (zero, back) = (
+        through_mcap(&zero, "zero.mcap"),
+        through_mcap(&late, "late.mcap"),
+    );
+    assert_eq!(back.calib.td_l_s, 0.04);
+    let cfg = config_for(&back);
+    assert_eq!(cfg.lidar.td_l_s, 0.04);
+
+    let run = |ds: &Dataset, cfg| replay(ds, cfg, InitMode::Groundtruth, &quiet()).unwrap();
+    let reference = run(&zero, config_for(&zero));
+    let applied = run(&back, cfg);
+    assert!(
+        reference
+            .lidar_events
+            .iter()
+            .map(|k| k.events.len())
+            .sum::<usize>()
+            > 100
+    );
+    // (Compared as booleans: the events' Debug form runs to megabytes.)
+    assert!(applied.lidar_events == reference.lidar_events);
+    assert!(applied.keyframe_states == reference.keyframe_states);
+    let mut ignored_cfg = cfg;
+    ignored_cfg.lidar.td_l_s = 0.0;
+    let ignored = run(&back, ignored_cfg);
+    assert!(ignored.keyframe_states != reference.keyframe_states);
 }

@@ -64,6 +64,9 @@ pub struct Calibration {
     pub gravity_mps2: f64,
     /// LiDAR in body `T_bl`, when the sequence has a LiDAR.
     pub t_bl: Option<Extrinsic>,
+    /// LiDAR-IMU time offset, s, `t_imu = t_lidar + td_l_s` (the estimator's `lidar.td_l_s`;
+    /// Kalibr's sign, as [`Self::td_s`]); 0 when the calibration gives none.
+    pub td_l_s: f64,
 }
 
 /// Feature observations of one camera frame.

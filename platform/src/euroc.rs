@@ -14,7 +14,8 @@
 //!   images in `cam0/data/`; they are decoded only by [`read_images`].
 //! - `features0/data.csv` (`#timestamp [ns],feature_id,u [px],v [px]`): rows of one frame are
 //!   consecutive and share the stamp; frames increase in time; ids are unique within a frame.
-//! - `lidar0/sensor.yaml` (`T_BS`) and `lidar0/data.csv` (povins extension, `#timestamp
+//! - `lidar0/sensor.yaml` (`T_BS`, optional povins `timeshift_lidar_imu`: s, `t_imu = t_lidar +
+//!   shift`, default 0) and `lidar0/data.csv` (povins extension, `#timestamp
 //!   [ns],point_timestamp [ns],x [m],y [m],z [m],intensity`): one row per point, the first column
 //!   is the sweep time, rows of one sweep are consecutive. Sweeps without points cannot be stored.
 //! - `state_groundtruth_estimate0/data.csv` via [`crate::trajectory`].
@@ -43,6 +44,7 @@ use crate::trajectory::GroundTruthRows;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
 use povins_core::camera::{Distortion, PinholeCamera, MAX_READOUT_S};
 use povins_core::inertial::{ImuNoise, ImuSample, NavState};
+use povins_core::lidar::MAX_TD_L_S;
 use povins_core::math::Vec3;
 use std::path::{Path, PathBuf};
 use yaml::Doc;
@@ -134,12 +136,12 @@ impl EurocFolder {
         };
         let (imu_noise, imu_rate_hz, gravity_mps2) = read_imu_yaml(&imu_yaml)?;
         let lidar_dir = mav0.join("lidar0");
-        let t_bl = if lidar_dir.join("sensor.yaml").is_file() {
+        let (t_bl, td_l_s) = if lidar_dir.join("sensor.yaml").is_file() {
             let d = Doc::read(&lidar_dir.join("sensor.yaml"))?;
             let t = doc_t_bs(&d)?.ok_or_else(|| d.error(1, "lidar0/sensor.yaml needs T_BS"))?;
-            Some(compose_in_imu(&t_b_imu, &t))
+            (Some(compose_in_imu(&t_b_imu, &t)), read_lidar_td(&d)?)
         } else {
-            None
+            (None, 0.0)
         };
         let file = |p: PathBuf| p.is_file().then_some(p);
         let imu = imu_dir.join("data.csv");
@@ -159,6 +161,7 @@ impl EurocFolder {
                 imu_rate_hz,
                 gravity_mps2,
                 t_bl,
+                td_l_s,
             },
             imu,
             features: file(features_path),
@@ -409,6 +412,21 @@ fn read_camera(d: &Doc) -> Result<(PinholeCamera, Extrinsic, f64, f64), IoError>
     let td_s = d.opt_f64(r, "timeshift_cam_imu")?.unwrap_or(0.0);
     let rate = d.f64(r, "rate_hz")?;
     Ok((camera, t, td_s, rate))
+}
+
+/// The LiDAR's time offset from `lidar0/sensor.yaml`: `timeshift_lidar_imu` (s, `t_imu = t_lidar
+/// + shift`, Kalibr's sign for the camera's `timeshift_cam_imu`; default 0), at most
+/// [`MAX_TD_L_S`] in magnitude.
+fn read_lidar_td(d: &Doc) -> Result<f64, IoError> {
+    let r = d.root();
+    let td = d.opt_f64(r, "timeshift_lidar_imu")?.unwrap_or(0.0);
+    if td.abs() > MAX_TD_L_S {
+        return Err(d.error(
+            d.line_of(r, "timeshift_lidar_imu"),
+            format!("timeshift_lidar_imu {td} s is outside [-{MAX_TD_L_S}, {MAX_TD_L_S}] s"),
+        ));
+    }
+    Ok(td)
 }
 
 /// Writes calibration, IMU, features, LiDAR, images and ground truth as an EuRoC ASL folder

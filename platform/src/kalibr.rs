@@ -389,6 +389,7 @@ impl KalibrCalibration {
                 imu_rate_hz: imu.rate_hz,
                 gravity_mps2: imu.gravity_mps2,
                 t_bl: None,
+                td_l_s: 0.0,
             },
             image_topic: cam.rostopic,
             imu_topic: imu.rostopic,

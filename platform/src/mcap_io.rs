@@ -20,8 +20,9 @@
 //! sensor origin in the body and the rotation sensor -> body; `T_bl` absent without LiDAR),
 //! `td_s` (`t_imu = t_cam + td_s`), `imu_rate_hz`, `gyroscope_noise_density`,
 //! `gyroscope_random_walk`, `accelerometer_noise_density`, `accelerometer_random_walk`,
-//! `bias_correlation_time_s` (`none` for a random walk), `gravity_mps2`, `name`, and `readout_s`
-//! (a rolling shutter's readout time, s; only when not 0). A simulator's truth for evaluation
+//! `bias_correlation_time_s` (`none` for a random walk), `gravity_mps2`, `name`, `readout_s`
+//! (a rolling shutter's readout time, s; only when not 0), and `td_l_s` (the LiDAR's time offset,
+//! `t_imu = t_lidar + td_l_s`, s; only when not 0). A simulator's truth for evaluation
 //! ([`crate::dataset::SimTruth`] without its per-point LiDAR edge flags) is the topic
 //! [`TOPIC_SIM_TRUTH`] (message encoding `json`, no schema): one message at the camera stamp at
 //! which ids are first observed, `{"t_ns": T, "landmarks": [{"id": N, "p_w": [x, y, z] | null,
@@ -46,6 +47,7 @@ use crate::ros2;
 use crate::ros2::convert::{self, quat_from_xyzw, quat_to_xyzw};
 use povins_core::camera::{Distortion, PinholeCamera, MAX_READOUT_S};
 use povins_core::inertial::ImuNoise;
+use povins_core::lidar::MAX_TD_L_S;
 use povins_core::math::Vec3;
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write as _;
@@ -174,6 +176,9 @@ fn calibration_metadata(ds: &Dataset) -> BTreeMap<String, String> {
     if let Some(t) = &c.t_bl {
         put("T_bl", extrinsic_str(t));
     }
+    if c.td_l_s != 0.0 {
+        put("td_l_s", num(c.td_l_s));
+    }
     m
 }
 
@@ -251,6 +256,17 @@ fn calibration_from_metadata(
             &format!("is outside [0, {MAX_READOUT_S}] s"),
         ));
     }
+    // Optional (written only when not 0).
+    let td_l_s = match m.get("td_l_s") {
+        None => 0.0,
+        Some(_) => one("td_l_s")?,
+    };
+    if td_l_s.abs() > MAX_TD_L_S {
+        return Err(bad(
+            "td_l_s",
+            &format!("is outside [-{MAX_TD_L_S}, {MAX_TD_L_S}] s"),
+        ));
+    }
     let calib = Calibration {
         camera: PinholeCamera {
             readout_s,
@@ -273,6 +289,7 @@ fn calibration_from_metadata(
         } else {
             None
         },
+        td_l_s,
     };
     Ok((m.get("name").cloned().unwrap_or_default(), calib))
 }

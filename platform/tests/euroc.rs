@@ -147,6 +147,22 @@ fn synthetic_dataset_round_trips_through_a_folder() {
         "{e}"
     );
 
+    // The LiDAR's time offset travels in `lidar0/sensor.yaml` (`timeshift_lidar_imu`, the
+    // synthetic dataset's -4.2 ms, compared by `assert_same`); one out of range is an error
+    // naming the file's line.
+    let lidar_yaml = root.join("mav0/lidar0/sensor.yaml");
+    let y = std::fs::read_to_string(&lidar_yaml).unwrap();
+    assert!(y.contains("timeshift_lidar_imu: -0.0042"), "{y}");
+    let far = dir.path().join("far");
+    write_dataset(&far, &ds).unwrap();
+    let far_yaml = far.join("mav0/lidar0/sensor.yaml");
+    std::fs::write(&far_yaml, y.replace("-0.0042", "-4.2")).unwrap();
+    let e = read_dataset(&far).unwrap_err().to_string();
+    assert!(
+        e.contains("lidar0/sensor.yaml") && e.contains("timeshift_lidar_imu -4.2"),
+        "{e}"
+    );
+
     // A dataset without a camera (a LiDAR-inertial recording: the zero-size placeholder) is
     // written without cam0, and reads back as one without a camera.
     let mut li = synthetic("li");

@@ -29,6 +29,14 @@ fn synthetic_dataset_round_trips_exactly() {
     let rs_path = dir.path().join("rs.mcap");
     write_dataset(&rs_path, &rs).unwrap();
     assert_eq!(read_dataset(&rs_path).unwrap().calib, rs.calib);
+    // So does the LiDAR's time offset (`td_l_s`, the synthetic dataset's -4.2 ms, compared
+    // above); one out of range is an error naming the key.
+    let mut far = synthetic("far");
+    far.calib.td_l_s = 5.0;
+    let far_path = dir.path().join("far.mcap");
+    write_dataset(&far_path, &far).unwrap();
+    let e = read_dataset(&far_path).unwrap_err().to_string();
+    assert!(e.contains("td_l_s") && e.contains("outside"), "{e}");
 }
 
 /// Raw messages per topic, with their schema name and encoding.

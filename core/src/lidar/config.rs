@@ -110,6 +110,10 @@ impl Default for AssociationConfig {
     }
 }
 
+/// Largest LiDAR-IMU time offset accepted, s (`lidar.td_l_s`; the camera's delay has the same
+/// bound): a larger one is a clock in another unit or epoch, not an offset.
+pub const MAX_TD_L_S: f64 = 1.0;
+
 /// LiDAR enhancement settings. `enabled = false` is PO-VINS-WO (LiDAR ignored).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(
@@ -148,7 +152,7 @@ pub struct LidarConfig {
     pub rejection_sigmas: f64,
     /// LiDAR-IMU extrinsic.
     pub extrinsic: LidarExtrinsic,
-    /// LiDAR-IMU time offset, `t_imu = t_lidar + td_l_s`.
+    /// LiDAR-IMU time offset, `t_imu = t_lidar + td_l_s`, s, within [`MAX_TD_L_S`].
     pub td_l_s: f64,
     /// Association parameters.
     pub association: AssociationConfig,
@@ -218,7 +222,13 @@ impl LidarConfig {
         r.non_negative("lidar.sigma_dr_rel", self.sigma_dr_rel);
         r.positive("lidar.rejection_sigma_px", self.rejection_sigma_px);
         r.positive("lidar.rejection_sigmas", self.rejection_sigmas);
-        r.finite("lidar.td_l_s", self.td_l_s);
+        r.within(
+            "lidar.td_l_s",
+            self.td_l_s,
+            -MAX_TD_L_S,
+            MAX_TD_L_S,
+            "-1..=1 (s)",
+        );
         let p = &self.extrinsic.p_bl;
         r.all_finite("lidar.extrinsic.p_bl", &[p.x, p.y, p.z]);
         let q = &self.extrinsic.q_bl.coords;

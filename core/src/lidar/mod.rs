@@ -34,7 +34,7 @@ pub mod thin;
 
 pub use association::{AssocReject, DepthMeasurement, GridStats, SphereGrid};
 pub use buffer::{PointBuffer, ScanStats, WorldPoint};
-pub use config::{AssociationConfig, LdmMode, LidarConfig, LidarExtrinsic};
+pub use config::{AssociationConfig, LdmMode, LidarConfig, LidarExtrinsic, MAX_TD_L_S};
 pub use crop::ViewCrop;
 pub use pending::{PendingSweeps, Queued};
 pub use rejection::DepthPair;

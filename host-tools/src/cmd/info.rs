@@ -103,7 +103,10 @@ fn own_mcap(rec: &povins_platform::mcap_io::McapRecording) -> String {
         cam.cx,
         cam.cy,
         calib.td_s,
-        if calib.t_bl.is_some() { ", T_bl" } else { "" }
+        match calib.t_bl {
+            Some(_) => format!(", T_bl, td_l_s {} s", calib.td_l_s),
+            None => String::new(),
+        }
     );
     s
 }

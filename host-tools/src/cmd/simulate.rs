@@ -145,6 +145,12 @@ pub struct Args {
     /// with --static-s 1). 0 = the whole sequence.
     #[arg(long, default_value = "0")]
     pub start_s: StartAt,
+    /// LiDAR-IMU time offset td_l, ms (`t_imu = t_lidar + td_l`): each LiDAR point is stamped
+    /// with its instant on the IMU clock minus td_l. The calibration written holds it (EuRoC
+    /// `lidar0/sensor.yaml` `timeshift_lidar_imu`, also in a ROS recording's `<stem>-calib/`
+    /// folder for --calib; the MCAP calibration's `td_l_s`).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub lidar_td_ms: f64,
     /// LiDAR pattern (default: livox for robot/handheld, ouster for vehicle).
     #[arg(long, value_enum)]
     pub lidar: Option<LidarKind>,
@@ -265,6 +271,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         StartAt::Seconds(t) => t,
         StartAt::Motion => sim::motion_start_s(args.scenario, args.static_s),
     };
+    cfg.lidar_td_s = args.lidar_td_ms * 1e-3;
     cfg.lidar = args.lidar;
     cfg.lidar_points = args.lidar_points;
     cfg.lidar_extrinsic_error_deg = args.lidar_extrinsic_error_deg;

@@ -416,6 +416,7 @@ impl InputOptions {
                 camera: kalibr::read_camchain(calib, camera)?,
                 imu: None,
                 t_bl: None,
+                td_l_s: 0.0,
                 sources: format!("camera  {} ({camera}, Kalibr)", calib.display()),
             }
         };
@@ -436,6 +437,9 @@ pub struct CalibrationFound {
     pub imu: Option<KalibrImu>,
     /// The LiDAR extrinsic: an EuRoC folder's, or the recording's `/tf_static`.
     pub t_bl: Option<Extrinsic>,
+    /// The LiDAR's time offset (`t_imu = t_lidar + td_l_s`), s: an EuRoC folder's
+    /// `timeshift_lidar_imu`, else 0.
+    pub td_l_s: f64,
     /// Where they came from, a line each.
     pub sources: String,
 }
@@ -457,6 +461,7 @@ impl CalibrationFound {
                 rostopic: None,
             }),
             t_bl: c.t_bl,
+            td_l_s: c.td_l_s,
             sources: format!(
                 "camera  {} (EuRoC cam0)\nIMU     the same folder",
                 dir.display()
@@ -484,6 +489,7 @@ impl CalibrationFound {
         };
         let mut k = KalibrCalibration::new(self.camera.clone(), imu);
         k.calib.t_bl = self.t_bl;
+        k.calib.td_l_s = self.td_l_s;
         Ok(k)
     }
 
@@ -514,6 +520,7 @@ impl CalibrationFound {
                 "T_bl      p_bl [{}, {}, {}] m, q_bl [{}, {}, {}, {}] (x y z w)",
                 p.x, p.y, p.z, q.x, q.y, q.z, q.w
             );
+            let _ = writeln!(s, "td_l_s    {} s (t_imu = t_lidar + td_l_s)", self.td_l_s);
         }
         let _ = writeln!(s, "td_s      {} s (t_imu = t_cam + td_s)", c.td_s);
         if let Some(t) = &c.rostopic {
@@ -621,6 +628,7 @@ pub fn from_recording(log: &dyn MessageLog, input: &InputOptions) -> Result<Cali
         },
         imu: None,
         t_bl: None,
+        td_l_s: 0.0,
         sources: format!(
             "camera  {path} (sensor_msgs/CameraInfo beside {}, T_bc from /tf_static, td_s 0)",
             cam.topic

@@ -69,6 +69,9 @@ pub struct SimConfig {
     /// Time dropped at the start, s (seconds from the first IMU sample; 0: the whole sequence,
     /// from the rest). See [`window`].
     pub start_s: f64,
+    /// LiDAR-IMU time offset `td_l` (`t_imu = t_lidar + td_l`), s: each LiDAR point is
+    /// stamped with its instant on the IMU clock minus `td_l`; the calibration carries it.
+    pub lidar_td_s: f64,
     /// LiDAR to simulate (`None` = scenario default).
     pub lidar: Option<LidarKind>,
     /// Points per sweep (rosette) or points per sweep rounded to whole columns (spinning).
@@ -103,6 +106,7 @@ impl SimConfig {
             td_step: None,
             readout_s: 0.0,
             start_s: 0.0,
+            lidar_td_s: 0.0,
             lidar: None,
             lidar_points: None,
             lidar_extrinsic_error_deg: 0.5,
@@ -248,6 +252,10 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
         "|td| must be < 1 s"
     );
     anyhow::ensure!(
+        cfg.lidar_td_s.is_finite() && cfg.lidar_td_s.abs() < 1.0,
+        "|LiDAR td| must be < 1 s"
+    );
+    anyhow::ensure!(
         cfg.start_s.is_finite() && cfg.start_s >= 0.0 && cfg.start_s < cfg.duration_s,
         "the start ({} s) must be within [0, duration = {} s)",
         cfg.start_s,
@@ -351,6 +359,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
     // Camera frames on the IMU grid.
     let cam_dt_ns = (1e9 / pre.camera_rate_hz).round() as i64;
     let td_ns = (cfg.td_s * 1e9).round() as i64;
+    let td_l_ns = (cfg.lidar_td_s * 1e9).round() as i64;
     let n_frames = (cfg.duration_s * 1e9 / cam_dt_ns as f64).floor() as usize + 1;
     let sweep_ns = 100_000_000i64;
     let n_scans = if lidar_params.is_some() {
@@ -406,7 +415,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
                                     tbl,
                                     lp,
                                     t_rel_ns as f64 * 1e-9,
-                                    T0_NS + t_rel_ns,
+                                    T0_NS + t_rel_ns - td_l_ns,
                                     &mut r,
                                 ),
                             ));
@@ -451,6 +460,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             imu_rate_hz,
             gravity_mps2: gravity,
             t_bl: lidar_params.as_ref().map(|_| pre.t_bl),
+            td_l_s: lidar_params.as_ref().map_or(0.0, |_| td_l_ns as f64 / 1e9),
         },
         imu: run.imu,
         features: frames,

@@ -78,15 +78,21 @@ pub(super) fn crop(ds: &mut Dataset, frame_t_rel_ns: &[i64], start_s: f64) -> Ke
     let t_start_ns = T0_NS + start_ns;
     ds.imu.retain(|s| s.t_ns >= t_start_ns);
     ds.ground_truth.retain(|s| s.t_ns >= t_start_ns);
-    let first_sweep = ds.lidar.partition_point(|s| s.t_ns < t_start_ns);
+    // Sweeps by their start on the IMU clock (`t_imu = t_lidar + td_l`).
+    let td_l_ns = secs_to_ns(ds.calib.td_l_s);
+    let first_sweep = ds
+        .lidar
+        .partition_point(|s| s.t_ns.saturating_add(td_l_ns) < t_start_ns);
     ds.lidar.drain(..first_sweep);
+    if let Some(truth) = ds.sim_truth.as_mut() {
+        let n = first_sweep.min(truth.lidar_edge_points.len());
+        truth.lidar_edge_points.drain(..n);
+    }
     let first = frame_t_rel_ns.partition_point(|&t| t < start_ns);
     ds.features.drain(..first.min(ds.features.len()));
     if start_ns > 0 {
         // The truth by feature id keeps the ids that are still observed.
         if let Some(truth) = ds.sim_truth.as_mut() {
-            let n = first_sweep.min(truth.lidar_edge_points.len());
-            truth.lidar_edge_points.drain(..n);
             let mut seen: Vec<u64> = ds
                 .features
                 .iter()

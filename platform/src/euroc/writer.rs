@@ -94,6 +94,13 @@ impl EurocWriter {
             mkdir(&ldir)?;
             let mut y = String::from("%YAML:1.0\nsensor_type: lidar\ncomment: written by povins\n");
             t_bs_yaml(&mut y, t);
+            if calib.td_l_s != 0.0 {
+                let _ = writeln!(
+                    y,
+                    "timeshift_lidar_imu: {:?} # t_imu = t_lidar + shift",
+                    calib.td_l_s
+                );
+            }
             write_file(&ldir.join("sensor.yaml"), &y)?;
         }
         Ok(EurocWriter {

@@ -24,6 +24,7 @@ pub(super) fn dataset() -> Dataset {
             imu_rate_hz: 200.0,
             gravity_mps2: 9.81,
             t_bl: None,
+            td_l_s: 0.0,
         },
         imu: (0..20)
             .map(|k| ImuSample {

@@ -102,6 +102,7 @@ pub fn calibration(meta: &Metadata) -> Calibration {
         imu_rate_hz: OUSTER_IMU_RATE_HZ,
         gravity_mps2: G_MPS2,
         t_bl: Some(t_imu_sensor(meta)),
+        td_l_s: 0.0,
     }
 }
 

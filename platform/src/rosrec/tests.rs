@@ -84,6 +84,7 @@ fn calib() -> crate::dataset::Calibration {
         imu_rate_hz: 200.0,
         gravity_mps2: 9.81,
         t_bl: None,
+        td_l_s: 0.0,
     }
 }
 

@@ -38,6 +38,7 @@ fn dataset() -> Dataset {
             imu_rate_hz: 200.0,
             gravity_mps2: 9.81,
             t_bl: None,
+            td_l_s: 0.0,
         },
         imu: (0..10)
             .map(|k| ImuSample {

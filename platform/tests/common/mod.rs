@@ -126,6 +126,7 @@ pub fn synthetic(name: &str) -> Dataset {
                 q_ab: Quat::from_euler_angles(0.01, -0.02, 1.2),
                 p_ab: Vec3::new(0.1, 0.0, -0.05),
             }),
+            td_l_s: -0.0042,
         },
         imu,
         features,
@@ -179,6 +180,7 @@ pub fn assert_same(a: &Dataset, b: &Dataset, q_tol_rad: f64, v_tol: f64) {
         assert_eq!(x.p_ab, y.p_ab);
         assert!(angle(&x.q_ab, &y.q_ab) <= q_tol_rad);
     }
+    assert_eq!(ca.td_l_s, cb.td_l_s);
     assert_eq!(
         (
             ca.td_s,
