@@ -22,7 +22,7 @@ use crate::eval::lidar_assoc::{self, AssocQuality};
 use crate::progress::Progress;
 use crate::report::summarize;
 use crate::runner::{config_for, percentile, replay, sorted_ms, InitMode};
-use crate::sim::{self, Scenario, SimConfig};
+use crate::sim::{self, LidarKind, Scenario, SimConfig};
 use anyhow::{anyhow, ensure, Result};
 use povins_core::estimator::{EstimatorConfig, KeyframeReport};
 use povins_core::lidar::{LdmMode, LidarConfig};
@@ -98,6 +98,8 @@ pub struct AblationConfig {
     pub lidar_extrinsic_error_deg: f64,
     /// Probability that a LiDAR ray passes through a tree crown (the simulator's default is 0).
     pub foliage_porosity: f64,
+    /// The LiDAR model simulated on every scenario (`None`: each scenario's default).
+    pub lidar: Option<LidarKind>,
 }
 
 /// One replay.
@@ -216,6 +218,8 @@ pub struct AblationReport {
     pub lidar_extrinsic_error_deg: f64,
     /// Simulated foliage porosity for the LiDAR.
     pub foliage_porosity: f64,
+    /// The LiDAR model simulated (`default`: each scenario's own).
+    pub lidar: String,
     /// One row per variant, in [`Variant::ALL`] order.
     pub rows: Vec<VariantRow>,
     /// Every run, scenario-major, then seed, then variant.
@@ -377,9 +381,7 @@ struct Pair {
 impl Pair {
     fn prepared(
         &self,
-        duration_s: f64,
-        lidar_extrinsic_error_deg: f64,
-        foliage_porosity: f64,
+        cfg: &AblationConfig,
         overrides: Option<&RunConfigFile>,
         progress: &Progress,
     ) -> Result<Prepared, String> {
@@ -394,10 +396,11 @@ impl Pair {
         ));
         // One thread: the other workers keep estimating meanwhile (the output does not
         // depend on the thread count).
-        let mut sim_cfg = SimConfig::new(self.scenario, self.seed, duration_s);
+        let mut sim_cfg = SimConfig::new(self.scenario, self.seed, cfg.duration_s);
         sim_cfg.threads = 1;
-        sim_cfg.lidar_extrinsic_error_deg = lidar_extrinsic_error_deg;
-        sim_cfg.foliage_porosity = foliage_porosity;
+        sim_cfg.lidar_extrinsic_error_deg = cfg.lidar_extrinsic_error_deg;
+        sim_cfg.foliage_porosity = cfg.foliage_porosity;
+        sim_cfg.lidar = cfg.lidar;
         let d = sim::simulate(&sim_cfg, &|_, _, _| {})
             .map_err(|e| format!("{e:#}"))
             .and_then(|s| {
@@ -480,13 +483,7 @@ pub fn run_ablation(
                     let vi = (u % nv + u / nv) % nv;
                     let v = Variant::ALL[vi];
                     let r = pair
-                        .prepared(
-                            cfg.duration_s,
-                            cfg.lidar_extrinsic_error_deg,
-                            cfg.foliage_porosity,
-                            overrides,
-                            progress,
-                        )
+                        .prepared(cfg, overrides, progress)
                         .map_err(|e| anyhow!(e))
                         .and_then(|d| run_one(&d.0, &d.1, pair.scenario, pair.seed, v))
                         .map_err(|e| {
@@ -547,9 +544,17 @@ pub fn run_ablation(
         jobs: cfg.jobs,
         lidar_extrinsic_error_deg: cfg.lidar_extrinsic_error_deg,
         foliage_porosity: cfg.foliage_porosity,
+        lidar: lidar_name(cfg.lidar),
         rows: aggregate(&cfg.scenarios, &runs),
         runs,
     })
+}
+
+/// The LiDAR model's name as `povins simulate --lidar` takes it (`default` for `None`).
+fn lidar_name(kind: Option<LidarKind>) -> String {
+    use clap::ValueEnum;
+    kind.and_then(|k| k.to_possible_value())
+        .map_or_else(|| "default".into(), |v| v.get_name().to_string())
 }
 
 /// Runs in the whole ablation (for a progress bar).
@@ -571,9 +576,10 @@ pub fn render_markdown(r: &AblationReport) -> String {
     let seeds: Vec<String> = r.seeds.iter().map(u64::to_string).collect();
     let _ = writeln!(
         s,
-        "# LiDAR ablation (simulated: {}; seeds {}; {} s each; camera-LiDAR rotation error {} deg; \
-         foliage porosity {}; ground-truth init; {} job{})\n",
+        "# LiDAR ablation (simulated: {}; LiDAR {}; seeds {}; {} s each; camera-LiDAR rotation \
+         error {} deg; foliage porosity {}; ground-truth init; {} job{})\n",
         r.scenarios.join(", "),
+        r.lidar,
         seeds.join(", "),
         r.duration_s,
         r.lidar_extrinsic_error_deg,
@@ -791,6 +797,7 @@ mod tests {
             duration_s: 8.0,
             lidar_extrinsic_error_deg: 0.5,
             foliage_porosity: 0.0,
+            lidar: "default".into(),
             jobs: 2,
             rows,
             runs,

@@ -514,6 +514,8 @@ fn ablation_runs_every_variant_end_to_end() {
         "8",
         "--jobs",
         "2",
+        "--lidar",
+        "vlp16",
         "--json",
         "--out",
         out.to_str().unwrap(),
@@ -522,6 +524,7 @@ fn ablation_runs_every_variant_end_to_end() {
     let printed: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     let j = json(&out.join("ablation.json"));
     assert_eq!(printed, j);
+    assert_eq!(j["lidar"], "vlp16");
     let names: Vec<&str> = Variant::ALL.iter().map(|v| v.name()).collect();
     let rows: Vec<&str> = j["rows"]
         .as_array()
@@ -555,6 +558,7 @@ fn ablation_runs_every_variant_end_to_end() {
         assert!(md.contains(&format!("| {n} |")), "{n} missing:\n{md}");
     }
     assert!(stderr.contains("robot seed 3 po-vins-wo"), "{stderr}");
+    assert!(md.contains("LiDAR vlp16;"), "{md}");
 }
 
 #[test]
@@ -567,6 +571,7 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
             jobs,
             lidar_extrinsic_error_deg: 0.5,
             foliage_porosity: 0.0,
+            lidar: None,
         };
         run_ablation(&cfg, None, &quiet()).expect("ablation")
     };
@@ -606,6 +611,7 @@ fn ablation_accuracy_does_not_depend_on_jobs() {
             jobs: 1,
             lidar_extrinsic_error_deg: 0.5,
             foliage_porosity: 0.0,
+            lidar: None,
         },
         None,
         &quiet()

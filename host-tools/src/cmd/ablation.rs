@@ -5,7 +5,7 @@
 use crate::ablation::{render_markdown, run_ablation, run_count, AblationConfig};
 use crate::config::RunConfigFile;
 use crate::progress::Progress;
-use crate::sim::Scenario;
+use crate::sim::{LidarKind, Scenario};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -46,6 +46,10 @@ pub struct Args {
     /// crown, the LiDAR the wall behind it (the paper's unstructured-scene depth outliers).
     #[arg(long, default_value_t = 0.0)]
     pub foliage_porosity: f64,
+    /// LiDAR model simulated on every scenario, as `povins simulate --lidar` takes it (default:
+    /// each scenario's own).
+    #[arg(long, value_enum)]
+    pub lidar: Option<LidarKind>,
 }
 
 /// Runs the command.
@@ -62,6 +66,7 @@ pub fn run(args: Args) -> Result<()> {
         jobs: args.jobs,
         lidar_extrinsic_error_deg: args.lidar_extrinsic_error_deg,
         foliage_porosity: args.foliage_porosity,
+        lidar: args.lidar,
     };
     let progress = Progress::new(run_count(&cfg) as u64, "ablation");
     let report = run_ablation(&cfg, overrides.as_ref(), &progress)?;
