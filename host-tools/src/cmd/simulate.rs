@@ -151,7 +151,9 @@ pub struct Args {
     /// folder for --calib; the MCAP calibration's `td_l_s`).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub lidar_td_ms: f64,
-    /// LiDAR pattern (default: livox for robot/handheld, ouster for vehicle).
+    /// LiDAR pattern (default: livox for robot/handheld, ouster for vehicle). The sensor models
+    /// (os1-128, vlp16, avia, mid70) also have their beam's divergence: a beam across an edge
+    /// returns the stronger surface or, surfaces under 1 m apart, a mixed range between them.
     #[arg(long, value_enum)]
     pub lidar: Option<LidarKind>,
     /// Points per LiDAR sweep (default per sensor).

@@ -14,6 +14,15 @@
 //! (sky) or another surface at a clearly different range (`> max(0.3 m, 10 %)`). Neighbours are
 //! the previous/next ray of the sweep (0.2-0.35 deg away along the scan line) and two probe rays
 //! at `edge_angle_rad` on either side across it.
+//!
+//! Mixed returns (the sensor models, [`LidarParams::footprint`]): a beam is a cone, not a ray.
+//! At an edge point the footprint is sampled (its centre and 8 rays on the ellipse of the
+//! divergence's half angles, at half the centre's intensity: a Gaussian beam's FWHM); each
+//! sample's energy is `intensity x reflectivity x cos(incidence) / range^2`. Samples whose ranges
+//! chain within [`Footprint::merge_m`] form one echo at their energy-weighted mean range (two
+//! surfaces closer than that give one return *between* them: a mixed return); the strongest echo
+//! is reported, along the beam's axis. So a beam grazing a foreground edge reports the
+//! background, the foreground, or a point in mid-air between them, as real LiDARs do.
 
 use super::rng::Rng;
 use super::trajectory::Trajectory;
@@ -61,6 +70,77 @@ pub struct LidarParams {
     /// Probability that a ray passes through a foliage crown (gaps between leaves) instead of
     /// returning from a leaf, in `[0, 1]`; 0 makes foliage an opaque sphere.
     pub foliage_porosity: f64,
+    /// The beam's footprint, for mixed returns at edges (`None`: a ray, one surface).
+    pub footprint: Option<Footprint>,
+}
+
+/// A beam's cone and how its echoes merge (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Footprint {
+    /// Full divergence (FWHM) along the sensor's horizontal, rad.
+    pub div_h_rad: f64,
+    /// Full divergence (FWHM) along the sensor's vertical, rad.
+    pub div_v_rad: f64,
+    /// Echoes closer than this in range merge into one return, m.
+    pub merge_m: f64,
+}
+
+/// Rays on the footprint's FWHM ellipse, besides its centre.
+const FOOTPRINT_RAYS: usize = 8;
+
+/// Energy of an echo from `hit` along the unit ray `d_w`, per unit emitted intensity.
+fn echo_energy(world: &World, hit: &Hit, d_w: &Vec3) -> f64 {
+    let cos_inc = (-hit.normal.dot(d_w)).clamp(0.0, 1.0);
+    world.material(hit).reflectivity() * cos_inc / (hit.t * hit.t).max(1e-6)
+}
+
+/// The range a beam reports when its footprint may span a depth discontinuity: `center` is the
+/// axis ray's (range, energy); the rest of the footprint is cast from `o` with the sensor's
+/// rotation `q` around `d_l` (LiDAR frame). Echoes beyond `r_max` return nothing.
+fn footprint_range(
+    world: &World,
+    fp: &Footprint,
+    (o, q, d_l): (&Vec3, &Quat, &Vec3),
+    center: (f64, f64),
+    t_cast: f64,
+    r_max: f64,
+) -> f64 {
+    let h = Vec3::z().cross(d_l);
+    let h = if h.norm() > 1e-9 {
+        h.normalize()
+    } else {
+        Vec3::y()
+    };
+    let v = d_l.cross(&h);
+    let (th, tv) = (libm::tan(0.5 * fp.div_h_rad), libm::tan(0.5 * fp.div_v_rad));
+    let mut echoes = [(f64::INFINITY, 0.0); FOOTPRINT_RAYS + 1];
+    echoes[0] = center;
+    for (k, e) in echoes.iter_mut().skip(1).enumerate() {
+        let a = 2.0 * core::f64::consts::PI * k as f64 / FOOTPRINT_RAYS as f64;
+        let d_w = q * (d_l + h * (th * libm::cos(a)) + v * (tv * libm::sin(a))).normalize();
+        if let Some(g) = world.raycast(o, &d_w, t_cast).filter(|g| g.t <= r_max) {
+            *e = (g.t, 0.5 * echo_energy(world, &g, &d_w));
+        }
+    }
+    echoes.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Chain the echoes into returns; keep the strongest's energy-weighted range.
+    let (mut best, mut best_e) = (center.0, -1.0);
+    let (mut sum_e, mut sum_et, mut last) = (0.0, 0.0, f64::NEG_INFINITY);
+    for &(t, e) in echoes.iter().filter(|e| e.0.is_finite() && e.1 > 0.0) {
+        if t - last >= fp.merge_m && sum_e > 0.0 {
+            if sum_e > best_e {
+                (best, best_e) = (sum_et / sum_e, sum_e);
+            }
+            (sum_e, sum_et) = (0.0, 0.0);
+        }
+        sum_e += e;
+        sum_et += e * t;
+        last = t;
+    }
+    if sum_e > best_e && sum_e > 0.0 {
+        best = sum_et / sum_e;
+    }
+    best
 }
 
 /// Crowns a ray may pass through before the cast gives up (trees are 2-4 overlapping spheres).
@@ -196,6 +276,9 @@ pub struct SweepOut {
     pub scan: LidarScan,
     /// Per point: near a depth discontinuity.
     pub edge: Vec<bool>,
+    /// Returns the beam's footprint moved more than 5 cm off its axis ray's surface (mixed, or
+    /// the stronger of two surfaces).
+    pub footprint_moved: usize,
 }
 
 /// A return before edge classification: (range, direction in `l`, time offset ns, intensity,
@@ -230,6 +313,8 @@ pub fn simulate_sweep(
     // still count as the same surface for the edge test) and the return, if any.
     let mut hits: Vec<Option<(f64, u32)>> = Vec::with_capacity(n);
     let mut rets: Vec<Option<Return>> = Vec::with_capacity(n);
+    // Per ray with a footprint: origin, rotation, and the axis ray's (range, energy).
+    let mut beams: Vec<(Vec3, Quat, f64, f64)> = Vec::new();
     let tan_edge = libm::tan(params.edge_angle_rad);
     let t_cast = 2.0 * params.range_m.1;
     for i in 0..n {
@@ -244,6 +329,10 @@ pub fn simulate_sweep(
         let d_w = q * d_l;
         let hit = cast_porous(world, &o, &d_w, t_cast, params.foliage_porosity, rng);
         hits.push(hit.map(|h| (h.t, h.surface_id())));
+        if params.footprint.is_some() {
+            let e = hit.map_or(0.0, |h| echo_energy(world, &h, &d_w));
+            beams.push((o, q, hit.map_or(f64::INFINITY, |h| h.t), e));
+        }
         rets.push(hit.and_then(|h| {
             let r = h.t + params.range_noise_m * rng.normal();
             if h.t > params.range_m.1 || r < params.range_m.0 {
@@ -275,8 +364,10 @@ pub fn simulate_sweep(
     };
     let mut points = Vec::with_capacity(n);
     let mut edge = Vec::with_capacity(n);
+    let mut footprint_moved = 0;
     for i in 0..n {
-        let (Some((r, d_l, dt_ns, inten, probe_edge)), Some((_, s))) = (rets[i], hits[i]) else {
+        let (Some((mut r, d_l, dt_ns, inten, probe_edge)), Some((_, s))) = (rets[i], hits[i])
+        else {
             continue;
         };
         let is_edge = probe_edge
@@ -293,6 +384,22 @@ pub fn simulate_sweep(
                     Some((rj, sj, ..)) => sj != s && (rj - r).abs() > (0.3f64).max(0.1 * r),
                 }
             });
+        if let (true, Some(fp), Some(&(o, q, t0, e0))) = (is_edge, &params.footprint, beams.get(i))
+        {
+            let t = footprint_range(
+                world,
+                fp,
+                (&o, &q, &d_l),
+                (t0, e0),
+                t_cast,
+                params.range_m.1,
+            );
+            if (t - t0).abs() > 0.05 {
+                footprint_moved += 1;
+            }
+            // The same noise sample on the footprint's range.
+            r += t - t0;
+        }
         let p = d_l * r;
         points.push(LidarPoint {
             t_ns: t_start_ns + dt_ns,
@@ -307,6 +414,7 @@ pub fn simulate_sweep(
             points,
         },
         edge,
+        footprint_moved,
     }
 }
 
@@ -337,6 +445,65 @@ mod tests {
     }
 
     const O: Vec3 = Vec3::new(0.0, 0.0, 2.0);
+
+    /// A wall at x = 20 m and a box whose face at `x_box` covers y >= 0 (its edge at y = 0).
+    fn edge_before_wall(x_box: f64) -> World {
+        let building = |min, max| Primitive {
+            shape: Shape::Box { min, max },
+            material: Material::Building,
+        };
+        let prims = vec![
+            building(
+                Vec3::new(x_box, 0.0, 0.0),
+                Vec3::new(x_box + 0.2, 10.0, 8.0),
+            ),
+            building(Vec3::new(20.0, -10.0, 0.0), Vec3::new(21.0, 10.0, 8.0)),
+        ];
+        World::new(prims, [-5.0, -15.0, 30.0, 15.0], 5.0)
+    }
+
+    /// The range a beam at azimuth `az_deg` (from the x axis towards +y) reports.
+    fn beam_range(w: &World, fp: &Footprint, az_deg: f64) -> (f64, f64) {
+        let a = az_deg.to_radians();
+        let d = Vec3::new(libm::cos(a), libm::sin(a), 0.0);
+        let h = w.raycast(&O, &d, 200.0).expect("hit");
+        let center = (h.t, echo_energy(w, &h, &d));
+        let q = Quat::identity();
+        (
+            h.t,
+            footprint_range(w, fp, (&O, &q, &d), center, 200.0, 120.0),
+        )
+    }
+
+    #[test]
+    fn a_beam_across_an_edge_reports_the_stronger_surface_or_a_mixed_range() {
+        let os1 = crate::sim::scenario::lidar_footprint(crate::sim::LidarKind::Os1_128).unwrap();
+        // Far apart (10 m): the axis on the wall, most of the cone's near side on the box: the
+        // nearer, brighter box is the strongest echo.
+        let w = edge_before_wall(10.0);
+        let (axis, r) = beam_range(&w, &os1, -0.03);
+        assert!(
+            (axis - 20.0).abs() < 0.01 && (r - 10.0).abs() < 0.01,
+            "{axis} {r}"
+        );
+        // Wholly on the wall or on the box: the axis's range (to the cone's spread in range).
+        for az in [-1.0, 1.0] {
+            let (axis, r) = beam_range(&w, &os1, az);
+            assert!((axis - r).abs() < 1e-3, "{axis} {r}");
+        }
+        // Surfaces 0.5 m apart (under the 1 m a return resolves): one echo between them.
+        let w = edge_before_wall(19.5);
+        let (axis, r) = beam_range(&w, &os1, -0.03);
+        assert!((axis - 20.0).abs() < 0.01, "{axis}");
+        assert!(r > 19.55 && r < 19.95, "mixed return {r}");
+        // A ray (no divergence) would have stayed on the wall: the cone's width matters.
+        let thin = Footprint {
+            div_h_rad: 1e-6,
+            div_v_rad: 1e-6,
+            ..os1
+        };
+        assert!((beam_range(&w, &thin, -0.03).1 - axis).abs() < 1e-6);
+    }
 
     #[test]
     fn opaque_crown_returns_its_surface() {

@@ -156,6 +156,9 @@ pub struct Summary {
     pub edge_features: usize,
     /// LiDAR points on depth discontinuities.
     pub lidar_edge_points: usize,
+    /// LiDAR returns (before `--start-s`) that their beam's footprint moved more than 5 cm off
+    /// the axis ray's surface: mixed returns, or the stronger of two surfaces.
+    pub lidar_footprint_moved: usize,
 }
 
 impl core::fmt::Display for Summary {
@@ -192,8 +195,12 @@ impl core::fmt::Display for Summary {
         )?;
         write!(
             f,
-            "edge cases      {} wrong tracks, {} edge features, {} LiDAR edge points",
-            self.wrong_tracks, self.edge_features, self.lidar_edge_points
+            "edge cases      {} wrong tracks, {} edge features, {} LiDAR edge points ({} moved \
+             by their beam's footprint: mixed returns)",
+            self.wrong_tracks,
+            self.edge_features,
+            self.lidar_edge_points,
+            self.lidar_footprint_moved
         )
     }
 }
@@ -344,6 +351,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
             range_m: range,
             edge_angle_rad: 0.5f64.to_radians(),
             foliage_porosity: cfg.foliage_porosity,
+            footprint: scenario::lidar_footprint(kind),
         }
     });
     let t_bl_true = lidar_params.as_ref().map(|_| {
@@ -443,6 +451,7 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
         sweeps.iter().all(Option::is_some),
         "LiDAR simulation failed"
     );
+    let footprint_moved = sweeps.iter().flatten().map(|s| s.footprint_moved).sum();
     let (lidar_scans, lidar_edges): (Vec<_>, Vec<_>) = sweeps
         .into_iter()
         .flatten()
@@ -476,7 +485,8 @@ pub fn simulate(cfg: &SimConfig, progress: Progress<'_>) -> anyhow::Result<SimOu
     };
     let frame_t_rel_ns: Vec<i64> = (0..n_frames).map(|k| k as i64 * cam_dt_ns).collect();
     let frames = window::crop(&mut dataset, &frame_t_rel_ns, cfg.start_s);
-    let summary = summarize(cfg, &traj, &dataset, &world, lms.len());
+    let mut summary = summarize(cfg, &traj, &dataset, &world, lms.len());
+    summary.lidar_footprint_moved = footprint_moved;
     Ok(SimOutput {
         dataset,
         trajectory: traj,
@@ -534,5 +544,6 @@ fn summarize(
         wrong_tracks: truth.wrong_tracks.len(),
         edge_features: truth.edge_features.len(),
         lidar_edge_points: edges.iter().map(|e| e.iter().filter(|&&b| b).count()).sum(),
+        lidar_footprint_moved: 0,
     }
 }

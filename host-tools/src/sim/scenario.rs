@@ -3,7 +3,7 @@
 
 use super::camera::TrackerParams;
 use super::imu::ImuPreset;
-use super::lidar::LidarPattern;
+use super::lidar::{Footprint, LidarPattern};
 use super::scene::{Placement, SceneParams};
 use super::trajectory::{quat_from_euler, Sinusoid, TimeWarp, Trajectory};
 use povins_core::camera::PinholeCamera;
@@ -448,6 +448,26 @@ fn mav(static_s: f64, aggressive: bool) -> Preset {
             max_track_frames: aggressive.then_some(25),
         },
     }
+}
+
+/// The beam footprint of a sensor model (datasheets; `None` for the reduced-density `livox`
+/// and `ouster` patterns, whose returns and goldens stay as they were). Divergences are the
+/// full angles (FWHM): OS1-128 0.18 deg (Ouster's OS1 datasheet); VLP-16 3.0 x 1.5 mrad
+/// horizontal x vertical (Velodyne's manuals); Avia and Mid-70 0.03 x 0.28 deg (Livox's
+/// datasheets). Surfaces closer than 1 m in range merge into one return (Velodyne's manual:
+/// two returns are told apart only 1 m or more apart), taken for every model.
+pub fn lidar_footprint(kind: LidarKind) -> Option<Footprint> {
+    let (div_h_rad, div_v_rad) = match kind {
+        LidarKind::Os1_128 => (0.18 * DEG, 0.18 * DEG),
+        LidarKind::Vlp16 => (3.0e-3, 1.5e-3),
+        LidarKind::Avia | LidarKind::Mid70 => (0.03 * DEG, 0.28 * DEG),
+        LidarKind::Livox | LidarKind::Ouster | LidarKind::None => return None,
+    };
+    Some(Footprint {
+        div_h_rad,
+        div_v_rad,
+        merge_m: 1.0,
+    })
 }
 
 /// Default LiDAR pattern of a kind on a carrier (`None` for [`LidarKind::None`]).
