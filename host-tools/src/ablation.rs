@@ -14,8 +14,10 @@
 //! - LDM and associated depths per keyframe: totals over all runs / keyframes over all runs;
 //! - association quality ([`crate::eval::lidar_assoc`]): counts pooled over all runs.
 //!
-//! Accuracy and association numbers are deterministic and do not depend on `jobs`; timings
-//! are wall-clock and do (parallel runs share the cores; `--jobs 1` gives the cleanest times).
+//! Accuracy and association numbers are deterministic and do not depend on `jobs`. Timings are
+//! the core's clock: `povins ablation` sets it to each run's thread CPU time
+//! ([`crate::runner::use_cpu_time`]), so parallel runs do not count each other's time (they
+//! still share caches and memory bandwidth; `--jobs 1` gives the cleanest times).
 
 use crate::config::RunConfigFile;
 use crate::eval::lidar_assoc::{self, AssocQuality};
@@ -641,7 +643,8 @@ pub fn render_markdown(r: &AblationReport) -> String {
         "\nATE: IMU-rate position RMSE after position + yaw alignment, mean over seeds; the mean \
          ATE is the mean of the scenario means; paired: geometric mean over the (scenario, seed) \
          pairs of ATE / ATE(po-vins), with the standard error of its log, and the pairs where \
-         po-vins is better. Times: median over every keyframe of every run. \
+         po-vins is better. Times: median over every keyframe of every run (each run's thread CPU \
+         time). \
          Association quality: share of associated LiDAR depths within 3 sigma_dr of the true \
          depth (simulator truth), before and after the uncertainty-based rejection; edge: share \
          of them on occlusion-edge features.\n\n## Runs\n\n\

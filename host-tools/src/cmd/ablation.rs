@@ -68,6 +68,9 @@ pub fn run(args: Args) -> Result<()> {
         foliage_porosity: args.foliage_porosity,
         lidar: args.lidar,
     };
+    // Runs share the cores (`--jobs`): time each by its thread's CPU time, so that the
+    // variants' back ends compare the work done rather than who ran beside whom.
+    crate::runner::use_cpu_time(true);
     let progress = Progress::new(run_count(&cfg) as u64, "ablation");
     let report = run_ablation(&cfg, overrides.as_ref(), &progress)?;
     let md = render_markdown(&report);
