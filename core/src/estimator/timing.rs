@@ -381,8 +381,8 @@ impl<
             let done = self.sweeps_in.pop_with(|it, received, dropped| {
                 running.then(|| {
                     let st = if ThinGrid::<TC>::wanted(it.len(), dt_ns, P, span_ns) {
-                        points.push_points_thinned(it, ins, cfg, |p_l, r, t| {
-                            thin.keeps(p_l, r, t, hold_ns)
+                        points.push_points_thinned(it, ins, cfg, |p_l, r2, t| {
+                            thin.keeps(p_l, libm::sqrt(r2), t, hold_ns)
                         })
                     } else {
                         points.push_points(it, ins, cfg)

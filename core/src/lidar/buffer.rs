@@ -189,7 +189,8 @@ impl<const P: usize> PointBuffer<P> {
     }
 
     /// [`Self::push_points`] keeping only the valid points (finite, inside the range gate) for
-    /// which `keep(p_l, range_m, t_ns)` is true (the others counted in
+    /// which `keep(p_l, range2_m2, t_ns)` is true (`range2_m2` the squared range, so that a
+    /// caller that keeps everything takes no root; the others counted in
     /// [`ScanStats::thinned`]); see [`super::thin`].
     pub fn push_points_thinned<const K: usize>(
         &mut self,
@@ -221,7 +222,7 @@ impl<const P: usize> PointBuffer<P> {
                 st.rejected_range = st.rejected_range.saturating_add(1);
                 continue;
             }
-            if !keep(pt.p_l, libm::sqrt(r2), pt.t_ns) {
+            if !keep(pt.p_l, r2, pt.t_ns) {
                 st.thinned = st.thinned.saturating_add(1);
                 continue;
             }
@@ -596,8 +597,8 @@ mod tests {
         assert_eq!(times, [12, 312, 150, 150, 150, 150, 120]);
         // A thinning that drops the valid points at 150 ms: counted apart, the rest as before.
         let mut thinned = PointBuffer::<64>::new();
-        let st = thinned.push_points_thinned(pts.iter().copied(), &ins, &cfg, |_, r, t| {
-            assert!((MIN_RANGE_M..=MAX_RANGE_M).contains(&r));
+        let st = thinned.push_points_thinned(pts.iter().copied(), &ins, &cfg, |_, r2, t| {
+            assert!((MIN_RANGE_M..=MAX_RANGE_M).contains(&libm::sqrt(r2)));
             t / MS != 150
         });
         let want = ScanStats {
