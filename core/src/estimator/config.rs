@@ -455,6 +455,9 @@ impl EstimatorConfig {
                 bridge_max_s: 0.0,
                 accel_sigma_mps2: 0.0,
                 gyro_sigma_rps: 0.0,
+                long_bridge_max_s: 0.0,
+                long_max_rotation_rad: 0.0,
+                long_max_velocity_mps: 0.0,
             },
             imu_spike: ImuSpikeConfig {
                 enabled: false,

@@ -52,6 +52,7 @@ mod imu_step;
 mod keyframe;
 mod lidar;
 mod marginalize;
+mod motion_history;
 mod output;
 mod predict;
 mod prepare;
@@ -226,6 +227,8 @@ pub struct Estimator<
     /// The IMU gap being bridged (`timing`'s `bridge_gap`), declared to every keyframe interval
     /// that overlaps it.
     gap: Option<UnmeasuredSpan>,
+    /// The recent IMU samples in blocks: a long gap is bridged only when they were smooth.
+    motion: motion_history::MotionHistory,
     tracks: TrackTable<MAX_FEATURES>,
     rest: RestDetector<MAX_FEATURES>,
     frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
@@ -423,6 +426,7 @@ impl<
             ins: Held::empty(Ins::blank()),
             last_imu: None,
             gap: None,
+            motion: motion_history::MotionHistory::new(),
             tracks: TrackTable::new(0.0),
             rest: RestDetector::new(EstimatorConfig::PLACEHOLDER.rest),
             frame_obs: HVec::new(),
@@ -502,6 +506,7 @@ impl<
         self.ins.clear();
         self.last_imu = None;
         self.gap = None;
+        self.motion.clear();
         self.gyro_recent.clear();
         self.tracks.reset_to_new(TRACK_MAX_GAP_S);
         self.rest.reset_to_new(cfg.rest);

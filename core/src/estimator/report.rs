@@ -228,10 +228,14 @@ pub struct Counters {
     pub resets: u64,
     /// Of the resets: those caused by a non-finite or implausibly fast INS state.
     pub divergence_resets: u64,
-    /// Of the resets: IMU gaps too long to bridge (`imu_gap.bridge_max_s`).
+    /// Of the resets: IMU gaps too long to bridge (above `imu_gap.bridge_max_s`, and not a
+    /// long gap after smooth motion).
     pub imu_gap_resets: u64,
     /// IMU gaps bridged (`imu_gap`): a sample spacing above `max_imu_dt_s` while running.
     pub imu_gaps_bridged: u64,
+    /// Of the gaps bridged: those above `imu_gap.bridge_max_s`, bridged because the motion
+    /// before them was smooth (`imu_gap.long_bridge_max_s`).
+    pub imu_gaps_bridged_long: u64,
     /// IMU samples dropped as spikes (`imu_spike`).
     pub imu_spikes_rejected: u64,
     /// Windows dropped because no keyframe came for as long as a keyframe interval holds
@@ -305,6 +309,7 @@ impl Counters {
         divergence_resets: 0,
         imu_gap_resets: 0,
         imu_gaps_bridged: 0,
+        imu_gaps_bridged_long: 0,
         imu_spikes_rejected: 0,
         interval_overflows: 0,
         reinitializations: 0,

@@ -251,16 +251,24 @@ impl<
             gap_bridged_s: None,
         };
         if let Some(last) = self.last_imu {
-            let gap_s = s.t_ns.saturating_sub(last.t_ns) as f64 * 1e-9;
-            if gap_s > self.cfg.max_imu_dt_s && self.status == Status::Running {
-                if gap_s <= self.cfg.imu_gap.bridge_max_s {
-                    self.bridge_gap(&last, s, &mut out)?;
-                } else {
-                    self.counters.imu_gap_resets += 1;
-                    self.reset();
+            let gap_ns = s.t_ns.saturating_sub(last.t_ns);
+            let gap_s = gap_ns as f64 * 1e-9;
+            if gap_s > self.cfg.max_imu_dt_s {
+                if self.status == Status::Running {
+                    if gap_s <= self.cfg.imu_gap.bridge_max_s {
+                        self.bridge_gap(&last, s, None, &mut out)?;
+                    } else if let Some(line) = self.long_gap_line(gap_ns) {
+                        self.bridge_gap(&last, s, Some(line), &mut out)?;
+                    } else {
+                        self.counters.imu_gap_resets += 1;
+                        self.reset();
+                    }
                 }
+                // A window of the history must not span the gap.
+                self.motion.clear();
             }
         }
+        self.motion.push(s);
         self.counters.imu_samples += 1;
         if self.cfg.camera.readout_s > 0.0 {
             if self.gyro_recent.is_full() {
@@ -290,13 +298,15 @@ impl<
         &mut self,
         last: &ImuSample,
         s: &ImuSample,
+        measured: Option<(f64, f64)>,
         out: &mut ImuOutput,
     ) -> Result<(), Error> {
         let gap_ns = s.t_ns.saturating_sub(last.t_ns);
         let gap_s = gap_ns as f64 * 1e-9;
         let g = self.cfg.imu_gap;
         // The line's error: the configured bound, or less where the motion before the gap
-        // departed less from a line over the gap's length.
+        // departed less from a line over the gap's length (a long gap's, measured on the block
+        // history by `long_gap_line`).
         let (mut sa, mut sg) = (g.accel_sigma_mps2, g.gyro_sigma_rps);
         let history = self
             .keyframes()
@@ -304,7 +314,7 @@ impl<
             .chain(self.open())
             .flat_map(|p| p.samples().iter())
             .filter(|x| x.t_ns >= last.t_ns.saturating_sub(LINE_HISTORY_NS));
-        if let Some((a, w)) = line_departure(history, gap_ns) {
+        if let Some((a, w)) = measured.or_else(|| line_departure(history, gap_ns)) {
             sa = sa.min(a);
             sg = sg.min(w);
         }
@@ -324,6 +334,7 @@ impl<
         }
         self.gap = Some(span);
         self.counters.imu_gaps_bridged += 1;
+        self.counters.imu_gaps_bridged_long += u64::from(measured.is_some());
         out.gap_bridged_s = Some(gap_s);
         // At most MAX_BRIDGE_STEPS steps (bounded time; a step longer than max_imu_dt_s, from
         // a tiny max_imu_dt_s, makes the INS refuse it: a reset).
@@ -339,6 +350,21 @@ impl<
             self.last_imu = Some(m);
         }
         Ok(())
+    }
+
+    /// A gap above `imu_gap.bridge_max_s`: the line's error measured on the block history
+    /// (specific force m/s^2, angular rate rad/s) when the gap is at most
+    /// `imu_gap.long_bridge_max_s` and that error, over the gap, stays within the long-gap
+    /// limits; `None`: reset ([`crate::estimator::ImuGapConfig`]).
+    fn long_gap_line(&self, gap_ns: i64) -> Option<(f64, f64)> {
+        let g = self.cfg.imu_gap;
+        let gap_s = gap_ns as f64 * 1e-9;
+        if gap_s > g.long_bridge_max_s {
+            return None;
+        }
+        let (a, w) = self.motion.line_departure(gap_ns)?;
+        (w * gap_s <= g.long_max_rotation_rad && a * gap_s <= g.long_max_velocity_mps)
+            .then_some((a, w))
     }
 
     /// The estimator's current INS as an update for a [`crate::inertial::FastPath`] (`None`

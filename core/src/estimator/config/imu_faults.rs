@@ -18,8 +18,19 @@ use crate::Error;
 /// before it). So the images carry the window across it. The frames inside the gap are tracked but never made keyframes: a keyframe there
 /// hangs between two intervals that hardly constrain it, and on the hand-held scenario such
 /// keyframes let the window's velocity drift by 0.4 m/s after a 0.2 s gap (ATE 0.03 -> 0.8 m;
-/// 0.04 m without them, BENCHMARKS.md "Sensor faults"). A longer gap resets the estimator, which starts again (in motion when it must)
-/// and continues from the last estimate ([`super::super::Estimator::reset`]).
+/// 0.04 m without them, BENCHMARKS.md "Sensor faults").
+///
+/// A longer gap, up to `long_bridge_max_s`, is bridged the same way when the motion before it
+/// was smooth enough for a line: over the last 9.6 s of samples (the estimator's block history,
+/// `estimator::motion_history`), in windows of the gap's length, the line's error as above
+/// (`sigma_a`, `sigma_g`, at least three windows) must integrate over the gap to at most
+/// `long_max_rotation_rad` (`sigma_g * T_gap`) and `long_max_velocity_mps` (`sigma_a * T_gap`);
+/// the bridge then takes those measured values. A wheeled robot, a car or a calm flight passes
+/// (2 s: 0.02-0.05 rad, 0.06-0.3 m/s on the simulator's scenarios), a hand-held rig or an
+/// aggressive flight does not (0.9-2.2 rad), nor does a platform whose accelerometer vibrates
+/// (the line runs through two raw samples). Any other gap resets the estimator, which starts
+/// again (in motion when it must) and continues from the last estimate
+/// ([`super::super::Estimator::reset`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[cfg_attr(
@@ -35,12 +46,21 @@ pub struct ImuGapConfig {
     pub accel_sigma_mps2: f64,
     /// Largest standard deviation of the angular rate during a gap about that line, rad/s.
     pub gyro_sigma_rps: f64,
+    /// Longest gap bridged when the motion before it was smooth enough (see above), s (at most
+    /// [`ImuGapConfig::MAX_BRIDGE_S`]; not above `bridge_max_s`: off).
+    pub long_bridge_max_s: f64,
+    /// A longer gap's largest predicted rotation error (the line's measured angular-rate error
+    /// times the gap), rad.
+    pub long_max_rotation_rad: f64,
+    /// A longer gap's largest predicted velocity error (the line's measured specific-force
+    /// error times the gap), m/s.
+    pub long_max_velocity_mps: f64,
 }
 
 impl ImuGapConfig {
     /// Longest gap that may be bridged, s: the interpolated samples of one gap are processed in
     /// one [`super::super::Estimator::update`] call.
-    pub const MAX_BRIDGE_S: f64 = 2.0;
+    pub const MAX_BRIDGE_S: f64 = 3.0;
 
     /// The defaults (what [`Default`] gives): holes up to 0.6 s bridged (a 0.5 s hole in a
     /// 200 Hz stream is a 0.505 s spacing), with 1 m/s^2 and 0.3 rad/s of unmeasured motion
@@ -48,10 +68,18 @@ impl ImuGapConfig {
     /// 0.2 s of the hand-held scenario is 0.6 m/s^2 and up to 0.35 rad/s RMS per axis; looser
     /// values (5 m/s^2, 1 rad/s) doubled the hand-held ATE after 0.5 s gaps, and bridging 1 s
     /// cost the hand-held and fast-rotation scenarios 7-300x (a reset is cheaper there).
+    /// Longer gaps up to 2.5 s (a 2 s hole and margin) where the motion before predicts at most
+    /// 0.1 rad and 0.6 m/s of error over the gap: 2 s gaps on the robot, vehicle and flight
+    /// scenarios bridged at 0.8-1.4x the fault-free ATE (robot, flight) where a reset lost the
+    /// rest of the run or cost 40-60x (BENCHMARKS.md "Long IMU gaps bridged where the motion
+    /// was smooth").
     pub const DEFAULT: ImuGapConfig = ImuGapConfig {
         bridge_max_s: 0.6,
         accel_sigma_mps2: 1.0,
         gyro_sigma_rps: 0.3,
+        long_bridge_max_s: 2.5,
+        long_max_rotation_rad: 0.1,
+        long_max_velocity_mps: 0.6,
     };
 
     /// Checks ranges ([`Self::check_ranges`]).
@@ -59,8 +87,8 @@ impl ImuGapConfig {
         ranges::validate(|r| self.check_ranges(r))
     }
 
-    /// The range checks (`[imu_gap]`): `bridge_max_s` within `0..=MAX_BRIDGE_S`, positive
-    /// standard deviations.
+    /// The range checks (`[imu_gap]`): `bridge_max_s` and `long_bridge_max_s` within
+    /// `0..=MAX_BRIDGE_S`, positive standard deviations, non-negative long-gap limits.
     pub fn check_ranges(&self, r: &mut Ranges<'_>) {
         let b = self.bridge_max_s;
         r.within(
@@ -68,10 +96,19 @@ impl ImuGapConfig {
             b,
             0.0,
             Self::MAX_BRIDGE_S,
-            "0..=2 (s)",
+            "0..=3 (s)",
         );
         r.positive("imu_gap.accel_sigma_mps2", self.accel_sigma_mps2);
         r.positive("imu_gap.gyro_sigma_rps", self.gyro_sigma_rps);
+        r.within(
+            "imu_gap.long_bridge_max_s",
+            self.long_bridge_max_s,
+            0.0,
+            Self::MAX_BRIDGE_S,
+            "0..=3 (s)",
+        );
+        r.non_negative("imu_gap.long_max_rotation_rad", self.long_max_rotation_rad);
+        r.non_negative("imu_gap.long_max_velocity_mps", self.long_max_velocity_mps);
     }
 }
 
