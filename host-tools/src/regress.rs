@@ -167,7 +167,10 @@ pub fn sequences(
     };
     let seeds: Vec<u64> = (first_seed..first_seed.saturating_add(seeds.unwrap_or(n))).collect();
     for &variant in &variants {
-        for scenario in SCENARIOS {
+        for scenario in SCENARIOS
+            .into_iter()
+            .filter(|&s| variant.applies_to(Some(s)))
+        {
             for &seed in &seeds {
                 v.push(Sequence::Sim {
                     scenario,
@@ -650,6 +653,19 @@ pub(crate) mod tests {
             "openvins-corridor-imugap0.2s".into(),
             Variant::Fault(Fault::ImuGap)
         )));
+        // The 2 s gap only on the robot and the vehicle (see `Fault::ImuGapLong`).
+        let long: Vec<String> = seqs
+            .iter()
+            .filter(|s| s.variant() == Variant::Fault(Fault::ImuGapLong))
+            .map(|s| s.name())
+            .collect();
+        assert_eq!(
+            long,
+            [
+                "sim-robot-seed1-30s-imugap2s",
+                "sim-vehicle-seed1-30s-imugap2s"
+            ]
+        );
         let c = sim_config(Scenario::Flight, 1, 30.0, Variant::Delay(-10));
         assert_eq!((c.td_s, c.td_step.is_none()), (-0.010, true));
         let c = sim_config(Scenario::Flight, 1, 30.0, Variant::DelayStep);

@@ -70,6 +70,7 @@ impl VariantGroup {
             VariantGroup::Extrinsic => &[Variant::Extrinsic],
             VariantGroup::Faults => &[
                 Variant::Fault(Fault::ImuGap),
+                Variant::Fault(Fault::ImuGapLong),
                 Variant::Fault(Fault::Spikes),
                 Variant::Fault(Fault::CameraDropout),
             ],
@@ -94,7 +95,17 @@ impl Variant {
     /// Whether the variant is also run on the suite's real sequences: the sensor faults (the
     /// others are made by the simulator).
     pub fn on_real_data(self) -> bool {
-        matches!(self, Variant::Standard | Variant::Fault(_))
+        self.applies_to(None)
+    }
+
+    /// Whether the variant is run on `scenario` (`None`: the real sequences): every simulated
+    /// scenario but for the faults that say otherwise ([`Fault::applies_to`]).
+    pub fn applies_to(self, scenario: Option<Scenario>) -> bool {
+        match self {
+            Variant::Standard => true,
+            Variant::Fault(f) => f.applies_to(scenario),
+            _ => scenario.is_some(),
+        }
     }
 
     /// How the estimator starts: the in-motion start through the automatic choice, the others
