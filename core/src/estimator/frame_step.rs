@@ -9,6 +9,14 @@ use crate::inertial::{ImuSample, NavState};
 use crate::math::{log_so3, Vec3};
 use crate::Error;
 
+/// Inside an IMU gap longer than `imu_gap.bridge_max_s`, a keyframe is taken (where the selector
+/// asks for one) once fewer than this share of the newest keyframe's features are still tracked:
+/// otherwise no track would span the gap. Measured (BENCHMARKS.md, "Long IMU gaps bridged where
+/// the motion was smooth"): at 0.1 the car's 2 s gaps cost 1.4-2.5x instead of 1.8-5.3x, and the
+/// robot and the flight, whose tracks outlive the gap, take none (at 0.5 the robot took one and
+/// lost up to 20x: a keyframe in a gap still hurts where tracks span it).
+const LONG_GAP_KEYFRAME_TRACKED: f64 = 0.1;
+
 impl<
         const N: usize,
         const L: usize,
@@ -122,6 +130,7 @@ impl<
         };
         let nav = *ins.state();
 
+        let mut tracked_share = 1.0;
         let decision = match self.window.last() {
             None => KeyframeDecision::First,
             Some(last) => {
@@ -129,6 +138,7 @@ impl<
                 let dp = (nav.p_wb - last.state.p_wb).norm();
                 let dr = log_so3(&(last.state.q_wb.inverse() * nav.q_wb)).norm();
                 let (parallax, tracked) = self.parallax_and_tracked(&nav);
+                tracked_share = tracked;
                 let nearly_full = self
                     .open()
                     .is_some_and(|o| o.len() + 16 >= MAX_INTERVAL_SAMPLES);
@@ -143,11 +153,15 @@ impl<
             }
         };
         // Inside a bridged IMU gap the state is a guess from interpolated samples: a keyframe
-        // there would hang between two intervals that hardly constrain it.
+        // there would hang between two intervals that hardly constrain it. Inside a long gap one
+        // is taken all the same when the newest keyframe's features are nearly all lost
+        // (`LONG_GAP_KEYFRAME_TRACKED`): no track would span the gap, and the line alone would
+        // carry the rotation across it.
         let in_gap = self
             .gap
             .is_some_and(|g| nav.t_ns > g.t0_ns && nav.t_ns < g.t1_ns);
-        if !decision.is_keyframe() || in_gap {
+        let lost = self.in_long_gap(nav.t_ns) && tracked_share < LONG_GAP_KEYFRAME_TRACKED;
+        if !decision.is_keyframe() || (in_gap && !lost) {
             return Ok(None);
         }
         // A late frame (its IMU time already passed, e.g. a negative delay): the keyframe goes
@@ -178,6 +192,16 @@ impl<
         }
     }
 
+    /// True inside (strictly) a bridged IMU gap longer than `imu_gap.bridge_max_s` (one bridged
+    /// by `imu_gap.long_bridge_max_s`).
+    fn in_long_gap(&self, t_ns: i64) -> bool {
+        self.gap.is_some_and(|g| {
+            t_ns > g.t0_ns
+                && t_ns < g.t1_ns
+                && g.t1_ns.saturating_sub(g.t0_ns) as f64 * 1e-9 > self.cfg.imu_gap.bridge_max_s
+        })
+    }
+
     /// Mean pixel displacement of the current frame's tracks w.r.t. the newest keyframe (with
     /// `keyframe.compensate_rotation`, after rotating the keyframe's rays by the rotation the
     /// INS predicts between them), and the share of the keyframe's features still tracked.
@@ -196,9 +220,9 @@ impl<
             Some((k.x_n, [o.x_n[0], o.x_n[1]]))
         });
         let (parallax, n) = mean_parallax_px(pairs, r_ck.as_ref(), self.focal_px());
-        // The share is only needed by the tracked-share rule (off by default): no pass over the
-        // landmark store per frame otherwise.
-        let seen = if self.cfg.keyframe.min_tracked_ratio > 0.0 {
+        // The share is only needed by the tracked-share rule (off by default) and inside a long
+        // IMU gap: no pass over the landmark store per frame otherwise.
+        let seen = if self.cfg.keyframe.min_tracked_ratio > 0.0 || self.in_long_gap(nav.t_ns) {
             self.lms
                 .landmarks()
                 .iter()

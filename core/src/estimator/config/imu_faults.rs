@@ -25,7 +25,9 @@ use crate::Error;
 /// `estimator::motion_history`), in windows of the gap's length, the line's error as above
 /// (`sigma_a`, `sigma_g`, at least three windows) must integrate over the gap to at most
 /// `long_max_rotation_rad` (`sigma_g * T_gap`) and `long_max_velocity_mps` (`sigma_a * T_gap`);
-/// the bridge then takes those measured values. A wheeled robot, a car or a calm flight passes
+/// the bridge then takes those measured values; inside such a gap a keyframe is taken where
+/// nearly all the newest keyframe's features are lost (no track would span the gap otherwise;
+/// `estimator::frame_step`). A wheeled robot, a car or a calm flight passes
 /// (2 s: 0.02-0.05 rad, 0.06-0.3 m/s on the simulator's scenarios), a hand-held rig or an
 /// aggressive flight does not (0.9-2.2 rad), nor does a platform whose accelerometer vibrates
 /// (the line runs through two raw samples). Any other gap resets the estimator, which starts
