@@ -14,6 +14,7 @@
 //! samples (what the bridge's linear interpolation integrates to); the RMS per axis over the
 //! windows is the line's error, the end samples' own noise and vibration counted.
 
+use super::timing::Departure;
 use crate::inertial::ImuSample;
 use crate::math::Vec3;
 
@@ -21,8 +22,6 @@ use crate::math::Vec3;
 pub(super) const BLOCK_NS: i64 = 100_000_000;
 /// Blocks kept (9.6 s at [`BLOCK_NS`]).
 pub(super) const BLOCKS: usize = 96;
-/// Fewest windows a departure is measured on (as the bridge's own measure).
-const WINDOWS: u32 = 3;
 
 /// One block: its first sample and the sums over all its samples.
 #[derive(Debug, Clone, Copy)]
@@ -83,12 +82,13 @@ impl MotionHistory {
 
     /// How far a line between two samples `span_ns` apart would have missed the motion in
     /// between, over the history (module docs): the RMS per axis of the specific force (m/s^2)
-    /// and the angular rate (rad/s) about the line, `None` with fewer than three windows.
+    /// and the angular rate (rad/s) about the line, `None` with fewer than three windows
+    /// ([`Departure`], the bridge's own measure's sums).
     pub(super) fn line_departure(&self, span_ns: i64) -> Option<(f64, f64)> {
         let mut it = self.blocks.iter();
         let mut start = it.next()?;
         let (mut sum_a, mut sum_g, mut n) = (Vec3::zeros(), Vec3::zeros(), 0u32);
-        let (mut acc_a, mut acc_g, mut count) = (0.0, 0.0, 0u32);
+        let mut dep = Departure::new();
         // The window's inner samples: the start block's after its first sample, then whole
         // blocks until one starts at least the span later (its first sample ends the window).
         fn add_inner(b: &Block, sa: &mut Vec3, sg: &mut Vec3, k: &mut u32, skip_first: bool) {
@@ -107,20 +107,16 @@ impl MotionHistory {
                 add_inner(b, &mut sum_a, &mut sum_g, &mut n, false);
                 continue;
             }
-            if n > 0 {
-                let k = f64::from(n);
-                acc_a += (sum_a / k - (start.first_a + b.first_a) * 0.5).norm_squared();
-                acc_g += (sum_g / k - (start.first_g + b.first_g) * 0.5).norm_squared();
-                count += 1;
-            }
+            dep.add(
+                (sum_a, sum_g, n),
+                (&start.first_a, &start.first_g),
+                (&b.first_a, &b.first_g),
+            );
             start = b;
             (sum_a, sum_g, n) = (Vec3::zeros(), Vec3::zeros(), 0);
             add_inner(start, &mut sum_a, &mut sum_g, &mut n, true);
         }
-        (count >= WINDOWS).then(|| {
-            let c = 3.0 * f64::from(count);
-            (libm::sqrt(acc_a / c), libm::sqrt(acc_g / c))
-        })
+        dep.rms()
     }
 }
 

@@ -30,6 +30,7 @@ use crate::camera::FeatureObs;
 use crate::inertial::preintegration::UnmeasuredSpan;
 use crate::inertial::{ImuSample, InsUpdate};
 use crate::lidar::{LidarPoint, Queued, ThinGrid};
+use crate::math::Vec3;
 use crate::Error;
 use heapless::Vec as HVec;
 
@@ -458,11 +459,10 @@ pub(super) fn line_departure<'a>(
     samples: impl Iterator<Item = &'a ImuSample>,
     span_ns: i64,
 ) -> Option<(f64, f64)> {
-    use crate::math::Vec3;
     let mut start: Option<&ImuSample> = None;
     let mut last_ns = i64::MIN;
     let (mut sum_a, mut sum_g, mut n) = (Vec3::zeros(), Vec3::zeros(), 0u32);
-    let (mut acc_a, mut acc_g, mut count) = (0.0, 0.0, 0u32);
+    let mut dep = Departure::new();
     for x in samples {
         if x.t_ns <= last_ns {
             continue;
@@ -478,19 +478,61 @@ pub(super) fn line_departure<'a>(
             n += 1;
             continue;
         }
-        if n > 0 {
-            let k = f64::from(n);
-            acc_a += (sum_a / k - (a.accel_mps2 + x.accel_mps2) * 0.5).norm_squared();
-            acc_g += (sum_g / k - (a.gyro_rps + x.gyro_rps) * 0.5).norm_squared();
-            count += 1;
-        }
+        dep.add(
+            (sum_a, sum_g, n),
+            (&a.accel_mps2, &a.gyro_rps),
+            (&x.accel_mps2, &x.gyro_rps),
+        );
         start = Some(x);
         (sum_a, sum_g, n) = (Vec3::zeros(), Vec3::zeros(), 0);
     }
-    (count >= LINE_WINDOWS).then(|| {
-        let c = 3.0 * f64::from(count);
-        (libm::sqrt(acc_a / c), libm::sqrt(acc_g / c))
-    })
+    dep.rms()
+}
+
+/// What [`line_departure`] and the block history's measure
+/// ([`super::motion_history::MotionHistory::line_departure`]) sum over their windows.
+pub(super) struct Departure {
+    acc_a: f64,
+    acc_g: f64,
+    count: u32,
+}
+
+impl Departure {
+    /// No window yet.
+    pub(super) fn new() -> Self {
+        Self {
+            acc_a: 0.0,
+            acc_g: 0.0,
+            count: 0,
+        }
+    }
+
+    /// One window: `inner` the sums of its inner samples' specific force and angular rate and
+    /// their count (none: not counted), `start` and `end` its end samples' (specific force,
+    /// angular rate).
+    pub(super) fn add(
+        &mut self,
+        inner: (Vec3, Vec3, u32),
+        start: (&Vec3, &Vec3),
+        end: (&Vec3, &Vec3),
+    ) {
+        let (sum_a, sum_g, n) = inner;
+        if n > 0 {
+            let k = f64::from(n);
+            self.acc_a += (sum_a / k - (start.0 + end.0) * 0.5).norm_squared();
+            self.acc_g += (sum_g / k - (start.1 + end.1) * 0.5).norm_squared();
+            self.count += 1;
+        }
+    }
+
+    /// The RMS per axis of the windows' differences (specific force m/s^2, angular rate
+    /// rad/s), `None` with fewer than [`LINE_WINDOWS`] windows.
+    pub(super) fn rms(&self) -> Option<(f64, f64)> {
+        (self.count >= LINE_WINDOWS).then(|| {
+            let c = 3.0 * f64::from(self.count);
+            (libm::sqrt(self.acc_a / c), libm::sqrt(self.acc_g / c))
+        })
+    }
 }
 
 #[cfg(test)]
