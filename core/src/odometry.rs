@@ -49,6 +49,8 @@ pub struct Output<'a> {
     pub keyframe: Option<KeyframeOutput<'a>>,
     /// An IMU gap ending at this sample was bridged: its length, s ([`ImuOutput::gap_bridged_s`]).
     pub gap_bridged_s: Option<f64>,
+    /// The clock jumped before this sample: the jump, s ([`ImuOutput::clock_jump_s`]).
+    pub clock_jump_s: Option<f64>,
 }
 
 impl Output<'_> {
@@ -59,6 +61,7 @@ impl Output<'_> {
             keyframe: self.keyframe.as_ref().map(|k| k.report),
             ins: self.ins,
             gap_bridged_s: self.gap_bridged_s,
+            clock_jump_s: self.clock_jump_s,
         }
     }
 }

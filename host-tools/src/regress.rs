@@ -644,7 +644,11 @@ pub(crate) mod tests {
             .filter(|s| s.scenario().is_none())
             .map(|s| (s.name(), s.variant()))
             .collect();
-        assert_eq!(reals.len(), 8);
+        assert_eq!(reals.len(), 10);
+        assert!(reals.contains(&(
+            "euroc-v101-30s-clockjump1h".into(),
+            Variant::Fault(Fault::ClockJump)
+        )));
         assert!(reals.contains(&(
             "euroc-v101-30s-cameradropout3s".into(),
             Variant::Fault(Fault::CameraDropout)

@@ -726,6 +726,13 @@ impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
 
     fn output(&mut self, o: &Output<'_>) {
         self.watch_outage(o.nav.as_ref(), self.t_imu_ns);
+        if let Some(jump_s) = o.clock_jump_s {
+            let at = self.progress.seconds(self.t_imu_ns);
+            self.progress.note(&format!(
+                "clock jump of {jump_s:+.3} s in every stream at {at:.3} s: the images show \
+                 nothing moved, the state kept, a new window starts"
+            ));
+        }
         if let Some(gap_s) = o.gap_bridged_s {
             let at = self.progress.seconds(self.t_imu_ns);
             self.progress.note(&format!(

@@ -458,6 +458,7 @@ impl EstimatorConfig {
                 long_bridge_max_s: 0.0,
                 long_max_rotation_rad: 0.0,
                 long_max_velocity_mps: 0.0,
+                clock_jumps: false,
             },
             imu_spike: ImuSpikeConfig {
                 enabled: false,

@@ -35,6 +35,7 @@ impl<
         let Some(front) = self.pending.front_mut() else {
             return false;
         };
+        self.frame_dt_ns = front.t_cam_ns.saturating_sub(self.frame.t_cam_ns);
         core::mem::swap(front, &mut self.frame);
         // The previous frame, swapped into the queue, is dropped here.
         let _ = self.pending.pop_front();

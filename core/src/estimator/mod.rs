@@ -42,6 +42,7 @@
 //! value (the EuRoC replay runs on a 96 KiB stack at the test profile's optimization level; the
 //! test uses 256 KiB).
 
+pub mod clock_jump;
 pub mod config;
 mod covariance;
 mod cull;
@@ -153,6 +154,8 @@ pub struct ImuOutput {
     pub ins: Option<InsUpdate>,
     /// Set when an IMU gap ending at this sample was bridged (`imu_gap`): its length, s.
     pub gap_bridged_s: Option<f64>,
+    /// Set when the clock jumped before this sample ([`clock_jump`]): the jump, s.
+    pub clock_jump_s: Option<f64>,
 }
 
 #[derive(Clone)]
@@ -285,6 +288,10 @@ pub struct Estimator<
     imu_scale: imu_noise::ImuNoiseScale,
     /// The INS epoch ([`Held::epoch`]) a fast path following [`ImuOutput::ins`] holds.
     ins_synced: u32,
+    /// The last IMU sample spacing that was not a gap, ns (0: none yet; [`clock_jump`]).
+    imu_dt_ns: i64,
+    /// The spacing of the last two frames taken from the queue, ns ([`clock_jump`]).
+    frame_dt_ns: i64,
     /// What the estimator lends with its outputs ([`output`]).
     out: output::OutputBuffers<N, L>,
     /// Monotonic clock of the timing statistics, ns ([`Estimator::set_clock`]; none: every
@@ -466,6 +473,8 @@ impl<
             reinit: None,
             imu_scale: imu_noise::ImuNoiseScale::new(),
             ins_synced: 0,
+            imu_dt_ns: 0,
+            frame_dt_ns: 0,
             out: output::OutputBuffers::new(),
             clock: None,
         }
@@ -505,6 +514,8 @@ impl<
         self.status = Status::WaitingForInit;
         self.ins.clear();
         self.last_imu = None;
+        self.imu_dt_ns = 0;
+        self.frame_dt_ns = 0;
         self.gap = None;
         self.motion.clear();
         self.gyro_recent.clear();
@@ -634,12 +645,17 @@ impl<
     }
 
     fn reset_window(&mut self) {
+        self.pending.clear();
+        self.drop_window();
+    }
+
+    /// [`Self::reset_window`] but for the queued frames.
+    fn drop_window(&mut self) {
         self.window.clear();
         self.lms.clear();
         self.prior.clear();
         self.initial = None;
         self.open_active = false;
-        self.pending.clear();
         self.tracks.clear();
         self.rest.clear();
         self.motion_init.reset(self.cfg.init.motion);
@@ -658,8 +674,22 @@ impl<
     /// Drops everything and waits for a new initialization (counted). Does nothing while
     /// [`Status::Unconfigured`].
     pub fn reset(&mut self) {
+        self.reset_keeping_frames_from(i64::MAX);
+    }
+
+    /// [`Self::reset`], keeping the queued frames at or after IMU time `t_ns` (those that came
+    /// after a gap that resets: they belong to the next initialization).
+    fn reset_keeping_frames_from(&mut self, t_ns: i64) {
         if self.status == Status::Unconfigured {
             return;
+        }
+        let td_ns = (self.current_td() * 1e9) as i64;
+        while self
+            .pending
+            .front()
+            .is_some_and(|p| p.t_cam_ns.saturating_add(td_ns) < t_ns)
+        {
+            let _ = self.pending.pop_front();
         }
         let finite = |s: &NavState| {
             s.p_wb.iter().chain(s.v_wb.iter()).all(|x| x.is_finite())
@@ -673,7 +703,7 @@ impl<
             .filter(finite)
             .or(newest_kf)
             .or(self.resume);
-        self.reset_window();
+        self.drop_window();
         self.ins.clear();
         self.status = Status::WaitingForInit;
         self.counters.resets += 1;

@@ -145,6 +145,7 @@ impl<
             ins: o.ins,
             keyframe,
             gap_bridged_s: o.gap_bridged_s,
+            clock_jump_s: o.clock_jump_s,
         }))
     }
 }

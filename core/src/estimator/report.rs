@@ -236,6 +236,9 @@ pub struct Counters {
     /// Of the gaps bridged: those above `imu_gap.bridge_max_s`, bridged because the motion
     /// before them was smooth (`imu_gap.long_bridge_max_s`).
     pub imu_gaps_bridged_long: u64,
+    /// Clock jumps: gaps in every stream across which the images show nothing moved, the
+    /// clock moved on and the state kept (`estimator::clock_jump`).
+    pub clock_jumps: u64,
     /// IMU samples dropped as spikes (`imu_spike`).
     pub imu_spikes_rejected: u64,
     /// Windows dropped because no keyframe came for as long as a keyframe interval holds
@@ -310,6 +313,7 @@ impl Counters {
         imu_gap_resets: 0,
         imu_gaps_bridged: 0,
         imu_gaps_bridged_long: 0,
+        clock_jumps: 0,
         imu_spikes_rejected: 0,
         interval_overflows: 0,
         reinitializations: 0,

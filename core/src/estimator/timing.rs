@@ -13,7 +13,8 @@
 //!   and sweeps that are due, and returns what it produced. Call it until it returns `None`.
 //!   A sample that steps far from the last processed one waits for the next, which tells a
 //!   spike (dropped, counted) from a real step ([`super::ImuSpikeConfig`]); a gap before the
-//!   sample is bridged or resets the estimator ([`super::ImuGapConfig`]).
+//!   sample is a clock jump ([`super::clock_jump`]: it waits for the first frame after it to
+//!   tell), or is bridged or resets the estimator ([`super::ImuGapConfig`]).
 //!
 //! So a caller pushes each measurement when it arrives, in any interleaving of the sensors, and
 //! drains [`update`]: frames and sweeps that arrive up to the horizon after the IMU samples
@@ -24,6 +25,7 @@
 //!
 //! [`update`]: Estimator::update
 
+use super::clock_jump::JumpCheck;
 use super::imu_step::interpolate;
 use super::{Estimator, ImuOutput, PendingFrame, Status, MAX_FEATURES};
 use crate::camera::FeatureObs;
@@ -216,8 +218,17 @@ impl<
                 }
             }
         };
+        let jump_ns = match self.clock_jump_check(&front) {
+            JumpCheck::Wait => return Ok(None),
+            JumpCheck::Jump(jump_ns) => {
+                self.jump_clock(jump_ns);
+                Some(jump_ns)
+            }
+            JumpCheck::No => None,
+        };
         let _ = self.imu_in.pop_front();
-        let out = self.process_imu(&front)?;
+        let mut out = self.process_imu(&front)?;
+        out.clock_jump_s = jump_ns.map(|j| j as f64 * 1e-9);
         self.deskew_due_sweeps(front.t_ns);
         Ok(Some(out))
     }
@@ -250,6 +261,7 @@ impl<
             keyframe: None,
             ins: None,
             gap_bridged_s: None,
+            clock_jump_s: None,
         };
         if let Some(last) = self.last_imu {
             let gap_ns = s.t_ns.saturating_sub(last.t_ns);
@@ -262,11 +274,15 @@ impl<
                         self.bridge_gap(&last, s, Some(line), &mut out)?;
                     } else {
                         self.counters.imu_gap_resets += 1;
-                        self.reset();
+                        // The frames after the gap (queued while a clock jump was waited for)
+                        // are the next start's.
+                        self.reset_keeping_frames_from(s.t_ns);
                     }
                 }
                 // A window of the history must not span the gap.
                 self.motion.clear();
+            } else {
+                self.imu_dt_ns = gap_ns;
             }
         }
         self.motion.push(s);

@@ -17,6 +17,9 @@
 //! - [`Fault::CameraDropout`]: 3 s without camera frames (the window is dropped when the open
 //!   interval is full, the INS goes on alone, the frames after the dropout start a new window
 //!   from its covariance).
+//! - [`Fault::ClockJump`]: every stamp from the fault on (every stream, the ground truth too)
+//!   moved by +1 h (a clock jump: the state kept, a new window from its covariance;
+//!   `estimator::clock_jump`).
 
 use crate::sim::Scenario;
 use povins_core::math::Vec3;
@@ -33,6 +36,8 @@ pub enum Fault {
     Spikes,
     /// 3 s without camera frames.
     CameraDropout,
+    /// Every stamp moved by +1 h.
+    ClockJump,
 }
 
 /// Length of [`Fault::ImuGap`], ns.
@@ -41,6 +46,8 @@ const GAP_NS: i64 = 200_000_000;
 const LONG_GAP_NS: i64 = 2_000_000_000;
 /// Length of [`Fault::CameraDropout`], ns.
 const DROPOUT_NS: i64 = 3_000_000_000;
+/// Size of [`Fault::ClockJump`], ns.
+const CLOCK_JUMP_NS: i64 = 3_600_000_000_000;
 
 impl Fault {
     /// Suffix of the sequence names.
@@ -50,6 +57,7 @@ impl Fault {
             Fault::ImuGapLong => "-imugap2s",
             Fault::Spikes => "-spikes",
             Fault::CameraDropout => "-cameradropout3s",
+            Fault::ClockJump => "-clockjump1h",
         }
     }
 
@@ -57,7 +65,7 @@ impl Fault {
     pub fn applies_to(self, scenario: Option<Scenario>) -> bool {
         match self {
             Fault::ImuGapLong => matches!(scenario, Some(Scenario::Robot | Scenario::Vehicle)),
-            Fault::ImuGap | Fault::Spikes | Fault::CameraDropout => true,
+            Fault::ImuGap | Fault::Spikes | Fault::CameraDropout | Fault::ClockJump => true,
         }
     }
 
@@ -100,6 +108,22 @@ impl Fault {
                 let keep = |t: i64| t < at || t >= at + DROPOUT_NS;
                 ds.features.retain(|f| keep(f.t_ns));
                 ds.images.retain(|f| keep(f.t_ns));
+            }
+            Fault::ClockJump => {
+                let shift = |t: &mut i64| {
+                    if *t >= at {
+                        *t += CLOCK_JUMP_NS;
+                    }
+                };
+                ds.imu.iter_mut().for_each(|s| shift(&mut s.t_ns));
+                ds.features.iter_mut().for_each(|f| shift(&mut f.t_ns));
+                ds.images.iter_mut().for_each(|f| shift(&mut f.t_ns));
+                ds.ground_truth.iter_mut().for_each(|g| shift(&mut g.t_ns));
+                // A sweep moves whole, with its stamp.
+                for w in ds.lidar.iter_mut().filter(|w| w.t_ns >= at) {
+                    w.t_ns += CLOCK_JUMP_NS;
+                    w.points.iter_mut().for_each(|p| p.t_ns += CLOCK_JUMP_NS);
+                }
             }
         }
     }

@@ -73,6 +73,7 @@ impl VariantGroup {
                 Variant::Fault(Fault::ImuGapLong),
                 Variant::Fault(Fault::Spikes),
                 Variant::Fault(Fault::CameraDropout),
+                Variant::Fault(Fault::ClockJump),
             ],
         }
     }

@@ -57,6 +57,11 @@ pub struct ImuGapConfig {
     /// A longer gap's largest predicted velocity error (the line's measured specific-force
     /// error times the gap), m/s.
     pub long_max_velocity_mps: f64,
+    /// A gap above `bridge_max_s` across which the images show that only the clock moved (every
+    /// stream stepped together, the tracks continue) is a clock jump: the state is kept and the
+    /// clock moves on ([`crate::estimator::clock_jump`]). False: such a gap is bridged or resets
+    /// as any other.
+    pub clock_jumps: bool,
 }
 
 impl ImuGapConfig {
@@ -82,6 +87,7 @@ impl ImuGapConfig {
         long_bridge_max_s: 2.5,
         long_max_rotation_rad: 0.1,
         long_max_velocity_mps: 0.6,
+        clock_jumps: true,
     };
 
     /// Checks ranges ([`Self::check_ranges`]).
