@@ -730,7 +730,7 @@ impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
             let at = self.progress.seconds(self.t_imu_ns);
             self.progress.note(&format!(
                 "clock jump of {jump_s:+.3} s in every stream at {at:.3} s: the images show \
-                 nothing moved, the state kept, a new window starts"
+                 nothing moved; the estimate goes on"
             ));
         }
         if let Some(gap_s) = o.gap_bridged_s {

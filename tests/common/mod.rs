@@ -286,3 +286,17 @@ pub fn on_stack<T: Send>(bytes: usize, f: impl FnOnce() -> T + Send) -> T {
 pub fn small_stack<T: Send>(f: impl FnOnce() -> T + Send) -> T {
     on_stack(TEST_STACK, f)
 }
+
+/// Every stamp at or after `at_ns` moved by `by_ns`, in every stream and the ground truth.
+pub fn jumped(ds: &Dataset, at_ns: i64, by_ns: i64) -> Dataset {
+    let mut d = ds.clone();
+    let shift = |t: &mut i64| {
+        if *t >= at_ns {
+            *t += by_ns;
+        }
+    };
+    d.imu.iter_mut().for_each(|s| shift(&mut s.t_ns));
+    d.features.iter_mut().for_each(|f| shift(&mut f.t_ns));
+    d.ground_truth.iter_mut().for_each(|g| shift(&mut g.t_ns));
+    d
+}

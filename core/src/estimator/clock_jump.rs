@@ -16,12 +16,14 @@
 //! are lost or moved by the outage's worth of motion; at rest both readings agree, and either
 //! is right. An IMU-only gap is told at once, without waiting: frames inside it are queued.
 //!
-//! A jump moves the estimator's clock, not the platform: the INS state, its time moved by `J`,
-//! goes on from where it was; the window is dropped as after a camera dropout and the next frame
-//! starts a new one from the INS state with the dropped window's covariance (`imu_step`), so
-//! the published pose does not move. Counted in `counters.clock_jumps` (and, as the window
-//! restarts, `counters.reinitializations`). `[imu_gap] clock_jumps = false` turns it off (the
-//! gap is then bridged or resets, as any other). While the samples after a gap wait for a frame,
+//! A jump moves the inputs' clock, not the estimator's: from then on every input stamp is taken
+//! `J` earlier (the sum of the jumps, [`ClockMap`]), so inside the estimator nothing happened
+//! and the window, the INS and the tracks go on; every time handed out (the IMU-rate state, the
+//! keyframe report and states, the INS for a fast path) is moved back onto the inputs' clock,
+//! and a fast path is handed the INS again after the jump. Counted in `counters.clock_jumps`.
+//! [`Estimator::keyframes`] and the other accessors of internal state keep the estimator's own
+//! clock. `[imu_gap] clock_jumps = false` turns it off (the gap is then bridged or resets, as
+//! any other). While the samples after a gap wait for a frame,
 //! [`Estimator::update`] returns `None`: a stream that ends within [`JUMP_WAIT_NS`] of such a
 //! gap leaves them unprocessed.
 
@@ -37,6 +39,82 @@ pub const JUMP_MAX_FRAME_PERIODS: f64 = 2.5;
 pub const JUMP_MIN_TRACKED: usize = 10;
 /// Largest median displacement across a jump beyond twice the predicted one, px.
 pub const JUMP_SLACK_PX: f32 = 3.0;
+
+/// Jumps a [`ClockMap`] remembers to map the estimator's times back: older ones, whose times no
+/// output carries any more (more than this many jumps within one window), take the offset of
+/// the oldest one kept.
+pub const CLOCK_JUMPS: usize = 4;
+
+/// The inputs' clock against the estimator's (see the module docs): an input stamp `t` is
+/// `t - total` inside; an estimator time `t` is `t + ` the offset of the newest jump at or
+/// before it outside.
+#[derive(Debug, Clone)]
+pub struct ClockMap {
+    /// The sum of the jumps, ns.
+    total_ns: i64,
+    /// The offset of times before every jump kept, ns.
+    base_ns: i64,
+    /// `(estimator time from which, offset)` of the newest jumps, oldest first.
+    jumps: heapless::Deque<(i64, i64), CLOCK_JUMPS>,
+}
+
+impl ClockMap {
+    /// No jump (all zero bits).
+    pub const fn new() -> Self {
+        ClockMap {
+            total_ns: 0,
+            base_ns: 0,
+            jumps: heapless::Deque::new(),
+        }
+    }
+
+    /// Forgets every jump.
+    pub fn clear(&mut self) {
+        *self = Self::new();
+    }
+
+    /// The sum of the jumps, ns.
+    pub fn total_ns(&self) -> i64 {
+        self.total_ns
+    }
+
+    /// An input stamp on the estimator's clock.
+    pub fn inside(&self, t_ns: i64) -> i64 {
+        t_ns.saturating_sub(self.total_ns)
+    }
+
+    /// What to add to an estimator time `t_ns` to put it on the inputs' clock.
+    pub fn offset_at(&self, t_ns: i64) -> i64 {
+        self.jumps
+            .iter()
+            .rev()
+            .find(|(from, _)| t_ns >= *from)
+            .map_or(self.base_ns, |(_, off)| *off)
+    }
+
+    /// An estimator time on the inputs' clock.
+    pub fn outside(&self, t_ns: i64) -> i64 {
+        t_ns.saturating_add(self.offset_at(t_ns))
+    }
+
+    /// A jump of `jump_ns` of the inputs' clock, for estimator times from `from_ns` on.
+    pub fn push(&mut self, from_ns: i64, jump_ns: i64) {
+        self.total_ns = self.total_ns.saturating_add(jump_ns);
+        if self.jumps.is_full() {
+            if let Some((_, off)) = self.jumps.pop_front() {
+                self.base_ns = off;
+            }
+        }
+        // Not full (made room above): cannot fail.
+        let _ = self.jumps.push_back((from_ns, self.total_ns));
+    }
+}
+
+impl Default for ClockMap {
+    fn default() -> Self {
+        Self::new()
+    }
+}
 
 /// What [`Estimator::clock_jump_check`] found for the oldest queued sample.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -152,38 +230,70 @@ impl<
         *median <= JUMP_SLACK_PX
     }
 
-    /// Moves the estimator's clock forward by `jump_ns` (module docs): the INS state goes on
-    /// from where it was, the window restarts from its covariance, the frames queued before the
-    /// jump are dropped (counted in `frames_dropped_no_imu`).
+    /// Takes the inputs from the gap on `jump_ns` earlier (module docs): the queued samples
+    /// (every one is after the gap), the frames and sweeps queued after its middle, and every
+    /// input pushed from now on; a fast path is handed the INS again.
     pub(super) fn jump_clock(&mut self, jump_ns: i64) {
         let Some(last) = self.last_imu else {
             return;
         };
-        let Some(mut st) = self.ins.as_ref().map(|i| *i.state()) else {
-            return;
-        };
-        let cov = self.dropout_covariance(None);
+        let mid_ns = last.t_ns.saturating_add(jump_ns / 2);
+        for s in self.imu_in.iter_mut() {
+            s.t_ns = s.t_ns.saturating_sub(jump_ns);
+        }
         let td_ns = (self.current_td() * 1e9) as i64;
-        while self.pending.front().is_some_and(|p| {
-            p.t_cam_ns.saturating_add(td_ns) <= last.t_ns.saturating_add(jump_ns / 2)
-        }) {
-            let _ = self.pending.pop_front();
-            self.counters.frames_dropped_no_imu += 1;
+        for p in self.pending.iter_mut() {
+            if p.t_cam_ns.saturating_add(td_ns) > mid_ns {
+                p.t_cam_ns = p.t_cam_ns.saturating_sub(jump_ns);
+            }
         }
-        st.t_ns = st.t_ns.saturating_add(jump_ns);
-        self.reinitialize_keeping_frames(st);
-        if let Some(ins) = self.ins.as_mut() {
-            ins.set_covariance(cov);
-        }
-        self.last_imu = Some(ImuSample {
-            t_ns: last.t_ns.saturating_add(jump_ns),
-            ..last
-        });
-        self.frame.t_cam_ns = self.frame.t_cam_ns.saturating_add(jump_ns);
-        for (t, _) in self.gyro_recent.iter_mut() {
-            *t = t.saturating_add(jump_ns);
-        }
-        self.motion.clear();
+        self.sweeps_in.shift_due_after(mid_ns, jump_ns);
+        self.clock_map.push(last.t_ns.saturating_add(1), jump_ns);
+        // The fast path saw the jump: hand it the INS (on the new clock) at the next sample.
+        let _ = self.ins.as_mut();
         self.counters.clock_jumps += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_map_takes_inputs_back_and_hands_times_out_by_the_jump_they_follow() {
+        let mut m = ClockMap::new();
+        assert_eq!((m.inside(500), m.outside(500)), (500, 500));
+        // A jump of +1000 after estimator time 100, then one of +50 after 300.
+        m.push(101, 1000);
+        m.push(301, 50);
+        assert_eq!(m.total_ns(), 1050);
+        assert_eq!(m.inside(2000), 950);
+        for (t, out) in [
+            (100, 100),
+            (101, 1101),
+            (300, 1300),
+            (301, 1351),
+            (950, 2000),
+        ] {
+            assert_eq!(m.outside(t), out, "estimator time {t}");
+        }
+        // An input taken in and handed back out is itself (after the last jump).
+        assert_eq!(m.outside(m.inside(5000)), 5000);
+    }
+
+    #[test]
+    fn more_jumps_than_it_keeps_give_old_times_the_oldest_kept_offset() {
+        let mut m = ClockMap::new();
+        for k in 1..=(CLOCK_JUMPS as i64 + 2) {
+            m.push(k * 100, 10);
+        }
+        let n = CLOCK_JUMPS as i64 + 2;
+        assert_eq!(m.total_ns(), 10 * n);
+        assert_eq!(m.outside(n * 100), n * 100 + 10 * n);
+        // The two oldest jumps are forgotten: times before the oldest kept one take its
+        // predecessor's offset.
+        assert_eq!(m.outside(50), 50 + 20);
+        m.clear();
+        assert_eq!((m.total_ns(), m.outside(50)), (0, 50));
     }
 }

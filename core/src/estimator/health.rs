@@ -101,17 +101,11 @@ impl<
     /// newest keyframe); the next keyframe starts a new window with the wide prior. A
     /// non-finite INS state resets the estimator instead.
     pub(super) fn reinitialize_from(&mut self, predicted: NavState) {
-        self.pending.clear();
-        self.reinitialize_keeping_frames(predicted);
-    }
-
-    /// [`Self::reinitialize_from`] with the queued frames kept (a clock jump's frames after it).
-    pub(super) fn reinitialize_keeping_frames(&mut self, predicted: NavState) {
         let keep = super::Reinit {
             td_s: self.current_td(),
             ext: self.ext,
         };
-        self.drop_window();
+        self.reset_window();
         self.bad_keyframes = 0;
         self.counters.reinitializations += 1;
         let ok = self

@@ -250,7 +250,7 @@ impl<
                 Err(Error::CapacityExceeded) => {
                     if let Some(st) = self.ins.as_ref().map(|i| *i.state()) {
                         self.counters.interval_overflows += 1;
-                        let cov = self.dropout_covariance(Some(s));
+                        let cov = self.dropout_covariance(s);
                         self.reinitialize_from(st);
                         if let Some(ins) = self.ins.as_mut() {
                             ins.set_covariance(cov);
@@ -278,11 +278,11 @@ impl<
         })
     }
 
-    /// The covariance of the INS state at `s` (the sample the full open interval refused; none:
-    /// at the interval's newest sample), propagated from the newest keyframe's marginal
-    /// covariance over the interval's samples and `s` (the INS's own step, as
-    /// [`Self::rewind_to`] replays them); `None` when the window's covariance is unavailable.
-    pub(super) fn dropout_covariance(&mut self, s: Option<&ImuSample>) -> Option<InsCovariance> {
+    /// The covariance of the INS state at `s` (the sample the full open interval refused),
+    /// propagated from the newest keyframe's marginal covariance over the interval's samples
+    /// and `s` (the INS's own step, as [`Self::rewind_to`] replays them); `None` when the
+    /// window's covariance is unavailable.
+    fn dropout_covariance(&mut self, s: &ImuSample) -> Option<InsCovariance> {
         let kf_state = self.window.last()?.state;
         let kf_cov = match self.kf_cov.get() {
             Some(c) => *c,
@@ -290,7 +290,7 @@ impl<
         };
         let mut ins = Ins::new(self.ins_config(), kf_state).ok()?;
         ins.set_covariance(Some(kf_cov));
-        for x in self.open()?.samples().iter().chain(s) {
+        for x in self.open()?.samples().iter().chain(core::iter::once(s)) {
             ins.propagate(x).ok()?;
         }
         ins.covariance().copied()

@@ -292,6 +292,8 @@ pub struct Estimator<
     imu_dt_ns: i64,
     /// The spacing of the last two frames taken from the queue, ns ([`clock_jump`]).
     frame_dt_ns: i64,
+    /// The inputs' clock against the estimator's ([`clock_jump`]).
+    clock_map: clock_jump::ClockMap,
     /// What the estimator lends with its outputs ([`output`]).
     out: output::OutputBuffers<N, L>,
     /// Monotonic clock of the timing statistics, ns ([`Estimator::set_clock`]; none: every
@@ -475,6 +477,7 @@ impl<
             ins_synced: 0,
             imu_dt_ns: 0,
             frame_dt_ns: 0,
+            clock_map: clock_jump::ClockMap::new(),
             out: output::OutputBuffers::new(),
             clock: None,
         }
@@ -516,6 +519,7 @@ impl<
         self.last_imu = None;
         self.imu_dt_ns = 0;
         self.frame_dt_ns = 0;
+        self.clock_map.clear();
         self.gap = None;
         self.motion.clear();
         self.gyro_recent.clear();
@@ -606,7 +610,8 @@ impl<
         c
     }
 
-    /// Keyframes in the window (oldest first).
+    /// Keyframes in the window (oldest first), their times on the estimator's own clock (the
+    /// inputs' less any clock jumps, [`clock_jump`]; the keyframe outputs are on the inputs').
     pub fn keyframes(&self) -> impl Iterator<Item = &Keyframe> + '_ {
         (0..self.window.len()).filter_map(|k| self.window.get(k))
     }
@@ -629,6 +634,10 @@ impl<
             return Err(Error::NotInitialized);
         }
         let cfg = self.ins_config();
+        let state = NavState {
+            t_ns: self.clock_map.inside(state.t_ns),
+            ..state
+        };
         let ins = Ins::new(cfg, state)?;
         self.reset_window();
         self.resume = None;

@@ -64,7 +64,10 @@ impl<
     /// The current INS state (the IMU-rate state after the last processed sample), once
     /// initialized.
     pub fn nav_state(&self) -> Option<NavState> {
-        self.ins.as_ref().map(|i| *i.state())
+        self.ins.as_ref().map(|i| NavState {
+            t_ns: self.clock_map.outside(i.state().t_ns),
+            ..*i.state()
+        })
     }
 
     /// The covariance of [`Self::nav_state`]'s error state, with
@@ -77,6 +80,7 @@ impl<
     /// Predicts the window's landmarks at camera time `t_cam_ns` into the estimator's own buffer
     /// ([`Self::predict_features`]; empty when it cannot predict) and lends them.
     pub fn predictions_at(&mut self, t_cam_ns: i64) -> &[FeaturePrediction] {
+        let t_cam_ns = self.clock_map.inside(t_cam_ns);
         let n = if self.status == Status::Running {
             predictor!(self)
                 .predict(t_cam_ns, &mut self.out.predictions)
@@ -101,9 +105,13 @@ impl<
         self.out.window.clear();
         for k in 0..self.window.len() {
             if let Some(kf) = self.window.get(k) {
+                let m = &self.clock_map;
                 let _ = self.out.window.push(KeyframeState {
-                    t_cam_ns: kf.t_cam_ns,
-                    state: kf.state,
+                    t_cam_ns: m.outside(kf.t_cam_ns),
+                    state: NavState {
+                        t_ns: m.outside(kf.state.t_ns),
+                        ..kf.state
+                    },
                     td_s: kf.td_s,
                 });
             }

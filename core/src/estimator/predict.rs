@@ -115,7 +115,7 @@ impl<
         if self.status != Status::Running {
             return Err(Error::NotInitialized);
         }
-        predictor!(self).predict(t_cam_ns, out)
+        predictor!(self).predict(self.clock_map.inside(t_cam_ns), out)
     }
 }
 

@@ -236,8 +236,8 @@ pub struct Counters {
     /// Of the gaps bridged: those above `imu_gap.bridge_max_s`, bridged because the motion
     /// before them was smooth (`imu_gap.long_bridge_max_s`).
     pub imu_gaps_bridged_long: u64,
-    /// Clock jumps: gaps in every stream across which the images show nothing moved, the
-    /// clock moved on and the state kept (`estimator::clock_jump`).
+    /// Clock jumps: gaps in every stream across which the images show nothing moved (the
+    /// inputs' clock moved; the estimate went on: `estimator::clock_jump`).
     pub clock_jumps: u64,
     /// IMU samples dropped as spikes (`imu_spike`).
     pub imu_spikes_rejected: u64,

@@ -76,6 +76,10 @@ impl<
         if self.status == Status::Unconfigured {
             return Err(Error::NotInitialized);
         }
+        let s = &ImuSample {
+            t_ns: self.clock_map.inside(s.t_ns),
+            ..*s
+        };
         if !s.is_finite() {
             self.counters.imu_rejected_nonfinite += 1;
             return Err(Error::NonFinite);
@@ -109,6 +113,7 @@ impl<
         if self.status == Status::Unconfigured {
             return Err(Error::NotInitialized);
         }
+        let t_cam_ns = self.clock_map.inside(t_cam_ns);
         self.counters.frames += 1;
         // A frame far ahead of the IMU would block every real frame until the IMU caught up
         // (and overflow the open interval): refuse it.
@@ -160,8 +165,9 @@ impl<
             self.counters.lidar_scans_refused += 1;
             return Err(Error::InvalidConfig);
         }
-        let trigger_ns =
-            crate::lidar::sweep_due_ns(points, self.cfg.lidar.td_l_s).unwrap_or(i64::MIN);
+        let shift_ns = self.clock_map.total_ns();
+        let trigger_ns = crate::lidar::sweep_due_ns(points, self.cfg.lidar.td_l_s)
+            .map_or(i64::MIN, |t| t.saturating_sub(shift_ns));
         // A sweep far ahead of the IMU would hold every later one back: refuse it.
         let lead_limit_ns = (self.cfg.max_frame_lead_s * 1e9) as i64;
         let newest = self.imu_in.back().or(self.last_imu.as_ref());
@@ -172,7 +178,10 @@ impl<
         }
         let crop = self.view_crop;
         let keep = |p: &LidarPoint| crop.as_ref().is_none_or(|c| c.keeps(p.p_l));
-        match self.sweeps_in.push_kept(points, trigger_ns, keep) {
+        match self
+            .sweeps_in
+            .push_kept_shifted(points, trigger_ns, shift_ns, keep)
+        {
             Queued::Queued { evicted, outside } => {
                 // Pushed out of the queue before the INS reached them: lost young.
                 self.counters.lidar_points_evicted += u64::from(evicted);
@@ -226,9 +235,13 @@ impl<
             }
             JumpCheck::No => None,
         };
-        let _ = self.imu_in.pop_front();
+        // The queued samples were moved onto the estimator's clock by a jump.
+        let Some(front) = self.imu_in.pop_front() else {
+            return Ok(None);
+        };
         let mut out = self.process_imu(&front)?;
         out.clock_jump_s = jump_ns.map(|j| j as f64 * 1e-9);
+        self.outside_clock(&mut out);
         self.deskew_due_sweeps(front.t_ns);
         Ok(Some(out))
     }
@@ -392,7 +405,29 @@ impl<
     /// [`Self::update`] still reports the same INS, which the fast path applies again to the
     /// same result.
     pub fn fast_path_seed(&self) -> Option<InsUpdate> {
-        self.ins.as_ref().map(|ins| InsUpdate::State(*ins))
+        self.ins
+            .as_ref()
+            .map(|ins| InsUpdate::State(self.ins_outside(ins)))
+    }
+
+    /// `ins` on the inputs' clock ([`super::clock_jump`]).
+    fn ins_outside(&self, ins: &crate::inertial::Ins) -> crate::inertial::Ins {
+        ins.time_shifted(self.clock_map.offset_at(ins.state().t_ns))
+    }
+
+    /// An output's times on the inputs' clock ([`super::clock_jump`]).
+    fn outside_clock(&self, out: &mut ImuOutput) {
+        let m = &self.clock_map;
+        if let Some(n) = out.nav.as_mut() {
+            n.t_ns = m.outside(n.t_ns);
+        }
+        if let Some(k) = out.keyframe.as_mut() {
+            k.t_ns = m.outside(k.t_ns);
+            k.t_cam_ns = m.outside(k.t_cam_ns);
+        }
+        if let Some(InsUpdate::State(ins)) = out.ins.as_mut() {
+            *ins = self.ins_outside(ins);
+        }
     }
 
     /// The update a fast path needs after this sample ([`ImuOutput::ins`]): none when the INS

@@ -127,6 +127,20 @@ impl Ins {
         self.cov = MaybeCovariance::new(cov);
     }
 
+    /// The same INS on a clock `dt_ns` later: its state's and stored samples' times moved by
+    /// `dt_ns` (a clock jump seen by the estimator, `estimator::clock_jump`).
+    pub fn time_shifted(&self, dt_ns: i64) -> Ins {
+        let mv = |s: ImuSample| ImuSample {
+            t_ns: s.t_ns.saturating_add(dt_ns),
+            ..s
+        };
+        let mut ins = *self;
+        ins.state.t_ns = ins.state.t_ns.saturating_add(dt_ns);
+        ins.prev_sample = ins.prev_sample.map(mv);
+        ins.older_sample = ins.older_sample.map(mv);
+        ins
+    }
+
     /// Replaces the state (e.g. after an estimator update). The previous sample is kept only if
     /// it was taken at the new state's time; the two-sample history restarts either way, because
     /// the correction changed the biases the increments were formed with. The covariance is

@@ -108,6 +108,18 @@ impl<const Q: usize, const S: usize> PendingSweeps<Q, S> {
         trigger_ns: i64,
         keep: impl Fn(&LidarPoint) -> bool,
     ) -> Queued {
+        self.push_kept_shifted(points, trigger_ns, 0, keep)
+    }
+
+    /// [`PendingSweeps::push_kept`] of points whose times are `shift_ns` ahead of the queue's
+    /// clock (`trigger_ns` is on the queue's clock): they are queued `shift_ns` earlier.
+    pub fn push_kept_shifted(
+        &mut self,
+        points: &[LidarPoint],
+        trigger_ns: i64,
+        shift_ns: i64,
+        keep: impl Fn(&LidarPoint) -> bool,
+    ) -> Queued {
         let t0_ns = points.iter().map(|p| p.t_ns).min().unwrap_or(trigger_ns);
         let packs = |p: &LidarPoint| i32::try_from(p.t_ns.saturating_sub(t0_ns)).is_ok();
         let fits = |p: &&LidarPoint| packs(p) && keep(p);
@@ -133,7 +145,7 @@ impl<const Q: usize, const S: usize> PendingSweeps<Q, S> {
         }
         self.len += n;
         let sweep = Sweep {
-            t0_ns,
+            t0_ns: t0_ns.saturating_sub(shift_ns),
             trigger_ns,
             start,
             len: n,
@@ -145,6 +157,15 @@ impl<const Q: usize, const S: usize> PendingSweeps<Q, S> {
         Queued::Queued {
             evicted: u32::try_from(evicted).unwrap_or(u32::MAX),
             outside: u32::try_from(outside).unwrap_or(u32::MAX),
+        }
+    }
+
+    /// Moves the times of the queued sweeps due after `after_ns` back by `by_ns` (a clock jump:
+    /// `estimator::clock_jump`).
+    pub fn shift_due_after(&mut self, after_ns: i64, by_ns: i64) {
+        for s in self.sweeps.iter_mut().filter(|s| s.trigger_ns > after_ns) {
+            s.t0_ns = s.t0_ns.saturating_sub(by_ns);
+            s.trigger_ns = s.trigger_ns.saturating_sub(by_ns);
         }
     }
 

@@ -18,7 +18,7 @@
 //!   interval is full, the INS goes on alone, the frames after the dropout start a new window
 //!   from its covariance).
 //! - [`Fault::ClockJump`]: every stamp from the fault on (every stream, the ground truth too)
-//!   moved by +1 h (a clock jump: the state kept, a new window from its covariance;
+//!   moved by +1 h (a clock jump: the inputs' clock moved, the estimate goes on;
 //!   `estimator::clock_jump`).
 
 use crate::sim::Scenario;

@@ -58,9 +58,9 @@ pub struct ImuGapConfig {
     /// error times the gap), m/s.
     pub long_max_velocity_mps: f64,
     /// A gap above `bridge_max_s` across which the images show that only the clock moved (every
-    /// stream stepped together, the tracks continue) is a clock jump: the state is kept and the
-    /// clock moves on ([`crate::estimator::clock_jump`]). False: such a gap is bridged or resets
-    /// as any other.
+    /// stream stepped together, the tracks continue) is a clock jump: the inputs' stamps are
+    /// taken that much earlier from then on and the estimate goes on
+    /// ([`crate::estimator::clock_jump`]). False: such a gap is bridged or resets as any other.
     pub clock_jumps: bool,
 }
 
