@@ -210,6 +210,9 @@ pub trait RunSink {
     /// The prediction errors of one camera frame after initialization, px (see
     /// [`RunOutput::prediction_err_px`]).
     fn prediction_errors(&mut self, e_px: &[f32]);
+    /// The inputs' clock jumped by `jump_ns` before the sample at `at_ns`
+    /// (`povins_core::estimator::clock_jump`): no input lies in `at_ns - jump_ns..at_ns`.
+    fn clock_jump(&mut self, _at_ns: i64, _jump_ns: i64) {}
 }
 
 impl<A: RunSink, B: RunSink> RunSink for (A, B) {
@@ -236,6 +239,10 @@ impl<A: RunSink, B: RunSink> RunSink for (A, B) {
     fn prediction_errors(&mut self, e_px: &[f32]) {
         self.0.prediction_errors(e_px);
         self.1.prediction_errors(e_px);
+    }
+    fn clock_jump(&mut self, at_ns: i64, jump_ns: i64) {
+        self.0.clock_jump(at_ns, jump_ns);
+        self.1.clock_jump(at_ns, jump_ns);
     }
 }
 
@@ -727,6 +734,9 @@ impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
     fn output(&mut self, o: &Output<'_>) {
         self.watch_outage(o.nav.as_ref(), self.t_imu_ns);
         if let Some(jump_s) = o.clock_jump_s {
+            if let Some(n) = &o.nav {
+                self.sink.clock_jump(n.t_ns, (jump_s * 1e9).round() as i64);
+            }
             let at = self.progress.seconds(self.t_imu_ns);
             self.progress.note(&format!(
                 "clock jump of {jump_s:+.3} s in every stream at {at:.3} s: the images show \

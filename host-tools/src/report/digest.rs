@@ -55,6 +55,8 @@ pub struct RunDigest {
     /// The spans of time the IMU-rate poses cover: consecutive poses at most
     /// [`super::COVERAGE_TOLERANCE_NS`] apart, first and last stamp (one span per outage).
     pub(super) covered: Vec<(i64, i64)>,
+    /// The spans of the inputs' clock a clock jump skipped (no input in them).
+    pub(super) skipped: Vec<(i64, i64)>,
 }
 
 impl RunDigest {
@@ -123,6 +125,10 @@ pub(super) fn velocity_row(s: &NavState, cov: &InsCovariance) -> [f64; VELOCITY_
 }
 
 impl RunSink for RunDigest {
+    fn clock_jump(&mut self, at_ns: i64, jump_ns: i64) {
+        self.skipped.push((at_ns.saturating_sub(jump_ns), at_ns));
+    }
+
     fn nav(&mut self, s: &NavState) {
         super::extend_spans(&mut self.covered, s.t_ns);
         if let Some(v) = &mut self.trajectory {

@@ -136,7 +136,8 @@ pub struct Summary {
     /// Share of the input's time, from the first camera frame (the first IMU sample without a
     /// camera) to the last IMU sample, covered by IMU-rate poses: poses at most
     /// [`COVERAGE_TOLERANCE_NS`] apart cover the time between them; a longer gap is uncovered.
-    /// Defined without ground truth too.
+    /// The time a clock jump skipped is no input's (not counted). Defined without ground truth
+    /// too.
     pub input_coverage: Option<f64>,
     /// The estimator's counters (`resets`, `reinitializations`, rejections: see
     /// `povins_core::estimator::Counters`), and the image front end's under `front_end`.
@@ -197,16 +198,21 @@ pub fn coverage<E>(
     Ok((n > 0).then(|| covered as f64 / n as f64))
 }
 
-/// Share of `from_ns..to_ns` inside the `spans` (sorted, disjoint); `None` for an empty input.
-pub fn input_coverage(spans: &[(i64, i64)], from_ns: i64, to_ns: i64) -> Option<f64> {
-    if to_ns <= from_ns {
-        return None;
-    }
-    let inside: i64 = spans
-        .iter()
-        .map(|&(a, b)| (b.min(to_ns) - a.max(from_ns)).max(0))
-        .sum();
-    Some(inside as f64 / (to_ns - from_ns) as f64)
+/// Share of `from_ns..to_ns`, less the `skipped` spans (a clock jump's: no input in them), inside
+/// the `spans` (sorted, disjoint; none in a skipped span); `None` for an empty input.
+pub fn input_coverage(
+    spans: &[(i64, i64)],
+    skipped: &[(i64, i64)],
+    from_ns: i64,
+    to_ns: i64,
+) -> Option<f64> {
+    let within = |v: &[(i64, i64)]| -> i64 {
+        v.iter()
+            .map(|&(a, b)| (b.min(to_ns) - a.max(from_ns)).max(0))
+            .sum()
+    };
+    let total = (to_ns - from_ns) - within(skipped);
+    (total > 0).then(|| within(spans) as f64 / total as f64)
 }
 
 impl Summary {
@@ -426,10 +432,9 @@ pub fn summarize_digest(
             .zip(t.first_estimate_ns)
             .map(|(c, e)| (e - c) as f64 * 1e-9),
         coverage: None,
-        input_coverage: t
-            .input
-            .imu_span_ns
-            .and_then(|(i0, i1)| input_coverage(&d.covered, t.first_camera_ns.unwrap_or(i0), i1)),
+        input_coverage: t.input.imu_span_ns.and_then(|(i0, i1)| {
+            input_coverage(&d.covered, &d.skipped, t.first_camera_ns.unwrap_or(i0), i1)
+        }),
         counters: counters_json(t)?,
     };
     s.started_by = started_by(init, &t.counters);
@@ -583,10 +588,13 @@ mod tests {
     #[test]
     fn input_coverage_counts_the_time_inside_the_covered_spans() {
         let spans = [(0, 400), (600, 1000)];
-        assert_eq!(input_coverage(&spans, 200, 1000), Some(0.75));
-        assert_eq!(input_coverage(&spans, 0, 1000), Some(0.8));
-        assert_eq!(input_coverage(&[], 0, 1000), Some(0.0));
-        assert_eq!(input_coverage(&spans, 1000, 1000), None);
+        assert_eq!(input_coverage(&spans, &[], 200, 1000), Some(0.75));
+        assert_eq!(input_coverage(&spans, &[], 0, 1000), Some(0.8));
+        assert_eq!(input_coverage(&[], &[], 0, 1000), Some(0.0));
+        assert_eq!(input_coverage(&spans, &[], 1000, 1000), None);
+        // A clock jump's skipped time is nobody's input.
+        assert_eq!(input_coverage(&spans, &[(400, 600)], 0, 1000), Some(1.0));
+        assert_eq!(input_coverage(&[], &[(0, 1000)], 0, 1000), None);
         let mut d = RunDigest::default();
         for t_ms in [0, 5, 10, 30, 35] {
             let mut s = povins_core::inertial::NavState::ZERO;
