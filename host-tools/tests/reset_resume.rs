@@ -337,6 +337,10 @@ fn a_clock_jump_in_every_stream_is_told_and_survived() {
     );
     let coverage = s["coverage"].as_f64().unwrap();
     assert!(coverage > 0.95, "coverage {coverage}: {stdout}");
+    // The hour the clock skipped is no input's time (a recording without ground truth is
+    // judged by this one).
+    let input = s["input_coverage"].as_f64().unwrap();
+    assert!(input > 0.95, "input coverage {input}: {stdout}");
     let ate = s["ate_pos_rmse_m"].as_f64().unwrap();
     assert!(
         ate < 0.035,
