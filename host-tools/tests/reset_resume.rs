@@ -41,6 +41,15 @@ fn poses(p: &Path) -> Vec<(f64, [f64; 3], f64)> {
         .collect()
 }
 
+/// The stamp of the first data row of an EuRoC CSV file, ns.
+fn first_stamp(text: &str) -> i64 {
+    text.lines()
+        .find(|l| !l.starts_with('#'))
+        .and_then(|l| l.split(',').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap()
+}
+
 /// A copy of the EuRoC sequence with the IMU samples from 15 s to 15 s + `gap_s` removed, and
 /// `povins run` on it: (success, stdout, stderr, summary.json, output folder).
 fn run_with_gap(
@@ -62,12 +71,7 @@ fn run_with_gap_in(
     copy_dir(src, &data);
     let imu = data.join("mav0/imu0/data.csv");
     let text = std::fs::read_to_string(&imu).unwrap();
-    let t0: i64 = text
-        .lines()
-        .find(|l| !l.starts_with('#'))
-        .and_then(|l| l.split(',').next())
-        .and_then(|t| t.parse().ok())
-        .unwrap();
+    let t0 = first_stamp(&text);
     let (a, b) = (
         t0 + 15_000_000_000,
         t0 + 15_000_000_000 + (gap_s * 1e9) as i64,
@@ -283,15 +287,8 @@ fn a_clock_jump_in_every_stream_is_told_and_survived() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("jump");
     copy_dir(Path::new(EUROC), &data);
-    let first = |text: &str| -> i64 {
-        text.lines()
-            .find(|l| !l.starts_with('#'))
-            .and_then(|l| l.split(',').next())
-            .and_then(|t| t.parse().ok())
-            .unwrap()
-    };
     let imu = std::fs::read_to_string(data.join("mav0/imu0/data.csv")).unwrap();
-    let at = first(&imu) + 15_000_000_000;
+    let at = first_stamp(&imu) + 15_000_000_000;
     for f in [
         "imu0/data.csv",
         "features0/data.csv",
