@@ -9,7 +9,9 @@ mod common;
 
 use common::*;
 use povins::core::camera::FeatureObs;
-use povins::core::estimator::{Counters, PoVins, Status, VisualMode, MAX_FEATURES};
+use povins::core::estimator::{
+    Counters, PoVins, Status, VisualMode, GAP_WITHHOLD_MAX_S, MAX_FEATURES,
+};
 use povins::core::inertial::{ImuSample, NavState};
 use povins::core::math::Vec3;
 use povins::host_tools::runner::interpolate_state;
@@ -355,6 +357,78 @@ fn imu_gaps_in_flight_are_bridged_without_a_reset() {
                 "{gap_s} s gap: ATE {ate:.4} m"
             );
         }
+    });
+}
+
+/// A 1 s IMU gap in flight, bridged as a long gap (`imu_gap.long_bridge_max_s`): the INS
+/// crosses it on the line between the samples around it, so its state after the gap is
+/// withheld (`ImuOutput::nav_withheld`, `nav_state()` `None`) from the first sample after the
+/// gap until the second keyframe after it (the first whose interval was measured), and what
+/// is then published stays near the clean run's state: before, the first outputs after the
+/// gap were 0.40 m off and the velocity 0.5 m/s off until the second keyframe (ATE 0.0357 m).
+#[test]
+fn a_long_imu_gap_withholds_the_state_until_keyframes_correct_it() {
+    small_stack(|| {
+        let (ds, frames) = euroc();
+        let clean = run(&ds, &ds.imu, &frames);
+        let (gap0, gap1) = (secs(&ds, 15.0), secs(&ds, 16.0));
+        let imu: Vec<ImuSample> = ds
+            .imu
+            .iter()
+            .copied()
+            .filter(|s| s.t_ns <= gap0 || s.t_ns > gap1)
+            .collect();
+        let mut withheld = Vec::new();
+        let mut withheld_seen_by_nav_state = 0;
+        let r = run_with(&ds, &imu, &frames, |e, s| {
+            if s.t_ns > gap1 && e.status() == Status::Running && e.nav_state().is_none() {
+                withheld_seen_by_nav_state += 1;
+            }
+        });
+        let mut est = new_estimator(euroc_config(&ds, VisualMode::PoseOnly));
+        let slices: Vec<(i64, &[FeatureObs])> =
+            frames.iter().map(|(t, o)| (*t, o.as_slice())).collect();
+        drive(&mut est, &imu, &slices, |_, s, o| {
+            if o.nav_withheld {
+                assert!(o.nav.is_none(), "a withheld state was handed out");
+                withheld.push(s.t_ns);
+            }
+            true
+        });
+        let c = r.counters;
+        assert_eq!((c.resets, c.imu_gaps_bridged_long), (0, 1), "{c:?}");
+        let first_after = imu
+            .iter()
+            .find(|s| s.t_ns > gap1)
+            .expect("IMU after the gap");
+        // Withheld from the first sample after the gap, until the second keyframe after it
+        // (0.55 s here), and never longer than GAP_WITHHOLD_MAX_S.
+        assert_eq!(withheld.first(), Some(&first_after.t_ns), "{withheld:?}");
+        let span_s = (withheld[withheld.len() - 1] - withheld[0]) as f64 * 1e-9;
+        assert!(span_s < GAP_WITHHOLD_MAX_S, "withheld for {span_s} s");
+        assert_eq!(withheld_seen_by_nav_state, withheld.len());
+        let released = r
+            .states
+            .iter()
+            .filter(|n| n.t_ns > gap1)
+            .take_while(|n| n.t_ns < first_after.t_ns + 1_000_000_000);
+        let mut worst = 0.0f64;
+        for n in released {
+            let c = povins::host_tools::runner::interpolate_state(&clean.states, n.t_ns)
+                .expect("the clean run covers it");
+            worst = worst.max((n.p_wb - c.p_wb).norm());
+        }
+        let ate = ate_m(&ds, &r.states);
+        println!(
+            "1 s gap: withheld {} samples ({span_s:.3} s), published within {worst:.3} m of the \
+             clean run over the second after it, ATE {ate:.4} m",
+            withheld.len()
+        );
+        assert!(
+            worst < 0.1,
+            "{worst} m from the clean run just after the gap"
+        );
+        assert!(ate < 0.032, "ATE {ate:.4} m");
     });
 }
 

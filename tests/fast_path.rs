@@ -15,6 +15,7 @@ struct Tally {
     compared: usize,
     updates: usize,
     keyframes: usize,
+    withheld: usize,
 }
 
 /// Replays EuRoC V1_01 (30 s, static initialization) and feeds every accepted sample to a fast
@@ -36,6 +37,7 @@ fn follow(ds: &Dataset, delay: usize) -> Tally {
         compared: 0,
         updates: 0,
         keyframes: 0,
+        withheld: 0,
     };
     let mut k = 0usize;
     let mut fi = 0;
@@ -54,6 +56,7 @@ fn follow(ds: &Dataset, delay: usize) -> Tally {
                 tally.updates += 1;
             }
             tally.keyframes += usize::from(out.keyframe.is_some());
+            tally.withheld += usize::from(out.nav_withheld);
             while in_flight.front().is_some_and(|(at, _)| *at <= k) {
                 if let Some((_, u)) = in_flight.pop_front() {
                     latest = fast.apply(&u);
@@ -114,5 +117,21 @@ fn the_fast_path_follows_across_a_clock_jump() {
         let at = ds.imu[0].t_ns + 15_000_000_000;
         follow(&jumped(&ds, at, 3_600_000_000_000), 0)
     });
+    assert!(t.compared > 4000, "only {} states compared", t.compared);
+}
+
+/// A 1 s IMU gap 15 s in, bridged as a long gap: the estimator withholds its state after the
+/// gap until keyframes correct it, the fast path is reset for that time (it publishes nothing
+/// either) and then follows the estimator bit for bit again.
+#[test]
+fn the_fast_path_is_reset_while_the_state_after_a_long_gap_is_withheld() {
+    let t = small_stack(|| {
+        let mut ds = load(EUROC_30S);
+        let at = ds.imu[0].t_ns + 15_000_000_000;
+        ds.imu
+            .retain(|s| s.t_ns <= at || s.t_ns > at + 1_000_000_000);
+        follow(&ds, 0)
+    });
+    assert!(t.withheld > 0, "nothing withheld after the gap");
     assert!(t.compared > 4000, "only {} states compared", t.compared);
 }

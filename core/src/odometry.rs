@@ -51,6 +51,9 @@ pub struct Output<'a> {
     pub gap_bridged_s: Option<f64>,
     /// The clock jumped before this sample: the jump, s ([`ImuOutput::clock_jump_s`]).
     pub clock_jump_s: Option<f64>,
+    /// `nav` is withheld after a long IMU gap until a keyframe corrects it
+    /// ([`ImuOutput::nav_withheld`]).
+    pub nav_withheld: bool,
 }
 
 impl Output<'_> {
@@ -62,6 +65,7 @@ impl Output<'_> {
             ins: self.ins,
             gap_bridged_s: self.gap_bridged_s,
             clock_jump_s: self.clock_jump_s,
+            nav_withheld: self.nav_withheld,
         }
     }
 }

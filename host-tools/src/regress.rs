@@ -657,7 +657,7 @@ pub(crate) mod tests {
             "openvins-corridor-imugap0.2s".into(),
             Variant::Fault(Fault::ImuGap)
         )));
-        // The 2 s gap only on the robot and the vehicle (see `Fault::ImuGapLong`).
+        // The 2 s gap only on the robot, the vehicle and the flight (see `Fault::ImuGapLong`).
         let long: Vec<String> = seqs
             .iter()
             .filter(|s| s.variant() == Variant::Fault(Fault::ImuGapLong))
@@ -667,7 +667,8 @@ pub(crate) mod tests {
             long,
             [
                 "sim-robot-seed1-30s-imugap2s",
-                "sim-vehicle-seed1-30s-imugap2s"
+                "sim-vehicle-seed1-30s-imugap2s",
+                "sim-flight-seed1-30s-imugap2s"
             ]
         );
         let c = sim_config(Scenario::Flight, 1, 30.0, Variant::Delay(-10));

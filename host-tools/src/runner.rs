@@ -732,7 +732,9 @@ impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
     }
 
     fn output(&mut self, o: &Output<'_>) {
-        self.watch_outage(o.nav.as_ref(), self.t_imu_ns);
+        if !o.nav_withheld {
+            self.watch_outage(o.nav.as_ref(), self.t_imu_ns);
+        }
         if let Some(jump_s) = o.clock_jump_s {
             if let Some(n) = &o.nav {
                 self.sink.clock_jump(n.t_ns, (jump_s * 1e9).round() as i64);
@@ -745,8 +747,13 @@ impl<S: RunSink> Observer for RunObserver<'_, '_, S> {
         }
         if let Some(gap_s) = o.gap_bridged_s {
             let at = self.progress.seconds(self.t_imu_ns);
+            let withheld = if o.nav_withheld {
+                "; the estimate is withheld until keyframes after it correct the INS"
+            } else {
+                ""
+            };
             self.progress.note(&format!(
-                "IMU gap of {gap_s:.3} s ending at {at:.3} s bridged"
+                "IMU gap of {gap_s:.3} s ending at {at:.3} s bridged{withheld}"
             ));
         }
         if let Some(k) = &o.keyframe {

@@ -138,6 +138,10 @@ fn a_one_second_imu_gap_after_smooth_flight_is_bridged() {
     let (ok, stdout, stderr, s, _) = run_with_gap(tmp.path(), 1.0);
     assert!(ok, "povins run failed: {stderr}");
     assert!(stderr.contains("IMU gap of 1.00"), "{stderr}");
+    assert!(
+        stderr.contains("the estimate is withheld until keyframes after it correct the INS"),
+        "{stderr}"
+    );
     assert!(!stderr.contains("estimator reset at"), "{stderr}");
     assert_eq!(s["counters"]["resets"].as_u64(), Some(0), "{stdout}");
     assert_eq!(
@@ -181,7 +185,13 @@ fn a_two_second_imu_gap_is_bridged_after_smooth_motion_only() {
             assert!(stderr.contains("IMU gap of 2.00"), "{stderr}");
             assert_eq!(n("imu_gaps_bridged_long"), Some(1), "{stdout}");
             assert_eq!(n("resets"), Some(0), "{stdout}");
-            assert!(coverage > 0.9, "{scenario}: coverage {coverage}");
+            // Issue 32's bar: coverage 0.95, the gap itself excepted (its 2 s of the 29 s after
+            // the first camera frame); the 0.35 s withheld after it count against it.
+            let gap_share = 2.0 / 29.0;
+            assert!(
+                coverage + gap_share > 0.95,
+                "{scenario}: coverage {coverage}"
+            );
             assert!(
                 ate < 1.5 * ate_clean,
                 "{scenario}: ATE {ate} vs {ate_clean}"

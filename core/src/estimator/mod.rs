@@ -156,7 +156,17 @@ pub struct ImuOutput {
     pub gap_bridged_s: Option<f64>,
     /// Set when the clock jumped before this sample ([`clock_jump`]): the jump, s.
     pub clock_jump_s: Option<f64>,
+    /// True when `nav` is withheld (`None` although the estimator runs): after an IMU gap
+    /// bridged as a long one, until the first keyframe's solve after it corrects the INS (at
+    /// most [`GAP_WITHHOLD_MAX_S`]); a fast path is reset for that time.
+    pub nav_withheld: bool,
 }
+
+/// Longest time the state is withheld after a long bridged IMU gap, s, when the keyframes do
+/// not come (a camera out as well): the INS is then handed out as it is. Keyframes come every
+/// 0.3-0.5 s on the simulator's scenarios and on EuRoC: the second after a gap 0.35-0.55 s
+/// after it.
+pub const GAP_WITHHOLD_MAX_S: f64 = 1.0;
 
 #[derive(Clone)]
 struct PendingFrame {
@@ -232,6 +242,8 @@ pub struct Estimator<
     gap: Option<UnmeasuredSpan>,
     /// The recent IMU samples in blocks: a long gap is bridged only when they were smooth.
     motion: motion_history::MotionHistory,
+    /// Set after a long bridged gap: the state is withheld until a keyframe corrects it.
+    withheld: Option<timing::Withheld>,
     tracks: TrackTable<MAX_FEATURES>,
     rest: RestDetector<MAX_FEATURES>,
     frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
@@ -435,6 +447,7 @@ impl<
             ins: Held::empty(Ins::blank()),
             last_imu: None,
             gap: None,
+            withheld: None,
             motion: motion_history::MotionHistory::new(),
             tracks: TrackTable::new(0.0),
             rest: RestDetector::new(EstimatorConfig::PLACEHOLDER.rest),
@@ -521,6 +534,7 @@ impl<
         self.frame_dt_ns = 0;
         self.clock_map.clear();
         self.gap = None;
+        self.withheld = None;
         self.motion.clear();
         self.gyro_recent.clear();
         self.tracks.reset_to_new(TRACK_MAX_GAP_S);
@@ -677,6 +691,7 @@ impl<
         self.thin.clear();
         self.last_sweep_due_ns = None;
         self.gap = None;
+        self.withheld = None;
         self.kf_cov = MaybeCovariance::NONE;
     }
 

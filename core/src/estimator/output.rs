@@ -62,8 +62,12 @@ impl<
     > Estimator<N, L, D, P, GW, GH, Q, TC>
 {
     /// The current INS state (the IMU-rate state after the last processed sample), once
-    /// initialized.
+    /// initialized; `None` while it is withheld after a long IMU gap
+    /// ([`ImuOutput::nav_withheld`]).
     pub fn nav_state(&self) -> Option<NavState> {
+        if self.withheld.is_some() {
+            return None;
+        }
         self.ins.as_ref().map(|i| NavState {
             t_ns: self.clock_map.outside(i.state().t_ns),
             ..*i.state()
@@ -154,6 +158,7 @@ impl<
             keyframe,
             gap_bridged_s: o.gap_bridged_s,
             clock_jump_s: o.clock_jump_s,
+            nav_withheld: o.nav_withheld,
         }))
     }
 }

@@ -275,6 +275,7 @@ impl<
             ins: None,
             gap_bridged_s: None,
             clock_jump_s: None,
+            nav_withheld: false,
         };
         if let Some(last) = self.last_imu {
             let gap_ns = s.t_ns.saturating_sub(last.t_ns);
@@ -316,7 +317,44 @@ impl<
         self.last_imu = Some(*s);
         out.nav = self.ins.as_ref().map(|i| *i.state());
         out.ins = self.fast_path_update(plain_from);
+        self.withhold_after_gap(&mut out);
         Ok(out)
+    }
+
+    /// After a long bridged gap the INS has crossed it on the line between the samples around
+    /// it, off by up to the gap's predicted error (2 s after a calm flight: about 0.05 rad of
+    /// tilt, a metre of position). The first keyframe after the gap corrects its pose, not yet
+    /// its velocity (the interval before it is the gap: real EuRoC, 1 s gap, the velocity then
+    /// 0.5 m/s off); the second, whose interval was measured, corrects both. Until then the state
+    /// is withheld ([`ImuOutput::nav_withheld`]; a fast path is reset, then given the corrected
+    /// state), at most [`super::GAP_WITHHOLD_MAX_S`]. The keyframes are the selector's own: the
+    /// estimate is the same as without the hold, only handed out later. A consumer sees the gap
+    /// a few frame periods longer, not a jump (BENCHMARKS.md, "The published pose just after a
+    /// long gap").
+    fn withhold_after_gap(&mut self, out: &mut ImuOutput) {
+        let Some(w) = self.withheld.as_mut() else {
+            return;
+        };
+        let gap_end_ns = w.gap_end_ns;
+        // The newest keyframe's interval was measured: the one before it is after the gap.
+        let measured = self
+            .window
+            .len()
+            .checked_sub(2)
+            .and_then(|p| self.window.get(p))
+            .is_some_and(|k| k.state.t_ns >= gap_end_ns);
+        if (out.keyframe.is_some() && measured) || out.nav.is_none_or(|n| n.t_ns >= w.until_ns) {
+            let reset_sent = w.reset_sent;
+            self.withheld = None;
+            if reset_sent && out.ins.is_none() {
+                out.ins = self.ins.as_ref().map(|i| InsUpdate::State(*i));
+            }
+            return;
+        }
+        out.nav = None;
+        out.nav_withheld = true;
+        out.ins = (!w.reset_sent).then_some(InsUpdate::Reset);
+        w.reset_sent = true;
     }
 
     /// Bridges the gap from `last` to `s` (see [`crate::estimator::ImuGapConfig`]): declares it
@@ -366,6 +404,14 @@ impl<
         self.counters.imu_gaps_bridged += 1;
         self.counters.imu_gaps_bridged_long += u64::from(measured.is_some());
         out.gap_bridged_s = Some(gap_s);
+        if measured.is_some() {
+            let hold_ns = (super::GAP_WITHHOLD_MAX_S * 1e9) as i64;
+            self.withheld = Some(Withheld {
+                gap_end_ns: s.t_ns,
+                until_ns: s.t_ns.saturating_add(hold_ns),
+                reset_sent: false,
+            });
+        }
         // At most MAX_BRIDGE_STEPS steps (bounded time; a step longer than max_imu_dt_s, from
         // a tiny max_imu_dt_s, makes the INS refuse it: a reset).
         let step_ns = ((self.cfg.max_imu_dt_s * 0.5 * 1e9) as i64).max(1);
@@ -405,6 +451,9 @@ impl<
     /// [`Self::update`] still reports the same INS, which the fast path applies again to the
     /// same result.
     pub fn fast_path_seed(&self) -> Option<InsUpdate> {
+        if self.withheld.is_some() {
+            return None;
+        }
         self.ins
             .as_ref()
             .map(|ins| InsUpdate::State(self.ins_outside(ins)))
@@ -584,6 +633,17 @@ impl Departure {
             (libm::sqrt(self.acc_a / c), libm::sqrt(self.acc_g / c))
         })
     }
+}
+
+/// The state withheld after a long bridged IMU gap ([`Estimator::withhold_after_gap`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Withheld {
+    /// The first sample after the gap, ns.
+    pub(super) gap_end_ns: i64,
+    /// INS time from which the state is handed out whether or not a keyframe came, ns.
+    until_ns: i64,
+    /// The fast path was told to reset.
+    reset_sent: bool,
 }
 
 #[cfg(test)]

@@ -56,7 +56,8 @@ pub enum VariantGroup {
     /// The camera-IMU extrinsic started 2 cm and 2 degrees off, estimated online.
     Extrinsic,
     /// Sensor faults at half the sequence (simulated and real): a 0.2 s IMU gap, spikes and a
-    /// burst, a 3 s camera dropout.
+    /// burst, a 3 s camera dropout, a +1 h clock jump, and a 2 s IMU gap on the robot, the
+    /// vehicle and the flight.
     Faults,
 }
 
