@@ -332,7 +332,7 @@ impl<
     /// a few frame periods longer, not a jump (BENCHMARKS.md, "The published pose just after a
     /// long gap").
     fn withhold_after_gap(&mut self, out: &mut ImuOutput) {
-        let Some(w) = self.withheld.as_mut() else {
+        let Some(w) = self.withheld else {
             return;
         };
         let gap_end_ns = w.gap_end_ns;
@@ -343,18 +343,18 @@ impl<
             .checked_sub(2)
             .and_then(|p| self.window.get(p))
             .is_some_and(|k| k.state.t_ns >= gap_end_ns);
+        // The hold starts at the sample that ends the gap: the fast path is reset there.
+        let first = out.gap_bridged_s.is_some();
         if (out.keyframe.is_some() && measured) || out.nav.is_none_or(|n| n.t_ns >= w.until_ns) {
-            let reset_sent = w.reset_sent;
             self.withheld = None;
-            if reset_sent && out.ins.is_none() {
+            if !first && out.ins.is_none() {
                 out.ins = self.ins.as_ref().map(|i| InsUpdate::State(*i));
             }
             return;
         }
         out.nav = None;
         out.nav_withheld = true;
-        out.ins = (!w.reset_sent).then_some(InsUpdate::Reset);
-        w.reset_sent = true;
+        out.ins = first.then_some(InsUpdate::Reset);
     }
 
     /// Bridges the gap from `last` to `s` (see [`crate::estimator::ImuGapConfig`]): declares it
@@ -409,7 +409,6 @@ impl<
             self.withheld = Some(Withheld {
                 gap_end_ns: s.t_ns,
                 until_ns: s.t_ns.saturating_add(hold_ns),
-                reset_sent: false,
             });
         }
         // At most MAX_BRIDGE_STEPS steps (bounded time; a step longer than max_imu_dt_s, from
@@ -640,10 +639,10 @@ impl Departure {
 pub(super) struct Withheld {
     /// The first sample after the gap, ns.
     pub(super) gap_end_ns: i64,
-    /// INS time from which the state is handed out whether or not a keyframe came, ns.
+    /// INS time from which the state is handed out whether or not a keyframe came, ns. (No
+    /// flag here: `Estimator::empty` is all zero bits, and `None` of a struct without a niche
+    /// is.)
     until_ns: i64,
-    /// The fast path was told to reset.
-    reset_sent: bool,
 }
 
 #[cfg(test)]
