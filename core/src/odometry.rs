@@ -224,6 +224,11 @@ pub trait Odometry {
     /// Queues one LiDAR sweep ([`crate::estimator::Estimator::push_lidar`]).
     fn push_lidar(&mut self, points: &[LidarPoint]) -> Result<(), Error>;
 
+    /// No more input comes (the end of a recording): what the odometry holds back for later
+    /// input is processed by the next [`Odometry::update`] calls (see
+    /// [`crate::estimator::Estimator::end_input`]); drain them. A later push ends this.
+    fn end_input(&mut self);
+
     /// Processes the next due IMU sample ([`crate::estimator::Estimator::update`]); `Ok(None)`:
     /// nothing is due. An error ends that sample's processing (the sample is consumed).
     fn update(&mut self) -> Result<Option<Output<'_>>, Error>;

@@ -542,8 +542,9 @@ fn v3(a: [F; 3]) -> Vec3 {
 /// - 5 `Replay { n: u8 }`: the next `n` real EuRoC samples and the frames between them, each
 ///   sample followed by `update` until `None` (so sequences reach initialization and the window);
 /// - 6 `Update` (until `None`, bounded); 7 `Reset`;
-/// - 8 `Initialize { dt_us: i32, p, q: [F; 4], v, bg, ba }` at the latest time plus `dt_us`.
-pub const OPS: u8 = 9;
+/// - 8 `Initialize { dt_us: i32, p, q: [F; 4], v, bg, ba }` at the latest time plus `dt_us`;
+/// - 9 `EndInput`: `end_input`, then `update` until `None` (bounded).
+pub const OPS: u8 = 10;
 
 /// An operation decoded to the core's types (built before the estimator runs, so that running
 /// allocates nothing).
@@ -565,6 +566,7 @@ enum Cmd {
     Replay(usize),
     Update,
     Reset,
+    EndInput,
     Init {
         dt_ns: i64,
         s: NavState,
@@ -686,6 +688,7 @@ fn cmd(u: &mut Unstructured<'_>) -> arbitrary::Result<Cmd> {
         5 => Cmd::Replay(usize::from(u.arbitrary::<u8>()?)),
         6 => Cmd::Update,
         7 => Cmd::Reset,
+        9 => Cmd::EndInput,
         _ => {
             let dt_ns = us(u.arbitrary()?);
             let p = v3(u.arbitrary()?);
@@ -787,6 +790,10 @@ fn run(est: &mut PoVins, cmds: &[Cmd], lidar_buf: &mut [LidarPoint]) {
             }
             Cmd::Update => update_all(est),
             Cmd::Reset => est.reset(),
+            Cmd::EndInput => {
+                est.end_input();
+                update_all(est);
+            }
             Cmd::Init { dt_ns, s } => {
                 let s = NavState {
                     t_ns: t.saturating_add(*dt_ns),

@@ -14,6 +14,9 @@
 //! - Image: decoded ([`crate::images::decode`]) and [`Odometry::push_image`]; an image that
 //!   cannot be decoded or is refused goes to [`Observer::image_failed`] with the reason.
 //! - LiDAR sweep: [`Odometry::push_lidar`] (a refused sweep is counted by the estimator).
+//! - The source's end ([`run`]): [`Odometry::end_input`], then [`Odometry::update`] until nothing
+//!   is due (what the estimator held back for later input). The threaded pipeline
+//!   ([`crate::pipeline`]) does not: what it holds when its source stops is dropped.
 
 use crate::error::IoError;
 use crate::images::decode;
@@ -79,18 +82,7 @@ pub fn handle(odo: &mut dyn Odometry, ev: &SensorEvent, obs: &mut dyn Observer) 
     match ev {
         SensorEvent::Imu(s) => {
             let accepted = odo.push_imu(s).is_ok();
-            let (mut outputs, mut keyframe) = (0, false);
-            loop {
-                match odo.update() {
-                    Ok(Some(o)) => {
-                        outputs += 1;
-                        keyframe |= o.keyframe.is_some();
-                        obs.output(&o);
-                    }
-                    Ok(None) => break,
-                    Err(_) => continue,
-                }
-            }
+            let (outputs, keyframe) = drain(odo, obs);
             Handled::Imu {
                 accepted,
                 outputs,
@@ -156,6 +148,23 @@ pub fn handle(odo: &mut dyn Odometry, ev: &SensorEvent, obs: &mut dyn Observer) 
     }
 }
 
+/// [`Odometry::update`] until nothing is due, every output to `obs` (an error skips that
+/// sample); how many outputs, and whether one carried a keyframe.
+fn drain(odo: &mut dyn Odometry, obs: &mut dyn Observer) -> (u32, bool) {
+    let (mut outputs, mut keyframe) = (0, false);
+    loop {
+        match odo.update() {
+            Ok(Some(o)) => {
+                outputs += 1;
+                keyframe |= o.keyframe.is_some();
+                obs.output(&o);
+            }
+            Ok(None) => return (outputs, keyframe),
+            Err(_) => continue,
+        }
+    }
+}
+
 /// What a whole [`run`] measured.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct RunStats {
@@ -166,7 +175,8 @@ pub struct RunStats {
 }
 
 /// Drives every event of `source` through `odo` on the calling thread ([`handle`]), reporting
-/// to `obs`. A source error ends the run with that error.
+/// to `obs`; at the source's end, what the odometry held back for later input is processed
+/// ([`Odometry::end_input`]). A source error ends the run with that error.
 pub fn run(
     odo: &mut dyn Odometry,
     source: &mut dyn Source,
@@ -183,6 +193,10 @@ pub fn run(
         busy_ns = busy_ns.saturating_add(elapsed_ns(t0));
         stats.events += 1;
     }
+    let t0 = Instant::now();
+    odo.end_input();
+    drain(odo, obs);
+    busy_ns = busy_ns.saturating_add(elapsed_ns(t0));
     stats.odometry_s = busy_ns as f64 * 1e-9;
     Ok(stats)
 }

@@ -171,7 +171,10 @@ impl<
         let Some(first) = self.pending.iter().find(|p| after(p)) else {
             let newest = self.imu_in.back().map_or(front.t_ns, |s| s.t_ns);
             let waited = newest.saturating_sub(front.t_ns);
-            return if waited < JUMP_WAIT_NS && self.imu_in.len() < self.imu_in.capacity() / 2 {
+            return if waited < JUMP_WAIT_NS
+                && self.imu_in.len() < self.imu_in.capacity() / 2
+                && !self.input_ended
+            {
                 JumpCheck::Wait
             } else {
                 JumpCheck::No

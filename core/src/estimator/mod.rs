@@ -244,6 +244,8 @@ pub struct Estimator<
     motion: motion_history::MotionHistory,
     /// Set after a long bridged gap: the state is withheld until a keyframe corrects it.
     withheld: Option<timing::Withheld>,
+    /// Set by [`Estimator::end_input`] until the next push: nothing waits for later input.
+    input_ended: bool,
     tracks: TrackTable<MAX_FEATURES>,
     rest: RestDetector<MAX_FEATURES>,
     frame_obs: HVec<NormalizedObs, MAX_FEATURES>,
@@ -448,6 +450,7 @@ impl<
             last_imu: None,
             gap: None,
             withheld: None,
+            input_ended: false,
             motion: motion_history::MotionHistory::new(),
             tracks: TrackTable::new(0.0),
             rest: RestDetector::new(EstimatorConfig::PLACEHOLDER.rest),
@@ -532,6 +535,7 @@ impl<
         self.last_imu = None;
         self.imu_dt_ns = 0;
         self.frame_dt_ns = 0;
+        self.input_ended = false;
         self.clock_map.clear();
         self.gap = None;
         self.withheld = None;

@@ -194,6 +194,10 @@ impl<
         Estimator::push_imu(self, s)
     }
 
+    fn end_input(&mut self) {
+        Estimator::end_input(self);
+    }
+
     fn push_frame<'a>(
         &'a mut self,
         t_cam_ns: i64,

@@ -100,7 +100,18 @@ impl<
             self.counters.imu_dropped_queue_full += 1;
             return Err(Error::CapacityExceeded);
         }
+        self.input_ended = false;
         Ok(())
+    }
+
+    /// Tells the estimator that no more input comes (the end of a recording): the samples it
+    /// holds back for later input are then processed by the next [`Self::update`] calls, as if
+    /// that input had said nothing: a sample that steps like a spike (no next sample to confirm
+    /// it: kept), the samples inside the delay horizon (`delay_horizon_s`), and those waiting
+    /// for the frame that tells a clock jump from an outage (none comes: not a jump). Drain
+    /// [`Self::update`] after it. A later push ends this.
+    pub fn end_input(&mut self) {
+        self.input_ended = true;
     }
 
     /// Queues a camera frame of tracked features (raw pixels) at camera time `t_cam_ns`. It is
@@ -211,7 +222,7 @@ impl<
             let Some(front) = self.imu_in.front().copied() else {
                 return Ok(None);
             };
-            if self.cfg.delay_horizon_s > 0.0 {
+            if self.cfg.delay_horizon_s > 0.0 && !self.input_ended {
                 let newest = self.imu_in.back().map_or(front.t_ns, |b| b.t_ns);
                 let horizon_ns = (self.cfg.delay_horizon_s * 1e9) as i64;
                 if newest.saturating_sub(front.t_ns) < horizon_ns {
@@ -259,6 +270,7 @@ impl<
             return Spike::No;
         }
         match self.imu_in.iter().nth(1) {
+            None if self.input_ended => Spike::No,
             None => Spike::Wait,
             Some(next) if c.is_step(front, next) => Spike::Yes,
             Some(_) => Spike::No,

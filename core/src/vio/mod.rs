@@ -317,6 +317,10 @@ impl<
         Vio::push_imu(self, s)
     }
 
+    fn end_input(&mut self) {
+        self.est.end_input();
+    }
+
     fn push_frame<'a>(
         &'a mut self,
         t_cam_ns: i64,

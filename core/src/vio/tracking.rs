@@ -143,6 +143,9 @@ impl<const F: usize, const BYTES: usize, const LEVELS: usize> Odometry
         Ok(None)
     }
 
+    /// Nothing is held back: the front end alone answers every push at once.
+    fn end_input(&mut self) {}
+
     fn counters(&self) -> OdometryCounters {
         OdometryCounters {
             estimator: Default::default(),
