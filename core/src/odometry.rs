@@ -51,7 +51,7 @@ pub struct Output<'a> {
     pub gap_bridged_s: Option<f64>,
     /// The clock jumped before this sample: the jump, s ([`ImuOutput::clock_jump_s`]).
     pub clock_jump_s: Option<f64>,
-    /// `nav` is withheld after a long IMU gap until a keyframe corrects it
+    /// `nav` is withheld after a long IMU gap until keyframes correct it
     /// ([`ImuOutput::nav_withheld`]).
     pub nav_withheld: bool,
 }

@@ -157,8 +157,9 @@ pub struct ImuOutput {
     /// Set when the clock jumped before this sample ([`clock_jump`]): the jump, s.
     pub clock_jump_s: Option<f64>,
     /// True when `nav` is withheld (`None` although the estimator runs): after an IMU gap
-    /// bridged as a long one, until the first keyframe's solve after it corrects the INS (at
-    /// most [`GAP_WITHHOLD_MAX_S`]); a fast path is reset for that time.
+    /// bridged as a long one, until the keyframes after it have corrected the INS's pose and
+    /// velocity (the second keyframe after the gap; at most [`GAP_WITHHOLD_MAX_S`]); a fast
+    /// path is reset for that time.
     pub nav_withheld: bool,
 }
 
@@ -242,7 +243,7 @@ pub struct Estimator<
     gap: Option<UnmeasuredSpan>,
     /// The recent IMU samples in blocks: a long gap is bridged only when they were smooth.
     motion: motion_history::MotionHistory,
-    /// Set after a long bridged gap: the state is withheld until a keyframe corrects it.
+    /// Set after a long bridged gap: the state is withheld until keyframes correct it.
     withheld: Option<timing::Withheld>,
     /// Set by [`Estimator::end_input`] until the next push: nothing waits for later input.
     input_ended: bool,

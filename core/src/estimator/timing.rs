@@ -347,14 +347,13 @@ impl<
         let Some(w) = self.withheld else {
             return;
         };
-        let gap_end_ns = w.gap_end_ns;
         // The newest keyframe's interval was measured: the one before it is after the gap.
         let measured = self
             .window
             .len()
             .checked_sub(2)
             .and_then(|p| self.window.get(p))
-            .is_some_and(|k| k.state.t_ns >= gap_end_ns);
+            .is_some_and(|k| k.state.t_ns >= w.gap_end_ns);
         // The hold starts at the sample that ends the gap: the fast path is reset there.
         let first = out.gap_bridged_s.is_some();
         if (out.keyframe.is_some() && measured) || out.nav.is_none_or(|n| n.t_ns >= w.until_ns) {
