@@ -133,6 +133,32 @@ fn deterministic_pipeline_is_the_replay_bit_for_bit() {
     });
 }
 
+/// At its source's end the pipeline's back end processes what the estimator held back for later
+/// input (`end_input`), as the single-threaded replay does: with a 0.1 s delay horizon, every
+/// sample and every keyframe of the replay (before, the last 0.1 s of samples were dropped).
+#[test]
+fn the_pipeline_processes_what_the_estimator_held_back_at_the_end() {
+    small_stack(|| {
+        let ds = load(EUROC_30S);
+        let mut cfg = euroc_config(&ds, VisualMode::PoseOnly);
+        cfg.delay_horizon_s = 0.1;
+        let want = replay(&ds, cfg, InitMode::Static, &hidden()).expect("replay");
+        let opts = RealtimeOptions {
+            pacing: Pacing::AsFastAsPossible,
+            deterministic: true,
+            realtime_priority: false,
+            smooth_horizon_s: None,
+        };
+        let mut sink = CallbackSink::poses(|_: &PoseOut| {});
+        let report =
+            run_dataset(&ds, cfg, InitMode::Static, &opts, &mut sink, &hidden()).expect("pipeline");
+        assert_eq!(want.counters.imu_samples as usize, ds.imu.len());
+        assert_eq!(report.estimator.imu_samples, want.counters.imu_samples);
+        assert_eq!(report.counters.keyframes as usize, want.reports.len());
+        assert_eq!(report.keyframe_t_ns.len(), want.reports.len());
+    });
+}
+
 #[test]
 fn realtime_pipeline_runs_to_the_end_without_drops() {
     small_stack(|| {

@@ -15,8 +15,8 @@
 //!   cannot be decoded or is refused goes to [`Observer::image_failed`] with the reason.
 //! - LiDAR sweep: [`Odometry::push_lidar`] (a refused sweep is counted by the estimator).
 //! - The source's end ([`run`]): [`Odometry::end_input`], then [`Odometry::update`] until nothing
-//!   is due (what the estimator held back for later input). The threaded pipeline
-//!   ([`crate::pipeline`]) does not: what it holds when its source stops is dropped.
+//!   is due (what the estimator held back for later input). The threaded pipeline's back end
+//!   does the same at its source's end ([`crate::pipeline`]).
 
 use crate::error::IoError;
 use crate::images::decode;

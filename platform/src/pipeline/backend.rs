@@ -76,6 +76,7 @@ pub(crate) fn run(
             }
         };
         let ToBackend::Event { ev, arrival, due } = msg else {
+            finish(odo, &mut tx, shared, tap, &mut timing, &mut keyframes);
             break;
         };
         let t0 = Instant::now();
@@ -131,6 +132,45 @@ pub(crate) fn run(
         }
     }
     (timing, keyframes, counters)
+}
+
+/// The source's end: what the odometry held back for later input (a delay horizon, a spike's
+/// confirmation, a clock jump's frame) is processed ([`Odometry::end_input`], as
+/// [`crate::driver::run`] does), each output sent as its own reply (stamped with the newest
+/// sample forwarded: the IMU thread applies every reply left once the back end has finished).
+fn finish(
+    odo: &mut (dyn Odometry + Send),
+    tx: &mut Producer<FromBackend>,
+    shared: &Shared,
+    tap: Option<&LandmarkTap>,
+    timing: &mut Timing,
+    keyframes: &mut Vec<i64>,
+) {
+    odo.end_input();
+    loop {
+        let mut reply = Reply {
+            ins: None,
+            keyframe: None,
+            tap,
+        };
+        let t0 = Instant::now();
+        match odo.update() {
+            Ok(Some(o)) => reply.output(&o),
+            Ok(None) => return,
+            Err(_) => continue,
+        }
+        let t_ns = shared.newest_imu_ns.load(Ordering::Acquire);
+        if let Some(k) = &reply.keyframe {
+            timing.backend_keyframe.record(elapsed_ns(t0));
+            keyframes.push(k.state.map_or(t_ns, |s| s.t_ns));
+        }
+        let out = FromBackend {
+            t_ns,
+            ins: reply.ins,
+            keyframe: reply.keyframe,
+        };
+        send(tx, out, shared);
+    }
 }
 
 /// Sends a reply, waiting while the queue is full (the IMU thread drains it at every event).
