@@ -225,3 +225,46 @@ fn a_rolling_shutters_row_times_span_the_readout_around_the_middle_row() {
         assert_eq!(cfg.validate().is_ok(), ok, "readout {readout_s} s");
     }
 }
+
+/// The resection's reprojection Jacobian (`landmarks::resection`, right perturbation of the
+/// camera pose) against central differences, at random poses and landmarks.
+#[test]
+fn the_resection_jacobian_matches_central_differences() {
+    use povins_core::camera::CameraPose;
+    use povins_core::landmarks::resection::reprojection_jacobian;
+    use povins_core::math::{quat_exp, Quat};
+    let mut rng = Rng::new(17);
+    for _ in 0..50 {
+        let pose = CameraPose {
+            p_wc: Vec3::new(
+                rng.range(-3.0, 3.0),
+                rng.range(-3.0, 3.0),
+                rng.range(-1.0, 1.0),
+            ),
+            q_wc: Quat::from_euler_angles(
+                rng.range(-3.0, 3.0),
+                rng.range(-1.5, 1.5),
+                rng.range(-3.0, 3.0),
+            ),
+        };
+        let p_c = Vec3::new(
+            rng.range(-2.0, 2.0),
+            rng.range(-2.0, 2.0),
+            rng.range(1.0, 8.0),
+        );
+        let p_w = pose.q_wc * p_c + pose.p_wc;
+        let x_n = [rng.range(-0.5, 0.5), rng.range(-0.5, 0.5)];
+        let (_, j) = reprojection_jacobian(&pose, &p_w, &x_n).expect("in front");
+        let num = num_jac::<2, 6>(1e-6, |d| {
+            let moved = CameraPose {
+                q_wc: pose.q_wc * quat_exp(&Vec3::new(d[0], d[1], d[2])),
+                p_wc: pose.p_wc + Vec3::new(d[3], d[4], d[5]),
+            };
+            reprojection_jacobian(&moved, &p_w, &x_n)
+                .expect("in front")
+                .0
+        });
+        let err = (j - num).abs().max();
+        assert!(err < 1e-6 * (1.0 + num.abs().max()), "{err}\n{j}\n{num}");
+    }
+}

@@ -67,15 +67,24 @@ fn run_with_gap_in(
     gap_s: f64,
     extra: &[&str],
 ) -> (bool, String, String, serde_json::Value, std::path::PathBuf) {
+    run_with_gap_at(src, tmp, 15.0, gap_s, extra)
+}
+
+/// [`run_with_gap_in`] with the gap from `start_s` after the first IMU sample.
+fn run_with_gap_at(
+    src: &Path,
+    tmp: &Path,
+    start_s: f64,
+    gap_s: f64,
+    extra: &[&str],
+) -> (bool, String, String, serde_json::Value, std::path::PathBuf) {
     let data = tmp.join("gap");
     copy_dir(src, &data);
     let imu = data.join("mav0/imu0/data.csv");
     let text = std::fs::read_to_string(&imu).unwrap();
     let t0 = first_stamp(&text);
-    let (a, b) = (
-        t0 + 15_000_000_000,
-        t0 + 15_000_000_000 + (gap_s * 1e9) as i64,
-    );
+    let a = t0 + (start_s * 1e9) as i64;
+    let b = a + (gap_s * 1e9) as i64;
     let kept: String = text
         .lines()
         .filter(|l| {
@@ -202,6 +211,44 @@ fn a_two_second_imu_gap_is_bridged_after_smooth_motion_only() {
             assert_eq!(n("imu_gap_resets"), Some(1), "{stdout}");
         }
     }
+}
+
+/// Issue 32: a 0.5 s IMU gap while the hand-held camera turns (seed 3, 30 s, no LiDAR, the gap
+/// 25 s in). The line across the gap misses the turn; before, the window then settled on a
+/// velocity several times the true one (3.50 m against 0.107 m). At the first frame after the gap
+/// the images' pose is taken (`estimator::gap_pose`): counted, no reset, the ATE near the
+/// fault-free run's.
+#[test]
+fn after_a_short_gap_in_a_turn_the_images_pose_is_taken() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("sim");
+    common::simulate("handheld", "3", "30", "euroc", &src, &["--lidar", "none"]);
+    let clean = tmp.path().join("clean");
+    std::fs::create_dir_all(&clean).unwrap();
+    let (ok, _, stderr, c, _) = run_with_gap_in(&src, &clean, 0.0, &[]);
+    assert!(ok, "clean: {stderr}");
+    let gap = tmp.path().join("with-gap");
+    std::fs::create_dir_all(&gap).unwrap();
+    let (ok, stdout, stderr, s, _) = run_with_gap_at(&src, &gap, 25.0, 0.5, &[]);
+    assert!(ok, "{stderr}");
+    let n = |k: &str| s["counters"][k].as_u64();
+    assert_eq!(n("imu_gaps_bridged"), Some(1), "{stdout}");
+    assert_eq!(n("imu_gap_poses_from_images"), Some(1), "{stdout}");
+    assert_eq!(
+        (n("resets"), n("reinitializations")),
+        (Some(0), Some(0)),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("(0 long, 1 posed from the images after it)"),
+        "{stdout}"
+    );
+    let (ate, ate_clean) = (
+        s["ate_pos_rmse_m"].as_f64().unwrap(),
+        c["ate_pos_rmse_m"].as_f64().unwrap(),
+    );
+    println!("ATE {ate:.4} m (clean {ate_clean:.4})");
+    assert!(ate < 1.5 * ate_clean, "ATE {ate} vs {ate_clean}");
 }
 
 /// The stamps of `out/keyframes.tum` inside the gap [`run_with_gap_in`] makes (15 to 17 s after

@@ -129,7 +129,7 @@ impl<
         let Some(ins) = self.ins.as_ref() else {
             return Ok(None);
         };
-        let nav = *ins.state();
+        let nav = self.pose_after_gap(*ins.state(), sample);
 
         let mut tracked_share = 1.0;
         let decision = match self.window.last() {

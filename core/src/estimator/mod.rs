@@ -47,6 +47,7 @@ pub mod config;
 mod covariance;
 mod cull;
 mod frame_step;
+mod gap_pose;
 mod health;
 mod imu_noise;
 mod imu_step;

@@ -236,6 +236,9 @@ pub struct Counters {
     /// Of the gaps bridged: those above `imu_gap.bridge_max_s`, bridged because the motion
     /// before them was smooth (`imu_gap.long_bridge_max_s`).
     pub imu_gaps_bridged_long: u64,
+    /// Of the gaps bridged: those after which the images' pose was taken over the INS's, which
+    /// the line across the gap had missed (`estimator::gap_pose`).
+    pub imu_gap_poses_from_images: u64,
     /// Clock jumps: gaps in every stream across which the images show nothing moved (the
     /// inputs' clock moved; the estimate went on: `estimator::clock_jump`).
     pub clock_jumps: u64,
@@ -313,6 +316,7 @@ impl Counters {
         imu_gap_resets: 0,
         imu_gaps_bridged: 0,
         imu_gaps_bridged_long: 0,
+        imu_gap_poses_from_images: 0,
         clock_jumps: 0,
         imu_spikes_rejected: 0,
         interval_overflows: 0,

@@ -1,8 +1,10 @@
-//! Landmark geometry: pose-only depth and its analytic uncertainty, landmark bookkeeping.
+//! Landmark geometry: pose-only depth and its analytic uncertainty, landmark bookkeeping, a
+//! camera's pose from landmarks ([`resection`]).
 
 pub mod manager;
 pub mod obs;
 pub mod pose_only;
+pub mod resection;
 pub mod store;
 
 pub use manager::{Landmark, LandmarkManager, ManagerStats, MargPlan, BANNED_TRACKS};

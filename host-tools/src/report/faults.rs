@@ -135,12 +135,14 @@ pub fn status_line(s: &Summary) -> String {
             format!("coverage {:.1}% {of}", 100.0 * c)
         });
     format!(
-        "status    {} resets, {} re-initializations, {} IMU gaps bridged ({} long), {} clock \
-         jumps, {imu} IMU samples rejected, {frames} camera frames rejected, {coverage}",
+        "status    {} resets, {} re-initializations, {} IMU gaps bridged ({} long, {} posed from the \
+         images after it), {} clock jumps, {imu} IMU samples rejected, {frames} camera frames \
+         rejected, {coverage}",
         n("resets"),
         n("reinitializations"),
         n("imu_gaps_bridged"),
         n("imu_gaps_bridged_long"),
+        n("imu_gap_poses_from_images"),
         n("clock_jumps"),
     )
 }
