@@ -172,15 +172,7 @@ fn a_one_second_imu_gap_after_smooth_flight_is_bridged() {
 fn a_two_second_imu_gap_is_bridged_after_smooth_motion_only() {
     for (scenario, bridged) in [("robot", true), ("handheld", false)] {
         let tmp = tempfile::tempdir().unwrap();
-        let src = tmp.path().join("sim");
-        common::simulate(scenario, "1", "30", "euroc", &src, &["--lidar", "none"]);
-        let clean = tmp.path().join("clean");
-        std::fs::create_dir_all(&clean).unwrap();
-        let (ok, _, stderr, c, _) = run_with_gap_in(&src, &clean, 0.0, &[]);
-        assert!(ok, "{scenario} clean: {stderr}");
-        let gap = tmp.path().join("with-gap");
-        std::fs::create_dir_all(&gap).unwrap();
-        let (_, stdout, stderr, s, _) = run_with_gap_in(&src, &gap, 2.0, &[]);
+        let (c, (_, stdout, stderr, s, out)) = simulated_gap(tmp.path(), scenario, "1", 15.0, 2.0);
         let n = |k: &str| s["counters"][k].as_u64();
         let (ate, ate_clean) = (
             s["ate_pos_rmse_m"].as_f64().unwrap_or(f64::INFINITY),
@@ -190,7 +182,7 @@ fn a_two_second_imu_gap_is_bridged_after_smooth_motion_only() {
         println!("{scenario}: ATE {ate:.4} m (clean {ate_clean:.4}), coverage {coverage:.3}");
         if bridged {
             // The robot's tracks outlive the gap: no keyframe inside it.
-            assert!(keyframes_in_gap(&gap.join("out")).is_empty(), "{scenario}");
+            assert!(keyframes_in_gap(&out).is_empty(), "{scenario}");
             assert!(stderr.contains("IMU gap of 2.00"), "{stderr}");
             assert_eq!(n("imu_gaps_bridged_long"), Some(1), "{stdout}");
             assert_eq!(n("resets"), Some(0), "{stdout}");
@@ -221,15 +213,7 @@ fn a_two_second_imu_gap_is_bridged_after_smooth_motion_only() {
 #[test]
 fn after_a_short_gap_in_a_turn_the_images_pose_is_taken() {
     let tmp = tempfile::tempdir().unwrap();
-    let src = tmp.path().join("sim");
-    common::simulate("handheld", "3", "30", "euroc", &src, &["--lidar", "none"]);
-    let clean = tmp.path().join("clean");
-    std::fs::create_dir_all(&clean).unwrap();
-    let (ok, _, stderr, c, _) = run_with_gap_in(&src, &clean, 0.0, &[]);
-    assert!(ok, "clean: {stderr}");
-    let gap = tmp.path().join("with-gap");
-    std::fs::create_dir_all(&gap).unwrap();
-    let (ok, stdout, stderr, s, _) = run_with_gap_at(&src, &gap, 25.0, 0.5, &[]);
+    let (c, (ok, stdout, stderr, s, _)) = simulated_gap(tmp.path(), "handheld", "3", 25.0, 0.5);
     assert!(ok, "{stderr}");
     let n = |k: &str| s["counters"][k].as_u64();
     assert_eq!(n("imu_gaps_bridged"), Some(1), "{stdout}");
@@ -249,6 +233,29 @@ fn after_a_short_gap_in_a_turn_the_images_pose_is_taken() {
     );
     println!("ATE {ate:.4} m (clean {ate_clean:.4})");
     assert!(ate < 1.5 * ate_clean, "ATE {ate} vs {ate_clean}");
+}
+
+/// A 30 s simulated `scenario` run (`seed`, no LiDAR) in `tmp`: the fault-free run's
+/// `summary.json` (its success asserted), and [`run_with_gap_at`] with the gap from `start_s`.
+fn simulated_gap(
+    tmp: &Path,
+    scenario: &str,
+    seed: &str,
+    start_s: f64,
+    gap_s: f64,
+) -> (
+    serde_json::Value,
+    (bool, String, String, serde_json::Value, std::path::PathBuf),
+) {
+    let src = tmp.join("sim");
+    common::simulate(scenario, seed, "30", "euroc", &src, &["--lidar", "none"]);
+    let clean = tmp.join("clean");
+    std::fs::create_dir_all(&clean).unwrap();
+    let (ok, _, stderr, c, _) = run_with_gap_in(&src, &clean, 0.0, &[]);
+    assert!(ok, "{scenario} clean: {stderr}");
+    let gap = tmp.join("with-gap");
+    std::fs::create_dir_all(&gap).unwrap();
+    (c, run_with_gap_at(&src, &gap, start_s, gap_s, &[]))
 }
 
 /// The stamps of `out/keyframes.tum` inside the gap [`run_with_gap_in`] makes (15 to 17 s after
