@@ -1,4 +1,6 @@
-//! Criterion benches of the dense solver at sliding-window size (D = 166).
+//! Criterion benches of the dense solver at sliding-window size (D = 166), and of the camera
+//! resection run once after a bridged IMU gap (`landmarks::resection`, a full window's 200
+//! landmarks).
 use criterion::{criterion_group, criterion_main, Criterion};
 use povins::core::solver::{
     add_prior, schur_complement_in_place, sqrt_prior, JacobianBlock, Ldlt, NormalEquations,
@@ -116,5 +118,45 @@ fn bench_solver(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_solver);
+/// The resection from 0.3 rad and 0.3 m off: 200 landmarks 2-8 m away, 1 px of noise at 460 px,
+/// every tenth a wrong track 20-40 px off (the worst case the estimator hands it: `L` = 200).
+fn bench_resection(c: &mut Criterion) {
+    use povins::core::camera::CameraPose;
+    use povins::core::landmarks::resection::fit_camera_pose;
+    use povins::core::math::{quat_exp, Quat, Vec3};
+    let mut rng = Rng(0x0bad_cafe_1234_5678);
+    let truth = CameraPose {
+        p_wc: Vec3::new(1.0, -2.0, 0.5),
+        q_wc: Quat::from_euler_angles(0.3, -0.2, 1.0),
+    };
+    let focal = 460.0;
+    let pts: Vec<(Vec3, [f64; 2])> = (0..200)
+        .map(|k| {
+            let p_c = Vec3::new(
+                2.0 * rng.uniform(),
+                1.5 * rng.uniform(),
+                5.0 + 3.0 * rng.uniform(),
+            );
+            let mut x = [
+                p_c.x / p_c.z + rng.uniform() / focal,
+                p_c.y / p_c.z + rng.uniform() / focal,
+            ];
+            if k % 10 == 0 {
+                x[0] += (30.0 + 10.0 * rng.uniform()) / focal;
+            }
+            (truth.q_wc * p_c + truth.p_wc, x)
+        })
+        .collect();
+    let init = CameraPose {
+        p_wc: truth.p_wc + Vec3::new(0.2, -0.15, 0.15),
+        q_wc: truth.q_wc * quat_exp(&Vec3::new(0.2, -0.15, 0.15)),
+    };
+    let fit = fit_camera_pose(&pts, &init, focal).expect("a fit");
+    assert!(fit.inliers >= 175 && (fit.pose.p_wc - truth.p_wc).norm() < 0.05);
+    c.bench_function("resection/fit_200_points", |b| {
+        b.iter(|| black_box(fit_camera_pose(black_box(&pts), &init, focal)))
+    });
+}
+
+criterion_group!(benches, bench_solver, bench_resection);
 criterion_main!(benches);
