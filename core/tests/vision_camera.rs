@@ -268,3 +268,126 @@ fn the_resection_jacobian_matches_central_differences() {
         assert!(err < 1e-6 * (1.0 + num.abs().max()), "{err}\n{j}\n{num}");
     }
 }
+
+/// The relative rotation's residual Jacobian (`landmarks::relative_rotation`, left perturbation
+/// `R <- Exp(dtheta) R` at a fixed translation direction) against central differences.
+#[test]
+fn the_relative_rotation_jacobian_matches_central_differences() {
+    use povins_core::landmarks::relative_rotation::residual_jacobian;
+    use povins_core::math::{exp_so3, Quat};
+    let mut rng = Rng::new(23);
+    let unit = |rng: &mut Rng| {
+        Vec3::new(
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+            rng.range(0.5, 1.5),
+        )
+        .normalize()
+    };
+    for _ in 0..50 {
+        let (a, b, t) = (unit(&mut rng), unit(&mut rng), unit(&mut rng));
+        let q = Quat::from_euler_angles(
+            rng.range(-3.0, 3.0),
+            rng.range(-1.5, 1.5),
+            rng.range(-3.0, 3.0),
+        );
+        let r = q.to_rotation_matrix().into_inner();
+        let (_, j) = residual_jacobian(&a, &b, &r, &t);
+        let num = num_jac::<1, 3>(1e-6, |d| {
+            let moved = exp_so3(&Vec3::new(d[0], d[1], d[2])) * r;
+            SMatrix::<f64, 1, 1>::new(residual_jacobian(&a, &b, &moved, &t).0)
+        });
+        let err = (j.transpose() - num).abs().max();
+        assert!(err < 1e-7, "{err}\n{j}\n{num}");
+    }
+}
+
+/// Synthetic views of 120 landmarks 1.5-8 m away from two cameras rotated by up to 5 degrees:
+/// the rotation between them from the tracks alone, started at identity. Exact without noise
+/// (the camera moved sideways, forward, or not at all); with 1 px of noise within 0.15 degrees
+/// without translation and 0.75 degrees for a 5 cm forward move, with 5% wrong tracks (left
+/// out), and within 0.5 degrees for a 20 cm sideways move. (Not asserted, measured: the
+/// sideways move with 5% wrong tracks lands 2.8 degrees off, in the minimum where a rotation
+/// about the vertical and a forward move explain the sideways flow: `landmarks::relative_rotation`
+/// is meant for the small, continuous steps of a chain of frames.) Too few tracks or garbage
+/// give `None`, not a panic.
+#[test]
+fn the_relative_rotation_is_found_from_the_tracks_alone() {
+    use povins_core::landmarks::relative_rotation::{fit_relative_rotation, MIN_PAIRS};
+    use povins_core::math::{log_so3, quat_exp, Quat};
+    let mut rng = Rng::new(5);
+    // (translation of B in A, pixel noise, wrong tracks, tolerance in degrees)
+    let cases = [
+        (Vec3::new(0.05, 0.0, 0.0), 0.0, false, 1e-4),
+        (Vec3::new(0.0, 0.01, 0.05), 0.0, false, 1e-4),
+        (Vec3::zeros(), 0.0, false, 1e-4),
+        (Vec3::new(0.0, 0.01, 0.05), 1.0, true, 0.75),
+        (Vec3::zeros(), 1.0, true, 0.15),
+        (Vec3::new(0.2, 0.0, 0.0), 1.0, false, 0.5),
+    ];
+    for (case, (t_ab, noise_px, with_wrong, tol_deg)) in cases.into_iter().enumerate() {
+        let sigma = noise_px / 460.0;
+        for trial in 0..10 {
+            let q_ab = quat_exp(&Vec3::new(
+                rng.range(-0.05, 0.05),
+                rng.range(-0.05, 0.05),
+                rng.range(-0.05, 0.05),
+            ));
+            let mut pairs = Vec::new();
+            let mut wrong = 0;
+            for k in 0..120 {
+                // A landmark in A, seen from B at p_b = R_AB^T (p_a - t_ab).
+                let p_a = Vec3::new(
+                    rng.range(-3.0, 3.0),
+                    rng.range(-2.0, 2.0),
+                    rng.range(1.5, 8.0),
+                );
+                let p_b = q_ab.inverse() * (p_a - t_ab);
+                let mut noisy = |p: Vec3| {
+                    let x = p / p.z;
+                    Vec3::new(x.x + sigma * rng.normal(), x.y + sigma * rng.normal(), 1.0)
+                        .normalize()
+                };
+                let a = noisy(p_a);
+                let mut b = noisy(p_b);
+                if with_wrong && k % 20 == 0 {
+                    // A wrong track: another point's bearing.
+                    b = Vec3::new(rng.range(-0.6, 0.6), rng.range(-0.4, 0.4), 1.0).normalize();
+                    wrong += 1;
+                }
+                pairs.push((a, b));
+            }
+            // The bearing noise the fit is told: at least a tenth of a pixel.
+            let told = sigma.max(0.1 / 460.0);
+            let fit = fit_relative_rotation(&pairs, &Quat::identity(), told).expect("a fit");
+            let err = log_so3(&(fit.q_ab.inverse() * q_ab)).norm().to_degrees();
+            assert!(
+                err < tol_deg,
+                "case {case} trial {trial}: {err} deg, {fit:?}"
+            );
+            assert!(
+                fit.inliers >= 120 - wrong - 3,
+                "case {case} trial {trial}: {fit:?}"
+            );
+            if t_ab.norm() > 0.0 && noise_px == 0.0 {
+                // The direction of B's centre in A, with its sign.
+                let dir = fit.t_ab.dot(&t_ab.normalize());
+                assert!(dir > 0.999, "case {case} trial {trial}: {fit:?}");
+            }
+        }
+    }
+    let sigma = 1.0 / 460.0;
+    let few = vec![(Vec3::z(), Vec3::z()); MIN_PAIRS - 1];
+    assert!(fit_relative_rotation(&few, &Quat::identity(), sigma).is_none());
+    let nan = vec![(Vec3::new(f64::NAN, 0.0, 1.0), Vec3::z()); 40];
+    assert!(fit_relative_rotation(&nan, &Quat::identity(), sigma).is_none());
+    let same = vec![(Vec3::z(), Vec3::z()); 40];
+    let _ = fit_relative_rotation(&same, &Quat::identity(), sigma);
+    let spread: Vec<(Vec3, Vec3)> = (0..40)
+        .map(|k| {
+            let a = Vec3::new(0.01 * k as f64, -0.02 * k as f64, 1.0).normalize();
+            (a, a)
+        })
+        .collect();
+    assert!(fit_relative_rotation(&spread, &Quat::identity(), 0.0).is_none());
+}

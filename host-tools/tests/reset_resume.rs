@@ -1,7 +1,8 @@
 //! Issue 31 item 2: a full reset in motion (an IMU gap on a flying drone) no longer ends the
 //! run. The estimator starts again without rest (the in-motion initializer), `povins run` says
 //! when it was lost and when it was back, and the new start continues from the last estimate's
-//! position and yaw, so what an autopilot reads does not jump.
+//! position and yaw, moved by the rotation and the path the frames during the outage show
+//! (`estimator::outage_heading`), so what an autopilot reads does not jump.
 
 mod common;
 
@@ -39,6 +40,34 @@ fn poses(p: &Path) -> Vec<(f64, [f64; 3], f64)> {
             (v[0], [v[1], v[2], v[3]], yaw)
         })
         .collect()
+}
+
+/// The ground truth of an EuRoC folder at the stamp nearest `t_s`: (position, yaw rad).
+fn truth_at(folder: &Path, t_s: f64) -> ([f64; 3], f64) {
+    let text =
+        std::fs::read_to_string(folder.join("mav0/state_groundtruth_estimate0/data.csv")).unwrap();
+    let row: Vec<f64> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| {
+            l.split(',')
+                .map(|x| x.trim().parse().unwrap())
+                .collect::<Vec<f64>>()
+        })
+        .min_by(|a, b| {
+            (a[0] * 1e-9 - t_s)
+                .abs()
+                .total_cmp(&(b[0] * 1e-9 - t_s).abs())
+        })
+        .unwrap();
+    let (w, x, y, z) = (row[4], row[5], row[6], row[7]);
+    let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+    ([row[1], row[2], row[3]], yaw)
+}
+
+/// `a - b` wrapped to (-pi, pi].
+fn angle_diff(a: f64, b: f64) -> f64 {
+    (a - b + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
 
 /// The stamp of the first data row of an EuRoC CSV file, ns.
@@ -167,7 +196,7 @@ fn a_one_second_imu_gap_after_smooth_flight_is_bridged() {
 /// Issue 32 item 1, both sides of the long-gap decision on the simulator (30 s, no LiDAR, seed
 /// 1, 2 s of IMU removed 15 s in): the wheeled robot's smooth motion is bridged (no reset, the
 /// ATE at the fault-free run's: 0.174 against 0.168 m), the hand-held rig's is not (its line
-/// would miss by radians: a reset, the in-motion restart).
+/// would miss by radians: a reset, the in-motion restart, turned and moved by the images).
 #[test]
 fn a_two_second_imu_gap_is_bridged_after_smooth_motion_only() {
     for (scenario, bridged) in [("robot", true), ("handheld", false)] {
@@ -201,6 +230,15 @@ fn a_two_second_imu_gap_is_bridged_after_smooth_motion_only() {
             assert!(stderr.contains("estimator reset at"), "{stderr}");
             assert_eq!(n("imu_gaps_bridged_long"), Some(0), "{stdout}");
             assert_eq!(n("imu_gap_resets"), Some(1), "{stdout}");
+            // The restart takes the turn and the path the frames during the outage show
+            // (`estimator::outage_heading`): within issue 32's bar for a 2 s gap (3x the
+            // fault-free ATE: 0.198 m against 0.126); keeping the old yaw and position gave
+            // 2.43 m.
+            assert_eq!(n("outage_motion_from_images"), Some(1), "{stdout}");
+            assert!(
+                ate < 3.0 * ate_clean,
+                "{scenario}: ATE {ate} vs {ate_clean}"
+            );
         }
     }
 }
@@ -322,24 +360,55 @@ fn an_imu_gap_in_flight_restarts_in_motion_where_the_estimate_was() {
     let coverage = s["coverage"].as_f64().unwrap();
     assert!(coverage > 0.75, "coverage {coverage}: {stdout}");
 
-    // No jump across the outage: the first estimate after it is where the last one before was,
-    // with the same heading.
+    // Across the outage (5.3 s: the gap and the in-motion start after it) the drone turned
+    // 20 degrees and moved 1.7 m. The first estimate after it continues from the last one
+    // before, turned and moved by what the frames during the outage show (measured: 14.6
+    // degrees, and 1.0 m from the truth's end: the images give the direction; the length is the
+    // speed before the gap times the outage, and the drone sped up). Before, the start kept the
+    // old yaw and position: 20 degrees and 1.7 m off, an ATE of 0.84 m (now 0.49).
+    assert_eq!(
+        s["counters"]["outage_motion_from_images"].as_u64(),
+        Some(1),
+        "{stdout}"
+    );
     let p = poses(&out.join("trajectory.tum"));
     let k = p
         .windows(2)
         .position(|w| w[1].0 - w[0].0 > 1.0)
         .expect("an outage in the trajectory");
     let (before, after) = (p[k], p[k + 1]);
-    let jump: f64 = (0..3)
-        .map(|i| (after.1[i] - before.1[i]).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    let dyaw = (after.2 - before.2 + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-        - std::f64::consts::PI;
-    assert!(jump < 0.05, "position jump {jump} m");
-    assert!(dyaw.abs() < 0.05, "yaw jump {dyaw} rad");
+    let data = out.parent().unwrap().join("gap");
+    let (t_before, t_after) = (truth_at(&data, before.0), truth_at(&data, after.0));
+    // The truth's motion in the frame of the estimate before the outage (yaw and position are
+    // the estimate's gauge).
+    let turn = angle_diff(t_after.1, t_before.1);
+    let est_turn = angle_diff(after.2, before.2);
+    let rot = |d: [f64; 3], yaw: f64| {
+        let (c, s) = (yaw.cos(), yaw.sin());
+        [c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]]
+    };
+    let d_true = rot([0, 1, 2].map(|i| t_after.0[i] - t_before.0[i]), -t_before.1);
+    let d_est = rot([0, 1, 2].map(|i| after.1[i] - before.1[i]), -before.2);
+    let norm = |d: [f64; 3]| d.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let miss = norm([0, 1, 2].map(|i| d_est[i] - d_true[i]));
+    println!(
+        "turn {:.1} deg (true {:.1}), moved {:.2} m (true {:.2}), missed by {miss:.2} m",
+        est_turn.to_degrees(),
+        turn.to_degrees(),
+        norm(d_est),
+        norm(d_true)
+    );
+    assert!(turn.abs() > 0.2, "the test needs a turn: {turn}");
+    assert!(
+        angle_diff(est_turn, turn).abs() < 0.5 * turn.abs(),
+        "turn {est_turn} against {turn}"
+    );
+    assert!(
+        miss < 0.75 * norm(d_true),
+        "missed by {miss} m of {d_true:?}"
+    );
     let ate = s["ate_pos_rmse_m"].as_f64().unwrap();
-    assert!(ate < 1.0, "ATE {ate} m over the whole run");
+    assert!(ate < 0.65, "ATE {ate} m over the whole run");
 }
 
 /// A clock jump (`estimator::clock_jump`): every stamp of every file of the EuRoC copy from 15 s

@@ -123,16 +123,35 @@ impl<
 
     /// A start after a full reset continues from where the consumer last saw the platform
     /// ([`Estimator::reset`]): the new start's leveled attitude turned about the vertical to the
-    /// old yaw, its velocity turned with it, and the old position. What is published does not
-    /// jump; the motion during the outage is not recovered.
+    /// old yaw, its velocity turned with it, and the old position; where the frames that came
+    /// during the outage show the rotation and the direction of travel
+    /// ([`super::outage_heading`]), the old yaw turned by that rotation and the old position
+    /// moved along that path at the old speed. What is published does not jump.
     fn continued(&mut self, mut st: NavState) -> NavState {
         let Some(old) = self.resume.take() else {
             return st;
         };
-        let r = Quat::from_axis_angle(&Vec3::z_axis(), yaw(&old.q_wb) - yaw(&st.q_wb));
+        // The yaw the platform had turned to by the start, where the images carried it across
+        // the outage; else the last published one.
+        let seen = self
+            .outage
+            .heading_change(old.t_ns, st.t_ns, &self.ext.q_bc);
+        self.counters.outage_motion_from_images += u64::from(seen.is_some());
+        let q_target = seen.map_or(old.q_wb, |m| old.q_wb * m.q_b0b1);
+        let r = Quat::from_axis_angle(&Vec3::z_axis(), yaw(&q_target) - yaw(&st.q_wb));
+        // The position: where the images carried it, the camera's path at the speed before the
+        // outage plus the lever arm's turn; else the last published one.
+        let moved = seen.map_or(Vec3::zeros(), |m| {
+            let dp_c = old.q_wb * m.path_b0_s * old.v_wb.norm();
+            dp_c + old.q_wb * self.ext.p_bc - q_target * self.ext.p_bc
+        });
         st.q_wb = r * st.q_wb;
         st.v_wb = r * st.v_wb;
-        st.p_wb = old.p_wb;
+        st.p_wb = if moved.iter().all(|x| x.is_finite()) {
+            old.p_wb + moved
+        } else {
+            old.p_wb
+        };
         st
     }
 

@@ -55,6 +55,7 @@ mod keyframe;
 mod lidar;
 mod marginalize;
 mod motion_history;
+mod outage_heading;
 mod output;
 mod predict;
 mod prepare;
@@ -237,6 +238,9 @@ pub struct Estimator<
     /// newest keyframe's when the INS is not finite); the next start continues from its
     /// position and yaw ([`Self::continued`]).
     resume: Option<NavState>,
+    /// The rotation and the path the images show while the IMU is out, for the yaw and the
+    /// position of the next start ([`Self::continued`]).
+    outage: outage_heading::OutageHeading,
     ins: Held<Ins>,
     last_imu: Option<ImuSample>,
     /// The IMU gap being bridged (`timing`'s `bridge_gap`), declared to every keyframe interval
@@ -448,6 +452,7 @@ impl<
             motion_started: false,
             last_rest_ns: None,
             resume: None,
+            outage: outage_heading::OutageHeading::new(),
             ins: Held::empty(Ins::blank()),
             last_imu: None,
             gap: None,
@@ -531,6 +536,7 @@ impl<
         self.motion_started = false;
         self.last_rest_ns = None;
         self.resume = None;
+        self.outage.clear();
         self.selector = selector;
         self.status = Status::WaitingForInit;
         self.ins.clear();

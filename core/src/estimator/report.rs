@@ -239,6 +239,10 @@ pub struct Counters {
     /// Of the gaps bridged: those after which the images' pose was taken over the INS's, which
     /// the line across the gap had missed (`estimator::gap_pose`).
     pub imu_gap_poses_from_images: u64,
+    /// Starts after a full reset whose yaw and position were carried across the outage by the
+    /// images (the rotation and the direction of travel between the frames that came while the
+    /// IMU was out, at the speed before it: `estimator::outage_heading`).
+    pub outage_motion_from_images: u64,
     /// Clock jumps: gaps in every stream across which the images show nothing moved (the
     /// inputs' clock moved; the estimate went on: `estimator::clock_jump`).
     pub clock_jumps: u64,
@@ -317,6 +321,7 @@ impl Counters {
         imu_gaps_bridged: 0,
         imu_gaps_bridged_long: 0,
         imu_gap_poses_from_images: 0,
+        outage_motion_from_images: 0,
         clock_jumps: 0,
         imu_spikes_rejected: 0,
         interval_overflows: 0,

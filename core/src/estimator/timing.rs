@@ -126,6 +126,7 @@ impl<
         }
         let t_cam_ns = self.clock_map.inside(t_cam_ns);
         self.counters.frames += 1;
+        self.outage_frame(t_cam_ns, obs);
         // A frame far ahead of the IMU would block every real frame until the IMU caught up
         // (and overflow the open interval): refuse it.
         let lead_limit_ns = (self.cfg.max_frame_lead_s * 1e9) as i64;

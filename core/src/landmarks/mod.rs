@@ -1,9 +1,11 @@
 //! Landmark geometry: pose-only depth and its analytic uncertainty, landmark bookkeeping, a
-//! camera's pose from landmarks ([`resection`]).
+//! camera's pose from landmarks ([`resection`]), the rotation between two frames from their
+//! tracks alone ([`relative_rotation`]).
 
 pub mod manager;
 pub mod obs;
 pub mod pose_only;
+pub mod relative_rotation;
 pub mod resection;
 pub mod store;
 

@@ -110,6 +110,14 @@ impl Variant {
         }
     }
 
+    /// Full resets the variant is meant to cause on `scenario` ([`Fault::resets_expected`]).
+    pub fn resets_expected(self, scenario: Option<Scenario>) -> u64 {
+        match self {
+            Variant::Fault(f) => f.resets_expected(scenario),
+            _ => 0,
+        }
+    }
+
     /// How the estimator starts: the in-motion start through the automatic choice, the others
     /// from the true state (as the peers are run).
     pub fn init(self) -> InitMode {

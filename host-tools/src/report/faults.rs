@@ -135,10 +135,11 @@ pub fn status_line(s: &Summary) -> String {
             format!("coverage {:.1}% {of}", 100.0 * c)
         });
     format!(
-        "status    {} resets, {} re-initializations, {} IMU gaps bridged ({} long, {} posed from the \
-         images after it), {} clock jumps, {imu} IMU samples rejected, {frames} camera frames \
-         rejected, {coverage}",
+        "status    {} resets ({} turned and moved by the images), {} re-initializations, {} IMU gaps \
+         bridged ({} long, {} posed from the images after it), {} clock jumps, {imu} IMU samples \
+         rejected, {frames} camera frames rejected, {coverage}",
         n("resets"),
+        n("outage_motion_from_images"),
         n("reinitializations"),
         n("imu_gaps_bridged"),
         n("imu_gaps_bridged_long"),
