@@ -175,7 +175,7 @@ fn bench_motion_init(c: &mut Criterion) {
         });
     }
     assert_eq!(init.frames(), MOTION_INIT_FRAMES);
-    let solved = init.clone().try_solve(&ext, 9.81, &Vec3::zeros());
+    let solved = init.clone().try_solve(&ext, 9.81, &Vec3::zeros(), None);
     assert!(
         matches!(solved, Ok(Some(_))),
         "the worst case must run the whole solve: {solved:?}"
@@ -183,7 +183,7 @@ fn bench_motion_init(c: &mut Criterion) {
     c.bench_function("motion_init_solve_full", |b| {
         b.iter_batched_ref(
             || init.clone(),
-            |i| black_box(i.try_solve(&ext, 9.81, &Vec3::zeros()).is_ok()),
+            |i| black_box(i.try_solve(&ext, 9.81, &Vec3::zeros(), None).is_ok()),
             BatchSize::LargeInput,
         )
     });

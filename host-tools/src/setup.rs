@@ -15,7 +15,7 @@ use crate::runner::{
     RunTotals,
 };
 use anyhow::{Context, Result};
-use povins_core::estimator::EstimatorConfig;
+use povins_core::estimator::{EstimatorConfig, KnownBiases};
 use povins_platform::recording::Recording;
 use std::path::{Path, PathBuf};
 
@@ -57,6 +57,38 @@ impl RecordingArgs {
     }
 }
 
+/// Longest time from a previous run's last keyframe to the recording's first IMU sample that
+/// `--biases-from` takes without a warning.
+const BIASES_MAX_AGE_S: f64 = 600.0;
+
+/// Why the biases of a previous run ending at `t_ns` may not be this recording's IMU's: that run
+/// ends after this recording starts (another session of the sensor, or its clock restarted), or
+/// long before it. Turn-on biases change with each power cycle (`KnownBiases`).
+fn biases_stamp_warning(rec: &dyn Recording, t_ns: i64) -> Result<Option<String>> {
+    let Some(first) = rec.imu()?.next().transpose()? else {
+        return Ok(None);
+    };
+    let age_s = first.t_ns.saturating_sub(t_ns) as f64 * 1e-9;
+    Ok(if age_s < 0.0 {
+        Some(format!(
+            "the previous run's last keyframe ({:.3} s) is after this recording's first IMU \
+             sample ({:.3} s): not a run of the same IMU session? Biases from another power cycle \
+             differ by the IMU's bias repeatability, which [init.biases] gyro_sd_rps and \
+             accel_sd_mps2 must then cover",
+            t_ns as f64 * 1e-9,
+            first.t_ns as f64 * 1e-9
+        ))
+    } else if age_s > BIASES_MAX_AGE_S {
+        Some(format!(
+            "the previous run ended {age_s:.0} s before this recording starts: biases drift, and \
+             change with each power cycle ([init.biases] gyro_sd_rps and accel_sd_mps2 must cover \
+             it)"
+        ))
+    } else {
+        None
+    })
+}
+
 /// The command-line arguments every estimating command over a recording takes.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RunArgs {
@@ -79,6 +111,12 @@ pub struct RunArgs {
     /// LiDAR switches (override the config file).
     #[command(flatten)]
     pub lidar: LidarArgs,
+    /// The IMU's biases known before the start, from the last row of a previous run's
+    /// `keyframes_state.csv` on the same IMU, not powered off since (a restarted process): the
+    /// prior of a start in motion (`[init.biases]`, its standard deviations from `--config`
+    /// when it gives them, else 0.0005 rad/s and 0.02 m/s^2).
+    #[arg(long, value_name = "KEYFRAMES_STATE_CSV")]
+    pub biases_from: Option<PathBuf>,
     /// Time the estimator's stages (`stats.csv`, the back-end figures of the summary) by the
     /// thread's CPU time instead of the wall clock: the work done, without the time the OS gave
     /// to other processes (worst cases compared on a shared machine). The output is the same.
@@ -137,8 +175,25 @@ impl RunSetup {
         if let Some(f) = a.frontend {
             s.frontend.frontend = f;
         }
+        // `--biases-from`: the file's biases, with the config file's standard deviations when
+        // it gives them (laid over these), else the defaults for a previous run's.
+        let biases = a
+            .biases_from
+            .as_ref()
+            .map(|path| -> Result<_> {
+                let (t_ns, gyro, accel) = crate::report::files::read_last_biases(path)?;
+                if let Some(w) = biases_stamp_warning(rec, t_ns)? {
+                    eprintln!("warning: --biases-from {}: {w}", path.display());
+                }
+                Ok(KnownBiases::from_previous_run(gyro.into(), accel.into()))
+            })
+            .transpose()?;
+        s.estimator.init.biases = biases.or(s.estimator.init.biases);
         if let Some(path) = &a.config {
             s.apply_file(path)?;
+        }
+        if let (Some(given), Some(b)) = (biases, s.estimator.init.biases.as_mut()) {
+            (b.gyro_rps, b.accel_mps2) = (given.gyro_rps, given.accel_mps2);
         }
         if let Some(m) = a.mode {
             s.estimator.mode = m.into();

@@ -173,6 +173,76 @@ pub struct InitConfig {
     /// Prior of the first keyframe after an in-motion start (its velocity and attitude are
     /// known less well than at rest).
     pub motion_prior: FirstStatePrior,
+    /// The IMU's biases, when known before the start (`[init.biases]`; unset: not known).
+    pub biases: Option<KnownBiases>,
+}
+
+/// IMU biases known before the start (`[init.biases]`), in the body frame `b` (the IMU's), with
+/// how well they are known.
+///
+/// A start in motion has a second or two of motion to solve from, over which an accelerometer
+/// bias of 0.1-0.2 m/s^2 (a MEMS IMU's) looks like a tilt of gravity and a change of scale, and
+/// which the first seconds of the window cannot separate either (BENCHMARKS.md, "What an
+/// in-motion start lacks"). Given these, every in-motion start (the first, and those after a full
+/// reset) integrates its init frames with them and starts the window from them, its first
+/// keyframe's bias prior centred on them with these standard deviations instead of
+/// `motion_prior`'s. A start at rest measures the gyro bias itself and does not use them.
+///
+/// Where they come from: the last keyframe of a run on the same IMU not powered off since
+/// (`povins run --biases-from RUN/keyframes_state.csv`, a restarted process); a MEMS IMU's
+/// turn-on biases change from one power cycle to the next by its datasheet's bias repeatability,
+/// which the standard deviations must then cover.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(deny_unknown_fields)
+)]
+pub struct KnownBiases {
+    /// Gyro bias `[x, y, z]`, rad/s (subtracted from the gyro's readings).
+    pub gyro_rps: [f64; 3],
+    /// Accelerometer bias `[x, y, z]`, m/s^2 (subtracted from the accelerometer's readings).
+    pub accel_mps2: [f64; 3],
+    /// Standard deviation of each gyro bias axis, rad/s.
+    pub gyro_sd_rps: f64,
+    /// Standard deviation of each accelerometer bias axis, m/s^2.
+    pub accel_sd_mps2: f64,
+}
+
+impl KnownBiases {
+    /// The standard deviations for biases from a previous run on the same powered IMU: on the
+    /// simulated EuRoC-like flights started in motion these did best of 0.0002 / 0.01,
+    /// 0.0005 / 0.02, 0.001 / 0.03 and 0.002 / 0.05 (BENCHMARKS.md, "An in-motion start given
+    /// the biases").
+    pub const PREVIOUS_RUN_SD: (f64, f64) = (5e-4, 0.02);
+
+    /// Biases with [`Self::PREVIOUS_RUN_SD`].
+    pub const fn from_previous_run(gyro_rps: [f64; 3], accel_mps2: [f64; 3]) -> Self {
+        KnownBiases {
+            gyro_rps,
+            accel_mps2,
+            gyro_sd_rps: Self::PREVIOUS_RUN_SD.0,
+            accel_sd_mps2: Self::PREVIOUS_RUN_SD.1,
+        }
+    }
+
+    /// Adds the out-of-range values to `r`: finite biases, positive standard deviations.
+    pub(crate) fn check_ranges(&self, r: &mut Ranges<'_>) {
+        let (g, a) = (self.gyro_rps, self.accel_mps2);
+        for (key, v) in [
+            ("init.biases.gyro_rps[0]", g[0]),
+            ("init.biases.gyro_rps[1]", g[1]),
+            ("init.biases.gyro_rps[2]", g[2]),
+            ("init.biases.accel_mps2[0]", a[0]),
+            ("init.biases.accel_mps2[1]", a[1]),
+            ("init.biases.accel_mps2[2]", a[2]),
+        ] {
+            r.finite(key, v);
+        }
+        r.positive("init.biases.gyro_sd_rps", self.gyro_sd_rps);
+        r.positive("init.biases.accel_sd_mps2", self.accel_sd_mps2);
+    }
 }
 
 impl InitConfig {
@@ -187,6 +257,7 @@ impl InitConfig {
             bg_rps: 0.01,
             ba_mps2: 0.3,
         },
+        biases: None,
     };
 }
 
@@ -528,6 +599,7 @@ impl EstimatorConfig {
                     min_inlier_ratio: 0.0,
                 },
                 motion_prior: PRIOR,
+                biases: None,
             },
             sigma_px: 0.0,
             huber_delta: 0.0,
@@ -676,6 +748,9 @@ impl EstimatorConfig {
         r.positive("init.motion_prior.bg_rps", p.bg_rps);
         r.positive("init.motion_prior.ba_mps2", p.ba_mps2);
         self.init.motion.check_ranges(r);
+        if let Some(b) = &self.init.biases {
+            b.check_ranges(r);
+        }
         self.imu_noise.check_ranges(r);
         self.imu_noise_adapt.check_ranges(r);
         self.static_init.check_ranges(r);

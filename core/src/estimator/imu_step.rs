@@ -166,10 +166,15 @@ impl<
         if mode == InitMode::Auto && at_rest {
             return None;
         }
+        // Known biases (`[init.biases]`): the solve integrates with them, holds them, and the
+        // start keeps them.
+        let known = self.cfg.init.biases;
+        let bg = known.map_or(Vec3::zeros(), |b| Vec3::from(b.gyro_rps));
+        let ba = known.map(|b| Vec3::from(b.accel_mps2));
         let c = &mut self.counters;
         match self
             .motion_init
-            .try_solve(&self.ext, self.cfg.gravity_mps2, &Vec3::zeros())
+            .try_solve(&self.ext, self.cfg.gravity_mps2, &bg, ba.as_ref())
         {
             Ok(Some((state, _))) => {
                 c.motion_inits += 1;

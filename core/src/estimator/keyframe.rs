@@ -219,6 +219,16 @@ impl<
                 }
             }
         }
+        // An in-motion start given the biases (`[init.biases]`): as well as they are known.
+        if let Some(b) = self
+            .cfg
+            .init
+            .biases
+            .filter(|_| self.motion_started && self.reinit.is_none())
+        {
+            kf0_sigma[3] = b.gyro_sd_rps;
+            kf0_sigma[4] = b.accel_sd_mps2;
+        }
         InitialPriors {
             kf0: *kf0,
             kf0_sigma,

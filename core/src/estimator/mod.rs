@@ -71,7 +71,7 @@ pub mod window;
 pub use crate::ranges::InvalidSetting;
 pub use config::{
     CullConfig, EstimatorConfig, FirstStatePrior, HealthConfig, ImuGapConfig, ImuSpikeConfig,
-    InitConfig, InitMode, SolveBudget, TdConfig, VisualDepth, VisualMode, ZuptConfig,
+    InitConfig, InitMode, KnownBiases, SolveBudget, TdConfig, VisualDepth, VisualMode, ZuptConfig,
 };
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;

@@ -10,6 +10,7 @@ use crate::runner::{FrameLog, Frontend, RunOutput, RunSink};
 use anyhow::{Context, Result};
 use povins_core::estimator::{DepthEvent, KeyframeReport};
 use povins_core::inertial::NavState;
+use povins_core::math::Vec3;
 use povins_platform::trajectory::{write_tum_header, write_tum_row, StampedPose};
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -33,6 +34,59 @@ fn write_state_row(f: &mut impl Write, s: &NavState) -> std::io::Result<()> {
         write!(f, ",{v:.9}")?;
     }
     writeln!(f)
+}
+
+/// The last row of a `keyframes_state.csv` (or of any file in its column layout, the EuRoC
+/// ground truth's): its stamp (ns) and IMU biases `(gyro rad/s, accelerometer m/s^2)`, for
+/// `--biases-from`. Errors name the file, the line and the column.
+pub fn read_last_biases(path: &Path) -> Result<(i64, Vec3, Vec3)> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let (line, row) = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'))
+        .last()
+        .with_context(|| format!("{}: no state row (only a header, or empty)", path.display()))?;
+    let cols: Vec<&str> = row.split(',').map(str::trim).collect();
+    anyhow::ensure!(
+        cols.len() == 17,
+        "{}:{}: {} columns, expected the 17 of keyframes_state.csv ({})",
+        path.display(),
+        line + 1,
+        cols.len(),
+        STATES_HEADER.trim_start_matches('#')
+    );
+    let t_ns: i64 = cols[0].parse().with_context(|| {
+        format!(
+            "{}:{}: column 1 (timestamp [ns]) is {:?}, not an integer",
+            path.display(),
+            line + 1,
+            cols[0]
+        )
+    })?;
+    let mut b = [0.0; 6];
+    for (i, v) in b.iter_mut().enumerate() {
+        let name = STATES_HEADER.split(',').nth(11 + i).unwrap_or("a bias");
+        *v = cols[11 + i]
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .with_context(|| {
+                format!(
+                    "{}:{}: column {} ({name}) is {:?}, not a finite number",
+                    path.display(),
+                    line + 1,
+                    12 + i,
+                    cols[11 + i]
+                )
+            })?;
+    }
+    Ok((
+        t_ns,
+        Vec3::new(b[0], b[1], b[2]),
+        Vec3::new(b[3], b[4], b[5]),
+    ))
 }
 
 /// The LiDAR columns appended to `stats.csv` (one row per keyframe): `lidar_cropped`,

@@ -225,6 +225,10 @@ pub struct MotionInitializer<const K: usize, const F: usize, const M: usize> {
     imu: Deque<ImuSample, M>,
     /// IMU time of the newest init frame already solved (one solve per init frame).
     solved_ns: i64,
+    /// The accelerometer bias the solve integrates with (held, not estimated), m/s^2.
+    accel_bias: Vec3,
+    /// The gyro bias given to the solve is known: held, not refined.
+    hold_gyro_bias: bool,
     /// Scratch of the solve (see [`solve`]).
     scratch: solve::Scratch<K, F>,
 }
@@ -239,6 +243,8 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             len: 0,
             imu: Deque::new(),
             solved_ns: 0,
+            accel_bias: crate::math::VEC3_ZERO,
+            hold_gyro_bias: false,
             scratch: solve::Scratch::new(),
         }
     }
@@ -250,6 +256,8 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         self.len = 0;
         self.imu.clear();
         self.solved_ns = 0;
+        self.accel_bias = Vec3::zeros();
+        self.hold_gyro_bias = false;
     }
 
     /// Init frames held.
@@ -346,12 +354,17 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
 
     /// Solves when a new init frame is covered by the IMU (at most once per init frame) and
     /// `min_frames` are held: `Ok(Some)` the state at the newest IMU sample (leveled, yaw 0,
-    /// position 0, biases `bg` and 0), `Ok(None)` nothing to try, `Err` the refusal.
+    /// position 0), `Ok(None)` nothing to try, `Err` the refusal.
+    ///
+    /// Biases: without `known_ba` the gyro bias is refined from `bg` with the solve and the
+    /// accelerometer bias taken as 0 (the state's are those); with it both are known and held
+    /// (the frames integrated with `bg` and `known_ba`, the state's biases those).
     pub fn try_solve(
         &mut self,
         ext: &CameraExtrinsic,
         gravity_mps2: f64,
         bg: &Vec3,
+        known_ba: Option<&Vec3>,
     ) -> Result<Option<(NavState, Solution)>, Refusal> {
         let Some(newest) = self.len.checked_sub(1).and_then(|i| self.frame(i)) else {
             return Ok(None);
@@ -364,6 +377,8 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             return Ok(None);
         }
         self.solved_ns = t_new;
+        self.accel_bias = known_ba.copied().unwrap_or_else(Vec3::zeros);
+        self.hold_gyro_bias = known_ba.is_some();
         let sol = self.solve(ext, gravity_mps2, bg)?;
         let end = sol.end;
         // The world frame: gravity along -z, yaw 0 (as the static initializer's leveling).
@@ -381,7 +396,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
             q_wb,
             v_wb: r_wb0 * v_b0,
             bg: sol.bg,
-            ba: Vec3::zeros(),
+            ba: self.accel_bias,
         };
         let finite = state
             .v_wb
@@ -430,7 +445,7 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
                 let target = event(ev);
                 let te = target.min(b.t_ns);
                 if te > tc {
-                    step(a, b, tc, te, t0, bg, &mut st);
+                    step(a, b, tc, te, t0, (bg, &self.accel_bias), &mut st);
                 }
                 tc = te;
                 if target > b.t_ns {
@@ -449,13 +464,22 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
 
 /// One integration step of the linearly interpolated sample pair `(a, b)` over `[tc, te]`
 /// (midpoint rule), times from `t0`.
-fn step(a: &ImuSample, b: &ImuSample, tc: i64, te: i64, t0: i64, bg: &Vec3, st: &mut Pre) {
+fn step(
+    a: &ImuSample,
+    b: &ImuSample,
+    tc: i64,
+    te: i64,
+    t0: i64,
+    bias: (&Vec3, &Vec3),
+    st: &mut Pre,
+) {
+    let (bg, ba) = bias;
     let dt = (te - tc) as f64 * 1e-9;
     let span = (b.t_ns - a.t_ns) as f64;
     let tm = 0.5 * ((tc - a.t_ns) as f64 + (te - a.t_ns) as f64);
     let w = if span > 0.0 { tm / span } else { 1.0 };
     let gyro = a.gyro_rps + (b.gyro_rps - a.gyro_rps) * w - bg;
-    let acc = a.accel_mps2 + (b.accel_mps2 - a.accel_mps2) * w;
+    let acc = a.accel_mps2 + (b.accel_mps2 - a.accel_mps2) * w - ba;
     let r_half = st.r * exp_so3(&(gyro * (0.5 * dt)));
     let a_b0 = r_half * acc;
     st.dp += st.dv * dt + a_b0 * (0.5 * dt * dt);

@@ -139,7 +139,10 @@ impl<const K: usize, const F: usize, const M: usize> MotionInitializer<K, F, M> 
         // with them, then the linear solves again at that bias.
         let (x, _) = irls(tracks, &pre, &r_bc, &p_bc, None, sigma, IRLS_ITERATIONS)?;
         let mut bg_used = *bg;
-        if let Some((xb, bgb)) = refine_bias(self, tracks, &r_bc, &p_bc, x, *bg, sigma) {
+        let refined = (!self.hold_gyro_bias)
+            .then(|| refine_bias(self, tracks, &r_bc, &p_bc, x, *bg, sigma))
+            .flatten();
+        if let Some((xb, bgb)) = refined {
             if (bgb - bg).norm() <= MAX_BIAS_STEP_RPS {
                 if let Some(e) = self.integrate(&bgb, &mut pre) {
                     end = e;

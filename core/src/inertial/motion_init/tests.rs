@@ -40,6 +40,8 @@ struct Case {
     signal: fn(f64) -> (Vec3, Vec3),
     v0: Vec3,
     bg: Vec3,
+    /// The accelerometer's bias in the samples.
+    ba: Vec3,
     landmarks: usize,
     range_m: f64,
 }
@@ -63,7 +65,7 @@ fn sample(case: &Case, k: i64) -> ImuSample {
     ImuSample {
         t_ns: k * DT_NS,
         gyro_rps: gyro + case.bg,
-        accel_mps2: f,
+        accel_mps2: f + case.ba,
     }
 }
 
@@ -79,17 +81,22 @@ fn truth(case: &Case) -> ([Pre; 10], Init) {
         a.push_imu(&s);
     }
     let mut pre = [Pre::ZERO; 10];
+    a.accel_bias = case.ba;
     a.integrate(&case.bg, &mut pre).unwrap();
     (pre, a)
 }
 
 /// Runs the initializer in time order; the first solution, or the last refusal.
 fn run(case: &Case) -> Result<Option<(NavState, Solution)>, Refusal> {
-    run_with_bias(case, &case.bg)
+    run_with_bias(case, &case.bg, None)
 }
 
-/// [`run`] with `bg` as the solver's gyro-bias guess.
-fn run_with_bias(case: &Case, bg: &Vec3) -> Result<Option<(NavState, Solution)>, Refusal> {
+/// [`run`] with `bg` as the solver's gyro-bias guess, and `known_ba` (both biases known).
+fn run_with_bias(
+    case: &Case,
+    bg: &Vec3,
+    known_ba: Option<&Vec3>,
+) -> Result<Option<(NavState, Solution)>, Refusal> {
     let (pre, _) = truth(case);
     let ext = ext();
     let r_bc = ext.q_bc.to_rotation_matrix().into_inner();
@@ -121,7 +128,7 @@ fn run_with_bias(case: &Case, bg: &Vec3) -> Result<Option<(NavState, Solution)>,
             init.push_frame(t, obs);
         }
         init.push_imu(&s);
-        match init.try_solve(&ext, G, bg) {
+        match init.try_solve(&ext, G, bg, known_ba) {
             Ok(Some(x)) => return Ok(Some(x)),
             Ok(None) => {}
             Err(e) => last = Err(e),
@@ -135,6 +142,7 @@ fn moving() -> Case {
         signal: accelerating,
         v0: Vec3::new(1.0, 0.3, -0.2),
         bg: Vec3::new(0.01, -0.02, 0.005),
+        ba: Vec3::zeros(),
         landmarks: 120,
         range_m: 4.0,
     }
@@ -162,10 +170,37 @@ fn recovers_velocity_and_gravity_exactly() {
 }
 
 #[test]
+fn integrates_with_a_known_accelerometer_bias() {
+    // 0.15 m/s^2 of accelerometer bias, as large as a calm flight's accelerations.
+    let case = Case {
+        ba: Vec3::new(0.1, -0.05, 0.1),
+        ..moving()
+    };
+    let (state, sol) = run_with_bias(&case, &case.bg, Some(&case.ba))
+        .unwrap()
+        .expect("must initialize");
+    assert!((sol.v0_b0 - case.v0).norm() < 1e-6, "{:?}", sol.v0_b0);
+    assert!((sol.g_b0 - g_true()).norm() < 1e-6, "{:?}", sol.g_b0);
+    assert_eq!((state.bg, state.ba), (case.bg, case.ba));
+    // Known biases are held: a wrong gyro bias stays wrong.
+    let wrong = case.bg + Vec3::new(0.002, 0.0, 0.0);
+    let (held, _) = run_with_bias(&case, &wrong, Some(&case.ba))
+        .unwrap()
+        .expect("a small error still starts");
+    assert_eq!(held.bg, wrong);
+    // Not told it, the solve takes part of it for gravity (0.05 m/s^2: a 0.3 degree tilt).
+    let (blind, sol) = run_with_bias(&case, &case.bg, None)
+        .unwrap()
+        .expect("must initialize");
+    assert!((sol.g_b0 - g_true()).norm() > 0.03, "{:?}", sol.g_b0);
+    assert_eq!(blind.ba, Vec3::zeros());
+}
+
+#[test]
 fn estimates_the_gyro_bias() {
     // The solver starts from a zero gyro bias; the truth is 23 mrad/s.
     let case = moving();
-    let (state, sol) = run_with_bias(&case, &Vec3::zeros())
+    let (state, sol) = run_with_bias(&case, &Vec3::zeros(), None)
         .unwrap()
         .expect("must initialize");
     assert!((sol.bg - case.bg).norm() < 1e-6, "{:?}", sol.bg);
@@ -188,6 +223,7 @@ fn refuses_rest_and_pure_rotation() {
         signal,
         v0: Vec3::zeros(),
         bg: Vec3::zeros(),
+        ba: Vec3::zeros(),
         landmarks: 120,
         range_m: 4.0,
     };
@@ -210,6 +246,7 @@ fn refuses_constant_velocity() {
         signal: cruising,
         v0: Vec3::new(3.0, 0.5, 0.0),
         bg: Vec3::zeros(),
+        ba: Vec3::zeros(),
         landmarks: 120,
         range_m: 4.0,
     };
@@ -265,7 +302,7 @@ fn garbage_never_panics() {
         };
         init.push_imu(&s);
         for g in [G, f64::NAN, -1.0] {
-            if let Ok(Some((st, _))) = init.try_solve(&ext(), g, &Vec3::zeros()) {
+            if let Ok(Some((st, _))) = init.try_solve(&ext(), g, &Vec3::zeros(), None) {
                 assert!(st.v_wb.iter().all(|x| x.is_finite()));
             }
         }
