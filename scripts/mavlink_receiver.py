@@ -9,7 +9,8 @@ stops SECONDS after the last message (or at a time limit). Writes OUT.json:
                  covariance_known, velocity_covariance[0 1 2 6 7 11] (vx vy vz upper triangle),
                  pose_covariance[0 6 11 15 18 20] (x y z roll pitch yaw variances); null for NaN], ...],
    "vision": [[usec, x, y, z, roll, pitch, yaw, reset_counter], ...],  (VISION_POSITION_ESTIMATE)
-   "timesync": [[tc1, ts1, recv_ns], ...], "heartbeats": N, "other": {type: count}}
+   "timesync": [[tc1, ts1, recv_ns], ...], "timesync_sent_ns": [ts1 of every request sent, ...],
+   "heartbeats": N, "other": {type: count}}
 Usage: mavlink_receiver.py udpin:127.0.0.1:PORT OUT.json [IDLE_S] [LIMIT_S]
        mavlink_receiver.py pty OUT.json [IDLE_S] [LIMIT_S]
 With `pty` it opens a pseudo-terminal pair, prints "ready SLAVE_PATH" (the serial device the
@@ -71,7 +72,7 @@ def main():
     else:
         conn = mavutil.mavlink_connection(url, dialect="common", source_system=1,
                                           source_component=1)
-    odo, vision, ts, heartbeats, other = [], [], [], 0, {}
+    odo, vision, ts, sync_sent, heartbeats, other = [], [], [], [], 0, {}
     start = time.monotonic()
     last_msg = None
     next_sync = 0.0
@@ -83,7 +84,9 @@ def main():
         if last_msg is None and now - start > 120:
             break
         if last_msg is not None and now >= next_sync:
-            conn.mav.timesync_send(0, time.monotonic_ns())
+            sent_ns = time.monotonic_ns()
+            conn.mav.timesync_send(0, sent_ns)
+            sync_sent.append(sent_ns)
             next_sync = now + 0.1
         m = conn.recv_match(blocking=True, timeout=0.05)
         if m is None:
@@ -109,8 +112,8 @@ def main():
         else:
             other[t] = other.get(t, 0) + 1
     with open(out, "w") as f:
-        json.dump({"odometry": odo, "vision": vision, "timesync": ts, "heartbeats": heartbeats,
-                   "other": other}, f)
+        json.dump({"odometry": odo, "vision": vision, "timesync": ts,
+                   "timesync_sent_ns": sync_sent, "heartbeats": heartbeats, "other": other}, f)
     print(f"{len(odo)} ODOMETRY, {len(ts)} TIMESYNC answers, {heartbeats} HEARTBEAT", flush=True)
 
 
