@@ -7,7 +7,9 @@
 #   exact_fixed:   T_bc at the truth, held fixed (the default)
 # and prints, from stats.csv's extrinsic columns (T_bc after each keyframe's solve), the error of
 # the extrinsic at 5, 10, 20, 30 s and the end (translation cm / rotation deg), the translation
-# error per body axis at the end (cm), and the ATE. Then the medians over seeds per scenario.
+# error per body axis at the end (cm), the ATE, and (estimated runs) the translation's marginal
+# standard deviations at the end (cm) and its NEES against them (at the end, and the mean from
+# 20 s on; 3 when the estimate knows its own error). Then the medians over seeds per scenario.
 # Usage: scripts/extrinsic_conv.sh BIN OUTDIR
 #   env: SCENS (default "robot handheld flight fast vehicle"), SEEDS (default "1 2 3"),
 #        DUR (default 60), VARIANTS (default "perturbed_est exact_est exact_fixed"),
@@ -100,8 +102,10 @@ for row in csv.DictReader(open(path)):
         continue
     dp = [float(row[k]) - t for k, t in zip(("p_bc_x_m", "p_bc_y_m", "p_bc_z_m"), p_true)]
     q = [float(row[k]) for k in ("q_bc_w", "q_bc_x", "q_bc_y", "q_bc_z")]
+    sd = [float(row[k]) if row.get(k) else float("nan")
+          for k in ("p_bc_sd_x_m", "p_bc_sd_y_m", "p_bc_sd_z_m")]
     # t_s is on the sequence clock; the simulator's first IMU sample is at 1 s.
-    pts.append((float(row["t_s"]) - 1.0, dp, angle_deg(qmul(q, qinv(q_true)))))
+    pts.append((float(row["t_s"]) - 1.0, dp, angle_deg(qmul(q, qinv(q_true))), sd))
 def at(s):
     ks = [x for x in pts if x[0] <= s]
     return ks[-1] if ks else None
@@ -110,12 +114,22 @@ for s in (5, 10, 20, 30, 1e9):
     x = at(s)
     cells.append("nan/nan" if x is None else f"{100*math.hypot(*x[1]):4.2f}/{x[2]:4.2f}")
 end = [100 * x for x in pts[-1][1]] if pts else [float("nan")] * 3
+# The translation's NEES against its marginal standard deviations (per axis, correlations left
+# out; 3 when consistent): at the end, and the mean over the keyframes from 20 s on.
+def nees(x):
+    return sum((e / s) ** 2 for e, s in zip(x[1], x[3]))
+sd_end = [100 * s for s in pts[-1][3]] if pts else [float("nan")] * 3
+late = [nees(x) for x in pts if x[0] >= 20 and all(s == s for s in x[3])]
+nees_end = nees(pts[-1]) if pts else float("nan")
+nees_late = sum(late) / len(late) if late else float("nan")
 ate = "nan"
 for line in open(r + ".log"):
     if line.startswith("ATE"):
         ate = line.split()[1]
 print(f"{scen:<8} seed={seed} {v:<14} err cm/deg @5,10,20,30,end: {' '.join(cells)}"
-      f"  end dp_b cm [{end[0]:+.2f} {end[1]:+.2f} {end[2]:+.2f}]  ate={ate}")
+      f"  end dp_b cm [{end[0]:+.2f} {end[1]:+.2f} {end[2]:+.2f}]  ate={ate}"
+      f"  sd_end cm [{sd_end[0]:.2f} {sd_end[1]:.2f} {sd_end[2]:.2f}]"
+      f"  nees_p end {nees_end:.2f} mean>=20s {nees_late:.2f}")
 PY
 )" "$d/mav0/cam0/sensor.yaml" "$r" "$scen" "$seed" "$v" | tee -a "$RESULTS"
   done
@@ -125,11 +139,12 @@ import re, sys, statistics as st
 rows = {}
 for line in open(sys.argv[1]):
     m = re.match(r"(\S+)\s+seed=\S+\s+(\S+)\s+err cm/deg @5,10,20,30,end: (.*?)  end dp_b.*ate=(\S+)", line)
+    n = re.search(r"nees_p end (\S+) mean>=20s (\S+)", line)
     if not m:
         continue
     scen, v, cells, ate = m.groups()
     vals = [tuple(float(x) for x in c.split("/")) for c in cells.split()]
-    rows.setdefault((scen, v), []).append((vals, float(ate)))
+    rows.setdefault((scen, v), []).append((vals, float(ate), float(n.group(2)) if n else float("nan")))
 print("\nmedians over seeds (extrinsic error cm/deg at 5, 10, 20, 30 s, end; ATE m; ATE / exact_fixed)")
 for (scen, v), runs in rows.items():
     med = [f"{st.median(r[0][i][0] for r in runs):4.2f}/{st.median(r[0][i][1] for r in runs):4.2f}"
@@ -137,5 +152,6 @@ for (scen, v), runs in rows.items():
     ate = st.median(r[1] for r in runs)
     ref = rows.get((scen, "exact_fixed"))
     ratio = ate / st.median(r[1] for r in ref) if ref else float("nan")
-    print(f"{scen:<8} {v:<14} {' '.join(med)}  ate={ate:.4f}  x{ratio:.2f}")
+    nees = st.median(r[2] for r in runs)
+    print(f"{scen:<8} {v:<14} {' '.join(med)}  ate={ate:.4f}  x{ratio:.2f}  nees_p(>=20s)={nees:.2f}")
 PY

@@ -100,6 +100,8 @@ pub fn hash_report(h: &mut Fnv, r: &KeyframeReport) {
         td_s,
         // The configured extrinsic unless estimated (off in the golden runs).
         extrinsic: _,
+        // Estimated extrinsic only (off in the golden runs).
+        extrinsic_sd: _,
         imu_noise_scale,
         multi_view_tracks,
         multi_view_observations,

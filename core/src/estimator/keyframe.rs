@@ -74,7 +74,9 @@ impl<
         // 6. The INS continues from the newest optimized keyframe, with its covariance when
         // asked for; the open interval is re-linearized at its biases (it holds only the
         // keyframe sample so far).
-        self.kf_cov = MaybeCovariance::new(self.newest_covariance());
+        let (cov, ext_sd) = self.newest_covariance();
+        self.kf_cov = MaybeCovariance::new(cov);
+        report.extrinsic_sd = ext_sd;
         self.restart_ins(&nav, &sample)?;
         report.window_len = self.window.len() as u32;
         report.td_s = self.current_td();

@@ -75,7 +75,9 @@ pub use config::{
 };
 pub use imu_noise::ImuNoiseAdapt;
 pub use predict::FeaturePrediction;
-pub use report::{Admission, Breakdown, Counters, DepthEvent, DepthEventKind, KeyframeReport};
+pub use report::{
+    Admission, Breakdown, Counters, DepthEvent, DepthEventKind, ExtrinsicSd, KeyframeReport,
+};
 pub use timing::{IMU_QUEUE, PENDING_LIDAR_POINTS, PENDING_SWEEPS};
 
 use crate::camera::{CameraExtrinsic, FeatureObs};

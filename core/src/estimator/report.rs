@@ -4,6 +4,20 @@ use crate::camera::CameraExtrinsic;
 use crate::frontend::KeyframeDecision;
 use crate::solver::Termination;
 
+/// The marginal standard deviations of the estimated camera-IMU extrinsic `T_bc`
+/// ([`crate::camera::CameraExtrinsic`]): the square roots of the diagonal of its block of the
+/// window's inverse information after a solve (`estimator::covariance`), in the estimator's own
+/// model (the configured pixel and IMU noise, the marginalization prior's gauge). Translation
+/// along the body axes; rotation about the camera axes (the estimate is perturbed as
+/// `q_bc Exp(dtheta)`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ExtrinsicSd {
+    /// `p_bc` (camera origin in the body frame), m.
+    pub p_bc_m: [f64; 3],
+    /// `q_bc`, rad.
+    pub r_bc_rad: [f64; 3],
+}
+
 /// Statistics of one keyframe's back-end step.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct KeyframeReport {
@@ -104,6 +118,10 @@ pub struct KeyframeReport {
     /// [`super::EstimatorConfig::estimate_extrinsic`], else the configured one. `None` when the
     /// step did not finish (the window broke down).
     pub extrinsic: Option<CameraExtrinsic>,
+    /// The extrinsic's marginal standard deviations after the solve, when
+    /// [`super::EstimatorConfig::estimate_extrinsic`] (`None` otherwise, or when the window's
+    /// information leaves a direction at or after the extrinsic's columns unconstrained).
+    pub extrinsic_sd: Option<ExtrinsicSd>,
     /// Factor on the IMU white-noise densities after this keyframe (`estimator::imu_noise`; 1
     /// until the window has measured the IMU against the camera).
     pub imu_noise_scale: f64,

@@ -104,8 +104,10 @@ pub const STATS_ADMISSION_COLUMNS: &str =
 
 /// The camera-IMU extrinsic columns appended to `stats.csv`: `T_bc` after the keyframe's solve
 /// (the estimate with `estimate_extrinsic`, else the configured one; empty when the window broke
-/// down at that keyframe).
-pub const STATS_EXTRINSIC_COLUMNS: &str = "p_bc_x_m,p_bc_y_m,p_bc_z_m,q_bc_w,q_bc_x,q_bc_y,q_bc_z";
+/// down at that keyframe), then the estimate's marginal standard deviations
+/// (`core::estimator::ExtrinsicSd`: translation along the body axes, rotation about the camera
+/// axes; empty unless estimated).
+pub const STATS_EXTRINSIC_COLUMNS: &str = "p_bc_x_m,p_bc_y_m,p_bc_z_m,q_bc_w,q_bc_x,q_bc_y,q_bc_z,p_bc_sd_x_m,p_bc_sd_y_m,p_bc_sd_z_m,r_bc_sd_x_rad,r_bc_sd_y_rad,r_bc_sd_z_rad";
 
 /// The header of `stats.csv` (a row per keyframe).
 fn stats_header() -> String {
@@ -190,6 +192,14 @@ fn write_stats_row(
             }
         }
         None => write!(f, ",,,,,,,")?,
+    }
+    match &r.extrinsic_sd {
+        Some(sd) => {
+            for v in sd.p_bc_m.iter().chain(&sd.r_bc_rad) {
+                write!(f, ",{v:.6e}")?;
+            }
+        }
+        None => write!(f, ",,,,,,")?,
     }
     writeln!(f, ",{}", r.solve_work)
 }
