@@ -1,3 +1,5 @@
+//! Unit tests of `covariance`, compiled only with `#[cfg(test)]` (the parent declares the module so).
+
 use super::*;
 use crate::inertial::increment::{two_sample, two_sample_bias_jacobians, Increment};
 use crate::inertial::{ImuSample, Ins, InsConfig, NavState};

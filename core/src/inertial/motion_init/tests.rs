@@ -1,5 +1,6 @@
 //! The solver on exact synthetic data: an accelerating, rotating trajectory seen by a camera
 //! with a lever arm, and the degenerate starts it must refuse.
+//! (Compiled only with `#[cfg(test)]`: the parent declares the module so.)
 
 use super::*;
 use crate::math::Quat;
