@@ -131,11 +131,36 @@ fn perturbed_extrinsic_converges_on_a_simulated_fast_flight() {
     // correlations left out: 3 when consistent; the estimator is overconfident on this
     // scenario, BENCHMARKS.md "its NEES": 60 s runs 8.8-9.6 at the median, so the bound is
     // loose, but a deviation in the wrong unit or of the wrong block is off by orders).
+    // The run's summary says where it ended: the same `T_bc` and deviations, on screen and in
+    // `summary.json`.
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("extrinsic p_bc"))
+        .unwrap_or_else(|| panic!("no extrinsic line in\n{stdout}"));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let end = &summary["extrinsic_end"];
+    let num = |v: &serde_json::Value, i: usize| v[i].as_f64().unwrap();
+    for i in 0..3 {
+        assert!(
+            (num(&end["p_bc_m"], i) - p[i]).abs() < 1e-9,
+            "{end} against {p:?}"
+        );
+    }
+    assert!(line.contains(&format!("{:.2}", 100.0 * p.x)), "{line}");
+
     let (first, last) = first_and_last_sd(&out.join("stats.csv"));
     assert!(
         first.iter().chain(&last).all(|v| v.is_finite() && *v > 0.0),
         "{first:?} {last:?}"
     );
+    for i in 0..3 {
+        assert!(
+            (num(&end["p_bc_sd_m"], i) - last[i]).abs() <= 1e-6 * last[i],
+            "{end}"
+        );
+        assert!((num(&end["r_bc_sd_rad"], i) - last[3 + i]).abs() <= 1e-6 * last[3 + i]);
+    }
     assert!(
         (0..3).all(|i| last[i] < first[i]) && (3..6).all(|i| last[i] < first[i]),
         "the deviations did not shrink: {first:?} -> {last:?}"

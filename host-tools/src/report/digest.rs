@@ -37,6 +37,8 @@ pub struct RunDigest {
     pub(super) window_use: WindowUseDigest,
     /// The last report's camera-IMU delay (s) and IMU noise factor.
     pub(super) last: Option<(f64, f64)>,
+    /// The last estimated extrinsic and its deviations (with `estimate_extrinsic`).
+    pub(super) last_extrinsic: Option<super::ExtrinsicEnd>,
     /// Sums over the keyframes of the depths associated, rejected and used in the solve.
     pub(super) depth_sums: [f64; 3],
     /// The image front end's figures.
@@ -152,6 +154,9 @@ impl RunSink for RunDigest {
         self.landmarks_used.push(r.landmarks_used);
         self.window_use.push(r);
         self.last = Some((r.td_s, r.imu_noise_scale));
+        if let (Some(e), Some(sd)) = (r.extrinsic, r.extrinsic_sd) {
+            self.last_extrinsic = Some(super::ExtrinsicEnd::new(&e, &sd));
+        }
         let depths = [r.depths_associated, r.depths_rejected, r.ldm_count];
         for (sum, n) in self.depth_sums.iter_mut().zip(depths) {
             *sum += f64::from(n);

@@ -32,6 +32,36 @@ use povins_platform::recording::Recording;
 use povins_platform::trajectory::StampedPose;
 use spill::PoseLog;
 
+/// The extrinsic estimated online at the end of a run ([`Summary::extrinsic_end`]): `T_bc` and
+/// its marginal standard deviations (`core::estimator::ExtrinsicSd`: translation along the body
+/// axes, rotation about the camera axes).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ExtrinsicEnd {
+    /// Camera origin in the body frame, m.
+    pub p_bc_m: [f64; 3],
+    /// Rotation camera -> body, quaternion `[x, y, z, w]`.
+    pub q_bc_xyzw: [f64; 4],
+    /// Standard deviations of `p_bc`, m.
+    pub p_bc_sd_m: [f64; 3],
+    /// Standard deviations of the rotation, rad.
+    pub r_bc_sd_rad: [f64; 3],
+}
+
+impl ExtrinsicEnd {
+    fn new(
+        e: &povins_core::camera::CameraExtrinsic,
+        sd: &povins_core::estimator::ExtrinsicSd,
+    ) -> Self {
+        let q = e.q_bc.quaternion();
+        ExtrinsicEnd {
+            p_bc_m: [e.p_bc.x, e.p_bc.y, e.p_bc.z],
+            q_bc_xyzw: [q.i, q.j, q.k, q.w],
+            p_bc_sd_m: sd.p_bc_m,
+            r_bc_sd_rad: sd.r_bc_rad,
+        }
+    }
+}
+
 /// Accuracy and timing of one run, as written to `summary.json`.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Summary {
@@ -72,6 +102,9 @@ pub struct Summary {
     pub window_use: WindowUse,
     /// Camera-IMU delay of the last keyframe, ms.
     pub td_end_ms: f64,
+    /// The camera-IMU extrinsic estimated online at the last keyframe that had it, with its
+    /// deviations (`null` unless `estimate_extrinsic = true`).
+    pub extrinsic_end: Option<ExtrinsicEnd>,
     /// Factor on the IMU white-noise densities at the last keyframe (`estimator::imu_noise`).
     pub imu_noise_scale_end: f64,
     /// Feature prediction for INS-aided tracking: predicted features the next frame observes.
@@ -401,6 +434,7 @@ pub fn summarize_digest(
         landmarks_used_median: percentile(&d.landmarks_used, 50.0),
         window_use: d.window_use.figures(),
         td_end_ms: d.last.map_or(0.0, |(td_s, _)| td_s * 1e3),
+        extrinsic_end: d.last_extrinsic,
         imu_noise_scale_end: d.last.map_or(1.0, |(_, scale)| scale),
         predictions: pred.len(),
         prediction_px_median: pred.percentile(50.0),

@@ -75,6 +75,21 @@ pub fn print_summary(s: &Summary, out_dir: &Path) {
         "imu       white-noise densities x{:.2} (measured by the window), delay td {:.2} ms at the end",
         s.imu_noise_scale_end, s.td_end_ms
     );
+    if let Some(e) = &s.extrinsic_end {
+        let cm = |v: [f64; 3]| v.map(|x| format!("{:.2}", 100.0 * x)).join(", ");
+        let deg = |v: [f64; 3]| v.map(|x| format!("{:.3}", x.to_degrees())).join(", ");
+        println!(
+            "extrinsic p_bc [{}] cm, sd [{}] cm (body axes); rotation sd [{}] deg (camera axes); \
+             q_bc [x y z w] [{:.6}, {:.6}, {:.6}, {:.6}]",
+            cm(e.p_bc_m),
+            cm(e.p_bc_sd_m),
+            deg(e.r_bc_sd_rad),
+            e.q_bc_xyzw[0],
+            e.q_bc_xyzw[1],
+            e.q_bc_xyzw[2],
+            e.q_bc_xyzw[3]
+        );
+    }
     if let Some(fe) = &s.image_frontend {
         for line in summary_lines(fe) {
             println!("{line}");
